@@ -1,0 +1,106 @@
+//! Ordinary least squares of `y` on `x`, with the standard error of the slope:
+//! the regression behind every exponent (SPEC §4, §7, §8).
+
+use serde::{Deserialize, Serialize};
+
+/// Result of a straight-line fit `y = intercept + slope x`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LineFit {
+    pub slope: f64,
+    pub intercept: f64,
+    /// Standard error of the slope from the residuals (NaN with < 3 points).
+    pub slope_stderr: f64,
+    /// Coefficient of determination (1 for a perfect line; NaN if y is constant).
+    pub r2: f64,
+    /// Number of points used.
+    pub n: usize,
+}
+
+/// Least-squares fit over the points where both `x` and `y` are finite.
+/// Returns `None` with fewer than 2 usable points or when all `x` coincide.
+pub fn line_fit(x: &[f64], y: &[f64]) -> Option<LineFit> {
+    assert_eq!(x.len(), y.len(), "line_fit: x and y lengths differ");
+    let pts: Vec<(f64, f64)> = x
+        .iter()
+        .zip(y)
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .map(|(a, b)| (*a, *b))
+        .collect();
+    let n = pts.len();
+    if n < 2 {
+        return None;
+    }
+    let nf = n as f64;
+    let mx = pts.iter().map(|p| p.0).sum::<f64>() / nf;
+    let my = pts.iter().map(|p| p.1).sum::<f64>() / nf;
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for &(a, b) in &pts {
+        sxx += (a - mx) * (a - mx);
+        sxy += (a - mx) * (b - my);
+        syy += (b - my) * (b - my);
+    }
+    if sxx <= 0.0 {
+        return None;
+    }
+    let slope = sxy / sxx;
+    let intercept = my - slope * mx;
+    let sse = (syy - slope * sxy).max(0.0);
+    let slope_stderr = if n > 2 {
+        (sse / (nf - 2.0) / sxx).sqrt()
+    } else {
+        f64::NAN
+    };
+    let r2 = if syy > 0.0 { 1.0 - sse / syy } else { f64::NAN };
+    Some(LineFit {
+        slope,
+        intercept,
+        slope_stderr,
+        r2,
+        n,
+    })
+}
+
+/// Mean and sample standard deviation (NaN for fewer than 2 values).
+pub fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    if v.len() < 2 {
+        return (m, f64::NAN);
+    }
+    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
+    (m, var.sqrt())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exact_line() {
+        let x = [0.0, 1.0, 2.0, 3.0];
+        let y: Vec<f64> = x.iter().map(|v| 2.0 - 0.5 * v).collect();
+        let f = line_fit(&x, &y).unwrap();
+        assert!((f.slope + 0.5).abs() < 1e-14 && (f.intercept - 2.0).abs() < 1e-14);
+        assert!(f.slope_stderr < 1e-12 && (f.r2 - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn stderr_matches_textbook() {
+        // y = x + e with e = (+1, -1, -1, +1): slope 1, sse = 4 - 0 (e ⟂ x - mean? no)
+        let x = [0.0, 1.0, 2.0, 3.0];
+        let e = [1.0, -1.0, -1.0, 1.0];
+        let y: Vec<f64> = x.iter().zip(e).map(|(a, b)| a + b).collect();
+        let f = line_fit(&x, &y).unwrap();
+        // e is orthogonal to (x - 1.5), so the slope is exactly 1 and sse = 4
+        assert!((f.slope - 1.0).abs() < 1e-14);
+        let expect = (4.0 / 2.0 / 5.0f64).sqrt();
+        assert!((f.slope_stderr - expect).abs() < 1e-14);
+    }
+
+    #[test]
+    fn degenerate() {
+        assert!(line_fit(&[1.0], &[2.0]).is_none());
+        assert!(line_fit(&[1.0, 1.0], &[2.0, 3.0]).is_none());
+        assert!(line_fit(&[0.0, f64::NAN, 1.0], &[0.0, 5.0, 1.0]).is_some());
+    }
+}

@@ -1,0 +1,33 @@
+//! Synthetic fields with known multifractal spectra (SPEC §9): the ground
+//! truth every estimator is validated against. Every generator takes a seed;
+//! image `i` of an ensemble uses [`image_seed`]`(seed, i)`, so the same seed
+//! gives the same bytes whatever the thread count or the order of generation.
+
+pub mod fbm;
+
+use rand::SeedableRng;
+use rand::rngs::Xoshiro256PlusPlus;
+
+/// The generator behind every synthetic field: xoshiro256++, a documented
+/// algorithm whose output does not change between rand versions (unlike
+/// `StdRng`).
+pub type SynthRng = Xoshiro256PlusPlus;
+
+/// SplitMix64 finaliser (Steele, Lea & Flood 2014), used to derive
+/// well-separated seeds.
+pub fn splitmix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Seed of image `index` in an ensemble started with `seed`.
+pub fn image_seed(seed: u64, index: u64) -> u64 {
+    splitmix64(seed ^ splitmix64(index.wrapping_add(0x5851_F42D_4C95_7F2D)))
+}
+
+/// A generator seeded for image `index` of the ensemble `seed`.
+pub fn rng_for(seed: u64, index: u64) -> SynthRng {
+    SynthRng::seed_from_u64(image_seed(seed, index))
+}
