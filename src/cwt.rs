@@ -272,7 +272,7 @@ impl CwtPlan {
         let ky: Vec<f64> = (0..ny).map(|m| freq(m, ny)).collect();
         let nyq = |k: &Vec<f64>, n: usize| -> Vec<f64> {
             let mut d = k.clone();
-            if n % 2 == 0 {
+            if n.is_multiple_of(2) {
                 d[n / 2] = 0.0;
             }
             d

@@ -9,6 +9,9 @@
 //! (`skeleton`) → partition sums → spectra τ(q), h(q), D(q), D(h)
 //! (`spectra`). The library never prints; the `wtmm` binary ([`cli`]) formats.
 
+// `!(x > 0.0)` is how we reject NaN together with out-of-range values.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod cli;
 pub mod cwt;
 pub mod error;

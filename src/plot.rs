@@ -193,10 +193,14 @@ where
                 .map_err(|x| e(&x))?;
         }
         if let Some(err) = &s.y_err {
-            let bars = s.points.iter().zip(err).filter_map(|(&(x, y), &d)| {
-                (x.is_finite() && y.is_finite() && d.is_finite())
-                    .then(|| PathElement::new(vec![(x, y - d), (x, y + d)], c.stroke_width(1)))
-            });
+            let bars = s
+                .points
+                .iter()
+                .zip(err)
+                .filter(|&(&(x, y), &d)| x.is_finite() && y.is_finite() && d.is_finite())
+                .map(|(&(x, y), &d)| {
+                    PathElement::new(vec![(x, y - d), (x, y + d)], c.stroke_width(1))
+                });
             ctx.draw_series(bars).map_err(|x| e(&x))?;
         }
     }

@@ -1,0 +1,96 @@
+//! Tiny bench harness: median wall time of repeated runs, and the FFT floor
+//! (bare inverse 2D complex FFTs of the image size) measured in the same run,
+//! so that ratios stay meaningful on a shared machine.
+#![allow(dead_code)]
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use num_complex::Complex64;
+use rayon::prelude::*;
+use rustfft::{Fft, FftPlanner};
+
+/// Median seconds of `reps` runs of `f` (after one warm-up run).
+pub fn median_secs<F: FnMut()>(reps: usize, mut f: F) -> f64 {
+    f();
+    let mut t: Vec<f64> = (0..reps)
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    t[t.len() / 2]
+}
+
+/// `count` bare inverse 2D complex FFTs of `ny x nx`: batch FFTs along one
+/// axis, a blocked transpose, batch FFTs along the other. The cheapest 2D
+/// FFT rustfft allows; the CWT cannot do less per scale.
+pub struct FftFloor {
+    ny: usize,
+    nx: usize,
+    fy: Arc<dyn Fft<f64>>,
+    fx: Arc<dyn Fft<f64>>,
+}
+
+impl FftFloor {
+    pub fn new(ny: usize, nx: usize) -> Self {
+        let mut p = FftPlanner::new();
+        FftFloor {
+            ny,
+            nx,
+            fy: p.plan_fft_inverse(ny),
+            fx: p.plan_fft_inverse(nx),
+        }
+    }
+
+    fn one(&self, a: &mut [Complex64], b: &mut [Complex64], scratch: &mut [Complex64]) {
+        self.fy.process_with_scratch(a, scratch);
+        transpose::transpose(a, b, self.ny, self.nx);
+        self.fx.process_with_scratch(b, scratch);
+    }
+
+    fn buffers(&self) -> (Vec<Complex64>, Vec<Complex64>, Vec<Complex64>) {
+        let n = self.nx * self.ny;
+        let s = self
+            .fy
+            .get_inplace_scratch_len()
+            .max(self.fx.get_inplace_scratch_len());
+        let a = (0..n)
+            .map(|i| Complex64::new((i % 7) as f64, (i % 5) as f64))
+            .collect();
+        (
+            a,
+            vec![Complex64::default(); n],
+            vec![Complex64::default(); s],
+        )
+    }
+
+    /// `count` transforms on the calling thread.
+    pub fn run_serial(&self, count: usize) {
+        let (mut a, mut b, mut s) = self.buffers();
+        for _ in 0..count {
+            self.one(&mut a, &mut b, &mut s);
+        }
+        std::hint::black_box(&b);
+    }
+
+    /// `count` transforms spread over the rayon pool.
+    pub fn run_parallel(&self, count: usize) {
+        (0..count).into_par_iter().for_each_init(
+            || self.buffers(),
+            |(a, b, s), _| {
+                self.one(a, b, s);
+                std::hint::black_box(&b);
+            },
+        );
+    }
+}
+
+pub fn one_thread_pool() -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+}

@@ -1,0 +1,117 @@
+//! Shared CLI plumbing: lists of numbers, output directories, JSON headers,
+//! progress bars that stay quiet in scripts.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::field::Field;
+use crate::io::{read_field, write_atomic};
+
+/// Parses `start:stop:step` (inclusive) or `a,b,c`.
+pub fn parse_list(flag: &str, s: &str) -> Result<Vec<f64>> {
+    let bad = |why: &str| Error::param(flag, format!("`{s}`: {why}"));
+    let num = |t: &str| t.trim().parse::<f64>().map_err(|_| bad("not a number"));
+    let parts: Vec<&str> = s.split(':').collect();
+    let v = match parts.len() {
+        1 => s.split(',').map(num).collect::<Result<Vec<f64>>>()?,
+        3 => {
+            let (a, b, st) = (num(parts[0])?, num(parts[1])?, num(parts[2])?);
+            if !(st > 0.0) || b < a {
+                return Err(bad("need start <= stop and step > 0"));
+            }
+            let n = ((b - a) / st + 1e-9).floor() as usize;
+            if n > 100_000 {
+                return Err(bad("too many values"));
+            }
+            (0..=n).map(|i| a + i as f64 * st).collect()
+        }
+        _ => return Err(bad("use start:stop:step or a,b,c")),
+    };
+    if v.is_empty() || v.iter().any(|x| !x.is_finite()) {
+        return Err(bad("empty or non-finite"));
+    }
+    Ok(v)
+}
+
+/// Parses `LO:HI` into two numbers with LO < HI.
+pub fn parse_range(flag: &str, s: &str) -> Result<(f64, f64)> {
+    let bad = || Error::param(flag, format!("`{s}`: use LO:HI with LO < HI"));
+    let (a, b) = s.split_once(':').ok_or_else(bad)?;
+    let (a, b) = (
+        a.trim().parse::<f64>().map_err(|_| bad())?,
+        b.trim().parse::<f64>().map_err(|_| bad())?,
+    );
+    if !(a < b) {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
+
+/// Reads every image up front, so that a bad file stops the command before
+/// anything is written.
+pub fn read_all(paths: &[PathBuf]) -> Result<Vec<Field>> {
+    if paths.is_empty() {
+        return Err(Error::param("IMAGE", "no image given"));
+    }
+    paths.iter().map(|p| read_field(p)).collect()
+}
+
+/// Creates the output directory (and parents).
+pub fn make_out_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|source| Error::Write {
+        path: dir.into(),
+        source,
+    })
+}
+
+/// Pretty JSON written atomically.
+pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    let s = serde_json::to_string_pretty(value)
+        .map_err(|e| Error::format(path, format!("cannot encode JSON: {e}")))?;
+    write_atomic(path, (s + "\n").as_bytes())
+}
+
+/// CSV from a header and rows, written atomically.
+pub fn write_csv(path: &Path, header: &[&str], rows: &[Vec<String>]) -> Result<()> {
+    let mut s = header.join(",");
+    s.push('\n');
+    for r in rows {
+        s.push_str(&r.join(","));
+        s.push('\n');
+    }
+    write_atomic(path, s.as_bytes())
+}
+
+/// Formats a float for CSV (full precision, `nan` for NaN).
+pub fn f(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v}")
+    } else {
+        "nan".into()
+    }
+}
+
+/// A progress bar on a terminal, hidden in scripts or with `--quiet`.
+pub fn progress(len: u64, msg: &str, quiet: bool) -> ProgressBar {
+    if quiet || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    pb.set_message(msg.to_string());
+    pb
+}
+
+/// The object every JSON output starts from: `version`, `command`, `params`.
+/// Commands add their result keys to it.
+pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
+    serde_json::json!({"version": crate::VERSION, "command": command, "params": params})
+}

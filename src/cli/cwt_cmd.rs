@@ -1,0 +1,79 @@
+//! `wtmm cwt IMAGE --scales LIST --out DIR`: modulus and argument images.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use serde_json::json;
+
+use super::common::{header, make_out_dir, parse_list, progress, write_json};
+use super::{OutDir, Outcome};
+use crate::cwt::{CwtPlan, Wavelet, modulus_argument};
+use crate::error::{Error, Result};
+use crate::io::{read_field, write_npy};
+use crate::plot::save_grey;
+
+#[derive(Args, Debug)]
+pub struct CwtArgs {
+    /// Input image.
+    pub image: PathBuf,
+    /// Scales in pixels: `a,b,c` or `start:stop:step`.
+    #[arg(long, default_value = "2,4,8,16")]
+    pub scales: String,
+    #[arg(long, value_enum, default_value_t = Wavelet::Gauss)]
+    pub wavelet: Wavelet,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
+    let field = read_field(&args.image)?;
+    let scales = parse_list("scales", &args.scales)?;
+    let (ny, nx) = field.dim();
+    let plan = CwtPlan::new(ny, nx, args.wavelet, &scales)?;
+    let margin = plan.default_margin();
+    if 2 * margin >= ny.min(nx) {
+        return Err(Error::Input(format!(
+            "{}: image {ny}x{nx} is too small for scale {:.2} (interior margin {margin} px on each side)",
+            args.image.display(),
+            scales.iter().cloned().fold(0.0, f64::max)
+        )));
+    }
+    let img = field.filled()?;
+    make_out_dir(&args.out.out)?;
+    let pb = progress(scales.len() as u64, "cwt", quiet);
+    let mut files = Vec::new();
+    let mut err = None;
+    plan.for_each_scale(img.view(), |j, a, t| {
+        if err.is_some() {
+            return;
+        }
+        let (m, arg) = modulus_argument(t);
+        let stem = format!("{j:02}");
+        let r = (|| {
+            write_npy(&args.out.out.join(format!("modulus_{stem}.npy")), &m)?;
+            write_npy(&args.out.out.join(format!("argument_{stem}.npy")), &arg)?;
+            save_grey(m.view(), &args.out.out.join(format!("modulus_{stem}.png")))
+        })();
+        match r {
+            Ok(()) => files.push(json!({"index": j, "a": a, "modulus": format!("modulus_{stem}.npy"), "argument": format!("argument_{stem}.npy"), "png": format!("modulus_{stem}.png")})),
+            Err(e) => err = Some(e),
+        }
+        pb.inc(1);
+    })?;
+    pb.finish_and_clear();
+    if let Some(e) = err {
+        return Err(e);
+    }
+    let mut body = header(
+        "cwt",
+        json!({"image": args.image, "wavelet": args.wavelet, "scales": scales}),
+    );
+    body["margin"] = json!(margin);
+    body["shape"] = json!([ny, nx]);
+    body["convention"] = json!(
+        "T = a grad(phi_a * f), L1 normalisation (SPEC §1); argument = atan2(T2, T1), y down"
+    );
+    body["scales"] = json!(files);
+    write_json(&args.out.out.join("cwt.json"), &body)?;
+    Ok(Outcome::Ok)
+}
