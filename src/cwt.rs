@@ -460,14 +460,30 @@ impl CwtPlan {
         R: Send,
         F: Fn(usize, f64, &Array2<Complex64>) -> R + Sync + Send,
     {
+        self.par_map_scales_init(img, || (), |_, j, a, t| f(j, a, t))
+    }
+
+    /// As [`par_map_scales`](Self::par_map_scales), with per-worker state
+    /// `S` (the consumer's scratch buffers) created by `init`.
+    pub fn par_map_scales_init<S, R, I, F>(
+        &self,
+        img: ArrayView2<f64>,
+        init: I,
+        f: F,
+    ) -> Result<Vec<R>>
+    where
+        R: Send,
+        I: Fn() -> S + Sync + Send,
+        F: Fn(&mut S, usize, f64, &Array2<Complex64>) -> R + Sync + Send,
+    {
         let fi = self.forward(img)?;
         Ok((0..self.scales.len())
             .into_par_iter()
             .map_init(
-                || self.workspace(),
-                |ws, j| {
+                || (self.workspace(), init()),
+                |(ws, st), j| {
                     let t = self.scale(&fi, j, ws);
-                    f(j, self.scales[j], t)
+                    f(st, j, self.scales[j], t)
                 },
             )
             .collect())

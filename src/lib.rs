@@ -6,7 +6,7 @@
 //!
 //! Data flows one way: image ([`io`], [`field::Field`]) → continuous wavelet
 //! transform ([`cwt`]) → maxima, chains, WTMMM and maxima lines
-//! (`skeleton`) → partition sums → spectra τ(q), h(q), D(q), D(h)
+//! ([`skeleton`]) → partition sums → spectra τ(q), h(q), D(q), D(h)
 //! (`spectra`). The library never prints; the `wtmm` binary ([`cli`]) formats.
 
 // `!(x > 0.0)` is how we reject NaN together with out-of-range values.
@@ -18,6 +18,7 @@ pub mod error;
 pub mod field;
 pub mod io;
 pub mod plot;
+pub mod skeleton;
 pub mod stats;
 pub mod synth;
 

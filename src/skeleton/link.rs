@@ -1,0 +1,227 @@
+//! Linking WTMMM across scales into maxima lines (SPEC §3).
+//!
+//! From `a_min` upward, each line alive at `a_j` looks for the WTMMM of
+//! `a_{j+1}` inside a search box and a modulus-ratio window, takes the
+//! nearest; links are one-to-one and when two lines want the same candidate
+//! the nearer wins (ties: the lower line id) and the other line ends. Lines
+//! are born only at `a_min`. Only the previous scale's line ends and the
+//! current scale's WTMMM are needed, so linking streams with the CWT.
+
+use serde::{Deserialize, Serialize};
+
+use super::maxima::ScaleMaxima;
+
+/// Half-width of the square search box, in pixels, as a function of scale.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "rule", rename_all = "lowercase")]
+pub enum SearchRadius {
+    /// The reference implementation's box, `min(cap, 2 log2(6.98 a))`
+    /// (SPEC §3; about 6.8 px at a = 1.5, capped at 7 px).
+    Reference { cap: f64 },
+    /// `max(min, factor * a)`: proportional to scale.
+    Proportional { factor: f64, min: f64 },
+}
+
+impl Default for SearchRadius {
+    fn default() -> Self {
+        SearchRadius::Reference { cap: 7.0 }
+    }
+}
+
+impl SearchRadius {
+    /// Half-width in pixels at scale `a`.
+    pub fn at(&self, a: f64) -> f64 {
+        match *self {
+            SearchRadius::Reference { cap } => (2.0 * (6.98 * a).log2()).min(cap).max(1.0),
+            SearchRadius::Proportional { factor, min } => (factor * a).max(min),
+        }
+    }
+}
+
+/// One point of a maxima line.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinePoint {
+    pub x: u32,
+    pub y: u32,
+    /// Modulus at this scale.
+    pub m: f64,
+    /// Running sup of the modulus from `a_min` up to this scale (SPEC §4 sup rule).
+    pub sup: f64,
+    /// Argument A.
+    pub arg: f64,
+}
+
+/// A maxima line born at `a_min`: `points[j]` is its WTMMM at scale `j`;
+/// it dies after `points.len()` scales.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MaximaLine {
+    pub points: Vec<LinePoint>,
+}
+
+/// Linking parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkParams {
+    pub radius: SearchRadius,
+    /// Accept a candidate only when `lo < M_up / M_down < hi`.
+    pub ratio: (f64, f64),
+}
+
+impl Default for LinkParams {
+    fn default() -> Self {
+        LinkParams {
+            radius: SearchRadius::default(),
+            ratio: (0.8, 1.25),
+        }
+    }
+}
+
+/// Streaming linker: feed scales in order with [`Linker::push`].
+pub struct Linker {
+    params: LinkParams,
+    lines: Vec<MaximaLine>,
+    /// Lines alive at the last pushed scale.
+    alive: Vec<u32>,
+    next_scale: usize,
+    // reused buffers
+    grid: Vec<u32>,
+    grid_start: Vec<u32>,
+    want: Vec<(u32, f64)>,
+    owner: Vec<(u32, f64)>,
+}
+
+impl Linker {
+    pub fn new(params: LinkParams) -> Self {
+        Linker {
+            params,
+            lines: Vec::new(),
+            alive: Vec::new(),
+            next_scale: 0,
+            grid: Vec::new(),
+            grid_start: Vec::new(),
+            want: Vec::new(),
+            owner: Vec::new(),
+        }
+    }
+
+    /// Lines alive after the last push.
+    pub fn alive(&self) -> usize {
+        self.alive.len()
+    }
+
+    /// Adds the WTMMM of the next scale. At scale 0 every WTMMM starts a line.
+    ///
+    /// **Panics** if scales are pushed out of order.
+    pub fn push(&mut self, sm: &ScaleMaxima) {
+        assert_eq!(sm.j, self.next_scale, "scales must be pushed in order");
+        self.next_scale += 1;
+        if sm.j == 0 {
+            for w in &sm.wtmmm {
+                self.alive.push(self.lines.len() as u32);
+                self.lines.push(MaximaLine {
+                    points: vec![LinePoint {
+                        x: w.x,
+                        y: w.y,
+                        m: w.m,
+                        sup: w.m,
+                        arg: w.arg,
+                    }],
+                });
+            }
+            return;
+        }
+        let r = self.params.radius.at(sm.a);
+        let (lo, hi) = self.params.ratio;
+        let ri = r.floor() as i64;
+        // bucket the candidates on a grid of cell size `cell`
+        let cell = (ri.max(1) + 1) as u32;
+        let gx = sm.wtmmm.iter().map(|w| w.x / cell).max().unwrap_or(0) + 1;
+        let gy = sm.wtmmm.iter().map(|w| w.y / cell).max().unwrap_or(0) + 1;
+        let ncell = (gx * gy) as usize;
+        self.grid_start.clear();
+        self.grid_start.resize(ncell + 1, 0);
+        for w in &sm.wtmmm {
+            self.grid_start[((w.y / cell) * gx + w.x / cell) as usize + 1] += 1;
+        }
+        for i in 0..ncell {
+            self.grid_start[i + 1] += self.grid_start[i];
+        }
+        self.grid.clear();
+        self.grid.resize(sm.wtmmm.len(), 0);
+        let mut fill = self.grid_start.clone();
+        for (k, w) in sm.wtmmm.iter().enumerate() {
+            let c = ((w.y / cell) * gx + w.x / cell) as usize;
+            self.grid[fill[c] as usize] = k as u32;
+            fill[c] += 1;
+        }
+        // each alive line's nearest acceptable candidate
+        self.want.clear();
+        for &l in &self.alive {
+            let last = *self.lines[l as usize]
+                .points
+                .last()
+                .expect("lines are never empty");
+            let (cx, cy) = (last.x / cell, last.y / cell);
+            let mut best = (u32::MAX, f64::INFINITY);
+            for yy in cy.saturating_sub(1)..=(cy + 1).min(gy - 1) {
+                for xx in cx.saturating_sub(1)..=(cx + 1).min(gx - 1) {
+                    let c = (yy * gx + xx) as usize;
+                    for &k in
+                        &self.grid[self.grid_start[c] as usize..self.grid_start[c + 1] as usize]
+                    {
+                        let w = &sm.wtmmm[k as usize];
+                        let (dx, dy) = (w.x as i64 - last.x as i64, w.y as i64 - last.y as i64);
+                        if dx.abs() > ri || dy.abs() > ri {
+                            continue;
+                        }
+                        let ratio = w.m / last.m;
+                        if !(ratio > lo && ratio < hi) {
+                            continue;
+                        }
+                        let d2 = (dx * dx + dy * dy) as f64;
+                        if d2 < best.1 || (d2 == best.1 && k < best.0) {
+                            best = (k, d2);
+                        }
+                    }
+                }
+            }
+            self.want.push(best);
+        }
+        // resolve contested candidates: the nearer line wins, ties to the lower id
+        self.owner.clear();
+        self.owner.resize(sm.wtmmm.len(), (u32::MAX, f64::INFINITY));
+        for (i, &(k, d2)) in self.want.iter().enumerate() {
+            if k == u32::MAX {
+                continue;
+            }
+            let o = &mut self.owner[k as usize];
+            let l = self.alive[i];
+            if d2 < o.1 || (d2 == o.1 && l < o.0) {
+                *o = (l, d2);
+            }
+        }
+        let mut next_alive = Vec::with_capacity(self.alive.len());
+        for (i, &(k, _)) in self.want.iter().enumerate() {
+            let l = self.alive[i];
+            if k == u32::MAX || self.owner[k as usize].0 != l {
+                continue; // the line ends here
+            }
+            let w = &sm.wtmmm[k as usize];
+            let line = &mut self.lines[l as usize];
+            let sup = line.points.last().expect("non-empty").sup.max(w.m);
+            line.points.push(LinePoint {
+                x: w.x,
+                y: w.y,
+                m: w.m,
+                sup,
+                arg: w.arg,
+            });
+            next_alive.push(l);
+        }
+        self.alive = next_alive;
+    }
+
+    /// The finished lines.
+    pub fn finish(self) -> Vec<MaximaLine> {
+        self.lines
+    }
+}

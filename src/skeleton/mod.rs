@@ -1,0 +1,386 @@
+//! The WT skeleton (SPEC §2-§3; II §3): WTMM by non-maximum suppression,
+//! maxima chains, their local maxima (WTMMM), and maxima lines linking the
+//! WTMMM across scales from `a_min` upward.
+//!
+//! The skeleton is built while the CWT streams scales: detection at one scale
+//! needs only that scale's transform, linking needs only the previous scale's
+//! line ends. [`Parallelism::Scales`] detects scales in parallel (one
+//! workspace per worker) and links serially; the result is bit-identical to
+//! the serial path because each scale is detected by the same code.
+//!
+//! ```
+//! use ndarray::Array2;
+//! use wtmm::skeleton::{AnalysisConfig, skeleton};
+//! use wtmm::Field;
+//! // a disc: at every scale one closed chain around it
+//! let img = Array2::from_shape_fn((128, 128), |(y, x)| {
+//!     let (dx, dy) = (x as f64 - 64.0, y as f64 - 64.0);
+//!     if dx * dx + dy * dy < 400.0 { 1.0 } else { 0.0 }
+//! });
+//! let cfg = AnalysisConfig { octaves: 2, margin: Some(20), ..Default::default() };
+//! let sk = skeleton(&Field::new(img), &cfg).unwrap();
+//! assert_eq!(sk.scales.len(), 20);
+//! assert!(sk.per_scale.iter().all(|s| s.wtmmm > 0));
+//! ```
+
+pub mod link;
+pub mod maxima;
+
+use ndarray::Array2;
+use serde::{Deserialize, Serialize};
+
+pub use link::{LinePoint, LinkParams, Linker, MaximaLine, SearchRadius};
+pub use maxima::{Chain, DetectScratch, Domain, ScaleMaxima, Wtmmm, detect};
+
+use crate::cwt::{CwtPlan, ScaleGrid, Wavelet, default_margin};
+use crate::error::{Error, Result};
+use crate::field::Field;
+
+/// How the work of one image is spread.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Parallelism {
+    /// Stream the scales on the calling thread (use when images are
+    /// processed in parallel).
+    Serial,
+    /// Detect maxima of all scales in parallel (rayon), link serially.
+    Scales,
+}
+
+/// Everything that defines the skeleton of an image (serialised into every
+/// output).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AnalysisConfig {
+    pub wavelet: Wavelet,
+    pub a_min: f64,
+    pub octaves: usize,
+    pub voices: usize,
+    /// Explicit scales (pixels) instead of the dyadic grid.
+    pub scales: Option<Vec<f64>>,
+    /// Interior margin in pixels; `None` = [`default_margin`] for the wavelet
+    /// and the largest scale.
+    pub margin: Option<usize>,
+    /// Moduli below `eps * max M` are ignored (SPEC §2).
+    pub eps: f64,
+    pub link: LinkParams,
+}
+
+impl Default for AnalysisConfig {
+    fn default() -> Self {
+        let g = ScaleGrid::default();
+        AnalysisConfig {
+            wavelet: Wavelet::Gauss,
+            a_min: g.a_min,
+            octaves: g.octaves,
+            voices: g.voices,
+            scales: None,
+            margin: None,
+            eps: 1e-7,
+            link: LinkParams::default(),
+        }
+    }
+}
+
+impl AnalysisConfig {
+    /// **Errors** naming the parameter that is out of range.
+    pub fn validate(&self) -> Result<()> {
+        if let Some(s) = &self.scales {
+            if s.is_empty() {
+                return Err(Error::param("scales", "empty list"));
+            }
+            if s.windows(2).any(|w| !(w[1] > w[0])) || !(s[0] > 0.0) {
+                return Err(Error::param("scales", "must be positive and increasing"));
+            }
+        } else {
+            self.grid().validate()?;
+        }
+        if !(self.eps >= 0.0 && self.eps < 1.0) {
+            return Err(Error::param(
+                "eps",
+                format!("must be in [0, 1), got {}", self.eps),
+            ));
+        }
+        let (lo, hi) = self.link.ratio;
+        if !(lo > 0.0 && lo < 1.0 && hi > 1.0 && hi.is_finite()) {
+            return Err(Error::param(
+                "ratio",
+                format!("need 0 < lo < 1 < hi, got ({lo}, {hi})"),
+            ));
+        }
+        match self.link.radius {
+            SearchRadius::Reference { cap } if !(cap >= 1.0) => {
+                return Err(Error::param("radius", "cap must be >= 1 px"));
+            }
+            SearchRadius::Proportional { factor, min } if !(factor > 0.0 && min >= 1.0) => {
+                return Err(Error::param("radius", "need factor > 0 and min >= 1 px"));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    pub fn grid(&self) -> ScaleGrid {
+        ScaleGrid {
+            a_min: self.a_min,
+            octaves: self.octaves,
+            voices: self.voices,
+        }
+    }
+
+    /// The scales analysed, smallest first.
+    pub fn scale_list(&self) -> Vec<f64> {
+        self.scales.clone().unwrap_or_else(|| self.grid().scales())
+    }
+
+    /// The margin actually used.
+    pub fn margin_px(&self) -> usize {
+        let a_max = self.scale_list().last().copied().unwrap_or(1.0);
+        self.margin
+            .unwrap_or_else(|| default_margin(self.wavelet, a_max))
+    }
+
+    /// The analysis domain for a field: interior, minus the pixels whose
+    /// wavelet support (radius `R a`) reaches a masked pixel.
+    ///
+    /// **Errors** if the interior is empty (image smaller than the wavelet).
+    pub fn domain(&self, field: &Field) -> Result<Domain> {
+        let (ny, nx) = field.dim();
+        let margin = self.margin_px();
+        let mut d = Domain::interior(ny, nx, margin);
+        if d.is_empty() {
+            let a_max = self.scale_list().last().copied().unwrap_or(0.0);
+            return Err(Error::Input(format!(
+                "image {ny}x{nx} is smaller than the wavelet: the interior margin is {margin} px \
+                 on each side at the largest scale {a_max:.1} px (use fewer octaves or a smaller --margin)"
+            )));
+        }
+        if let Some(mask) = &field.mask {
+            d.mask_distance = Some(distance_to_mask(mask));
+            d.support = self.wavelet.support_radius();
+        }
+        Ok(d)
+    }
+}
+
+/// Counts at one scale.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ScaleCounts {
+    pub a: f64,
+    pub wtmm: usize,
+    pub chains: usize,
+    pub wtmmm: usize,
+    /// Maxima lines alive at this scale.
+    pub lines: usize,
+}
+
+/// The WT skeleton of one image.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Skeleton {
+    pub scales: Vec<f64>,
+    pub shape: (usize, usize),
+    pub margin: usize,
+    pub per_scale: Vec<ScaleCounts>,
+    pub lines: Vec<MaximaLine>,
+    /// Chains and WTMMM of the scales asked for in `keep`.
+    pub kept: Vec<ScaleMaxima>,
+}
+
+impl Skeleton {
+    /// The lines alive at scale `j` (length > j).
+    pub fn alive_at(&self, j: usize) -> impl Iterator<Item = &MaximaLine> {
+        self.lines.iter().filter(move |l| l.points.len() > j)
+    }
+}
+
+/// Builds the skeleton of one image with the default options (serial).
+///
+/// **Errors** if the image is constant-free of valid pixels, smaller than
+/// the wavelet, or a parameter is invalid. A constant image gives an empty
+/// skeleton (no error).
+pub fn skeleton(field: &Field, cfg: &AnalysisConfig) -> Result<Skeleton> {
+    skeleton_with(field, cfg, Parallelism::Serial, &[])
+}
+
+/// Builds the skeleton, keeping chains and all WTMMM of the scale indices in
+/// `keep` (for pictures).
+pub fn skeleton_with(
+    field: &Field,
+    cfg: &AnalysisConfig,
+    par: Parallelism,
+    keep: &[usize],
+) -> Result<Skeleton> {
+    cfg.validate()?;
+    let domain = cfg.domain(field)?;
+    let img = field.filled()?;
+    let scales = cfg.scale_list();
+    let (ny, nx) = field.dim();
+    let plan = CwtPlan::new(ny, nx, cfg.wavelet, &scales)?;
+    let sk = Skeleton {
+        scales: scales.clone(),
+        shape: (ny, nx),
+        margin: cfg.margin_px(),
+        ..Default::default()
+    };
+    let mut asm = Assembler {
+        linker: Linker::new(cfg.link),
+        sk,
+        keep,
+    };
+    match par {
+        Parallelism::Serial => {
+            // streaming: each scale is detected and linked before the next
+            let mut scratch = DetectScratch::default();
+            plan.for_each_scale(img.view(), |j, a, t| {
+                asm.push(detect(
+                    t,
+                    j,
+                    a,
+                    &domain,
+                    cfg.eps,
+                    keep.contains(&j),
+                    &mut scratch,
+                ));
+            })?;
+        }
+        Parallelism::Scales => {
+            let found =
+                plan.par_map_scales_init(img.view(), DetectScratch::default, |s, j, a, t| {
+                    detect(t, j, a, &domain, cfg.eps, keep.contains(&j), s)
+                })?;
+            for sm in found {
+                asm.push(sm);
+            }
+        }
+    }
+    let mut sk = asm.sk;
+    sk.lines = asm.linker.finish();
+    Ok(sk)
+}
+
+/// Links scales as they arrive and keeps the per-scale counts.
+struct Assembler<'k> {
+    linker: Linker,
+    sk: Skeleton,
+    keep: &'k [usize],
+}
+
+impl Assembler<'_> {
+    fn push(&mut self, sm: ScaleMaxima) {
+        self.linker.push(&sm);
+        self.sk.per_scale.push(ScaleCounts {
+            a: sm.a,
+            wtmm: sm.n_wtmm,
+            chains: sm.n_chains,
+            wtmmm: sm.wtmmm.len(),
+            lines: self.linker.alive(),
+        });
+        if self.keep.contains(&sm.j) {
+            self.sk.kept.push(sm);
+        }
+    }
+}
+
+/// Exact Euclidean distance from each pixel to the nearest masked pixel
+/// (Felzenszwalb & Huttenlocher 2012, two passes of the 1D squared-distance
+/// transform). Written by hand: no maintained crate offers it for ndarray.
+pub fn distance_to_mask(mask: &Array2<bool>) -> Array2<f32> {
+    let (ny, nx) = mask.dim();
+    let inf = 1e20f64;
+    let mut g = Array2::<f64>::from_elem((ny, nx), inf);
+    for ((y, x), &m) in mask.indexed_iter() {
+        if m {
+            g[[y, x]] = 0.0;
+        }
+    }
+    let mut f = vec![0.0; ny.max(nx)];
+    let mut d = vec![0.0; ny.max(nx)];
+    let mut v = vec![0usize; ny.max(nx)];
+    let mut z = vec![0.0; ny.max(nx) + 1];
+    for x in 0..nx {
+        for y in 0..ny {
+            f[y] = g[[y, x]];
+        }
+        dt1d(&f[..ny], &mut d[..ny], &mut v, &mut z);
+        for y in 0..ny {
+            g[[y, x]] = d[y];
+        }
+    }
+    for y in 0..ny {
+        for x in 0..nx {
+            f[x] = g[[y, x]];
+        }
+        dt1d(&f[..nx], &mut d[..nx], &mut v, &mut z);
+        for x in 0..nx {
+            g[[y, x]] = d[x];
+        }
+    }
+    g.mapv(|s| s.sqrt() as f32)
+}
+
+/// 1D squared-distance transform of the sampled function `f` (lower envelope
+/// of parabolas).
+fn dt1d(f: &[f64], d: &mut [f64], v: &mut [usize], z: &mut [f64]) {
+    let n = f.len();
+    if n == 0 {
+        return;
+    }
+    let mut k = 0usize;
+    v[0] = 0;
+    z[0] = f64::NEG_INFINITY;
+    z[1] = f64::INFINITY;
+    let inter = |q: usize, p: usize| {
+        ((f[q] + (q * q) as f64) - (f[p] + (p * p) as f64)) / (2.0 * (q as f64 - p as f64))
+    };
+    for q in 1..n {
+        let mut s = inter(q, v[k]);
+        // z[0] = -inf stops the loop at k = 0
+        while s <= z[k] {
+            k -= 1;
+            s = inter(q, v[k]);
+        }
+        k += 1;
+        v[k] = q;
+        z[k] = s;
+        z[k + 1] = f64::INFINITY;
+    }
+    k = 0;
+    for (q, dq) in d.iter_mut().enumerate() {
+        while z[k + 1] < q as f64 {
+            k += 1;
+        }
+        let p = v[k];
+        let dx = q as f64 - p as f64;
+        *dq = dx * dx + f[p];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn distance_transform_matches_brute_force() {
+        let (ny, nx) = (23, 31);
+        let mask = Array2::from_shape_fn((ny, nx), |(y, x)| {
+            (x * 7 + y * 13) % 29 == 0 || (x == 5 && y > 10)
+        });
+        let d = distance_to_mask(&mask);
+        for y in 0..ny {
+            for x in 0..nx {
+                let mut best = f64::INFINITY;
+                for ((yy, xx), &m) in mask.indexed_iter() {
+                    if m {
+                        let dd = ((yy as f64 - y as f64).powi(2) + (xx as f64 - x as f64).powi(2))
+                            .sqrt();
+                        best = best.min(dd);
+                    }
+                }
+                assert!(
+                    (d[[y, x]] as f64 - best).abs() < 1e-4,
+                    "({y},{x}) {} vs {best}",
+                    d[[y, x]]
+                );
+            }
+        }
+    }
+}
