@@ -19,6 +19,7 @@ pub mod field;
 pub mod io;
 pub mod plot;
 pub mod skeleton;
+pub mod spectra;
 pub mod stats;
 pub mod synth;
 

@@ -3,6 +3,7 @@
 //! `run` only maps errors to exit codes (0 ok, 1 a check failed, 2 bad usage
 //! or bad input).
 
+mod analyze_cmd;
 mod common;
 mod cwt_cmd;
 mod spectrum_cmd;
@@ -34,6 +35,8 @@ pub enum Command {
     Cwt(cwt_cmd::CwtArgs),
     /// Isotropic power spectrum and its slope beta.
     Spectrum(spectrum_cmd::SpectrumArgs),
+    /// WTMM multifractal spectra tau(q), h(q), D(q), D(h) of an ensemble.
+    Analyze(analyze_cmd::AnalyzeArgs),
 }
 
 /// Wavelet and scale-grid options shared by the analysis commands.
@@ -80,6 +83,7 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Synth(a) => synth_cmd::run(a, quiet),
         Command::Cwt(a) => cwt_cmd::run(a, quiet),
         Command::Spectrum(a) => spectrum_cmd::run(a, quiet),
+        Command::Analyze(a) => analyze_cmd::run(a, quiet),
     }
 }
 

@@ -1,0 +1,45 @@
+//! Full skeleton pipeline (CWT + maxima + chains + WTMMM + linking) on a
+//! 1024x1024 fBm image, 50 scales, against the floor of 50 bare inverse 2D
+//! complex FFTs measured in the same run. Run: `cargo bench --bench skeleton`.
+//! Target (issue 3): <= 1.6x the floor single-threaded.
+
+mod common;
+
+use common::{FftFloor, median_secs, one_thread_pool};
+use wtmm::Field;
+use wtmm::cwt::CwtPlan;
+use wtmm::skeleton::{AnalysisConfig, Parallelism, skeleton_with};
+use wtmm::synth::fbm::{FbmParams, fbm};
+
+fn main() {
+    let n = 1024;
+    let field = Field::new(fbm(FbmParams { hurst: 1.0 / 3.0 }, n, n, 1, 0).unwrap());
+    let cfg = AnalysisConfig::default();
+    let ns = cfg.scale_list().len();
+    let floor = FftFloor::new(n, n);
+    let plan = CwtPlan::new(n, n, cfg.wavelet, &cfg.scale_list()).unwrap();
+    let reps = 3;
+    println!("skeleton bench: {n}x{n}, {ns} scales, gauss, margin {} px", cfg.margin_px());
+    let pool = one_thread_pool();
+    let (t_cwt, t_sk, t_fft, lines) = pool.install(|| {
+        let c = median_secs(reps, || {
+            plan.for_each_scale(field.data.view(), |_, _, t| {
+                std::hint::black_box(t);
+            })
+            .unwrap()
+        });
+        let mut lines = 0;
+        let s = median_secs(reps, || {
+            lines = skeleton_with(&field, &cfg, Parallelism::Serial, &[]).unwrap().lines.len();
+        });
+        let f = median_secs(reps, || floor.run_serial(ns));
+        (c, s, f, lines)
+    });
+    let t_skn = median_secs(reps, || {
+        std::hint::black_box(skeleton_with(&field, &cfg, Parallelism::Scales, &[]).unwrap());
+    });
+    let t_fftn = median_secs(reps, || floor.run_parallel(ns));
+    println!("lines born at a_min: {lines}");
+    println!("1 thread : FFT floor {:7.1} ms | CWT {:7.1} ms ({:.3}x) | skeleton {:7.1} ms ({:.3}x)", 1e3 * t_fft, 1e3 * t_cwt, t_cwt / t_fft, 1e3 * t_sk, t_sk / t_fft);
+    println!("{} threads: FFT floor {:7.1} ms | skeleton {:7.1} ms ({:.3}x)", rayon::current_num_threads(), 1e3 * t_fftn, 1e3 * t_skn, t_skn / t_fftn);
+}

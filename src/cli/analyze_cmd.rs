@@ -1,0 +1,330 @@
+//! `wtmm analyze IMAGE...`: the WTMM spectra of an annealed ensemble
+//! (SPEC §4, §13), with CSVs and the four plots of II Fig 10.
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use rayon::prelude::*;
+use serde_json::json;
+
+use super::common::{f, header, make_out_dir, parse_list, parse_range, progress, write_csv};
+use super::{CwtOpts, OutDir, Outcome};
+use crate::error::{Error, Result};
+use crate::io::read_field;
+use crate::plot::{Chart, Series, Style, save_chart};
+use crate::skeleton::{AnalysisConfig, LinkParams, SearchRadius};
+use crate::spectra::{PartitionSums, Rule, Spectra, image_sums};
+
+/// Options shared by every command that builds spectra.
+#[derive(Args, Debug, Clone)]
+pub struct SpectraOpts {
+    #[command(flatten)]
+    pub cwt: CwtOpts,
+    /// q values: `start:stop:step` or `a,b,c`.
+    #[arg(long, default_value = "-4:6:0.5")]
+    pub q: String,
+    /// Fit range in octaves above a_min, `LO:HI`.
+    #[arg(long, default_value = "0:4")]
+    pub fit: String,
+    /// Use the plain modulus instead of the sup rule.
+    #[arg(long)]
+    pub plain: bool,
+    /// Linking: modulus-ratio window `LO:HI` between successive scales.
+    #[arg(long, default_value = "0.8:1.25")]
+    pub ratio: String,
+    /// Linking: cap of the search box half-width (px), reference rule min(cap, 2 log2(6.98 a)).
+    #[arg(long, default_value_t = 7.0)]
+    pub radius_cap: f64,
+}
+
+impl SpectraOpts {
+    pub fn analysis(&self) -> Result<AnalysisConfig> {
+        let g = self.cwt.grid()?;
+        let ratio = parse_range("ratio", &self.ratio)?;
+        let cfg = AnalysisConfig {
+            wavelet: self.cwt.wavelet,
+            a_min: g.a_min,
+            octaves: g.octaves,
+            voices: g.voices,
+            scales: None,
+            margin: self.cwt.margin,
+            eps: 1e-7,
+            link: LinkParams {
+                radius: SearchRadius::Reference { cap: self.radius_cap },
+                ratio,
+            },
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn q(&self) -> Result<Vec<f64>> {
+        parse_list("q", &self.q)
+    }
+
+    pub fn fit(&self) -> Result<(f64, f64)> {
+        let r = parse_range("fit", &self.fit)?;
+        if r.0 < 0.0 || r.1 > self.cwt.octaves as f64 + 1e-9 {
+            return Err(Error::param(
+                "fit",
+                format!("{}:{} must lie within 0:{} octaves", r.0, r.1, self.cwt.octaves),
+            ));
+        }
+        Ok(r)
+    }
+
+    pub fn rule(&self) -> Rule {
+        if self.plain { Rule::Plain } else { Rule::Sup }
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct AnalyzeArgs {
+    /// Input images, analysed as one annealed ensemble.
+    #[arg(required = true)]
+    pub images: Vec<PathBuf>,
+    #[command(flatten)]
+    pub opts: SpectraOpts,
+    /// Theory to draw over the estimates: `fbm:H`, e.g. `fbm:0.333`.
+    #[arg(long)]
+    pub theory: Option<String>,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+/// Closed-form curves drawn over estimates.
+pub struct TheoryCurves {
+    pub name: String,
+    pub tau: Box<dyn Fn(f64) -> f64>,
+    /// (h, D(h)) samples.
+    pub dh: Vec<(f64, f64)>,
+}
+
+fn parse_theory(s: &str) -> Result<TheoryCurves> {
+    let (model, arg) = s.split_once(':').unwrap_or((s, ""));
+    match model {
+        "fbm" => {
+            let h: f64 = arg
+                .parse()
+                .map_err(|_| Error::param("theory", format!("`{s}`: use fbm:H")))?;
+            crate::synth::fbm::FbmParams { hurst: h }.validate()?;
+            Ok(TheoryCurves {
+                name: format!("fBm H = {h}"),
+                tau: Box::new(move |q| q * h - 2.0),
+                dh: vec![(h, 2.0)],
+            })
+        }
+        _ => Err(Error::param("theory", format!("unknown model `{model}` (known: fbm:H)"))),
+    }
+}
+
+pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
+    let cfg = args.opts.analysis()?;
+    let q = args.opts.q()?;
+    let fit = args.opts.fit()?;
+    let theory = args.theory.as_deref().map(parse_theory).transpose()?;
+    let sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
+    let spectra = sums.spectra(args.opts.rule(), fit)?;
+    let other_rule = match args.opts.rule() {
+        Rule::Sup => Rule::Plain,
+        Rule::Plain => Rule::Sup,
+    };
+    let other = sums.spectra(other_rule, fit)?;
+    make_out_dir(&args.out.out)?;
+    let params = json!({
+        "images": args.images, "analysis": cfg, "q": q, "fit_octaves": fit,
+        "rule": args.opts.rule(), "theory": args.theory,
+    });
+    write_outputs(&args.out.out, "analyze", params, &sums, &spectra, &other, theory.as_ref())?;
+    for w in &spectra.warnings {
+        eprintln!("warning: {w}");
+    }
+    if !quiet {
+        eprintln!("wrote {}", args.out.out.join("spectra.json").display());
+    }
+    Ok(Outcome::Ok)
+}
+
+/// Reads and analyses every image (in parallel over images); a bad or
+/// constant image stops everything before any output is written.
+pub fn analyze_paths(paths: &[PathBuf], cfg: &AnalysisConfig, q: &[f64], quiet: bool) -> Result<PartitionSums> {
+    let pb = progress(paths.len() as u64, "analyze", quiet);
+    let parts: Vec<PartitionSums> = paths
+        .par_iter()
+        .map(|p| {
+            let field = read_field(p)?;
+            let s = image_sums(&field, cfg, q, p.display().to_string())
+                .map_err(|e| Error::format(p, e.to_string()))?;
+            if s.images[0].lines[0] == 0 {
+                return Err(Error::format(p, "no maxima lines: the image is constant or flat"));
+            }
+            pb.inc(1);
+            Ok(s)
+        })
+        .collect::<Result<_>>()?;
+    pb.finish_and_clear();
+    Ok(PartitionSums::merge_all(parts)?.expect("at least one image"))
+}
+
+fn spectra_json(s: &Spectra) -> serde_json::Value {
+    serde_json::to_value(s).expect("spectra serialise")
+}
+
+/// Writes spectra.json, sums.json, the CSVs and the four plots.
+pub fn write_outputs(
+    dir: &Path,
+    command: &str,
+    params: serde_json::Value,
+    sums: &PartitionSums,
+    s: &Spectra,
+    other: &Spectra,
+    theory: Option<&TheoryCurves>,
+) -> Result<()> {
+    let mut body = header(command, params);
+    if let (Some(obj), serde_json::Value::Object(sp)) = (body.as_object_mut(), spectra_json(s)) {
+        for (k, v) in sp {
+            obj.insert(k, v);
+        }
+    }
+    body["alternate_rule"] = json!({
+        "rule": other.rule, "tau": other.tau, "tau_stderr": other.tau_stderr,
+        "h": other.h, "D": other.d, "legendre_h": other.legendre_h, "legendre_D": other.legendre_d,
+    });
+    let i0 = s.q_index(0.0);
+    if let Some(i0) = i0.filter(|&i| s.q[i] == 0.0) {
+        body["h_q0"] = json!(s.h[i0]);
+        body["D_h_q0"] = json!(s.d[i0]);
+        body["tau_q0"] = json!(s.tau[i0]);
+    }
+    let (mut dl_max, mut n_cmp) = (0.0f64, 0);
+    for i in 1..s.q.len().saturating_sub(1) {
+        if s.h[i].is_finite() && s.legendre_h[i].is_finite() {
+            dl_max = dl_max.max((s.h[i] - s.legendre_h[i]).abs());
+            n_cmp += 1;
+        }
+    }
+    body["canonical_vs_legendre_max_abs_dh"] = json!(if n_cmp > 0 { dl_max } else { f64::NAN });
+    if let Some(t) = theory {
+        let th: Vec<f64> = s.q.iter().map(|&q| (t.tau)(q)).collect();
+        let dev: Vec<f64> = s.tau.iter().zip(&th).map(|(a, b)| a - b).collect();
+        body["theory"] = json!({"name": t.name, "tau": th, "tau_minus_theory": dev});
+    }
+    crate::cli::common::write_json(&dir.join("spectra.json"), &body)?;
+    crate::cli::common::write_json(&dir.join("sums.json"), sums)?;
+    let rows: Vec<Vec<String>> = (0..s.q.len())
+        .map(|i| {
+            vec![
+                f(s.q[i]),
+                f(s.tau[i]),
+                f(s.tau_stderr[i]),
+                f(s.tau_r2[i]),
+                f(s.h[i]),
+                f(s.h_stderr[i]),
+                f(s.d[i]),
+                f(s.d_stderr[i]),
+                f(s.legendre_h[i]),
+                f(s.legendre_d[i]),
+            ]
+        })
+        .collect();
+    write_csv(
+        &dir.join("tau.csv"),
+        &["q", "tau", "tau_stderr", "tau_r2", "h", "h_stderr", "D", "D_stderr", "legendre_h", "legendre_D"],
+        &rows,
+    )?;
+    let mut hdr = vec!["q".to_string()];
+    hdr.extend(s.log2_scales.iter().map(|l| format!("log2a={l:.4}")));
+    let hdr_ref: Vec<&str> = hdr.iter().map(|x| x.as_str()).collect();
+    for (name, table) in [("logZ.csv", &s.log2_z), ("hqa.csv", &s.h_qa), ("Dqa.csv", &s.d_qa)] {
+        let rows: Vec<Vec<String>> = s
+            .q
+            .iter()
+            .zip(table)
+            .map(|(q, r)| std::iter::once(f(*q)).chain(r.iter().map(|v| f(*v))).collect())
+            .collect();
+        write_csv(&dir.join(name), &hdr_ref, &rows)?;
+    }
+    plot_spectra(dir, s, theory)
+}
+
+/// II Fig 10: (a) log2 Z vs log2 a, (b) h(q, a) vs log2 a, (c) tau(q), (d) D(h).
+pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> Result<()> {
+    let nq = s.q.len();
+    // a readable subset of q: about 9 curves
+    let step = nq.div_ceil(9).max(1);
+    let shown: Vec<usize> = (0..nq).step_by(step).collect();
+    let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
+    let mut za = Chart {
+        title: format!("(a) partition functions, {} image(s), {:?} rule", s.images, s.rule),
+        x_label: "log2 a".into(),
+        y_label: "log2 Z(q, a)".into(),
+        ..Default::default()
+    };
+    let mut hb = Chart {
+        title: "(b) h(q, a)".into(),
+        x_label: "log2 a".into(),
+        y_label: "h(q, a) = Σ W log2 M".into(),
+        ..Default::default()
+    };
+    for (k, &qi) in shown.iter().enumerate() {
+        let c = k;
+        let pts: Vec<(f64, f64)> = s.log2_scales.iter().cloned().zip(s.log2_z[qi].iter().cloned()).collect();
+        za.series.push(Series::new(format!("q = {}", s.q[qi]), pts, Style::Markers, c));
+        let pts_h: Vec<(f64, f64)> = s.log2_scales.iter().cloned().zip(s.h_qa[qi].iter().cloned()).collect();
+        hb.series.push(Series::new(format!("q = {}", s.q[qi]), pts_h, Style::Markers, c));
+        // fitted lines over the fit range, through the mean of the fitted points
+        for (chart, slope, vals) in [(&mut za, s.tau[qi], &s.log2_z[qi]), (&mut hb, s.h[qi], &s.h_qa[qi])] {
+            let sel: Vec<(f64, f64)> = s
+                .log2_scales
+                .iter()
+                .cloned()
+                .zip(vals.iter().cloned())
+                .filter(|(x, y)| *x >= lo - 1e-9 && *x <= hi + 1e-9 && y.is_finite())
+                .collect();
+            if sel.is_empty() || !slope.is_finite() {
+                continue;
+            }
+            let mx = sel.iter().map(|p| p.0).sum::<f64>() / sel.len() as f64;
+            let my = sel.iter().map(|p| p.1).sum::<f64>() / sel.len() as f64;
+            chart.series.push(Series::new("", vec![(lo, my + slope * (lo - mx)), (hi, my + slope * (hi - mx))], Style::Line, c));
+        }
+    }
+    save_chart(&za, &dir.join("logZ.png"))?;
+    save_chart(&hb, &dir.join("hqa.png"))?;
+    let mut tc = Chart {
+        title: format!("(c) tau(q), fit {:.1}-{:.1} px", s.fit_scales.0, s.fit_scales.1),
+        x_label: "q".into(),
+        y_label: "tau(q)".into(),
+        ..Default::default()
+    };
+    tc.series.push(
+        Series::new("estimate", s.q.iter().cloned().zip(s.tau.iter().cloned()).collect(), Style::Markers, 0)
+            .with_errors(s.tau_stderr.clone()),
+    );
+    let mut dc = Chart {
+        title: "(d) D(h)".into(),
+        x_label: "h".into(),
+        y_label: "D(h)".into(),
+        ..Default::default()
+    };
+    dc.series.push(Series::new(
+        "canonical h(q), D(q)",
+        s.h.iter().cloned().zip(s.d.iter().cloned()).collect(),
+        Style::Markers,
+        0,
+    ));
+    dc.series.push(Series::new(
+        "Legendre of tau(q)",
+        s.legendre_h.iter().cloned().zip(s.legendre_d.iter().cloned()).collect(),
+        Style::Markers,
+        3,
+    ));
+    if let Some(t) = theory {
+        let qs: Vec<f64> = (0..=200).map(|i| s.q[0] + (s.q[nq - 1] - s.q[0]) * i as f64 / 200.0).collect();
+        tc.series.push(Series::new(format!("theory: {}", t.name), qs.iter().map(|&q| (q, (t.tau)(q))).collect(), Style::Line, 1));
+        let style = if t.dh.len() > 1 { Style::Line } else { Style::Markers };
+        dc.series.push(Series::new(format!("theory: {}", t.name), t.dh.clone(), style, 1));
+    }
+    save_chart(&tc, &dir.join("tau.png"))?;
+    save_chart(&dc, &dir.join("dh.png"))
+}

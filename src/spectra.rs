@@ -1,0 +1,524 @@
+//! Partition functions and multifractal spectra over the WT skeleton
+//! (SPEC §4; II §3, Figs 10 and 16; paper I eqs 59-63).
+//!
+//! For each q and scale a, over the maxima lines L alive at a:
+//!
+//! ```text
+//! Z(q, a) = Σ_L M_L(a)^q                      ~ a^τ(q)
+//! W_L     = M_L^q / Z
+//! h(q, a) = Σ_L W_L log2 M_L                  ~ h(q) log2 a
+//! D(q, a) = Σ_L W_L log2 W_L = q h - log2 Z   ~ D(q) log2 a
+//! ```
+//!
+//! `M_L(a)` is the sup rule (`max` of M along L over scales `<= a`) or the
+//! plain modulus; both are accumulated, [`Rule`] picks the one reported.
+//!
+//! **Stability.** Per image and cell (q, a) the sums are taken relative to
+//! `2^e`, `e = ceil(max_L q log2 M_L)`, so every term is in (0, 1] whatever
+//! q (log-sum-exp); nothing overflows for |q| up to hundreds.
+//!
+//! **Ensembles.** [`PartitionSums`] keeps one partial per image; the annealed
+//! ensemble sum of a cell adds the images' partials in a canonical order
+//! (sorted by value), so `a.merge(&b)` is exact and order-independent to the
+//! last bit, and a delete-one jackknife over images gives error bars from the
+//! ensemble's own scatter.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::skeleton::Skeleton;
+use crate::stats::fit::line_fit;
+
+/// Which modulus a line contributes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Rule {
+    /// `M_L(a) = max_{a' <= a} M(a')` along the line (meant to keep q < 0 stable).
+    Sup,
+    /// The modulus at a.
+    Plain,
+}
+
+/// Sums of one image for one cell (q, a), relative to `2^e`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Cell {
+    /// Integer exponent: the true sums are these values times `2^e`.
+    pub e: i32,
+    /// `Σ 2^(q log2 M - e)`.
+    pub z: f64,
+    /// `Σ 2^(q log2 M - e) log2 M`.
+    pub zl: f64,
+    /// `Σ 2^(2 (q log2 M - e))` (for the effective number of lines).
+    pub z2: f64,
+}
+
+impl Cell {
+    const EMPTY: Cell = Cell {
+        e: i32::MIN,
+        z: 0.0,
+        zl: 0.0,
+        z2: 0.0,
+    };
+
+    fn is_empty(&self) -> bool {
+        self.z == 0.0
+    }
+}
+
+/// The partial sums of one image: `cells[rule][qi * n_scales + j]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ImagePartial {
+    /// Free label (file name), for the record.
+    pub label: String,
+    /// Lines alive per scale.
+    pub lines: Vec<u64>,
+    pub sup: Vec<Cell>,
+    pub plain: Vec<Cell>,
+}
+
+/// Mergeable partition sums of an ensemble (one partial per image).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PartitionSums {
+    pub version: String,
+    pub q: Vec<f64>,
+    pub scales: Vec<f64>,
+    pub images: Vec<ImagePartial>,
+}
+
+impl PartitionSums {
+    /// The partition sums of one image's skeleton, for the q grid `q`.
+    pub fn from_skeleton(sk: &Skeleton, q: &[f64], label: impl Into<String>) -> Self {
+        let ns = sk.scales.len();
+        let nq = q.len();
+        let mut sup = vec![Cell::EMPTY; nq * ns];
+        let mut plain = vec![Cell::EMPTY; nq * ns];
+        let mut lines = vec![0u64; ns];
+        // log2 M of the lines alive at each scale (plain, sup)
+        let mut lp: Vec<f64> = Vec::new();
+        let mut ls: Vec<f64> = Vec::new();
+        for j in 0..ns {
+            lp.clear();
+            ls.clear();
+            for l in sk.alive_at(j) {
+                let p = l.points[j];
+                lp.push(p.m.log2());
+                ls.push(p.sup.log2());
+            }
+            lines[j] = lp.len() as u64;
+            if lp.is_empty() {
+                continue;
+            }
+            for (qi, &qv) in q.iter().enumerate() {
+                sup[qi * ns + j] = cell(&ls, qv);
+                plain[qi * ns + j] = cell(&lp, qv);
+            }
+        }
+        PartitionSums {
+            version: crate::VERSION.to_string(),
+            q: q.to_vec(),
+            scales: sk.scales.clone(),
+            images: vec![ImagePartial {
+                label: label.into(),
+                lines,
+                sup,
+                plain,
+            }],
+        }
+    }
+
+    /// Adds `other`'s images. The result does not depend on the order of
+    /// merges (sums are taken in a canonical order when finalised).
+    ///
+    /// **Errors** if the q grids or the scales differ.
+    pub fn merge(&mut self, other: &PartitionSums) -> Result<()> {
+        if self.q != other.q {
+            return Err(Error::param("q", "cannot merge partition sums over different q grids"));
+        }
+        if self.scales.len() != other.scales.len()
+            || self.scales.iter().zip(&other.scales).any(|(a, b)| (a - b).abs() > 1e-9 * a)
+        {
+            return Err(Error::param("scales", "cannot merge partition sums over different scales"));
+        }
+        self.images.extend(other.images.iter().cloned());
+        Ok(())
+    }
+
+    /// Merges many; `None` for an empty list.
+    pub fn merge_all(parts: impl IntoIterator<Item = PartitionSums>) -> Result<Option<PartitionSums>> {
+        let mut it = parts.into_iter();
+        let Some(mut acc) = it.next() else {
+            return Ok(None);
+        };
+        for p in it {
+            acc.merge(&p)?;
+        }
+        Ok(Some(acc))
+    }
+
+    /// Annealed ensemble values per cell, leaving out image `skip` if given.
+    fn ensemble(&self, rule: Rule, skip: Option<usize>) -> Ensemble {
+        let ns = self.scales.len();
+        let nq = self.q.len();
+        let mut out = Ensemble {
+            log2_z: vec![f64::NAN; nq * ns],
+            h: vec![f64::NAN; nq * ns],
+            n_eff: vec![0.0; nq * ns],
+            lines: vec![0; ns],
+        };
+        for (i, im) in self.images.iter().enumerate() {
+            if Some(i) == skip {
+                continue;
+            }
+            for (j, &n) in im.lines.iter().enumerate() {
+                out.lines[j] += n;
+            }
+        }
+        let mut parts: Vec<Cell> = Vec::with_capacity(self.images.len());
+        for c in 0..nq * ns {
+            parts.clear();
+            for (i, im) in self.images.iter().enumerate() {
+                if Some(i) == skip {
+                    continue;
+                }
+                let cell = match rule {
+                    Rule::Sup => im.sup[c],
+                    Rule::Plain => im.plain[c],
+                };
+                if !cell.is_empty() {
+                    parts.push(cell);
+                }
+            }
+            if parts.is_empty() {
+                continue;
+            }
+            // canonical order: the sum does not depend on merge order
+            parts.sort_by(|a, b| {
+                a.e.cmp(&b.e)
+                    .then(a.z.total_cmp(&b.z))
+                    .then(a.zl.total_cmp(&b.zl))
+                    .then(a.z2.total_cmp(&b.z2))
+            });
+            let emax = parts.last().expect("non-empty").e;
+            let (mut z, mut zl, mut z2) = (0.0, 0.0, 0.0);
+            for p in &parts {
+                let s = ((p.e - emax) as f64).exp2();
+                z += p.z * s;
+                zl += p.zl * s;
+                z2 += p.z2 * s * s;
+            }
+            out.log2_z[c] = emax as f64 + z.log2();
+            out.h[c] = zl / z;
+            out.n_eff[c] = z * z / z2;
+        }
+        out
+    }
+
+    /// Exponents over the fit range `fit = (lo, hi)` in octaves above the
+    /// smallest scale (SPEC §13 `--fit`), for the rule `rule`.
+    ///
+    /// **Errors** if fewer than 3 scales fall in the fit range.
+    pub fn spectra(&self, rule: Rule, fit: (f64, f64)) -> Result<Spectra> {
+        let ns = self.scales.len();
+        let nq = self.q.len();
+        let log2_a: Vec<f64> = self.scales.iter().map(|a| a.log2()).collect();
+        let oct0 = log2_a[0];
+        let in_fit: Vec<usize> = (0..ns)
+            .filter(|&j| {
+                let o = log2_a[j] - oct0;
+                o >= fit.0 - 1e-9 && o <= fit.1 + 1e-9
+            })
+            .collect();
+        if in_fit.len() < 3 {
+            return Err(Error::param(
+                "fit",
+                format!(
+                    "only {} scales in the fit range {}:{} octaves (scales span {:.2} octaves)",
+                    in_fit.len(),
+                    fit.0,
+                    fit.1,
+                    log2_a[ns - 1] - oct0
+                ),
+            ));
+        }
+        let ens = self.ensemble(rule, None);
+        let est = Estimates::fit(&ens, &log2_a, &in_fit, &self.q);
+        // delete-one jackknife over images: error bars from the ensemble scatter
+        let n_img = self.images.len();
+        let mut jk_tau = vec![f64::NAN; nq];
+        let mut jk_h = vec![f64::NAN; nq];
+        let mut jk_d = vec![f64::NAN; nq];
+        if n_img >= 3 {
+            let reps: Vec<Estimates> = (0..n_img)
+                .map(|i| Estimates::fit(&self.ensemble(rule, Some(i)), &log2_a, &in_fit, &self.q))
+                .collect();
+            let jk = |get: &dyn Fn(&Estimates) -> f64| -> f64 {
+                let v: Vec<f64> = reps.iter().map(get).collect();
+                if v.iter().any(|x| !x.is_finite()) {
+                    return f64::NAN;
+                }
+                let n = v.len() as f64;
+                let m = v.iter().sum::<f64>() / n;
+                ((n - 1.0) / n * v.iter().map(|x| (x - m) * (x - m)).sum::<f64>()).sqrt()
+            };
+            for qi in 0..nq {
+                jk_tau[qi] = jk(&|e: &Estimates| e.tau[qi]);
+                jk_h[qi] = jk(&|e: &Estimates| e.h[qi]);
+                jk_d[qi] = jk(&|e: &Estimates| e.d[qi]);
+            }
+        }
+        let (legendre_h, legendre_d) = legendre(&self.q, &est.tau);
+        let mut warnings = Vec::new();
+        for qi in 0..nq {
+            let qv = self.q[qi];
+            if !est.tau[qi].is_finite() {
+                warnings.push(format!("q = {qv}: tau not estimable (empty partition function in the fit range)"));
+                continue;
+            }
+            if est.r2[qi] < R2_WARN {
+                warnings.push(format!(
+                    "q = {qv}: poor power law, R^2 = {:.4} < {R2_WARN} over the fit range",
+                    est.r2[qi]
+                ));
+            }
+            let worst = in_fit
+                .iter()
+                .map(|&j| ens.n_eff[qi * ns + j])
+                .fold(f64::INFINITY, f64::min);
+            if worst < N_EFF_WARN {
+                warnings.push(format!(
+                    "q = {qv}: Z(q, a) is dominated by {worst:.1} effective maxima lines at the largest fitted scales (< {N_EFF_WARN})"
+                ));
+            }
+        }
+        let last_fit = *in_fit.last().expect("3 scales");
+        if ens.lines[last_fit] < 100 {
+            warnings.push(format!(
+                "only {} maxima lines alive at the largest fitted scale a = {:.2}",
+                ens.lines[last_fit], self.scales[last_fit]
+            ));
+        }
+        let cell = |v: &Vec<f64>| -> Vec<Vec<f64>> { (0..nq).map(|qi| v[qi * ns..(qi + 1) * ns].to_vec()).collect() };
+        let d_qa: Vec<f64> = (0..nq * ns)
+            .map(|c| self.q[c / ns] * ens.h[c] - ens.log2_z[c])
+            .collect();
+        Ok(Spectra {
+            rule,
+            images: n_img,
+            q: self.q.clone(),
+            fit_octaves: fit,
+            fit_scales: (self.scales[in_fit[0]], self.scales[last_fit]),
+            tau_stderr: pick(&jk_tau, &est.tau_se),
+            h_stderr: pick(&jk_h, &est.h_se),
+            d_stderr: pick(&jk_d, &est.d_se),
+            stderr_method: if n_img >= 3 { "jackknife over images" } else { "regression" }.into(),
+            tau: est.tau,
+            h: est.h,
+            d: est.d,
+            tau_r2: est.r2,
+            legendre_h,
+            legendre_d,
+            log2_scales: log2_a,
+            log2_z: cell(&ens.log2_z),
+            h_qa: cell(&ens.h),
+            d_qa: cell(&d_qa),
+            n_eff: cell(&ens.n_eff),
+            lines: ens.lines,
+            warnings,
+        })
+    }
+}
+
+/// R^2 below which a fit is flagged.
+pub const R2_WARN: f64 = 0.99;
+/// Effective number of lines below which a cell is flagged as dominated.
+pub const N_EFF_WARN: f64 = 10.0;
+
+/// Jackknife where available, regression otherwise.
+fn pick(jk: &[f64], reg: &[f64]) -> Vec<f64> {
+    jk.iter().zip(reg).map(|(&a, &b)| if a.is_finite() { a } else { b }).collect()
+}
+
+fn cell(log2m: &[f64], q: f64) -> Cell {
+    let mut mx = f64::NEG_INFINITY;
+    for &l in log2m {
+        mx = mx.max(q * l);
+    }
+    let e = mx.ceil();
+    let (mut z, mut zl, mut z2) = (0.0, 0.0, 0.0);
+    for &l in log2m {
+        let t = (q * l - e).exp2();
+        z += t;
+        zl += t * l;
+        z2 += t * t;
+    }
+    Cell {
+        e: e as i32,
+        z,
+        zl,
+        z2,
+    }
+}
+
+struct Ensemble {
+    log2_z: Vec<f64>,
+    h: Vec<f64>,
+    n_eff: Vec<f64>,
+    lines: Vec<u64>,
+}
+
+struct Estimates {
+    tau: Vec<f64>,
+    tau_se: Vec<f64>,
+    r2: Vec<f64>,
+    h: Vec<f64>,
+    h_se: Vec<f64>,
+    d: Vec<f64>,
+    d_se: Vec<f64>,
+}
+
+impl Estimates {
+    fn fit(ens: &Ensemble, log2_a: &[f64], in_fit: &[usize], q: &[f64]) -> Self {
+        let ns = log2_a.len();
+        let x: Vec<f64> = in_fit.iter().map(|&j| log2_a[j]).collect();
+        let mut e = Estimates {
+            tau: vec![f64::NAN; q.len()],
+            tau_se: vec![f64::NAN; q.len()],
+            r2: vec![f64::NAN; q.len()],
+            h: vec![f64::NAN; q.len()],
+            h_se: vec![f64::NAN; q.len()],
+            d: vec![f64::NAN; q.len()],
+            d_se: vec![f64::NAN; q.len()],
+        };
+        for (qi, &qv) in q.iter().enumerate() {
+            let z: Vec<f64> = in_fit.iter().map(|&j| ens.log2_z[qi * ns + j]).collect();
+            let h: Vec<f64> = in_fit.iter().map(|&j| ens.h[qi * ns + j]).collect();
+            if z.iter().any(|v| !v.is_finite()) {
+                continue; // a scale without lines: not estimable
+            }
+            let d: Vec<f64> = z.iter().zip(&h).map(|(zz, hh)| qv * hh - zz).collect();
+            if let (Some(fz), Some(fh), Some(fd)) = (line_fit(&x, &z), line_fit(&x, &h), line_fit(&x, &d)) {
+                e.tau[qi] = fz.slope;
+                e.tau_se[qi] = fz.slope_stderr;
+                e.r2[qi] = fz.r2;
+                e.h[qi] = fh.slope;
+                e.h_se[qi] = fh.slope_stderr;
+                e.d[qi] = fd.slope;
+                e.d_se[qi] = fd.slope_stderr;
+            }
+        }
+        e
+    }
+}
+
+/// Legendre transform of a sampled τ(q): `h = dτ/dq` by finite differences
+/// (second-order on non-uniform grids, one-sided at the ends),
+/// `D = q h - τ` (SPEC §4).
+pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let n = q.len();
+    let mut h = vec![f64::NAN; n];
+    if n >= 2 {
+        for i in 0..n {
+            h[i] = if i == 0 {
+                (tau[1] - tau[0]) / (q[1] - q[0])
+            } else if i == n - 1 {
+                (tau[n - 1] - tau[n - 2]) / (q[n - 1] - q[n - 2])
+            } else {
+                // derivative of the parabola through three points
+                let (h1, h2) = (q[i] - q[i - 1], q[i + 1] - q[i]);
+                (tau[i + 1] * h1 * h1 - tau[i - 1] * h2 * h2 + tau[i] * (h2 * h2 - h1 * h1))
+                    / (h1 * h2 * (h1 + h2))
+            };
+        }
+    }
+    let d = (0..n).map(|i| q[i] * h[i] - tau[i]).collect();
+    (h, d)
+}
+
+/// The spectra of an ensemble, ready for output (SPEC §13 `spectra.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Spectra {
+    pub rule: Rule,
+    pub images: usize,
+    pub q: Vec<f64>,
+    /// Fit range in octaves above a_min, and in pixels.
+    pub fit_octaves: (f64, f64),
+    pub fit_scales: (f64, f64),
+    pub tau: Vec<f64>,
+    pub tau_stderr: Vec<f64>,
+    /// R^2 of the log2 Z fits.
+    pub tau_r2: Vec<f64>,
+    /// Canonical h(q) and D(q) (slopes of h(q, a) and D(q, a)).
+    pub h: Vec<f64>,
+    pub h_stderr: Vec<f64>,
+    #[serde(rename = "D")]
+    pub d: Vec<f64>,
+    #[serde(rename = "D_stderr")]
+    pub d_stderr: Vec<f64>,
+    /// "jackknife over images" (>= 3 images) or "regression".
+    pub stderr_method: String,
+    /// h = dτ/dq, D = q h - τ.
+    pub legendre_h: Vec<f64>,
+    #[serde(rename = "legendre_D")]
+    pub legendre_d: Vec<f64>,
+    pub log2_scales: Vec<f64>,
+    /// Per q, per scale.
+    #[serde(rename = "log2_Z")]
+    pub log2_z: Vec<Vec<f64>>,
+    pub h_qa: Vec<Vec<f64>>,
+    #[serde(rename = "D_qa")]
+    pub d_qa: Vec<Vec<f64>>,
+    /// Effective number of lines `Z^2 / Σ M^2q` per q, per scale.
+    pub n_eff: Vec<Vec<f64>>,
+    /// Maxima lines alive per scale (all images).
+    pub lines: Vec<u64>,
+    pub warnings: Vec<String>,
+}
+
+impl Spectra {
+    /// Index of q closest to `q0`.
+    pub fn q_index(&self, q0: f64) -> Option<usize> {
+        (0..self.q.len()).min_by(|&a, &b| (self.q[a] - q0).abs().total_cmp(&(self.q[b] - q0).abs()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn legendre_of_a_parabola_is_exact() {
+        // τ(q) = -2 + 0.4 q - 0.05 q^2 on a non-uniform grid
+        let q = [-3.0, -2.0, -0.5, 0.0, 1.0, 2.5, 3.0, 4.0];
+        let tau: Vec<f64> = q.iter().map(|&x| -2.0 + 0.4 * x - 0.05 * x * x).collect();
+        let (h, d) = legendre(&q, &tau);
+        for i in 1..q.len() - 1 {
+            let hx = 0.4 - 0.1 * q[i];
+            assert!((h[i] - hx).abs() < 1e-12, "{i}: {} vs {hx}", h[i]);
+            assert!((d[i] - (q[i] * hx - tau[i])).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn cells_are_stable_at_large_q() {
+        let l = [-3.0, 1.5, 40.0, -60.0];
+        for q in [-20.0, -5.0, 0.0, 5.0, 20.0] {
+            let c = cell(&l, q);
+            assert!(c.z >= 1.0 && c.z.is_finite() && c.zl.is_finite());
+            let direct: f64 = l.iter().map(|&x| (q * x as f64).exp2()).sum();
+            let got = c.e as f64 + c.z.log2();
+            assert!((got - direct.log2()).abs() < 1e-12, "q={q}");
+        }
+    }
+}
+
+/// One image through the pipeline: CWT → skeleton → partition sums.
+/// Serial inside (parallelise over images).
+pub fn image_sums(
+    field: &crate::Field,
+    cfg: &crate::skeleton::AnalysisConfig,
+    q: &[f64],
+    label: impl Into<String>,
+) -> Result<PartitionSums> {
+    let sk = crate::skeleton::skeleton(field, cfg)?;
+    Ok(PartitionSums::from_skeleton(&sk, q, label))
+}
