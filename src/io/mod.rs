@@ -1,55 +1,164 @@
-//! Image input and output (SPEC §13): `.npy`, TIFF, PNG, PGM, ESRI ASCII grid.
-//! NaN and nodata become the [`Field`] mask.
+//! Image input and output (SPEC §13). NaN and nodata become the [`Field`] mask.
+//!
+//! The format comes from the file extension (case-insensitive):
+//!
+//! | extension | reads | writes |
+//! |---|---|---|
+//! | `.npy` | 2D, any integer or float dtype (`i1`..`u8`, `f2`, `f4`, `f8`), either byte order, C or Fortran order | float64 |
+//! | `.tif`, `.tiff` | one band; 8/16/32/64-bit integer, 32/64-bit float; any compression the `tiff` crate decodes; GeoTIFF read as plain TIFF; GDAL nodata tag (42113) honoured | float32, NaN kept |
+//! | `.png` | grey 1..16 bit (raw integer values), grey+alpha (alpha 0 = missing); RGB(A) and palette converted to luminance with a warning; a `<stem>.json` sidecar applies `value = png*scale + offset` and its nodata | 16-bit grey + sidecar JSON |
+//! | `.pgm` | P5 (binary, 8 or 16 bit) and P2 (ASCII), raw integer values | — |
+//! | `.asc` | ESRI ASCII grid; header keys case-insensitive; `NODATA_value` honoured; first row = north | — |
+//!
+//! Every error names the file and the problem; truncated or corrupt input
+//! gives an error, never a panic. Every output goes through
+//! [`write_atomic`], so an error never leaves a half-written file.
 
+mod asc;
 mod atomic;
+mod npy;
+mod pgm;
+mod png;
+mod tiff;
 
 pub use atomic::write_atomic;
+pub use png::{PNG16_NODATA, Png16Mapping};
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use ndarray::Array2;
-use ndarray_npy::{ReadNpyExt, WriteNpyExt};
+use ndarray_npy::WriteNpyExt;
 
 use crate::error::{Error, Result};
 use crate::field::Field;
 
-/// Reads an image, choosing the format from the extension.
-///
-/// **Errors** name the file and the problem (missing, unknown format,
-/// corrupt, not 2D, empty).
-pub fn read_field(path: &Path) -> Result<Field> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    match ext.as_str() {
-        "npy" => read_npy(path),
-        _ => Err(Error::format(
-            path,
-            format!("unknown image format `.{ext}` (supported: .npy)"),
-        )),
+/// An image file format known to the readers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageFormat {
+    /// NumPy `.npy`.
+    Npy,
+    /// TIFF (`.tif`, `.tiff`), including GeoTIFF.
+    Tiff,
+    /// PNG.
+    Png,
+    /// Netpbm greymap (`.pgm`).
+    Pgm,
+    /// ESRI ASCII grid (`.asc`).
+    Asc,
+}
+
+impl ImageFormat {
+    /// The format for a path's extension (case-insensitive), `None` if unknown.
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        Some(match ext.as_str() {
+            "npy" => ImageFormat::Npy,
+            "tif" | "tiff" => ImageFormat::Tiff,
+            "png" => ImageFormat::Png,
+            "pgm" => ImageFormat::Pgm,
+            "asc" => ImageFormat::Asc,
+            _ => return None,
+        })
+    }
+
+    /// Short lower-case name: `npy`, `tiff`, `png`, `pgm`, `asc`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ImageFormat::Npy => "npy",
+            ImageFormat::Tiff => "tiff",
+            ImageFormat::Png => "png",
+            ImageFormat::Pgm => "pgm",
+            ImageFormat::Asc => "asc",
+        }
     }
 }
 
-fn read_npy(path: &Path) -> Result<Field> {
-    let file = std::fs::File::open(path).map_err(|source| Error::Read {
-        path: path.into(),
-        source,
-    })?;
-    let r = std::io::BufReader::new(file);
-    let data = Array2::<f64>::read_npy(r)
-        .or_else(|_| {
-            let f = std::fs::File::open(path).map_err(|e| e.to_string())?;
-            Array2::<f32>::read_npy(std::io::BufReader::new(f))
-                .map(|a| a.mapv(|v| v as f64))
-                .map_err(|e| e.to_string())
-        })
-        .map_err(|e| Error::format(path, format!("not a 2D float .npy array: {e}")))?;
-    if data.is_empty() {
-        return Err(Error::format(path, "empty image"));
+impl std::fmt::Display for ImageFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
-    Ok(Field::new(data))
+}
+
+/// What a reader found besides the values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReadInfo {
+    /// The format read.
+    pub format: ImageFormat,
+    /// The stored sample type, e.g. `f4`, `<i2`, `u16`, `u8 RGB`, `text`.
+    pub dtype: String,
+    /// The PNG sidecar JSON that was applied, if any.
+    pub sidecar: Option<PathBuf>,
+    /// Things the caller may want to tell the user (the library never prints),
+    /// e.g. a colour image converted to luminance.
+    pub warnings: Vec<String>,
+}
+
+impl ReadInfo {
+    fn new(format: ImageFormat, dtype: impl Into<String>) -> Self {
+        ReadInfo {
+            format,
+            dtype: dtype.into(),
+            sidecar: None,
+            warnings: Vec::new(),
+        }
+    }
+}
+
+const SUPPORTED_READ: &str = ".npy, .tif, .tiff, .png, .pgm, .asc";
+const SUPPORTED_WRITE: &str = ".npy, .tif, .tiff, .png";
+
+/// Reads an image, choosing the format from the extension.
+///
+/// **Errors** name the file and the problem (missing, unknown format,
+/// corrupt, not 2D, unsupported sample type, empty).
+pub fn read_field(path: &Path) -> Result<Field> {
+    read_field_with_info(path).map(|(field, _)| field)
+}
+
+/// Like [`read_field`], also returning the format, the stored sample type and
+/// any warnings.
+pub fn read_field_with_info(path: &Path) -> Result<(Field, ReadInfo)> {
+    let Some(format) = ImageFormat::from_path(path) else {
+        return Err(Error::format(
+            path,
+            format!(
+                "unknown image format `{}` (supported: {SUPPORTED_READ})",
+                extension(path)
+            ),
+        ));
+    };
+    let (field, info) = match format {
+        ImageFormat::Npy => npy::read(path)?,
+        ImageFormat::Tiff => tiff::read(path)?,
+        ImageFormat::Png => png::read(path)?,
+        ImageFormat::Pgm => pgm::read(path)?,
+        ImageFormat::Asc => asc::read(path)?,
+    };
+    let (ny, nx) = field.dim();
+    if ny == 0 || nx == 0 {
+        // Every reader checks this already; kept as the one guarantee callers rely on.
+        return Err(Error::format(path, format!("empty image ({ny} x {nx})")));
+    }
+    Ok((field, info))
+}
+
+/// Writes a field, choosing the format from the extension: `.npy` (float64),
+/// `.tif`/`.tiff` (float32) or `.png` (16-bit + sidecar JSON, see
+/// [`write_png16`]). Masked pixels are written as NaN (or the PNG nodata).
+pub fn write_field(path: &Path, field: &Field) -> Result<()> {
+    let data = masked_as_nan(field);
+    match ImageFormat::from_path(path) {
+        Some(ImageFormat::Npy) => write_npy(path, &data),
+        Some(ImageFormat::Tiff) => write_tiff_f32(path, &data),
+        Some(ImageFormat::Png) => write_png16(path, &data).map(|_| ()),
+        _ => Err(Error::format(
+            path,
+            format!(
+                "cannot write format `{}` (supported: {SUPPORTED_WRITE})",
+                extension(path)
+            ),
+        )),
+    }
 }
 
 /// Writes a 2D array as float64 `.npy` (atomically).
@@ -58,4 +167,80 @@ pub fn write_npy(path: &Path, a: &Array2<f64>) -> Result<()> {
     a.write_npy(&mut buf)
         .map_err(|e| Error::format(path, format!("cannot encode .npy: {e}")))?;
     write_atomic(path, &buf)
+}
+
+/// Writes a 2D array as a one-band float32 TIFF (atomically). NaN stays NaN,
+/// and the GDAL nodata tag says so when there is any.
+pub fn write_tiff_f32(path: &Path, a: &Array2<f64>) -> Result<()> {
+    let bytes = tiff::encode_f32(path, a)?;
+    write_atomic(path, &bytes)
+}
+
+/// Writes a 2D array as a 16-bit grey PNG plus a sidecar `<stem>.json`
+/// (atomically, both or neither). Finite values `min..=max` map linearly to
+/// `0..=65534` and non-finite ones to 65535; the sidecar holds `scale`,
+/// `offset` and `nodata` so that `value = png*scale + offset` recovers the
+/// data within `scale/2`. [`read_field`] applies the sidecar.
+pub fn write_png16(path: &Path, a: &Array2<f64>) -> Result<Png16Mapping> {
+    let (png_bytes, mapping) = png::encode_u16(path, a)?;
+    let sidecar = path.with_extension("json");
+    let json = serde_json::to_vec_pretty(&mapping)
+        .map_err(|e| Error::format(&sidecar, format!("cannot encode JSON: {e}")))?;
+    write_atomic(&sidecar, &json)?;
+    if let Err(e) = write_atomic(path, &png_bytes) {
+        // A sidecar without its PNG would be a half-written output.
+        let _ = std::fs::remove_file(&sidecar);
+        return Err(e);
+    }
+    Ok(mapping)
+}
+
+fn masked_as_nan(field: &Field) -> Array2<f64> {
+    let mut data = field.data.clone();
+    if let Some(mask) = &field.mask {
+        data.zip_mut_with(mask, |v, &m| {
+            if m {
+                *v = f64::NAN
+            }
+        });
+    }
+    data
+}
+
+fn extension(path: &Path) -> String {
+    match path.extension() {
+        Some(e) => format!(".{}", e.to_string_lossy()),
+        None => "(no extension)".into(),
+    }
+}
+
+/// Reads a whole file, mapping the OS error to [`Error::Read`].
+fn read_bytes(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|source| Error::Read {
+        path: path.into(),
+        source,
+    })
+}
+
+/// Builds a field from row-major values, masking non-finite values and
+/// those equal to `nodata`.
+fn field_from(
+    path: &Path,
+    ny: usize,
+    nx: usize,
+    values: Vec<f64>,
+    nodata: Option<f64>,
+) -> Result<Field> {
+    if ny == 0 || nx == 0 {
+        return Err(Error::format(path, format!("empty image ({ny} x {nx})")));
+    }
+    let data = Array2::from_shape_vec((ny, nx), values)
+        .map_err(|e| Error::format(path, format!("internal shape error: {e}")))?;
+    Ok(match nodata {
+        Some(nd) if !nd.is_nan() => {
+            let mask = data.mapv(|v| v == nd);
+            Field::with_mask(data, mask)
+        }
+        _ => Field::new(data),
+    })
 }

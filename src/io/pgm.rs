@@ -1,0 +1,137 @@
+//! Netpbm greymap reader: P5 (binary, 1 or 2 bytes big-endian per sample)
+//! and P2 (ASCII). Values are the raw integers (not divided by maxval).
+
+use std::path::Path;
+
+use super::{ImageFormat, ReadInfo, field_from, read_bytes};
+use crate::error::{Error, Result};
+use crate::field::Field;
+
+pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
+    let bytes = read_bytes(path)?;
+    let bad = |reason: String| Error::format(path, format!("PGM: {reason}"));
+    let mut t = Tokens { b: &bytes, i: 0 };
+    let magic = t.next().ok_or_else(|| bad("empty file".into()))?;
+    let binary = match magic {
+        b"P5" => true,
+        b"P2" => false,
+        b"P1" | b"P4" => return Err(bad("bitmap (PBM) file; need a P2 or P5 greymap".into())),
+        b"P3" | b"P6" => return Err(bad("colour (PPM) file; need a P2 or P5 greymap".into())),
+        b"P7" => return Err(bad("PAM file; need a P2 or P5 greymap".into())),
+        _ => return Err(bad("not a PGM file (bad magic number)".into())),
+    };
+    let mut header = |what: &str| -> Result<u64> {
+        let tok = t
+            .next()
+            .ok_or_else(|| bad(format!("truncated header (no {what})")))?;
+        std::str::from_utf8(tok)
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| bad(format!("bad {what} in header")))
+    };
+    let nx = header("width")?;
+    let ny = header("height")?;
+    let maxval = header("maxval")?;
+    if !(1..=65535).contains(&maxval) {
+        return Err(bad(format!("maxval {maxval} outside 1..=65535")));
+    }
+    if nx == 0 || ny == 0 {
+        return Err(bad(format!("empty image ({ny} x {nx})")));
+    }
+    let n = usize::try_from(nx)
+        .ok()
+        .zip(usize::try_from(ny).ok())
+        .and_then(|(a, b)| a.checked_mul(b))
+        .ok_or_else(|| bad(format!("size {nx} x {ny} is too large")))?;
+    let (nx, ny) = (nx as usize, ny as usize);
+    let mut info = ReadInfo::new(ImageFormat::Pgm, if maxval > 255 { "u16" } else { "u8" });
+    let mut values = Vec::with_capacity(n.min(bytes.len()));
+    if binary {
+        // Exactly one whitespace byte separates maxval from the raster.
+        let start = t.i + 1;
+        let bps = if maxval > 255 { 2 } else { 1 };
+        let need = n.checked_mul(bps).ok_or_else(|| bad("too large".into()))?;
+        let avail = bytes.len().saturating_sub(start);
+        if avail < need {
+            return Err(bad(format!(
+                "truncated: a {ny} x {nx} image needs {need} data bytes, the file has {avail}"
+            )));
+        }
+        let raster = &bytes[start..start + need];
+        if bps == 2 {
+            values.extend(
+                raster
+                    .chunks_exact(2)
+                    .map(|c| u16::from_be_bytes([c[0], c[1]]) as f64),
+            );
+        } else {
+            values.extend(raster.iter().map(|&b| b as f64));
+        }
+        if avail > need {
+            info.warnings.push(format!(
+                "{} bytes after the image ignored (only the first image is read)",
+                avail - need
+            ));
+        }
+    } else {
+        for k in 0..n {
+            let tok = t.next().ok_or_else(|| {
+                bad(format!(
+                    "truncated: expected {n} values ({ny} rows x {nx} cols), found {k}"
+                ))
+            })?;
+            let v: u32 = std::str::from_utf8(tok)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .ok_or_else(|| {
+                    bad(format!(
+                        "value {} is not an integer: `{}`",
+                        k + 1,
+                        String::from_utf8_lossy(tok)
+                    ))
+                })?;
+            values.push(v as f64);
+        }
+        if t.next().is_some() {
+            info.warnings
+                .push(format!("values after the first {n} ignored"));
+        }
+    }
+    if let Some(v) = values.iter().find(|&&v| v > maxval as f64) {
+        return Err(bad(format!("sample {v} exceeds maxval {maxval}")));
+    }
+    Ok((field_from(path, ny, nx, values, None)?, info))
+}
+
+/// Whitespace-separated tokens, skipping `#` comments to the end of the line.
+struct Tokens<'a> {
+    b: &'a [u8],
+    i: usize,
+}
+
+impl<'a> Iterator for Tokens<'a> {
+    type Item = &'a [u8];
+
+    fn next(&mut self) -> Option<&'a [u8]> {
+        loop {
+            while self.i < self.b.len() && self.b[self.i].is_ascii_whitespace() {
+                self.i += 1;
+            }
+            if self.b.get(self.i) == Some(&b'#') {
+                while self.i < self.b.len() && self.b[self.i] != b'\n' && self.b[self.i] != b'\r' {
+                    self.i += 1;
+                }
+                continue;
+            }
+            break;
+        }
+        let start = self.i;
+        while self.i < self.b.len()
+            && !self.b[self.i].is_ascii_whitespace()
+            && self.b[self.i] != b'#'
+        {
+            self.i += 1;
+        }
+        (self.i > start).then(|| &self.b[start..self.i])
+    }
+}

@@ -1,0 +1,299 @@
+//! PNG reader (grey as raw integers; colour to luminance) with the optional
+//! JSON sidecar that maps integers back to physical values, and the 16-bit
+//! writer that produces such a pair.
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+use ndarray::Array2;
+use png::{BitDepth, ColorType, Decoder, Transformations};
+use serde::{Deserialize, Serialize};
+
+use super::{ImageFormat, ReadInfo, read_bytes};
+use crate::error::{Error, Result};
+use crate::field::Field;
+
+/// Same budget as the TIFF reader: room for large DEMs, not for a hostile header.
+const MAX_DECODE_BYTES: usize = 1 << 30;
+
+/// The 16-bit code for a missing pixel written by [`super::write_png16`].
+pub const PNG16_NODATA: u16 = 65535;
+
+/// How [`super::write_png16`] mapped values to 16-bit integers; also the
+/// content of the sidecar JSON.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Png16Mapping {
+    /// Human-readable decoding rule.
+    pub png_decode: String,
+    /// `value = png*scale + offset`.
+    pub scale: f64,
+    /// `value = png*scale + offset`.
+    pub offset: f64,
+    /// The integer that means "missing" (65535).
+    pub nodata: u16,
+    /// `[rows, cols]`.
+    pub shape: [usize; 2],
+    /// Smallest finite value, `None` if there is none.
+    pub min: Option<f64>,
+    /// Largest finite value, `None` if there is none.
+    pub max: Option<f64>,
+}
+
+pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
+    let bytes = read_bytes(path)?;
+    let bad = |reason: String| Error::format(path, format!("PNG: {reason}"));
+    if bytes.is_empty() {
+        return Err(bad("empty file (0 bytes)".into()));
+    }
+    // The png crate rejects a 0-pixel IHDR as "invalid dimensions"; say "empty".
+    if bytes.len() >= 24 && &bytes[12..16] == b"IHDR" {
+        let w = u32::from_be_bytes([bytes[16], bytes[17], bytes[18], bytes[19]]);
+        let h = u32::from_be_bytes([bytes[20], bytes[21], bytes[22], bytes[23]]);
+        if w == 0 || h == 0 {
+            return Err(bad(format!("empty image ({h} x {w})")));
+        }
+    }
+    let mut dec = Decoder::new_with_limits(
+        Cursor::new(&bytes[..]),
+        png::Limits {
+            bytes: MAX_DECODE_BYTES,
+        },
+    );
+    // EXPAND: palette -> RGB(A), tRNS -> alpha, 1/2/4-bit grey -> 8-bit.
+    dec.set_transformations(Transformations::EXPAND);
+    let mut reader = dec
+        .read_info()
+        .map_err(|e| bad(format!("corrupt or unsupported: {e}")))?;
+    let (src_color, src_depth) = {
+        let i = reader.info();
+        (i.color_type, i.bit_depth)
+    };
+    // A tiny file can declare a huge image; refuse before allocating.
+    let size = reader
+        .output_buffer_size()
+        .filter(|&n| n <= MAX_DECODE_BYTES)
+        .ok_or_else(|| bad("image too large".into()))?;
+    let mut buf = vec![0u8; size];
+    let out = reader
+        .next_frame(&mut buf)
+        .map_err(|e| bad(format!("corrupt or truncated: {e}")))?;
+    let (nx, ny) = (out.width as usize, out.height as usize);
+    if nx == 0 || ny == 0 {
+        return Err(bad(format!("empty image ({ny} x {nx})")));
+    }
+    let channels = out.color_type.samples();
+    let sixteen = out.bit_depth == BitDepth::Sixteen;
+    let bps = if sixteen { 2 } else { 1 };
+    let need = nx * ny * channels * bps;
+    if buf.len() < need || out.line_size != nx * channels * bps {
+        return Err(bad("unexpected decoded layout".into()));
+    }
+    let sample = |k: usize| -> f64 {
+        if sixteen {
+            u16::from_be_bytes([buf[2 * k], buf[2 * k + 1]]) as f64
+        } else {
+            buf[k] as f64
+        }
+    };
+    // EXPAND scaled 1/2/4-bit grey to 0..255; undo it to keep raw values.
+    let low_bits = match src_depth {
+        BitDepth::One => 1,
+        BitDepth::Two => 2,
+        BitDepth::Four => 4,
+        _ => 0,
+    };
+    let grey_div = if low_bits > 0 && src_color == ColorType::Grayscale {
+        255.0 / ((1u32 << low_bits) - 1) as f64
+    } else {
+        1.0
+    };
+    let depth_name = if sixteen { "u16" } else { "u8" };
+    let mut info = ReadInfo::new(ImageFormat::Png, depth_name);
+    let colour = matches!(out.color_type, ColorType::Rgb | ColorType::Rgba);
+    if colour {
+        let what = if src_color == ColorType::Indexed {
+            "palette"
+        } else {
+            "colour"
+        };
+        info.dtype = format!("{depth_name} {what}");
+        info.warnings.push(format!(
+            "{what} PNG converted to luminance (Rec. 709 weights)"
+        ));
+    } else if low_bits > 0 {
+        info.dtype = format!("u{low_bits}");
+    }
+    let has_alpha = matches!(out.color_type, ColorType::GrayscaleAlpha | ColorType::Rgba);
+    let mut raw = Vec::with_capacity(nx * ny);
+    // Alpha 0 = missing; alpha is otherwise ignored (no compositing).
+    let mut transparent = Vec::with_capacity(if has_alpha { nx * ny } else { 0 });
+    for p in 0..nx * ny {
+        let k = p * channels;
+        let v = if colour {
+            0.2126 * sample(k) + 0.7152 * sample(k + 1) + 0.0722 * sample(k + 2)
+        } else {
+            sample(k) / grey_div
+        };
+        raw.push(v);
+        if has_alpha {
+            transparent.push(sample(k + channels - 1) == 0.0);
+        }
+    }
+    if has_alpha && !colour {
+        info.dtype = format!("{depth_name} grey+alpha");
+    }
+
+    let mut nodata = None;
+    let (scale, offset) = match sidecar(path, &mut info)? {
+        Some(sc) => {
+            nodata = sc.nodata;
+            (sc.scale, sc.offset)
+        }
+        None => (1.0, 0.0),
+    };
+    let mut mask: Vec<bool> = match nodata {
+        Some(nd) => raw.iter().map(|&v| v == nd).collect(),
+        None => vec![false; nx * ny],
+    };
+    for (m, &t) in mask.iter_mut().zip(&transparent) {
+        *m |= t;
+    }
+    let values: Vec<f64> = raw.iter().map(|&v| v * scale + offset).collect();
+    let data = Array2::from_shape_vec((ny, nx), values)
+        .map_err(|e| bad(format!("internal shape error: {e}")))?;
+    let mask = Array2::from_shape_vec((ny, nx), mask)
+        .map_err(|e| bad(format!("internal shape error: {e}")))?;
+    Ok((Field::with_mask(data, mask), info))
+}
+
+struct Sidecar {
+    scale: f64,
+    offset: f64,
+    nodata: Option<f64>,
+}
+
+/// Reads `<stem>.json` beside the PNG if there is one. Keys: `scale`,
+/// `offset`, and the nodata as `nodata` or as `png==N` in `png_decode`
+/// (the convention of `shared/data/*.json`).
+fn sidecar(png_path: &Path, info: &mut ReadInfo) -> Result<Option<Sidecar>> {
+    let path: PathBuf = png_path.with_extension("json");
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let bytes = read_bytes(&path)?;
+    let bad = |reason: String| Error::format(&path, format!("PNG sidecar: {reason}"));
+    let json: serde_json::Value =
+        serde_json::from_slice(&bytes).map_err(|e| bad(format!("invalid JSON: {e}")))?;
+    let Some(obj) = json.as_object() else {
+        return Err(bad("expected a JSON object".into()));
+    };
+    let number = |key: &str| -> Result<Option<f64>> {
+        match obj.get(key) {
+            None | Some(serde_json::Value::Null) => Ok(None),
+            Some(v) => v
+                .as_f64()
+                .filter(|x| x.is_finite())
+                .map(Some)
+                .ok_or_else(|| bad(format!("`{key}` is not a finite number"))),
+        }
+    };
+    let (scale, offset) = (number("scale")?, number("offset")?);
+    if scale.is_none() && offset.is_none() {
+        info.warnings.push(format!(
+            "{} has no `scale` or `offset`; raw PNG values used",
+            path.display()
+        ));
+        return Ok(None);
+    }
+    let nodata = match number("nodata")? {
+        Some(n) => Some(n),
+        None => obj
+            .get("png_decode")
+            .and_then(|v| v.as_str())
+            .and_then(nodata_from_text),
+    };
+    info.sidecar = Some(path.clone());
+    Ok(Some(Sidecar {
+        scale: scale.unwrap_or(1.0),
+        offset: offset.unwrap_or(0.0),
+        nodata,
+    }))
+}
+
+/// `"value = png*scale + offset; png==65535 -> NaN"` -> `Some(65535.0)`.
+fn nodata_from_text(text: &str) -> Option<f64> {
+    let t: String = text.chars().filter(|c| !c.is_whitespace()).collect();
+    let rest = &t[t.find("png==")? + 5..];
+    let end = rest
+        .find(|c: char| !c.is_ascii_digit())
+        .unwrap_or(rest.len());
+    rest[..end].parse().ok()
+}
+
+/// Encodes a 16-bit grey PNG in memory, with the mapping for its sidecar.
+pub(super) fn encode_u16(path: &Path, a: &Array2<f64>) -> Result<(Vec<u8>, Png16Mapping)> {
+    let (ny, nx) = a.dim();
+    if ny == 0 || nx == 0 {
+        return Err(Error::format(
+            path,
+            format!("cannot write an empty image ({ny} x {nx})"),
+        ));
+    }
+    let (w, h) = match (u32::try_from(nx), u32::try_from(ny)) {
+        (Ok(w), Ok(h)) => (w, h),
+        _ => return Err(Error::format(path, "image too large for PNG")),
+    };
+    let finite = || a.iter().copied().filter(|v| v.is_finite());
+    let min = finite().reduce(f64::min);
+    let max = finite().reduce(f64::max);
+    let top = f64::from(PNG16_NODATA - 1);
+    let (scale, offset) = match (min, max) {
+        // Divide before subtracting so that a huge range cannot overflow.
+        (Some(lo), Some(hi)) if hi > lo => (hi / top - lo / top, lo),
+        (Some(lo), _) => (1.0, lo),
+        _ => (1.0, 0.0),
+    };
+    let mut pixels = Vec::with_capacity(2 * nx * ny);
+    for &v in a.iter() {
+        let q = if v.is_finite() {
+            ((v - offset) / scale).round().clamp(0.0, top) as u16
+        } else {
+            PNG16_NODATA
+        };
+        pixels.extend_from_slice(&q.to_be_bytes());
+    }
+    let err = |e: png::EncodingError| Error::format(path, format!("cannot encode PNG: {e}"));
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, w, h);
+        enc.set_color(ColorType::Grayscale);
+        enc.set_depth(BitDepth::Sixteen);
+        let mut writer = enc.write_header().map_err(err)?;
+        writer.write_image_data(&pixels).map_err(err)?;
+        writer.finish().map_err(err)?;
+    }
+    let mapping = Png16Mapping {
+        png_decode: format!("value = png*scale + offset; png=={PNG16_NODATA} -> NaN"),
+        scale,
+        offset,
+        nodata: PNG16_NODATA,
+        shape: [ny, nx],
+        min,
+        max,
+    };
+    Ok((out, mapping))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nodata_text_convention() {
+        assert_eq!(
+            nodata_from_text("value = png*scale + offset; png==65535 -> NaN"),
+            Some(65535.0)
+        );
+        assert_eq!(nodata_from_text("value = png*scale + offset"), None);
+    }
+}

@@ -1,0 +1,142 @@
+//! TIFF reader (one band; GeoTIFF tags other than GDAL nodata are ignored)
+//! and float32 writer.
+
+use std::io::Cursor;
+use std::path::Path;
+
+use ndarray::Array2;
+use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::encoder::{TiffEncoder, colortype};
+use tiff::tags::Tag;
+
+use super::{ImageFormat, ReadInfo, field_from, read_bytes};
+use crate::error::{Error, Result};
+use crate::field::Field;
+
+/// Large enough for a 16k x 16k float32 DEM; a corrupt header asking for more
+/// fails cleanly instead of exhausting memory.
+const MAX_DECODE_BYTES: usize = 1 << 30;
+
+pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
+    let bytes = read_bytes(path)?;
+    let bad = |reason: String| Error::format(path, format!("TIFF: {reason}"));
+    let tiff_err = |e: tiff::TiffError| bad(format!("corrupt or unsupported: {e}"));
+    let limits = {
+        let mut l = Limits::default();
+        l.decoding_buffer_size = MAX_DECODE_BYTES;
+        l.intermediate_buffer_size = MAX_DECODE_BYTES / 2;
+        l
+    };
+    let mut dec = Decoder::new(Cursor::new(&bytes[..]))
+        .map_err(tiff_err)?
+        .with_limits(limits);
+
+    let bands: u16 = dec
+        .find_tag_unsigned(Tag::SamplesPerPixel)
+        .map_err(tiff_err)?
+        .unwrap_or(1);
+    if bands != 1 {
+        return Err(bad(format!(
+            "{bands} bands (samples per pixel); only single-band images are supported"
+        )));
+    }
+    // Photometric 3 = palette: the samples are colour indices, not values.
+    if dec
+        .find_tag_unsigned::<u16>(Tag::PhotometricInterpretation)
+        .map_err(tiff_err)?
+        == Some(3)
+    {
+        return Err(bad("palette-colour image; need one band of values".into()));
+    }
+    let (w, h) = dec.dimensions().map_err(tiff_err)?;
+    let (nx, ny) = (w as usize, h as usize);
+    if nx == 0 || ny == 0 {
+        return Err(bad(format!("empty image ({ny} x {nx})")));
+    }
+    let bits: u16 = dec
+        .find_tag_unsigned(Tag::BitsPerSample)
+        .map_err(tiff_err)?
+        .unwrap_or(1);
+    if !matches!(bits, 8 | 16 | 32 | 64) {
+        return Err(bad(format!(
+            "unsupported bit depth {bits} (need 8, 16, 32 or 64)"
+        )));
+    }
+    let nodata_text = match dec.find_tag(Tag::GdalNodata) {
+        Ok(Some(v)) => v.into_string().ok(),
+        _ => None,
+    };
+    let more_images = dec.more_images();
+
+    let image = dec.read_image().map_err(tiff_err)?;
+    let (dtype, values): (&str, Vec<f64>) = match image {
+        DecodingResult::U8(v) => ("u8", v.into_iter().map(f64::from).collect()),
+        DecodingResult::U16(v) => ("u16", v.into_iter().map(f64::from).collect()),
+        DecodingResult::U32(v) => ("u32", v.into_iter().map(f64::from).collect()),
+        DecodingResult::U64(v) => ("u64", v.into_iter().map(|x| x as f64).collect()),
+        DecodingResult::I8(v) => ("i8", v.into_iter().map(f64::from).collect()),
+        DecodingResult::I16(v) => ("i16", v.into_iter().map(f64::from).collect()),
+        DecodingResult::I32(v) => ("i32", v.into_iter().map(f64::from).collect()),
+        DecodingResult::I64(v) => ("i64", v.into_iter().map(|x| x as f64).collect()),
+        DecodingResult::F16(v) => ("f16", v.into_iter().map(f64::from).collect()),
+        DecodingResult::F32(v) => ("f32", v.into_iter().map(f64::from).collect()),
+        DecodingResult::F64(v) => ("f64", v),
+    };
+    if values.len() < nx * ny {
+        return Err(bad(format!(
+            "decoded {} samples for a {ny} x {nx} image",
+            values.len()
+        )));
+    }
+    let mut values = values;
+    values.truncate(nx * ny);
+
+    let mut info = ReadInfo::new(ImageFormat::Tiff, dtype);
+    let mut nodata = None;
+    if let Some(text) = nodata_text {
+        let t = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+        match t.parse::<f64>() {
+            // A float32 file stores the nodata rounded to float32.
+            Ok(v) if dtype == "f32" => nodata = Some(v as f32 as f64),
+            Ok(v) => nodata = Some(v),
+            Err(_) => info
+                .warnings
+                .push(format!("GDAL nodata tag `{t}` is not a number; ignored")),
+        }
+    }
+    if more_images {
+        info.warnings
+            .push("the file holds more than one image; only the first was read".into());
+    }
+    Ok((field_from(path, ny, nx, values, nodata)?, info))
+}
+
+/// Encodes a one-band float32 TIFF in memory.
+pub(super) fn encode_f32(path: &Path, a: &Array2<f64>) -> Result<Vec<u8>> {
+    let (ny, nx) = a.dim();
+    if ny == 0 || nx == 0 {
+        return Err(Error::format(
+            path,
+            format!("cannot write an empty image ({ny} x {nx})"),
+        ));
+    }
+    let (w, h) = match (u32::try_from(nx), u32::try_from(ny)) {
+        (Ok(w), Ok(h)) => (w, h),
+        _ => return Err(Error::format(path, "image too large for TIFF")),
+    };
+    let data: Vec<f32> = a.iter().map(|&v| v as f32).collect();
+    let err = |e: tiff::TiffError| Error::format(path, format!("cannot encode TIFF: {e}"));
+    let mut buf = Cursor::new(Vec::new());
+    {
+        let mut enc = TiffEncoder::new(&mut buf).map_err(err)?;
+        let mut img = enc.new_image::<colortype::Gray32Float>(w, h).map_err(err)?;
+        if data.iter().any(|v| v.is_nan()) {
+            // Lets GDAL and QGIS see the NaN pixels as missing too.
+            img.encoder()
+                .write_tag(Tag::GdalNodata, "nan")
+                .map_err(err)?;
+        }
+        img.write_data(&data).map_err(err)?;
+    }
+    Ok(buf.into_inner())
+}

@@ -1,0 +1,409 @@
+//! Image readers and writers against fixtures made by an independent tool
+//! (`fixtures/make_fixtures.py`: numpy, tifffile, Pillow).
+
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array2, array};
+use wtmm::Error;
+use wtmm::field::Field;
+use wtmm::io::{
+    ImageFormat, read_field, read_field_with_info, write_field, write_npy, write_png16,
+    write_tiff_f32,
+};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(name)
+}
+
+/// A fresh, empty scratch directory per test.
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join("io-tests")
+        .join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn read(name: &str) -> Field {
+    read_field(&fixture(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+/// The pixels `make_fixtures.py` leaves missing in the DEM crop.
+const HOLES: [(usize, usize); 3] = [(0, 0), (7, 13), (39, 55)];
+
+#[test]
+fn jacksboro_crop_reads_the_same_in_every_format() {
+    let reference = read("dem_f8.npy");
+    assert_eq!(reference.dim(), (40, 56));
+    let mask = reference.mask.as_ref().expect("reference has holes");
+    assert_eq!(mask.iter().filter(|&&m| m).count(), HOLES.len());
+    for &(y, x) in &HOLES {
+        assert!(reference.is_masked(y, x));
+    }
+    let (lo, hi) = reference.range().unwrap();
+    assert!((300.0..400.0).contains(&lo) && (800.0..900.0).contains(&hi));
+
+    // (file, tolerance, whether the format carries the holes, dtype)
+    let cases = [
+        ("dem_f4.npy", 0.0, true, "<f4"),
+        ("dem_f8_be.npy", 0.0, true, ">f8"),
+        ("dem_f4_fortran.npy", 0.0, true, "<f4"),
+        ("dem_i2.npy", 0.0, false, "<i2"),
+        ("dem_u2_be.npy", 0.0, false, ">u2"),
+        ("dem_f32.tif", 0.0, true, "f32"),
+        ("dem_f32_tiled_deflate.tif", 0.0, true, "f32"),
+        ("dem_i16_geo_nodata.tif", 0.0, true, "i16"),
+        // 16-bit PNG: quantisation step `scale` = 0.5 (from its sidecar).
+        ("dem_u16.png", 0.25, true, "u16"),
+        ("dem_u16.pgm", 0.0, false, "u16"),
+        ("dem.asc", 0.0, true, "text"),
+    ];
+    for (name, tol, holes, dtype) in cases {
+        let (f, info) = read_field_with_info(&fixture(name)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(f.dim(), (40, 56), "{name}");
+        assert_eq!(info.dtype, dtype, "{name}");
+        assert!(info.warnings.is_empty(), "{name}: {:?}", info.warnings);
+        for ((y, x), &r) in reference.data.indexed_iter() {
+            let v = f.data[[y, x]];
+            if mask[[y, x]] {
+                if holes {
+                    assert!(
+                        f.is_masked(y, x) && v.is_nan(),
+                        "{name} ({y},{x}) not masked"
+                    );
+                } else {
+                    assert!(!f.is_masked(y, x) && v.is_finite(), "{name} ({y},{x})");
+                }
+            } else {
+                assert!(!f.is_masked(y, x), "{name} ({y},{x}) wrongly masked");
+                assert!((v - r).abs() <= tol, "{name} ({y},{x}): {v} vs {r}");
+            }
+        }
+        if holes {
+            assert_eq!(f.mask.as_ref(), Some(mask), "{name}");
+        } else {
+            assert_eq!(f.mask, None, "{name}");
+        }
+    }
+    let (_, info) = read_field_with_info(&fixture("dem_u16.png")).unwrap();
+    assert_eq!(info.format, ImageFormat::Png);
+    assert_eq!(info.sidecar, Some(fixture("dem_u16.json")));
+}
+
+#[test]
+fn small_png_files() {
+    let g = read("grey8.png");
+    let expect = Array2::from_shape_fn((4, 5), |(y, x)| ((y * 5 + x) * 13) as f64);
+    assert_eq!(g.data, expect);
+    assert_eq!(g.mask, None);
+
+    // Alpha 0 marks missing pixels: odd grey values were written transparent.
+    let ga = read("grey_alpha.png");
+    assert_eq!(ga.valid_count(), 10);
+    for ((y, x), &e) in expect.indexed_iter() {
+        assert_eq!(ga.is_masked(y, x), e as u32 % 2 == 1);
+        if e as u32 % 2 == 0 {
+            assert_eq!(ga.data[[y, x]], e);
+        }
+    }
+
+    let (rgb, info) = read_field_with_info(&fixture("rgb.png")).unwrap();
+    let lum = |r: f64, g: f64, b: f64| 0.2126 * r + 0.7152 * g + 0.0722 * b;
+    let want = array![
+        [lum(255., 0., 0.), lum(0., 255., 0.), lum(0., 0., 255.)],
+        [lum(255., 255., 255.), 0.0, lum(10., 20., 30.)]
+    ];
+    assert!((&rgb.data - &want).iter().all(|d| d.abs() < 1e-9));
+    assert!(
+        info.warnings[0].contains("luminance"),
+        "{:?}",
+        info.warnings
+    );
+
+    let (pal, info) = read_field_with_info(&fixture("palette.png")).unwrap();
+    let (r, g, b) = (lum(255., 0., 0.), lum(0., 255., 0.), lum(0., 0., 255.));
+    assert!(
+        (&pal.data - &array![[r, g], [b, g]])
+            .iter()
+            .all(|d| d.abs() < 1e-9)
+    );
+    assert!(info.warnings[0].contains("palette"), "{:?}", info.warnings);
+}
+
+#[test]
+fn small_pgm_and_tiff_files() {
+    assert_eq!(
+        read("p2.pgm").data,
+        array![[0., 1., 2.], [253., 254., 255.]]
+    );
+    assert_eq!(
+        read("p5_8bit.pgm").data,
+        array![[0., 50., 100., 150.], [200., 0., 1., 2.]]
+    );
+    let i32 = read("i32.tif");
+    assert_eq!(i32.data, array![[-2e9, 0., 7.], [1., 2., 2e9]]);
+
+    let (f64t, info) = read_field_with_info(&fixture("f64.tif")).unwrap();
+    assert_eq!(info.dtype, "f64");
+    assert!(f64t.is_masked(0, 1));
+    assert_eq!(f64t.valid_count(), 5);
+    assert_eq!(f64t.data[[0, 2]], 1e300);
+    assert_eq!(f64t.data[[1, 2]], 1e-300);
+    assert_eq!(f64t.data[[0, 0]], 0.1);
+
+    assert_eq!(read("u8.tif").data, read("grey8.png").data);
+}
+
+#[test]
+fn bad_files_give_typed_errors_naming_file_and_problem() {
+    let cases = [
+        ("missing.npy", "cannot read"),
+        ("unknown.dat", "unknown image format"),
+        ("bad_3d.npy", "expected a 2D array, got shape (2, 3, 4)"),
+        ("bad_1d.npy", "got shape (5,)"),
+        ("bad_complex.npy", "complex"),
+        ("bad_bool.npy", "bool"),
+        ("bad_str.npy", "string"),
+        ("bad_empty.npy", "empty"),
+        ("bad_truncated.npy", "truncated"),
+        ("bad_magic.npy", "not a .npy file"),
+        ("bad_truncated.png", "truncated"),
+        ("bad_zero_bytes.png", "empty"),
+        ("bad_empty.png", "empty image (3 x 0)"),
+        ("bad_huge.png", "too large"),
+        ("bad_huge.npy", "truncated"),
+        ("bad_2band.tif", "2 bands"),
+        ("bad_rgb.tif", "3 bands"),
+        ("bad_garbage.tif", "corrupt"),
+        ("bad_count.asc", "wrong value count: expected 6"),
+        ("bad_header.asc", "lacks nrows"),
+        ("bad_p6.pgm", "colour"),
+        ("bad_truncated.pgm", "truncated"),
+    ];
+    for (name, word) in cases {
+        let path = fixture(name);
+        let err = read_field(&path).expect_err(name);
+        let msg = err.to_string();
+        assert!(msg.contains(name), "{name}: message lacks the file: {msg}");
+        assert!(
+            msg.to_lowercase().contains(&word.to_lowercase()),
+            "{name}: message lacks `{word}`: {msg}"
+        );
+        assert!(
+            matches!(err, Error::Format { .. } | Error::Read { .. }),
+            "{name}: {err:?}"
+        );
+    }
+}
+
+/// Truncated and bit-flipped copies of every good fixture: errors, never panics.
+#[test]
+fn corrupt_inputs_never_panic() {
+    let dir = scratch("corrupt");
+    let goods = [
+        "dem_f8.npy",
+        "dem_f4_fortran.npy",
+        "dem_i2.npy",
+        "dem_f32.tif",
+        "dem_f32_tiled_deflate.tif",
+        "dem_i16_geo_nodata.tif",
+        "f64.tif",
+        "dem_u16.png",
+        "grey8.png",
+        "palette.png",
+        "grey_alpha.png",
+        "dem_u16.pgm",
+        "p2.pgm",
+        "dem.asc",
+    ];
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut rand = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    let mut errors = 0;
+    for name in goods {
+        let bytes = std::fs::read(fixture(name)).unwrap();
+        let mut variants: Vec<Vec<u8>> = (0..24)
+            .map(|k| bytes[..bytes.len() * k / 24].to_vec())
+            .collect();
+        for _ in 0..48 {
+            let mut b = bytes.clone();
+            // Corrupt mostly the header, where a bad byte does the most harm.
+            let span = if rand() % 2 == 0 {
+                b.len().min(200)
+            } else {
+                b.len()
+            };
+            for _ in 0..1 + rand() % 3 {
+                let i = (rand() as usize) % span;
+                b[i] = rand() as u8;
+            }
+            variants.push(b);
+        }
+        for (k, v) in variants.into_iter().enumerate() {
+            let path = dir.join(format!("x_{k}_{name}"));
+            // A new file each time: overwriting one on ext4 costs a flush.
+            std::fs::write(&path, &v).unwrap();
+            if let Err(e) = read_field(&path) {
+                errors += 1;
+                assert!(e.to_string().contains("x_"), "{e}");
+            }
+        }
+    }
+    assert!(errors > 100, "only {errors} corrupt files were rejected");
+}
+
+#[test]
+fn extension_is_case_insensitive() {
+    let dir = scratch("case");
+    let p = dir.join("DEM.TIFF");
+    std::fs::copy(fixture("dem_f32.tif"), &p).unwrap();
+    assert_eq!(read_field(&p).unwrap().dim(), (40, 56));
+}
+
+fn test_array() -> Array2<f64> {
+    let mut a = Array2::from_shape_fn((13, 17), |(y, x)| {
+        (y as f64 * 0.37).sin() * 100.0 + x as f64 * 1.5 - 20.0
+    });
+    a[[3, 4]] = f64::NAN;
+    a[[12, 16]] = f64::NAN;
+    a
+}
+
+fn same_with_nan(a: &Array2<f64>, b: &Array2<f64>, tol: f64) {
+    assert_eq!(a.dim(), b.dim());
+    for (x, y) in a.iter().zip(b.iter()) {
+        assert!(
+            (x.is_nan() && y.is_nan()) || (x - y).abs() <= tol,
+            "{x} vs {y}"
+        );
+    }
+}
+
+#[test]
+fn writers_round_trip_with_nan() {
+    let dir = scratch("roundtrip");
+    let a = test_array();
+
+    let p = dir.join("a.npy");
+    write_npy(&p, &a).unwrap();
+    let f = read_field(&p).unwrap();
+    same_with_nan(&f.data, &a, 0.0);
+    assert!(f.is_masked(3, 4) && f.is_masked(12, 16));
+
+    let p = dir.join("a.tif");
+    write_tiff_f32(&p, &a).unwrap();
+    let (f, info) = read_field_with_info(&p).unwrap();
+    assert_eq!(info.dtype, "f32");
+    same_with_nan(&f.data, &a.mapv(|v| v as f32 as f64), 0.0);
+    assert_eq!(f.valid_count(), a.len() - 2);
+
+    let p = dir.join("a.png");
+    let m = write_png16(&p, &a).unwrap();
+    let (lo, hi) = Field::new(a.clone()).range().unwrap();
+    assert_eq!((m.min, m.max, m.nodata), (Some(lo), Some(hi), 65535));
+    assert!((m.scale - (hi - lo) / 65534.0).abs() < 1e-12 && m.offset == lo);
+    let sidecar: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("a.json")).unwrap()).unwrap();
+    assert_eq!(sidecar["scale"].as_f64(), Some(m.scale));
+    assert_eq!(sidecar["offset"].as_f64(), Some(m.offset));
+    assert_eq!(sidecar["nodata"].as_u64(), Some(65535));
+    let (f, info) = read_field_with_info(&p).unwrap();
+    assert_eq!(info.dtype, "u16");
+    same_with_nan(&f.data, &a, m.scale / 2.0 * (1.0 + 1e-9));
+    assert_eq!(f.valid_count(), a.len() - 2);
+    // min and max land exactly on codes 0 and 65534.
+    assert!((f.range().unwrap().0 - lo).abs() < 1e-9 && (f.range().unwrap().1 - hi).abs() < 1e-9);
+
+    // Degenerate images: constant, and all missing.
+    for (name, arr) in [
+        ("const.png", Array2::from_elem((2, 3), 7.5)),
+        ("nan.png", Array2::from_elem((2, 3), f64::NAN)),
+    ] {
+        let p = dir.join(name);
+        write_png16(&p, &arr).unwrap();
+        same_with_nan(&read_field(&p).unwrap().data, &arr, 0.0);
+    }
+}
+
+#[test]
+fn write_field_dispatches_and_writes_masks() {
+    let dir = scratch("write_field");
+    let data = array![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]];
+    let mask = array![[false, true, false], [false, false, false]];
+    let field = Field::with_mask(data, mask);
+    for name in ["f.npy", "f.tif", "f.tiff", "f.png"] {
+        let p = dir.join(name);
+        write_field(&p, &field).unwrap();
+        let back = read_field(&p).unwrap();
+        assert_eq!(back.mask, field.mask, "{name}");
+        same_with_nan(&back.data, &field.data, 1e-3);
+    }
+    let err = write_field(&dir.join("f.pgm"), &field).unwrap_err();
+    assert!(err.to_string().contains("f.pgm") && err.to_string().contains("cannot write"));
+    let err = write_tiff_f32(&dir.join("e.tif"), &Array2::zeros((0, 3))).unwrap_err();
+    assert!(err.to_string().contains("empty"));
+    let err = write_png16(&dir.join("e.png"), &Array2::zeros((3, 0))).unwrap_err();
+    assert!(err.to_string().contains("empty"));
+}
+
+#[test]
+fn nothing_half_written() {
+    let dir = scratch("atomic");
+    let a = test_array();
+    let missing = dir.join("no_such_dir");
+    assert!(write_npy(&missing.join("a.npy"), &a).is_err());
+    assert!(write_tiff_f32(&missing.join("a.tif"), &a).is_err());
+    assert!(write_png16(&missing.join("a.png"), &a).is_err());
+    assert!(!missing.exists());
+
+    // The PNG target is a directory: the PNG write fails after the sidecar
+    // was written, and the sidecar must go too.
+    std::fs::create_dir(dir.join("b.png")).unwrap();
+    let err = write_png16(&dir.join("b.png"), &a).unwrap_err();
+    assert!(err.to_string().contains("b.png"), "{err}");
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    assert_eq!(left, vec!["b.png".to_string()], "left behind: {left:?}");
+}
+
+#[test]
+fn png_sidecar_rules() {
+    let dir = scratch("sidecar");
+    let png = dir.join("s.png");
+    std::fs::copy(fixture("dem_u16.png"), &png).unwrap();
+    let raw = read_field(&png).unwrap();
+    // No sidecar: raw integers, 65535 is just a value.
+    assert_eq!(raw.mask, None);
+    assert_eq!(raw.data[[0, 0]], 65535.0);
+
+    // The shared/data convention: nodata stated only in `png_decode`.
+    let json = r#"{"png_decode": "value = png*scale + offset; png==65535 -> NaN", "scale": 0.5, "offset": 100}"#;
+    std::fs::write(dir.join("s.json"), json).unwrap();
+    let f = read_field(&png).unwrap();
+    assert_eq!(f.mask, read("dem_f8.npy").mask);
+
+    std::fs::write(dir.join("s.json"), r#"{"units": "m"}"#).unwrap();
+    let (f, info) = read_field_with_info(&png).unwrap();
+    assert_eq!(f.data[[0, 0]], 65535.0);
+    assert!(
+        info.warnings[0].contains("no `scale`"),
+        "{:?}",
+        info.warnings
+    );
+
+    std::fs::write(dir.join("s.json"), "{not json").unwrap();
+    let err = read_field(&png).unwrap_err().to_string();
+    assert!(
+        err.contains("s.json") && err.contains("invalid JSON"),
+        "{err}"
+    );
+}
