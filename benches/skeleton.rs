@@ -19,7 +19,10 @@ fn main() {
     let floor = FftFloor::new(n, n);
     let plan = CwtPlan::new(n, n, cfg.wavelet, &cfg.scale_list()).unwrap();
     let reps = 3;
-    println!("skeleton bench: {n}x{n}, {ns} scales, gauss, margin {} px", cfg.margin_px());
+    println!(
+        "skeleton bench: {n}x{n}, {ns} scales, gauss, margin {} px",
+        cfg.margin_px()
+    );
     let pool = one_thread_pool();
     let (t_cwt, t_sk, t_fft, lines) = pool.install(|| {
         let c = median_secs(reps, || {
@@ -30,7 +33,10 @@ fn main() {
         });
         let mut lines = 0;
         let s = median_secs(reps, || {
-            lines = skeleton_with(&field, &cfg, Parallelism::Serial, &[]).unwrap().lines.len();
+            lines = skeleton_with(&field, &cfg, Parallelism::Serial, &[])
+                .unwrap()
+                .lines
+                .len();
         });
         let f = median_secs(reps, || floor.run_serial(ns));
         (c, s, f, lines)
@@ -40,6 +46,19 @@ fn main() {
     });
     let t_fftn = median_secs(reps, || floor.run_parallel(ns));
     println!("lines born at a_min: {lines}");
-    println!("1 thread : FFT floor {:7.1} ms | CWT {:7.1} ms ({:.3}x) | skeleton {:7.1} ms ({:.3}x)", 1e3 * t_fft, 1e3 * t_cwt, t_cwt / t_fft, 1e3 * t_sk, t_sk / t_fft);
-    println!("{} threads: FFT floor {:7.1} ms | skeleton {:7.1} ms ({:.3}x)", rayon::current_num_threads(), 1e3 * t_fftn, 1e3 * t_skn, t_skn / t_fftn);
+    println!(
+        "1 thread : FFT floor {:7.1} ms | CWT {:7.1} ms ({:.3}x) | skeleton {:7.1} ms ({:.3}x)",
+        1e3 * t_fft,
+        1e3 * t_cwt,
+        t_cwt / t_fft,
+        1e3 * t_sk,
+        t_sk / t_fft
+    );
+    println!(
+        "{} threads: FFT floor {:7.1} ms | skeleton {:7.1} ms ({:.3}x)",
+        rayon::current_num_threads(),
+        1e3 * t_fftn,
+        1e3 * t_skn,
+        t_skn / t_fftn
+    );
 }

@@ -435,6 +435,31 @@ impl CwtPlan {
         &ws.out
     }
 
+    /// The smoothed image `φ_a * f` at scale `a` (the background of II
+    /// Fig 9), from the image's spectrum. For pictures: it allocates.
+    pub fn smoothed(&self, fi: &FourierImage, a: f64) -> Array2<f64> {
+        let (ny, nx) = (self.ny, self.nx);
+        let mut buf = vec![Complex64::default(); nx * ny];
+        let c = 1.0 / (nx * ny) as f64;
+        for kx in 0..nx {
+            let gx = (-0.5 * a * a * self.kx[kx] * self.kx[kx]).exp();
+            for ky in 0..ny {
+                let mut g = c * gx * (-0.5 * a * a * self.ky[ky] * self.ky[ky]).exp();
+                if self.wavelet == Wavelet::Mexican {
+                    g *= a * a * (self.kx[kx] * self.kx[kx] + self.ky[ky] * self.ky[ky]);
+                }
+                buf[kx * ny + ky] = fi.spec[kx * ny + ky] * g;
+            }
+        }
+        let mut scratch = vec![Complex64::default(); self.scratch_len];
+        self.inv_y.process_with_scratch(&mut buf, &mut scratch);
+        let mut out = vec![Complex64::default(); nx * ny];
+        transpose::transpose(&buf, &mut out, ny, nx);
+        self.inv_x.process_with_scratch(&mut out, &mut scratch);
+        Array2::from_shape_vec((ny, nx), out.into_iter().map(|z| z.re).collect())
+            .expect("shape from the plan")
+    }
+
     /// Streams the scales of one image in order, serially: `f(j, a, T)` with
     /// `T = T1 + i T2`. Memory: a workspace (two complex images) besides the
     /// image's spectrum, whatever the number of scales.

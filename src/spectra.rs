@@ -132,19 +132,31 @@ impl PartitionSums {
     /// **Errors** if the q grids or the scales differ.
     pub fn merge(&mut self, other: &PartitionSums) -> Result<()> {
         if self.q != other.q {
-            return Err(Error::param("q", "cannot merge partition sums over different q grids"));
+            return Err(Error::param(
+                "q",
+                "cannot merge partition sums over different q grids",
+            ));
         }
         if self.scales.len() != other.scales.len()
-            || self.scales.iter().zip(&other.scales).any(|(a, b)| (a - b).abs() > 1e-9 * a)
+            || self
+                .scales
+                .iter()
+                .zip(&other.scales)
+                .any(|(a, b)| (a - b).abs() > 1e-9 * a)
         {
-            return Err(Error::param("scales", "cannot merge partition sums over different scales"));
+            return Err(Error::param(
+                "scales",
+                "cannot merge partition sums over different scales",
+            ));
         }
         self.images.extend(other.images.iter().cloned());
         Ok(())
     }
 
     /// Merges many; `None` for an empty list.
-    pub fn merge_all(parts: impl IntoIterator<Item = PartitionSums>) -> Result<Option<PartitionSums>> {
+    pub fn merge_all(
+        parts: impl IntoIterator<Item = PartitionSums>,
+    ) -> Result<Option<PartitionSums>> {
         let mut it = parts.into_iter();
         let Some(mut acc) = it.next() else {
             return Ok(None);
@@ -271,7 +283,9 @@ impl PartitionSums {
         for qi in 0..nq {
             let qv = self.q[qi];
             if !est.tau[qi].is_finite() {
-                warnings.push(format!("q = {qv}: tau not estimable (empty partition function in the fit range)"));
+                warnings.push(format!(
+                    "q = {qv}: tau not estimable (empty partition function in the fit range)"
+                ));
                 continue;
             }
             if est.r2[qi] < R2_WARN {
@@ -297,7 +311,11 @@ impl PartitionSums {
                 ens.lines[last_fit], self.scales[last_fit]
             ));
         }
-        let cell = |v: &Vec<f64>| -> Vec<Vec<f64>> { (0..nq).map(|qi| v[qi * ns..(qi + 1) * ns].to_vec()).collect() };
+        let cell = |v: &Vec<f64>| -> Vec<Vec<f64>> {
+            (0..nq)
+                .map(|qi| v[qi * ns..(qi + 1) * ns].to_vec())
+                .collect()
+        };
         let d_qa: Vec<f64> = (0..nq * ns)
             .map(|c| self.q[c / ns] * ens.h[c] - ens.log2_z[c])
             .collect();
@@ -310,7 +328,12 @@ impl PartitionSums {
             tau_stderr: pick(&jk_tau, &est.tau_se),
             h_stderr: pick(&jk_h, &est.h_se),
             d_stderr: pick(&jk_d, &est.d_se),
-            stderr_method: if n_img >= 3 { "jackknife over images" } else { "regression" }.into(),
+            stderr_method: if n_img >= 3 {
+                "jackknife over images"
+            } else {
+                "regression"
+            }
+            .into(),
             tau: est.tau,
             h: est.h,
             d: est.d,
@@ -335,7 +358,10 @@ pub const N_EFF_WARN: f64 = 10.0;
 
 /// Jackknife where available, regression otherwise.
 fn pick(jk: &[f64], reg: &[f64]) -> Vec<f64> {
-    jk.iter().zip(reg).map(|(&a, &b)| if a.is_finite() { a } else { b }).collect()
+    jk.iter()
+        .zip(reg)
+        .map(|(&a, &b)| if a.is_finite() { a } else { b })
+        .collect()
 }
 
 fn cell(log2m: &[f64], q: f64) -> Cell {
@@ -396,7 +422,9 @@ impl Estimates {
                 continue; // a scale without lines: not estimable
             }
             let d: Vec<f64> = z.iter().zip(&h).map(|(zz, hh)| qv * hh - zz).collect();
-            if let (Some(fz), Some(fh), Some(fd)) = (line_fit(&x, &z), line_fit(&x, &h), line_fit(&x, &d)) {
+            if let (Some(fz), Some(fh), Some(fd)) =
+                (line_fit(&x, &z), line_fit(&x, &h), line_fit(&x, &d))
+            {
                 e.tau[qi] = fz.slope;
                 e.tau_se[qi] = fz.slope_stderr;
                 e.r2[qi] = fz.r2;

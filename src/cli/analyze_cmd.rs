@@ -50,7 +50,9 @@ impl SpectraOpts {
             margin: self.cwt.margin,
             eps: 1e-7,
             link: LinkParams {
-                radius: SearchRadius::Reference { cap: self.radius_cap },
+                radius: SearchRadius::Reference {
+                    cap: self.radius_cap,
+                },
                 ratio,
             },
         };
@@ -67,7 +69,10 @@ impl SpectraOpts {
         if r.0 < 0.0 || r.1 > self.cwt.octaves as f64 + 1e-9 {
             return Err(Error::param(
                 "fit",
-                format!("{}:{} must lie within 0:{} octaves", r.0, r.1, self.cwt.octaves),
+                format!(
+                    "{}:{} must lie within 0:{} octaves",
+                    r.0, r.1, self.cwt.octaves
+                ),
             ));
         }
         Ok(r)
@@ -114,7 +119,10 @@ fn parse_theory(s: &str) -> Result<TheoryCurves> {
                 dh: vec![(h, 2.0)],
             })
         }
-        _ => Err(Error::param("theory", format!("unknown model `{model}` (known: fbm:H)"))),
+        _ => Err(Error::param(
+            "theory",
+            format!("unknown model `{model}` (known: fbm:H)"),
+        )),
     }
 }
 
@@ -135,7 +143,15 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         "images": args.images, "analysis": cfg, "q": q, "fit_octaves": fit,
         "rule": args.opts.rule(), "theory": args.theory,
     });
-    write_outputs(&args.out.out, "analyze", params, &sums, &spectra, &other, theory.as_ref())?;
+    write_outputs(
+        &args.out.out,
+        "analyze",
+        params,
+        &sums,
+        &spectra,
+        &other,
+        theory.as_ref(),
+    )?;
     for w in &spectra.warnings {
         eprintln!("warning: {w}");
     }
@@ -147,7 +163,12 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
 
 /// Reads and analyses every image (in parallel over images); a bad or
 /// constant image stops everything before any output is written.
-pub fn analyze_paths(paths: &[PathBuf], cfg: &AnalysisConfig, q: &[f64], quiet: bool) -> Result<PartitionSums> {
+pub fn analyze_paths(
+    paths: &[PathBuf],
+    cfg: &AnalysisConfig,
+    q: &[f64],
+    quiet: bool,
+) -> Result<PartitionSums> {
     let pb = progress(paths.len() as u64, "analyze", quiet);
     let parts: Vec<PartitionSums> = paths
         .par_iter()
@@ -156,7 +177,10 @@ pub fn analyze_paths(paths: &[PathBuf], cfg: &AnalysisConfig, q: &[f64], quiet: 
             let s = image_sums(&field, cfg, q, p.display().to_string())
                 .map_err(|e| Error::format(p, e.to_string()))?;
             if s.images[0].lines[0] == 0 {
-                return Err(Error::format(p, "no maxima lines: the image is constant or flat"));
+                return Err(Error::format(
+                    p,
+                    "no maxima lines: the image is constant or flat",
+                ));
             }
             pb.inc(1);
             Ok(s)
@@ -229,19 +253,37 @@ pub fn write_outputs(
         .collect();
     write_csv(
         &dir.join("tau.csv"),
-        &["q", "tau", "tau_stderr", "tau_r2", "h", "h_stderr", "D", "D_stderr", "legendre_h", "legendre_D"],
+        &[
+            "q",
+            "tau",
+            "tau_stderr",
+            "tau_r2",
+            "h",
+            "h_stderr",
+            "D",
+            "D_stderr",
+            "legendre_h",
+            "legendre_D",
+        ],
         &rows,
     )?;
     let mut hdr = vec!["q".to_string()];
     hdr.extend(s.log2_scales.iter().map(|l| format!("log2a={l:.4}")));
     let hdr_ref: Vec<&str> = hdr.iter().map(|x| x.as_str()).collect();
-    for (name, table) in [("logZ.csv", &s.log2_z), ("hqa.csv", &s.h_qa), ("Dqa.csv", &s.d_qa)] {
-        let rows: Vec<Vec<String>> = s
-            .q
-            .iter()
-            .zip(table)
-            .map(|(q, r)| std::iter::once(f(*q)).chain(r.iter().map(|v| f(*v))).collect())
-            .collect();
+    for (name, table) in [
+        ("logZ.csv", &s.log2_z),
+        ("hqa.csv", &s.h_qa),
+        ("Dqa.csv", &s.d_qa),
+    ] {
+        let rows: Vec<Vec<String>> =
+            s.q.iter()
+                .zip(table)
+                .map(|(q, r)| {
+                    std::iter::once(f(*q))
+                        .chain(r.iter().map(|v| f(*v)))
+                        .collect()
+                })
+                .collect();
         write_csv(&dir.join(name), &hdr_ref, &rows)?;
     }
     plot_spectra(dir, s, theory)
@@ -255,7 +297,10 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
     let shown: Vec<usize> = (0..nq).step_by(step).collect();
     let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
     let mut za = Chart {
-        title: format!("(a) partition functions, {} image(s), {:?} rule", s.images, s.rule),
+        title: format!(
+            "(a) partition functions, {} image(s), {:?} rule",
+            s.images, s.rule
+        ),
         x_label: "log2 a".into(),
         y_label: "log2 Z(q, a)".into(),
         ..Default::default()
@@ -268,12 +313,35 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
     };
     for (k, &qi) in shown.iter().enumerate() {
         let c = k;
-        let pts: Vec<(f64, f64)> = s.log2_scales.iter().cloned().zip(s.log2_z[qi].iter().cloned()).collect();
-        za.series.push(Series::new(format!("q = {}", s.q[qi]), pts, Style::Markers, c));
-        let pts_h: Vec<(f64, f64)> = s.log2_scales.iter().cloned().zip(s.h_qa[qi].iter().cloned()).collect();
-        hb.series.push(Series::new(format!("q = {}", s.q[qi]), pts_h, Style::Markers, c));
+        let pts: Vec<(f64, f64)> = s
+            .log2_scales
+            .iter()
+            .cloned()
+            .zip(s.log2_z[qi].iter().cloned())
+            .collect();
+        za.series.push(Series::new(
+            format!("q = {}", s.q[qi]),
+            pts,
+            Style::Markers,
+            c,
+        ));
+        let pts_h: Vec<(f64, f64)> = s
+            .log2_scales
+            .iter()
+            .cloned()
+            .zip(s.h_qa[qi].iter().cloned())
+            .collect();
+        hb.series.push(Series::new(
+            format!("q = {}", s.q[qi]),
+            pts_h,
+            Style::Markers,
+            c,
+        ));
         // fitted lines over the fit range, through the mean of the fitted points
-        for (chart, slope, vals) in [(&mut za, s.tau[qi], &s.log2_z[qi]), (&mut hb, s.h[qi], &s.h_qa[qi])] {
+        for (chart, slope, vals) in [
+            (&mut za, s.tau[qi], &s.log2_z[qi]),
+            (&mut hb, s.h[qi], &s.h_qa[qi]),
+        ] {
             let sel: Vec<(f64, f64)> = s
                 .log2_scales
                 .iter()
@@ -286,20 +354,33 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
             }
             let mx = sel.iter().map(|p| p.0).sum::<f64>() / sel.len() as f64;
             let my = sel.iter().map(|p| p.1).sum::<f64>() / sel.len() as f64;
-            chart.series.push(Series::new("", vec![(lo, my + slope * (lo - mx)), (hi, my + slope * (hi - mx))], Style::Line, c));
+            chart.series.push(Series::new(
+                "",
+                vec![(lo, my + slope * (lo - mx)), (hi, my + slope * (hi - mx))],
+                Style::Line,
+                c,
+            ));
         }
     }
     save_chart(&za, &dir.join("logZ.png"))?;
     save_chart(&hb, &dir.join("hqa.png"))?;
     let mut tc = Chart {
-        title: format!("(c) tau(q), fit {:.1}-{:.1} px", s.fit_scales.0, s.fit_scales.1),
+        title: format!(
+            "(c) tau(q), fit {:.1}-{:.1} px",
+            s.fit_scales.0, s.fit_scales.1
+        ),
         x_label: "q".into(),
         y_label: "tau(q)".into(),
         ..Default::default()
     };
     tc.series.push(
-        Series::new("estimate", s.q.iter().cloned().zip(s.tau.iter().cloned()).collect(), Style::Markers, 0)
-            .with_errors(s.tau_stderr.clone()),
+        Series::new(
+            "estimate",
+            s.q.iter().cloned().zip(s.tau.iter().cloned()).collect(),
+            Style::Markers,
+            0,
+        )
+        .with_errors(s.tau_stderr.clone()),
     );
     let mut dc = Chart {
         title: "(d) D(h)".into(),
@@ -315,15 +396,35 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
     ));
     dc.series.push(Series::new(
         "Legendre of tau(q)",
-        s.legendre_h.iter().cloned().zip(s.legendre_d.iter().cloned()).collect(),
+        s.legendre_h
+            .iter()
+            .cloned()
+            .zip(s.legendre_d.iter().cloned())
+            .collect(),
         Style::Markers,
         3,
     ));
     if let Some(t) = theory {
-        let qs: Vec<f64> = (0..=200).map(|i| s.q[0] + (s.q[nq - 1] - s.q[0]) * i as f64 / 200.0).collect();
-        tc.series.push(Series::new(format!("theory: {}", t.name), qs.iter().map(|&q| (q, (t.tau)(q))).collect(), Style::Line, 1));
-        let style = if t.dh.len() > 1 { Style::Line } else { Style::Markers };
-        dc.series.push(Series::new(format!("theory: {}", t.name), t.dh.clone(), style, 1));
+        let qs: Vec<f64> = (0..=200)
+            .map(|i| s.q[0] + (s.q[nq - 1] - s.q[0]) * i as f64 / 200.0)
+            .collect();
+        tc.series.push(Series::new(
+            format!("theory: {}", t.name),
+            qs.iter().map(|&q| (q, (t.tau)(q))).collect(),
+            Style::Line,
+            1,
+        ));
+        let style = if t.dh.len() > 1 {
+            Style::Line
+        } else {
+            Style::Markers
+        };
+        dc.series.push(Series::new(
+            format!("theory: {}", t.name),
+            t.dh.clone(),
+            style,
+            1,
+        ));
     }
     save_chart(&tc, &dir.join("tau.png"))?;
     save_chart(&dc, &dir.join("dh.png"))

@@ -6,6 +6,7 @@
 mod analyze_cmd;
 mod common;
 mod cwt_cmd;
+mod skeleton_cmd;
 mod spectrum_cmd;
 mod synth_cmd;
 
@@ -35,6 +36,8 @@ pub enum Command {
     Cwt(cwt_cmd::CwtArgs),
     /// Isotropic power spectrum and its slope beta.
     Spectrum(spectrum_cmd::SpectrumArgs),
+    /// WT skeleton: WTMMM, maxima lines and pictures of chosen scales.
+    Skeleton(skeleton_cmd::SkeletonArgs),
     /// WTMM multifractal spectra tau(q), h(q), D(q), D(h) of an ensemble.
     Analyze(analyze_cmd::AnalyzeArgs),
 }
@@ -84,6 +87,7 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Cwt(a) => cwt_cmd::run(a, quiet),
         Command::Spectrum(a) => spectrum_cmd::run(a, quiet),
         Command::Analyze(a) => analyze_cmd::run(a, quiet),
+        Command::Skeleton(a) => skeleton_cmd::run(a, quiet),
     }
 }
 

@@ -10,7 +10,7 @@ use serde_json::json;
 use super::common::{header, make_out_dir, progress, write_json};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
-use crate::io::write_npy;
+use crate::io::{write_npy, write_png16, write_tiff_f32};
 use crate::synth::fbm::{FbmParams, fbm};
 
 #[derive(Args, Debug)]
@@ -52,12 +52,17 @@ pub struct SynthCommon {
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum Format {
     Npy,
+    Tiff,
+    /// 16-bit PNG with a JSON sidecar giving the scale and offset.
+    Png,
 }
 
 impl Format {
     fn ext(self) -> &'static str {
         match self {
             Format::Npy => "npy",
+            Format::Tiff => "tif",
+            Format::Png => "png",
         }
     }
 }
@@ -65,6 +70,8 @@ impl Format {
 fn write_image(path: &Path, a: &ndarray::Array2<f64>, format: Format) -> Result<()> {
     match format {
         Format::Npy => write_npy(path, a),
+        Format::Tiff => write_tiff_f32(path, a),
+        Format::Png => write_png16(path, a).map(|_| ()),
     }
 }
 

@@ -1,0 +1,174 @@
+//! `wtmm skeleton IMAGE --out DIR`: WTMMM, maxima lines and II Fig 9-style
+//! pictures (smoothed image, maxima chains, an arrow per WTMMM).
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+use clap::Args;
+use serde_json::json;
+
+use super::analyze_cmd::SpectraOpts;
+use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
+use super::{OutDir, Outcome};
+use crate::cwt::CwtPlan;
+use crate::error::{Error, Result};
+use crate::io::read_field;
+use crate::plot::Raster;
+use crate::skeleton::{Parallelism, skeleton_with};
+
+#[derive(Args, Debug)]
+pub struct SkeletonArgs {
+    /// Input image.
+    pub image: PathBuf,
+    #[command(flatten)]
+    pub opts: SpectraOpts,
+    /// Scales (px) to draw, nearest grid scale each: `a,b,c` (default: 1, 2 and 3 octaves above a_min).
+    #[arg(long)]
+    pub scales: Option<String>,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
+    let cfg = args.opts.analysis()?;
+    let field = read_field(&args.image)?;
+    let grid = cfg.scale_list();
+    let want: Vec<f64> = match &args.scales {
+        Some(s) => parse_list("scales", s)?,
+        None => vec![2.0 * cfg.a_min, 4.0 * cfg.a_min, 8.0 * cfg.a_min],
+    };
+    let mut draw: Vec<usize> = want
+        .iter()
+        .map(|&a| {
+            (0..grid.len())
+                .min_by(|&i, &j| {
+                    (grid[i].ln() - a.ln())
+                        .abs()
+                        .total_cmp(&(grid[j].ln() - a.ln()).abs())
+                })
+                .expect("non-empty grid")
+        })
+        .collect();
+    draw.sort_unstable();
+    draw.dedup();
+    let all: Vec<usize> = (0..grid.len()).collect();
+    let sk = skeleton_with(&field, &cfg, Parallelism::Scales, &all)
+        .map_err(|e| Error::format(&args.image, e.to_string()))?;
+    if sk.lines.is_empty() {
+        return Err(Error::format(
+            &args.image,
+            "no maxima: the image is constant or flat",
+        ));
+    }
+    make_out_dir(&args.out.out)?;
+    // line id of each (scale, x, y)
+    let mut on_line: HashMap<(usize, u32, u32), usize> = HashMap::new();
+    for (id, l) in sk.lines.iter().enumerate() {
+        for (j, p) in l.points.iter().enumerate() {
+            on_line.insert((j, p.x, p.y), id);
+        }
+    }
+    let mut rows = Vec::new();
+    for sm in &sk.kept {
+        for w in &sm.wtmmm {
+            let line = on_line
+                .get(&(sm.j, w.x, w.y))
+                .map_or("-1".to_string(), |l| l.to_string());
+            rows.push(vec![
+                sm.j.to_string(),
+                f(sm.a),
+                w.x.to_string(),
+                w.y.to_string(),
+                f(w.m),
+                f(w.arg),
+                w.chain.to_string(),
+                line,
+            ]);
+        }
+    }
+    write_csv(
+        &args.out.out.join("wtmmm.csv"),
+        &["j", "a", "x", "y", "M", "A", "chain", "line"],
+        &rows,
+    )?;
+    let mut rows = Vec::new();
+    for (id, l) in sk.lines.iter().enumerate() {
+        let death = sk.scales[l.points.len() - 1];
+        for (j, p) in l.points.iter().enumerate() {
+            rows.push(vec![
+                id.to_string(),
+                f(sk.scales[0]),
+                f(death),
+                j.to_string(),
+                f(sk.scales[j]),
+                p.x.to_string(),
+                p.y.to_string(),
+                f(p.m),
+                f(p.sup),
+                f(p.arg),
+            ]);
+        }
+    }
+    write_csv(
+        &args.out.out.join("lines.csv"),
+        &[
+            "line", "birth_a", "death_a", "j", "a", "x", "y", "M", "sup", "A",
+        ],
+        &rows,
+    )?;
+    // pictures
+    let (ny, nx) = field.dim();
+    let plan = CwtPlan::new(ny, nx, cfg.wavelet, &grid)?;
+    let fi = plan.forward(field.filled()?.view())?;
+    let mut pictures = Vec::new();
+    for &j in &draw {
+        let sm = &sk.kept[j];
+        let mut r = Raster::from_grey(plan.smoothed(&fi, sm.a).view());
+        // the analysis domain
+        let m = sk.margin as f64;
+        let (x1, y1) = (nx as f64 - 1.0 - m, ny as f64 - 1.0 - m);
+        for (a, b, c, d) in [
+            (m, m, x1, m),
+            (x1, m, x1, y1),
+            (x1, y1, m, y1),
+            (m, y1, m, m),
+        ] {
+            r.line(a, b, c, d, (255, 220, 0));
+        }
+        for ch in &sm.chains {
+            for &(x, y) in &ch.pixels {
+                r.put(x as isize, y as isize, (220, 30, 30));
+            }
+        }
+        let mmax = sm.wtmmm.iter().map(|w| w.m).fold(0.0, f64::max);
+        let len = 0.04 * nx.min(ny) as f64;
+        for w in &sm.wtmmm {
+            let l = len * w.m / mmax;
+            let (x0, y0) = (w.x as f64, w.y as f64);
+            r.line(
+                x0,
+                y0,
+                x0 + l * w.arg.cos(),
+                y0 + l * w.arg.sin(),
+                (30, 90, 255),
+            );
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (-1, 0), (0, -1)] {
+                r.put(w.x as isize + dx, w.y as isize + dy, (0, 200, 60));
+            }
+        }
+        let name = format!("skeleton_j{j:02}_a{:.2}.png", sm.a);
+        r.save(&args.out.out.join(&name))?;
+        pictures.push(json!({"j": j, "a": sm.a, "file": name}));
+    }
+    let mut body = header("skeleton", json!({"image": args.image, "analysis": cfg}));
+    body["shape"] = json!([ny, nx]);
+    body["margin"] = json!(sk.margin);
+    body["lines"] = json!(sk.lines.len());
+    body["per_scale"] = json!(sk.per_scale);
+    body["pictures"] = json!(pictures);
+    body["legend"] = json!(
+        "grey: smoothed image phi_a * f (dark = low); red: maxima chains; green dots: WTMMM; blue: arrow of length proportional to M in direction A; yellow: analysis domain"
+    );
+    write_json(&args.out.out.join("skeleton.json"), &body)?;
+    Ok(Outcome::Ok)
+}
