@@ -5,6 +5,8 @@
 
 mod analyze_cmd;
 mod common;
+mod demo_cmd;
+mod ensemble;
 mod cwt_cmd;
 mod skeleton_cmd;
 mod spectrum_cmd;
@@ -36,6 +38,8 @@ pub enum Command {
     Cwt(cwt_cmd::CwtArgs),
     /// Isotropic power spectrum and its slope beta.
     Spectrum(spectrum_cmd::SpectrumArgs),
+    /// Generate a small ensemble with a known spectrum, analyse it, compare with theory.
+    Demo(demo_cmd::DemoArgs),
     /// WT skeleton: WTMMM, maxima lines and pictures of chosen scales.
     Skeleton(skeleton_cmd::SkeletonArgs),
     /// WTMM multifractal spectra tau(q), h(q), D(q), D(h) of an ensemble.
@@ -88,6 +92,7 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Spectrum(a) => spectrum_cmd::run(a, quiet),
         Command::Analyze(a) => analyze_cmd::run(a, quiet),
         Command::Skeleton(a) => skeleton_cmd::run(a, quiet),
+        Command::Demo(a) => demo_cmd::run(a, quiet),
     }
 }
 
