@@ -22,6 +22,7 @@ pub mod skeleton;
 pub mod spectra;
 pub mod stats;
 pub mod synth;
+pub mod theory;
 
 pub use error::{Error, Result};
 pub use field::Field;

@@ -3,7 +3,10 @@
 //! image `i` of an ensemble uses [`image_seed`]`(seed, i)`, so the same seed
 //! gives the same bytes whatever the thread count or the order of generation.
 
+pub mod dwt;
 pub mod fbm;
+pub mod fisc;
+pub mod wcascade;
 
 use rand::SeedableRng;
 use rand::rngs::Xoshiro256PlusPlus;

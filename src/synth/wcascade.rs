@@ -1,0 +1,570 @@
+//! Random W-cascades on a separable orthonormal wavelet basis (II §2.2;
+//! SPEC §9), periodic, on a `2^N x 2^N` grid.
+//!
+//! # Construction
+//! Level `s = 0 .. N-1` of the periodic DWT ([`crate::synth::dwt`]) has
+//! `2^s x 2^s` positions, each with three detail coefficients
+//! `(c1, c2, c3)` on `ψ1 = φ(x)ψ(y)`, `ψ2 = ψ(x)φ(y)`, `ψ3 = ψ(x)ψ(y)`
+//! (II eq 19). Their modulus `d = |(c1, c2, c3)|` (eq 24) cascades from the
+//! single position of level 0 down: each of the four children of a position
+//! gets `d_child = M d_parent` with `M` i.i.d. (eq 25), and its own random
+//! direction (eq 26):
+//!
+//! ```text
+//! c1 = cos φ cos θ d,   c2 = cos φ sin θ d,   c3 = sin φ d
+//! ```
+//!
+//! The variants of II Fig 5 ([`Isotropy`]):
+//! - `Psi12` (case i): start `(1, 1, 0)`, θ uniform on [-π, π], φ = 0.
+//! - `Psi3` (case ii): start `(0, 0, 1)`, φ = ±π/2 at random.
+//! - `Isotropic` (case iii, eqs 35-36): θ uniform on [-π, π], φ uniform on
+//!   `[-φ*, φ*]` with `sin(2φ*)/(4φ*) = r/(1+r) - 1/2`, `r = 2^(τ(2)/2 + 3)`.
+//!   That gives `<c3²>/<c1²> = 2/r = 2^(-τ(2)/2 - 2)`: ψ3's energy sits at
+//!   the corners of the dyadic band, at `|k|` larger by √2 than ψ1's and
+//!   ψ2's, so an isotropic `S ~ |k|^-β` needs it smaller by `(√2)^-β`.
+//!   Start: `(1, 1, 2^-(τ(2)/4 + 1))`, the same amplitude ratio, as the
+//!   paper's §2.2.1 sentence "(1, 1, 1/2^(τ(2)/4+1))" says. (Eq 35 as
+//!   printed, and SPEC §9 after it, read `2^(-τ(2)/4 + 1)`, 16 times more
+//!   energy on ψ3 than eq 36 puts there; it is one coefficient at the largest
+//!   scale, outside any fit range, and we take the self-consistent form.)
+//!
+//! # Normalisation
+//! The moduli `d` are *amplitudes*: L1-normalised coefficients, which scale
+//! like `a^h` at a Hölder-h point, so that `Σ d^q ~ 4^s <M^q>^s` gives
+//! `τ(q) = -log2 <M^q> - 2` (II eq 29). The orthonormal inverse DWT takes
+//! L2 coefficients. A level-s basis function has scale `2^(N-s)` pixels:
+//! `ψ_s(x) = 2^-(N-s) ψ(x / 2^(N-s))` has unit L2 norm in 2D, while the
+//! L1-normalised one is `2^-2(N-s) ψ(x / 2^(N-s))`, so
+//! `<f, ψ_s^L2> = 2^(N-s) <f, ψ_s^L1>`: **the L2 coefficient is the amplitude
+//! times `2^(N-s)`** (= `L 2^-s`; up to the constant `L`, the `2^-j` of a
+//! level with `2^j x 2^j` coefficients). Pixel values of `f` are then of the
+//! order of the amplitudes. Check: with `M = 2^-H` fixed the amplitudes are
+//! `2^-Hs ~ a^H` and the field is a monofractal with `h = H`,
+//! `β = 2H + 2` (tested). The approximation coefficient is 0 (zero mean).
+//!
+//! # Placement
+//! Daubechies filters are asymmetric: the basis function of DWT index `k` at
+//! scale `2^J` has its energy at `2^J k + c_J` with `c_J` of several cells
+//! for db8 (and different for φ and ψ). Indexing the tree directly by DWT
+//! index would put children several parent widths away from their parent
+//! and spread the three coefficients of one position apart. Each level is
+//! therefore shifted (circularly) so that tree position `m` at scale `2^J`
+//! is centred on `2^J (m + 1/2)` as in II eq 20. For Haar the shift is 0.
+//!
+//! # Randomness
+//! One [`crate::synth::rng_for`]`(seed, index)` stream per image; children in
+//! a fixed order (levels coarse to fine, parents row-major, children
+//! `(0,0), (0,1), (1,0), (1,1)`), and per child: `M`, then θ, then φ as the
+//! variant needs.
+
+use std::f64::consts::{FRAC_PI_2, LN_2, PI};
+
+use ndarray::Array2;
+use rand::RngExt;
+use rand_distr::{Distribution, Poisson, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+pub use crate::synth::dwt::Basis;
+use crate::synth::dwt::{Dwt2, energy_centre};
+use crate::synth::fisc::steps_for_size;
+use crate::synth::{SynthRng, rng_for};
+
+/// Law of the multiplier `M`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "law", rename_all = "lowercase")]
+pub enum Law {
+    /// `ln M ~ Normal(m, σ²)` (II eq 29).
+    LogNormal { m: f64, sigma2: f64 },
+    /// `ln M = Y ln β + γ`, `Y ~ Poisson(λ)` (II eq 37); `0 < β < 1`.
+    LogPoisson { gamma: f64, beta: f64, lambda: f64 },
+}
+
+/// How the modulus is spread over ψ1, ψ2, ψ3 (II Fig 5).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Isotropy {
+    /// ψ1, ψ2, ψ3 with the weights of II eqs 35-36 (Fig 5e).
+    #[default]
+    Isotropic,
+    /// ψ1 and ψ2 only (Fig 5a): enhanced `k_x`, `k_y` axes.
+    Psi12,
+    /// ψ3 only (Fig 5c): diagonal texture.
+    Psi3,
+}
+
+impl Isotropy {
+    /// Lowercase name as on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Isotropy::Isotropic => "isotropic",
+            Isotropy::Psi12 => "psi12",
+            Isotropy::Psi3 => "psi3",
+        }
+    }
+}
+
+/// Parameters of a W-cascade.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WCascadeParams {
+    pub law: Law,
+    #[serde(default)]
+    pub isotropy: Isotropy,
+    #[serde(default)]
+    pub basis: Basis,
+}
+
+impl Law {
+    /// `lognormal` or `logpoisson`, as on the command line (`--law`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Law::LogNormal { .. } => "lognormal",
+            Law::LogPoisson { .. } => "logpoisson",
+        }
+    }
+
+    /// **Errors** (naming `m`, `sigma2`, `gamma`, `beta` or `lambda`) on
+    /// non-finite values, `σ² < 0`, `λ <= 0`, `β` outside (0, 1), or a
+    /// cascade that does not converge to a continuous function, i.e.
+    /// `h_min <= 0` (II eqs 31-32; for log-normal `m < 0` and
+    /// `|m|/σ > 2√ln2`, see [`crate::theory::wcascade`]).
+    pub fn validate(&self) -> Result<()> {
+        let finite = |name: &str, v: f64| {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(Error::param(name, format!("must be finite, got {v}")))
+            }
+        };
+        match *self {
+            Law::LogNormal { m, sigma2 } => {
+                finite("m", m)?;
+                finite("sigma2", sigma2)?;
+                if sigma2 < 0.0 {
+                    return Err(Error::param(
+                        "sigma2",
+                        format!("the variance of ln M must be >= 0, got {sigma2}"),
+                    ));
+                }
+                if m >= 0.0 {
+                    return Err(Error::param(
+                        "m",
+                        format!("need m < 0 (II eq 31; h(0) = -m/ln2 > 0), got {m}"),
+                    ));
+                }
+                let (h_min, _) = self.h_range();
+                if h_min <= 0.0 {
+                    return Err(Error::param(
+                        "sigma2",
+                        format!(
+                            "the cascade does not converge: need |m|/sigma > 2 sqrt(ln 2) = {:.4} \
+                             (h_min = -m/ln2 - 2 sigma/sqrt(ln2) > 0, II eqs 31-32), \
+                             got |m|/sigma = {:.4}, h_min = {h_min:.4}",
+                            2.0 * LN_2.sqrt(),
+                            -m / sigma2.sqrt(),
+                        ),
+                    ));
+                }
+            }
+            Law::LogPoisson {
+                gamma,
+                beta,
+                lambda,
+            } => {
+                finite("gamma", gamma)?;
+                finite("beta", beta)?;
+                finite("lambda", lambda)?;
+                if lambda <= 0.0 {
+                    return Err(Error::param(
+                        "lambda",
+                        format!("the Poisson mean must be > 0, got {lambda}"),
+                    ));
+                }
+                if !(beta > 0.0 && beta < 1.0) {
+                    return Err(Error::param(
+                        "beta",
+                        format!("need 0 < beta < 1 (ln M = Y ln beta + gamma), got {beta}"),
+                    ));
+                }
+                let (h_min, _) = self.h_range();
+                if h_min <= 0.0 {
+                    // the asymptote -γ/ln2 is γ's; a zero of D inside is λ's
+                    let name = if gamma >= 0.0 { "gamma" } else { "lambda" };
+                    return Err(Error::param(
+                        name,
+                        format!(
+                            "the cascade does not converge: h_min = {h_min:.4} <= 0 \
+                             (need gamma < 0 and D(h) < 0 for all h <= 0; II eqs 37-38)"
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl WCascadeParams {
+    /// **Errors** on an invalid law (see [`Law::validate`]), or, for the
+    /// isotropic variant, `τ(2) < -6` where II eq 36 has no root in
+    /// (0, π/2].
+    pub fn validate(&self) -> Result<()> {
+        self.law.validate()?;
+        if self.isotropy == Isotropy::Isotropic && self.law.tau(2.0) < -6.0 {
+            return Err(Error::param(
+                "isotropy",
+                format!(
+                    "isotropic weights need tau(2) >= -6 (II eq 36), got {:.4}",
+                    self.law.tau(2.0)
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `φ*` of II eq 36: the root in (0, π/2] of
+    /// `sin(2φ)/(4φ) = r/(1+r) - 1/2`, `r = 2^(τ(2)/2 + 3)`. The left side
+    /// falls monotonically from 1/2 (φ -> 0) to 0 (φ = π/2); bisection.
+    ///
+    /// **Panics** if `τ(2) < -6` (rejected by [`WCascadeParams::validate`]).
+    pub fn phi_star(&self) -> f64 {
+        let r = 2f64.powf(self.law.tau(2.0) / 2.0 + 3.0);
+        let rhs = r / (1.0 + r) - 0.5;
+        assert!(rhs >= 0.0, "II eq 36 has no root for tau(2) < -6");
+        let f = |phi: f64| (2.0 * phi).sin() / (4.0 * phi) - rhs;
+        let (mut lo, mut hi) = (1e-300, FRAC_PI_2);
+        if f(hi) >= 0.0 {
+            return hi;
+        }
+        for _ in 0..200 {
+            let mid = 0.5 * (lo + hi);
+            if mid <= lo || mid >= hi {
+                break;
+            }
+            if f(mid) > 0.0 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
+    }
+
+    /// Coefficients `(c1, c2, c3)` of the single position of level 0
+    /// (II eqs 33-35; see the module doc for eq 35).
+    pub fn start_coefficients(&self) -> [f64; 3] {
+        match self.isotropy {
+            Isotropy::Isotropic => [1.0, 1.0, 2f64.powf(-(self.law.tau(2.0) / 4.0 + 1.0))],
+            Isotropy::Psi12 => [1.0, 1.0, 0.0],
+            Isotropy::Psi3 => [0.0, 0.0, 1.0],
+        }
+    }
+}
+
+/// A sampler of `ln M` built once (the Poisson set-up is not free).
+enum LnM {
+    Normal {
+        m: f64,
+        s: f64,
+    },
+    Poisson {
+        gamma: f64,
+        ln_beta: f64,
+        y: Poisson<f64>,
+    },
+}
+
+impl LnM {
+    fn new(law: &Law) -> Self {
+        match *law {
+            Law::LogNormal { m, sigma2 } => LnM::Normal {
+                m,
+                s: sigma2.sqrt(),
+            },
+            Law::LogPoisson {
+                gamma,
+                beta,
+                lambda,
+            } => LnM::Poisson {
+                gamma,
+                ln_beta: beta.ln(),
+                y: Poisson::new(lambda).expect("lambda validated > 0"),
+            },
+        }
+    }
+
+    fn sample(&self, rng: &mut SynthRng) -> f64 {
+        match self {
+            LnM::Normal { m, s } => {
+                if *s == 0.0 {
+                    *m
+                } else {
+                    let z: f64 = StandardNormal.sample(rng);
+                    m + s * z
+                }
+            }
+            LnM::Poisson { gamma, ln_beta, y } => y.sample(rng) * ln_beta + gamma,
+        }
+    }
+}
+
+/// Runs the cascade for `steps` levels (`s = 0 .. steps-1`), calling
+/// `visit(s, ty, tx, d, [c1, c2, c3])` for every position in tree order
+/// (amplitudes, not yet L2-scaled).
+fn run_cascade(
+    params: &WCascadeParams,
+    steps: usize,
+    rng: &mut SynthRng,
+    mut visit: impl FnMut(usize, usize, usize, f64, [f64; 3]),
+) {
+    let ln_m = LnM::new(&params.law);
+    let phi_star = match params.isotropy {
+        Isotropy::Isotropic => params.phi_star(),
+        _ => 0.0,
+    };
+    let c0 = params.start_coefficients();
+    let d0 = (c0[0] * c0[0] + c0[1] * c0[1] + c0[2] * c0[2]).sqrt();
+    visit(0, 0, 0, d0, c0);
+    let n = 1usize << steps.saturating_sub(1);
+    let mut cur = vec![0.0; n * n];
+    let mut next = vec![0.0; n * n];
+    cur[0] = d0;
+    for s in 1..steps {
+        let (pw, cw) = (1usize << (s - 1), 1usize << s);
+        for py in 0..pw {
+            for px in 0..pw {
+                let dp = cur[py * pw + px];
+                for (dy, dx) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                    let (ty, tx) = (2 * py + dy, 2 * px + dx);
+                    let d = dp * ln_m.sample(rng).exp();
+                    let c = match params.isotropy {
+                        Isotropy::Isotropic => {
+                            let theta = rng.random_range(-PI..PI);
+                            let phi = rng.random_range(-phi_star..=phi_star);
+                            let (sp, cp) = phi.sin_cos();
+                            let (st, ct) = theta.sin_cos();
+                            [cp * ct * d, cp * st * d, sp * d]
+                        }
+                        Isotropy::Psi12 => {
+                            let (st, ct) = rng.random_range(-PI..PI).sin_cos();
+                            [ct * d, st * d, 0.0]
+                        }
+                        Isotropy::Psi3 => {
+                            // φ = ±π/2 exactly: cos φ is 0, not 6e-17
+                            let sign = if rng.random::<bool>() { 1.0 } else { -1.0 };
+                            [0.0, 0.0, sign * d]
+                        }
+                    };
+                    next[ty * cw + tx] = d;
+                    visit(s, ty, tx, d, c);
+                }
+            }
+        }
+        std::mem::swap(&mut cur, &mut next);
+    }
+}
+
+/// Per level `s` (scale `2^J`, `J = N - s`), the circular index shifts that
+/// centre the scaling function and the wavelet of tree position `m` on
+/// `2^J (m + 1/2)`: DWT index = `(m - shift) mod 2^s`.
+fn level_shifts(basis: Basis, steps: usize) -> Vec<(i64, i64)> {
+    (0..steps)
+        .map(|s| {
+            let j = steps - s;
+            let w = (1u64 << j) as f64;
+            let target = (w - 1.0) / 2.0;
+            let shift = |wavelet| ((energy_centre(basis, j, wavelet) - target) / w).round() as i64;
+            (shift(false), shift(true))
+        })
+        .collect()
+}
+
+/// The W-cascade's DWT coefficients (Mallat layout, L2-scaled, approximation
+/// 0) of image `index` of the ensemble `seed`: [`wcascade`] is their inverse
+/// DWT over `log2 size` levels.
+///
+/// **Errors** on invalid parameters or a size that is not a power of two.
+pub fn wcascade_coefficients(
+    params: &WCascadeParams,
+    size: usize,
+    seed: u64,
+    index: u64,
+) -> Result<Array2<f64>> {
+    params.validate()?;
+    let steps = steps_for_size(size)?;
+    let shifts = level_shifts(params.basis, steps);
+    let mut coef = Array2::<f64>::zeros((size, size));
+    let mut rng = rng_for(seed, index);
+    run_cascade(params, steps, &mut rng, |s, ty, tx, _d, c| {
+        let n = 1i64 << s;
+        let l2 = (1u64 << (steps - s)) as f64; // amplitude -> L2: times 2^(N-s)
+        let (sh_phi, sh_psi) = shifts[s];
+        let wrap = |m: usize, sh: i64| (m as i64 - sh).rem_euclid(n) as usize;
+        let nu = n as usize;
+        // ψ1 = φ(x)ψ(y): rows y-high, cols x-low
+        coef[[nu + wrap(ty, sh_psi), wrap(tx, sh_phi)]] = l2 * c[0];
+        // ψ2 = ψ(x)φ(y): rows y-low, cols x-high
+        coef[[wrap(ty, sh_phi), nu + wrap(tx, sh_psi)]] = l2 * c[1];
+        // ψ3 = ψ(x)ψ(y)
+        coef[[nu + wrap(ty, sh_psi), nu + wrap(tx, sh_psi)]] = l2 * c[2];
+    });
+    Ok(coef)
+}
+
+/// The amplitudes `d` of image `index` of the ensemble `seed`, one
+/// `2^s x 2^s` array per level `s = 0 .. log2(size) - 1`, in tree order
+/// (children of `(y, x)` at `(2y + i, 2x + j)`): for tests of the cascade.
+///
+/// **Errors** on invalid parameters or a size that is not a power of two.
+pub fn wcascade_moduli(
+    params: &WCascadeParams,
+    size: usize,
+    seed: u64,
+    index: u64,
+) -> Result<Vec<Array2<f64>>> {
+    params.validate()?;
+    let steps = steps_for_size(size)?;
+    let mut levels: Vec<Array2<f64>> = (0..steps)
+        .map(|s| Array2::zeros((1 << s, 1 << s)))
+        .collect();
+    let mut rng = rng_for(seed, index);
+    run_cascade(params, steps, &mut rng, |s, ty, tx, d, _| {
+        levels[s][[ty, tx]] = d;
+    });
+    Ok(levels)
+}
+
+/// Image `index` of the W-cascade ensemble `seed`, `size x size` (a power of
+/// two), periodic.
+///
+/// **Errors** on invalid parameters or a size that is not a power of two.
+pub fn wcascade(
+    params: &WCascadeParams,
+    size: usize,
+    seed: u64,
+    index: u64,
+) -> Result<Array2<f64>> {
+    let mut f = wcascade_coefficients(params, size, seed, index)?;
+    let steps = steps_for_size(size)?;
+    Dwt2::new(params.basis).inverse(&mut f, steps)?;
+    Ok(f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::ValueEnum;
+
+    fn ln(m: f64, sigma2: f64) -> WCascadeParams {
+        WCascadeParams {
+            law: Law::LogNormal { m, sigma2 },
+            isotropy: Isotropy::Isotropic,
+            basis: Basis::Db8,
+        }
+    }
+
+    #[test]
+    fn validation_names_the_flag() {
+        let l2 = LN_2;
+        let e = ln(0.1, 0.01).validate().unwrap_err().to_string();
+        assert!(e.contains("`m`"), "{e}");
+        let e = ln(-0.3, -0.01).validate().unwrap_err().to_string();
+        assert!(e.contains("`sigma2`"), "{e}");
+        // |m|/σ² = 12.7 > 2√ln2 but |m|/σ = 0.38 ln2 / 0.2 = 1.3 < 1.67:
+        // passes the printed reading of eq 31, fails h_min > 0
+        let e = ln(-0.38 * l2, 0.04).validate().unwrap_err().to_string();
+        assert!(e.contains("converge") && e.contains("`sigma2`"), "{e}");
+        assert!(ln(-0.38 * l2, 0.03 * l2).validate().is_ok());
+        assert!(ln(-0.4 * l2, 0.0).validate().is_ok());
+        let lp = |gamma, beta, lambda| WCascadeParams {
+            law: Law::LogPoisson {
+                gamma,
+                beta,
+                lambda,
+            },
+            ..ln(-0.3, 0.0)
+        };
+        let e = lp(-0.1, 1.5, 1.0).validate().unwrap_err().to_string();
+        assert!(e.contains("`beta`"), "{e}");
+        let e = lp(-0.1, 0.5, 0.0).validate().unwrap_err().to_string();
+        assert!(e.contains("`lambda`"), "{e}");
+        let e = lp(0.1, 0.5, 1.0).validate().unwrap_err().to_string();
+        assert!(e.contains("`gamma`"), "{e}");
+        let e = wcascade(&ln(-0.3, 0.01), 100, 0, 0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`size`"), "{e}");
+    }
+
+    /// Eq 36 solved: φ* satisfies it, and the resulting mean energy ratio
+    /// <sin²φ>/<cos²φ> over U[-φ*, φ*] is 1/r (closed form of the average).
+    #[test]
+    fn phi_star_solves_eq36() {
+        let p = ln(-0.38 * LN_2, 0.03 * LN_2);
+        let phi = p.phi_star();
+        let r = 2f64.powf(p.law.tau(2.0) / 2.0 + 3.0);
+        let lhs = (2.0 * phi).sin() / (4.0 * phi);
+        assert!((lhs - (r / (1.0 + r) - 0.5)).abs() < 1e-14);
+        let sin2 = 0.5 - lhs;
+        let cos2 = 0.5 + lhs;
+        assert!((sin2 / cos2 - 1.0 / r).abs() < 1e-12);
+        assert!(phi > 0.7 && phi < 0.8, "paper preset φ* = {phi}");
+        // start ratio c3/c1 = sqrt(2/r), the mean amplitude ratio of eq 36
+        let c = p.start_coefficients();
+        assert!((c[2] / c[0] - (2.0 / r).sqrt()).abs() < 1e-12);
+    }
+
+    /// Placement: the energy of the basis function of tree position m at
+    /// level s lies in cell m (within half a cell). Built by inverting a
+    /// unit coefficient placed as `wcascade_coefficients` places it.
+    #[test]
+    fn children_sit_under_their_parent() {
+        let steps = 6;
+        let size = 1usize << steps;
+        for basis in [Basis::Haar, Basis::Db4, Basis::Db8] {
+            let shifts = level_shifts(basis, steps);
+            let mut dwt = Dwt2::new(basis);
+            for (s, &(sh_phi, sh_psi)) in shifts.iter().enumerate().skip(2) {
+                let n = 1usize << s;
+                let cell = (size / n) as f64;
+                let m = n / 2 + 1;
+                let wrap = |sh: i64| (m as i64 - sh).rem_euclid(n as i64) as usize;
+                // ψ1 = φ(x)ψ(y) at tree (m, m)
+                let mut c = Array2::zeros((size, size));
+                c[[n + wrap(sh_psi), wrap(sh_phi)]] = 1.0;
+                dwt.inverse(&mut c, steps).unwrap();
+                // circular mean position along each axis
+                let centre = |axis: usize| {
+                    let (mut sc, mut ss) = (0.0, 0.0);
+                    for ((y, x), v) in c.indexed_iter() {
+                        let t = if axis == 0 { y } else { x } as f64;
+                        let a = 2.0 * PI * t / size as f64;
+                        sc += v * v * a.cos();
+                        ss += v * v * a.sin();
+                    }
+                    ss.atan2(sc).rem_euclid(2.0 * PI) * size as f64 / (2.0 * PI)
+                };
+                let want = cell * (m as f64 + 0.5) - 0.5;
+                for axis in 0..2 {
+                    let got = centre(axis);
+                    assert!(
+                        (got - want).abs() <= 0.5 * cell + 0.5,
+                        "{basis} s={s} axis {axis}: centre {got}, cell centre {want}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn cli_names_match() {
+        for b in [Basis::Haar, Basis::Db4, Basis::Db8] {
+            assert_eq!(Basis::from_str(b.name(), false).unwrap(), b);
+        }
+        for i in [Isotropy::Isotropic, Isotropy::Psi12, Isotropy::Psi3] {
+            assert_eq!(Isotropy::from_str(i.name(), false).unwrap(), i);
+        }
+    }
+}

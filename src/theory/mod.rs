@@ -1,0 +1,510 @@
+//! Closed-form multifractal theory of the generators (SPEC §10): the ground
+//! truth every estimate is compared with.
+//!
+//! For a surface analysed with an L1-normalised wavelet (`M ~ a^h`):
+//!
+//! - `τ(q)`: `Z(q, a) ~ a^τ(q)`; `τ(0) = -2` for fields singular everywhere.
+//! - `h(q) = τ'(q)`, `D(q) = q h(q) - τ(q)`, and `D(h)` the Legendre
+//!   transform; `D(h(0)) = 2`.
+//! - `[h_min, h_max]`: where `D(h) >= 0` (for FISC the limits of `h(q)` as
+//!   `q -> ±∞`, where `D = 1`).
+//! - `β = τ(2) + 4`: exponent of the **angle-averaged** spectral density
+//!   `S(|k|) ~ |k|^-β` (the angle-integrated spectrum has `β - 1`).
+//! - Kernel cumulants `c_k` with `τ(q) = -Σ c_k q^k / k! - 2` (II eq 64).
+//!
+//! One file per model: [`fbm`], [`fisc`], [`wcascade`] (formulas and paper
+//! equations there). [`Model`] is the serialisable union the CLI works with,
+//! [`Model::preset`] gives the parameter sets of the paper (SPEC §11) and
+//! [`TheoryTable`] the JSON of `wtmm theory`.
+//!
+//! ```
+//! use wtmm::theory::Model;
+//! let p = Model::preset("paper-lognormal").unwrap();
+//! let (h_min, h_max) = p.model.h_range();
+//! assert!((h_min - 0.034).abs() < 5e-4 && (h_max - 0.726).abs() < 5e-4);
+//! assert!((p.model.beta() - 2.70).abs() < 5e-3);
+//! ```
+
+pub mod fbm;
+pub mod fisc;
+pub mod wcascade;
+
+use ndarray::Array2;
+use serde::{Deserialize, Serialize};
+
+use crate::cwt::Wavelet;
+use crate::error::{Error, Result};
+use crate::synth::dwt::Basis;
+use crate::synth::fbm::FbmParams;
+use crate::synth::fisc::FiscParams;
+use crate::synth::wcascade::{Isotropy, Law, WCascadeParams};
+
+/// Closed forms of one generator. `d_of_q` and `beta` have generic
+/// definitions; a model overrides them only with an equivalent closed form.
+pub trait Multifractal {
+    /// `τ(q)`.
+    fn tau(&self, q: f64) -> f64;
+    /// `h(q) = τ'(q)`.
+    fn h(&self, q: f64) -> f64;
+    /// `D(q) = q h(q) - τ(q)`.
+    fn d_of_q(&self, q: f64) -> f64 {
+        q * self.h(q) - self.tau(q)
+    }
+    /// The Legendre transform `D(h)` where it is defined (`None` outside the
+    /// closure of the range of `h(q)`; a monofractal defines only its `H`).
+    fn dh(&self, h: f64) -> Option<f64>;
+    /// `(h_min, h_max)`, the support where `D(h) >= 0`.
+    fn h_range(&self) -> (f64, f64);
+    /// Angle-averaged spectral exponent `β = τ(2) + 4`.
+    fn beta(&self) -> f64 {
+        self.tau(2.0) + 4.0
+    }
+    /// Kernel cumulants `[c1, c2, c3]` (II eq 64), where known.
+    fn cumulants(&self) -> Option<[f64; 3]> {
+        None
+    }
+    /// Magnitude correlation `C(Δx)` for an integral scale `L` (II eq 76),
+    /// where known; valid for `sup(a1, a2) <= Δx < L`.
+    fn magnitude_correlation(&self, _dx: f64, _l: f64) -> Option<f64> {
+        None
+    }
+}
+
+/// A generator with its parameters (the `MODEL` of the CLI).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "model", rename_all = "lowercase")]
+pub enum Model {
+    Fbm(FbmParams),
+    Fisc(FiscParams),
+    WCascade(WCascadeParams),
+}
+
+/// Names accepted by [`Model::preset`].
+pub const PRESET_NAMES: [&str; 4] = [
+    "paper-fbm",
+    "paper-lognormal",
+    "paper-logpoisson",
+    "paper-fisc",
+];
+
+/// A published parameter set (SPEC §11) with the analysing wavelet the paper
+/// used for it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Preset {
+    pub name: &'static str,
+    pub model: Model,
+    /// gauss for fBm and the W-cascades (h in (0, 1)); mexican for FISC,
+    /// whose `h_max = 1.30 > 1` needs more than one vanishing moment (II §3.1).
+    pub wavelet: Wavelet,
+    /// Where the numbers come from.
+    pub source: &'static str,
+}
+
+impl Model {
+    /// `fbm`, `fisc` or `wcascade` (the CLI's MODEL).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Model::Fbm(_) => "fbm",
+            Model::Fisc(_) => "fisc",
+            Model::WCascade(_) => "wcascade",
+        }
+    }
+
+    /// **Errors** with the offending parameter named (see each params type).
+    pub fn validate(&self) -> Result<()> {
+        match self {
+            Model::Fbm(p) => p.validate(),
+            Model::Fisc(p) => p.validate(),
+            Model::WCascade(p) => p.validate(),
+        }
+    }
+
+    fn theory(&self) -> &dyn Multifractal {
+        match self {
+            Model::Fbm(p) => p,
+            Model::Fisc(p) => p,
+            Model::WCascade(p) => p,
+        }
+    }
+
+    /// `τ(q)`.
+    pub fn tau(&self, q: f64) -> f64 {
+        self.theory().tau(q)
+    }
+
+    /// `h(q) = τ'(q)`.
+    pub fn h(&self, q: f64) -> f64 {
+        self.theory().h(q)
+    }
+
+    /// `D(q) = q h(q) - τ(q)`.
+    pub fn d_of_q(&self, q: f64) -> f64 {
+        self.theory().d_of_q(q)
+    }
+
+    /// `D(h)`, see [`Multifractal::dh`].
+    pub fn dh(&self, h: f64) -> Option<f64> {
+        self.theory().dh(h)
+    }
+
+    /// `(h_min, h_max)`.
+    pub fn h_range(&self) -> (f64, f64) {
+        self.theory().h_range()
+    }
+
+    /// The most frequent Hölder exponent `h(q = 0)`.
+    pub fn h_of_q0(&self) -> f64 {
+        self.theory().h(0.0)
+    }
+
+    /// Angle-averaged spectral exponent `β = τ(2) + 4`.
+    pub fn beta(&self) -> f64 {
+        self.theory().beta()
+    }
+
+    /// Kernel cumulants `[c1, c2, c3]`.
+    pub fn cumulants(&self) -> Option<[f64; 3]> {
+        self.theory().cumulants()
+    }
+
+    /// `C(Δx)` of II eq 76 (W-cascades; 0 for fBm; `None` for FISC).
+    pub fn magnitude_correlation(&self, dx: f64, l: f64) -> Option<f64> {
+        self.theory().magnitude_correlation(dx, l)
+    }
+
+    /// Image `index` of the ensemble `seed`, `size x size`.
+    ///
+    /// **Errors** on invalid parameters or size (cascades need a power of two).
+    pub fn synthesize(&self, size: usize, seed: u64, index: u64) -> Result<Array2<f64>> {
+        match *self {
+            Model::Fbm(p) => crate::synth::fbm::fbm(p, size, size, seed, index),
+            Model::Fisc(p) => crate::synth::fisc::fisc(p, size, seed, index),
+            Model::WCascade(p) => crate::synth::wcascade::wcascade(&p, size, seed, index),
+        }
+    }
+
+    /// The published parameter sets (SPEC §11): `paper-fbm` (H = 1/3),
+    /// `paper-lognormal` (m = -0.38 ln2, σ² = 0.03 ln2), `paper-logpoisson`
+    /// (γ = -ln2/9, β = (2/3)^(1/3), λ = 2 ln2), both isotropic on db8 (the
+    /// paper's "Daubechies 8", see [`crate::synth::dwt`]), and `paper-fisc`
+    /// (p = 0.32, H* = 0.638).
+    ///
+    /// **Errors** on an unknown name, listing the known ones.
+    pub fn preset(name: &str) -> Result<Preset> {
+        let ln2 = std::f64::consts::LN_2;
+        let wc = |law| {
+            Model::WCascade(WCascadeParams {
+                law,
+                isotropy: Isotropy::Isotropic,
+                basis: Basis::Db8,
+            })
+        };
+        let (name, model, wavelet, source) = match name {
+            "paper-fbm" => (
+                "paper-fbm",
+                Model::Fbm(FbmParams { hurst: 1.0 / 3.0 }),
+                Wavelet::Gauss,
+                "paper I §5, II Fig 30b",
+            ),
+            "paper-lognormal" => (
+                "paper-lognormal",
+                wc(Law::LogNormal {
+                    m: -0.38 * ln2,
+                    sigma2: 0.03 * ln2,
+                }),
+                Wavelet::Gauss,
+                "II §2.2.3, §3.2.1, Figs 6a, 15-20, 25-26, 30a",
+            ),
+            "paper-logpoisson" => (
+                "paper-logpoisson",
+                wc(Law::LogPoisson {
+                    gamma: -ln2 / 9.0,
+                    beta: (2.0f64 / 3.0).cbrt(),
+                    lambda: 2.0 * ln2,
+                }),
+                Wavelet::Gauss,
+                "II §2.2.3, §3.2.2, Figs 6b, 16, 21-24, 27-28",
+            ),
+            "paper-fisc" => (
+                "paper-fisc",
+                Model::Fisc(FiscParams {
+                    p: 0.32,
+                    hstar: 0.638,
+                }),
+                Wavelet::Mexican,
+                "II §2.1, §3.1, Figs 1-3, 9-14",
+            ),
+            other => {
+                return Err(Error::param(
+                    "preset",
+                    format!(
+                        "unknown preset `{other}`; known: {}",
+                        PRESET_NAMES.join(", ")
+                    ),
+                ));
+            }
+        };
+        Ok(Preset {
+            name,
+            model,
+            wavelet,
+            source,
+        })
+    }
+}
+
+/// Kernel cumulants as named fields (the JSON of `wtmm theory`, like
+/// `kernel.json`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Cumulants {
+    pub c1: f64,
+    pub c2: f64,
+    pub c3: f64,
+}
+
+/// Everything `wtmm theory` prints for one model on a q grid.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TheoryTable {
+    pub model: Model,
+    pub q: Vec<f64>,
+    pub tau: Vec<f64>,
+    pub h: Vec<f64>,
+    /// `D(q) = q h(q) - τ(q)`.
+    #[serde(rename = "D")]
+    pub d: Vec<f64>,
+    pub h_min: f64,
+    pub h_max: f64,
+    pub h_of_q0: f64,
+    /// Angle-averaged: `S(|k|) ~ |k|^-β`.
+    pub beta: f64,
+    /// Always `"angle-averaged"`.
+    pub beta_convention: String,
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub cumulants: Option<Cumulants>,
+    /// The D(h) curve sampled on `[h_min, h_max]` (one point for a
+    /// monofractal).
+    pub dh_h: Vec<f64>,
+    #[serde(rename = "dh_D")]
+    pub dh_d: Vec<f64>,
+}
+
+impl TheoryTable {
+    /// Number of points of the D(h) curve.
+    pub const DH_POINTS: usize = 101;
+
+    /// The table of `model` on the grid `q`.
+    pub fn new(model: &Model, q: &[f64]) -> Self {
+        let (h_min, h_max) = model.h_range();
+        let (mut dh_h, mut dh_d) = (Vec::new(), Vec::new());
+        let n = if h_max - h_min > 1e-12 {
+            Self::DH_POINTS
+        } else {
+            1
+        };
+        for i in 0..n {
+            let h = if n == 1 {
+                h_min
+            } else {
+                h_min + (h_max - h_min) * i as f64 / (n - 1) as f64
+            };
+            if let Some(d) = model.dh(h) {
+                dh_h.push(h);
+                dh_d.push(d);
+            }
+        }
+        TheoryTable {
+            model: *model,
+            q: q.to_vec(),
+            tau: q.iter().map(|&v| model.tau(v)).collect(),
+            h: q.iter().map(|&v| model.h(v)).collect(),
+            d: q.iter().map(|&v| model.d_of_q(v)).collect(),
+            h_min,
+            h_max,
+            h_of_q0: model.h_of_q0(),
+            beta: model.beta(),
+            beta_convention: crate::stats::powspec::CONVENTION.to_string(),
+            cumulants: model
+                .cumulants()
+                .map(|[c1, c2, c3]| Cumulants { c1, c2, c3 }),
+            dh_h,
+            dh_d,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn models() -> Vec<Model> {
+        let ln2 = std::f64::consts::LN_2;
+        let mut v: Vec<Model> = PRESET_NAMES
+            .iter()
+            .map(|n| Model::preset(n).unwrap().model)
+            .collect();
+        v.push(Model::Fisc(FiscParams { p: 0.2, hstar: 0.9 }));
+        v.push(Model::WCascade(WCascadeParams {
+            law: Law::LogNormal {
+                m: -0.5 * ln2,
+                sigma2: 0.05 * ln2,
+            },
+            isotropy: Isotropy::Psi12,
+            basis: Basis::Db4,
+        }));
+        // λ > 2 ln2: the left end of D(h) >= 0 is a zero, not the asymptote
+        v.push(Model::WCascade(WCascadeParams {
+            law: Law::LogPoisson {
+                gamma: -0.3,
+                beta: 0.8,
+                lambda: 2.0,
+            },
+            isotropy: Isotropy::Isotropic,
+            basis: Basis::Db8,
+        }));
+        v
+    }
+
+    /// h(q) is the derivative of τ: central differences with step 1e-4 have
+    /// truncation error τ''' δ²/6 ~ 1e-9 and rounding ~1e-16/1e-4 = 1e-12.
+    #[test]
+    fn h_is_the_derivative_of_tau() {
+        for m in models() {
+            for i in -40..=40 {
+                let q = i as f64 * 0.25;
+                let d = 1e-4;
+                let fd = (m.tau(q + d) - m.tau(q - d)) / (2.0 * d);
+                assert!(
+                    (fd - m.h(q)).abs() < 1e-7,
+                    "{m:?} q={q}: {fd} vs {}",
+                    m.h(q)
+                );
+            }
+        }
+    }
+
+    /// The numerical Legendre transform `D(h) = min_q (q h - τ(q))` of the
+    /// analytic τ on a fine q grid reproduces the analytic D(h). For h
+    /// strictly inside `h([q_lo, q_hi])` the minimiser is interior and the
+    /// grid error is at most `|τ''| δq² / 8 ≈ 0.1 * 1e-6 / 8`.
+    #[test]
+    fn legendre_transform_of_tau_gives_dh() {
+        for m in models() {
+            if matches!(m, Model::Fbm(_)) {
+                continue;
+            }
+            let (q_lo, q_hi) = (-30.0, 30.0);
+            let qs: Vec<f64> = (0..=60_000).map(|i| q_lo + i as f64 * 1e-3).collect();
+            let taus: Vec<f64> = qs.iter().map(|&q| m.tau(q)).collect();
+            let (h_lo, h_hi) = (m.h(q_hi), m.h(q_lo));
+            let (h_min, h_max) = m.h_range();
+            let (a, b) = (h_lo.max(h_min - 0.5), h_hi.min(h_max + 0.5));
+            for i in 1..50 {
+                let h = a + (b - a) * i as f64 / 50.0;
+                let num = qs
+                    .iter()
+                    .zip(&taus)
+                    .map(|(&q, &t)| q * h - t)
+                    .fold(f64::INFINITY, f64::min);
+                let ana = m.dh(h).expect("inside the range of h(q)");
+                assert!((num - ana).abs() < 1e-5, "{m:?} h={h}: {num} vs {ana}");
+            }
+        }
+    }
+
+    /// D(q) and D(h(q)) are the same curve; τ(0) = -2, D(h(0)) = 2.
+    #[test]
+    fn canonical_and_legendre_agree() {
+        for m in models() {
+            assert!((m.tau(0.0) + 2.0).abs() < 1e-12, "{m:?}");
+            for i in -20..=20 {
+                let q = i as f64 * 0.5;
+                let via_h = m.dh(m.h(q)).unwrap();
+                assert!((via_h - m.d_of_q(q)).abs() < 1e-9, "{m:?} q={q}");
+            }
+            assert!((m.dh(m.h_of_q0()).unwrap() - 2.0).abs() < 1e-12);
+        }
+    }
+
+    /// D vanishes at the ends of the W-cascade supports, is 1 at the FISC
+    /// ends, and is >= 0 inside.
+    #[test]
+    fn h_range_ends() {
+        for m in models() {
+            let (lo, hi) = m.h_range();
+            let (dlo, dhi) = (m.dh(lo).unwrap(), m.dh(hi).unwrap());
+            match m {
+                Model::Fbm(_) => assert_eq!((dlo, dhi), (2.0, 2.0)),
+                Model::Fisc(_) => assert!((dlo - 1.0).abs() < 1e-9 && (dhi - 1.0).abs() < 1e-9),
+                Model::WCascade(_) => {
+                    assert!(dhi.abs() < 1e-9, "{m:?}: D(h_max) = {dhi}");
+                    assert!(dlo >= -1e-9, "{m:?}: D(h_min) = {dlo}");
+                }
+            }
+            for i in 0..=20 {
+                let h = lo + (hi - lo) * i as f64 / 20.0;
+                assert!(m.dh(h).unwrap() >= -1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn beta_is_tau2_plus_4() {
+        for m in models() {
+            assert!((m.beta() - (m.tau(2.0) + 4.0)).abs() < 1e-12, "{m:?}");
+        }
+    }
+
+    /// τ(q) = -Σ c_k q^k/k! - 2 (II eq 64): the cumulants are the Taylor
+    /// coefficients of -τ - 2 at 0; check them by finite differences
+    /// (steps 1e-2: truncation ~c5 δ² ~ 1e-6; rounding 1e-16/δ³ ~ 1e-10).
+    #[test]
+    fn cumulants_are_taylor_coefficients() {
+        for m in models() {
+            let c = m.cumulants().unwrap();
+            let f = |q: f64| -m.tau(q) - 2.0;
+            let d = 1e-2;
+            let c1 = (f(d) - f(-d)) / (2.0 * d);
+            let c2 = (f(d) - 2.0 * f(0.0) + f(-d)) / (d * d);
+            let c3 = (f(2.0 * d) - 2.0 * f(d) + 2.0 * f(-d) - f(-2.0 * d)) / (2.0 * d * d * d);
+            assert!((c1 - c[0]).abs() < 1e-5, "{m:?}: c1 {c1} vs {}", c[0]);
+            assert!((c2 - c[1]).abs() < 1e-5, "{m:?}: c2 {c2} vs {}", c[1]);
+            assert!((c3 - c[2]).abs() < 1e-4, "{m:?}: c3 {c3} vs {}", c[2]);
+        }
+    }
+
+    #[test]
+    fn unknown_preset_lists_the_known_ones() {
+        let e = Model::preset("paper-foo").unwrap_err().to_string();
+        assert!(
+            e.contains("paper-lognormal") && e.contains("`preset`"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn table_json_has_the_cli_keys() {
+        let m = Model::preset("paper-logpoisson").unwrap().model;
+        let t = TheoryTable::new(&m, &[-2.0, 0.0, 2.0]);
+        let j = serde_json::to_value(&t).unwrap();
+        for k in [
+            "q",
+            "tau",
+            "h",
+            "D",
+            "h_min",
+            "h_max",
+            "h_of_q0",
+            "beta",
+            "cumulants",
+        ] {
+            assert!(j.get(k).is_some(), "missing {k}");
+        }
+        assert_eq!(j["model"]["model"], "wcascade");
+        assert_eq!(j["model"]["law"]["law"], "logpoisson");
+        let back: TheoryTable = serde_json::from_value(j).unwrap();
+        assert_eq!(back, t);
+        assert_eq!(t.dh_h.len(), TheoryTable::DH_POINTS);
+        let f = TheoryTable::new(&Model::preset("paper-fbm").unwrap().model, &[0.0]);
+        assert_eq!((f.dh_h.len(), f.dh_d[0]), (1, 2.0));
+    }
+}
