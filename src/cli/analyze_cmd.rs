@@ -9,6 +9,7 @@ use serde_json::json;
 
 use super::common::{f, header, make_out_dir, parse_list, parse_range, progress, write_csv};
 use super::{CwtOpts, OutDir, Outcome};
+use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::io::read_field;
 use crate::plot::{Chart, Series, Style, save_chart};
@@ -21,7 +22,7 @@ pub struct SpectraOpts {
     #[command(flatten)]
     pub cwt: CwtOpts,
     /// q values: `start:stop:step` or `a,b,c`.
-    #[arg(long, default_value = "-4:6:0.5")]
+    #[arg(long, default_value = "-4:6:0.5", allow_hyphen_values = true)]
     pub q: String,
     /// Fit range in octaves above a_min, `LO:HI`.
     #[arg(long, default_value = "0:4")]
@@ -42,7 +43,7 @@ impl SpectraOpts {
         let g = self.cwt.grid()?;
         let ratio = parse_range("ratio", &self.ratio)?;
         let cfg = AnalysisConfig {
-            wavelet: self.cwt.wavelet,
+            wavelet: self.cwt.wavelet.unwrap_or(Wavelet::Gauss),
             a_min: g.a_min,
             octaves: g.octaves,
             voices: g.voices,

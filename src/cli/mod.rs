@@ -7,10 +7,13 @@ mod analyze_cmd;
 mod common;
 mod demo_cmd;
 mod ensemble;
+mod model_args;
 mod cwt_cmd;
 mod skeleton_cmd;
 mod spectrum_cmd;
 mod synth_cmd;
+mod theory_cmd;
+mod validate_cmd;
 
 use std::path::PathBuf;
 
@@ -38,6 +41,10 @@ pub enum Command {
     Cwt(cwt_cmd::CwtArgs),
     /// Isotropic power spectrum and its slope beta.
     Spectrum(spectrum_cmd::SpectrumArgs),
+    /// Closed-form spectra of a model or preset (JSON on stdout).
+    Theory(theory_cmd::TheoryArgs),
+    /// Generate an ensemble of a model, analyse it, check against the theory.
+    Validate(validate_cmd::ValidateArgs),
     /// Generate a small ensemble with a known spectrum, analyse it, compare with theory.
     Demo(demo_cmd::DemoArgs),
     /// WT skeleton: WTMMM, maxima lines and pictures of chosen scales.
@@ -49,9 +56,9 @@ pub enum Command {
 /// Wavelet and scale-grid options shared by the analysis commands.
 #[derive(Args, Debug, Clone)]
 pub struct CwtOpts {
-    /// Analysing wavelet (gauss: 1 vanishing moment; mexican: 3).
-    #[arg(long, value_enum, default_value_t = Wavelet::Gauss)]
-    pub wavelet: Wavelet,
+    /// Analysing wavelet (gauss: 1 vanishing moment; mexican: 3) [default: gauss, or the preset's].
+    #[arg(long, value_enum)]
+    pub wavelet: Option<Wavelet>,
     /// Smallest scale in pixels (std of the Gaussian).
     #[arg(long, default_value_t = 1.5)]
     pub a_min: f64,
@@ -93,6 +100,8 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Analyze(a) => analyze_cmd::run(a, quiet),
         Command::Skeleton(a) => skeleton_cmd::run(a, quiet),
         Command::Demo(a) => demo_cmd::run(a, quiet),
+        Command::Theory(a) => theory_cmd::run(a, quiet),
+        Command::Validate(a) => validate_cmd::run(a, quiet),
     }
 }
 

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use clap::{Args, Subcommand, ValueEnum};
+use clap::{Args, ValueEnum};
 use rayon::prelude::*;
 use serde_json::json;
 
@@ -11,24 +11,18 @@ use super::common::{header, make_out_dir, progress, write_json};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::io::{write_npy, write_png16, write_tiff_f32};
-use crate::synth::fbm::{FbmParams, fbm};
+use super::model_args::{ModelName, ModelOpts};
+use crate::theory::{Model, TheoryTable};
 
 #[derive(Args, Debug)]
 pub struct SynthArgs {
-    #[command(subcommand)]
-    pub model: SynthModel,
-}
-
-#[derive(Subcommand, Debug)]
-pub enum SynthModel {
-    /// Fractional Brownian surface (Fourier filtering, SPEC §9).
-    Fbm {
-        /// Hurst exponent H in (0, 1).
-        #[arg(long)]
-        hurst: f64,
-        #[command(flatten)]
-        common: SynthCommon,
-    },
+    /// The generator (or use --preset).
+    #[arg(value_enum)]
+    pub model: Option<ModelName>,
+    #[command(flatten)]
+    pub model_opts: ModelOpts,
+    #[command(flatten)]
+    pub common: SynthCommon,
 }
 
 #[derive(Args, Debug)]
@@ -76,23 +70,18 @@ fn write_image(path: &Path, a: &ndarray::Array2<f64>, format: Format) -> Result<
 }
 
 pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
-    match args.model {
-        SynthModel::Fbm { hurst, common } => {
-            let p = FbmParams { hurst };
-            p.validate()?;
-            check_common(&common)?;
-            let n = common.size;
-            let theory = json!({"tau": "q*H - 2", "h": hurst, "beta": p.beta(), "beta_convention": crate::stats::powspec::CONVENTION});
-            generate(
-                &common,
-                "fbm",
-                json!({"model": "fbm", "hurst": hurst}),
-                theory,
-                quiet,
-                |i| fbm(p, n, n, common.seed, i as u64),
-            )
-        }
+    let r = args.model_opts.resolve(args.model)?;
+    let c = &args.common;
+    check_common(c)?;
+    if !matches!(r.model, Model::Fbm(_)) && !c.size.is_power_of_two() {
+        return Err(Error::param("size", format!("{} needs a power of two, got {}", r.model.name(), c.size)));
     }
+    let t = TheoryTable::new(&r.model, &[-2.0, -1.0, 0.0, 1.0, 2.0, 3.0]);
+    let theory = json!({"beta": t.beta, "beta_convention": t.beta_convention, "h_of_q0": t.h_of_q0,
+        "h_min": t.h_min, "h_max": t.h_max, "recommended_wavelet": r.wavelet});
+    let params = json!({"model": r.model, "preset": r.preset});
+    let model = r.model;
+    generate(c, model.name(), params, theory, quiet, |i| model.synthesize(c.size, c.seed, i as u64))
 }
 
 fn check_common(c: &SynthCommon) -> Result<()> {

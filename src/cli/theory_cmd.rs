@@ -1,0 +1,68 @@
+//! `wtmm theory MODEL [options] [--q LIST] [--out DIR]`: the closed forms
+//! (SPEC §10) as JSON on stdout (and in DIR/theory.json with a plot).
+
+use std::path::PathBuf;
+
+use clap::Args;
+use serde_json::json;
+
+use super::Outcome;
+use super::common::{header, make_out_dir, parse_list, write_json};
+use super::model_args::{ModelName, ModelOpts};
+use crate::error::{Error, Result};
+use crate::plot::{Chart, Series, Style, save_chart};
+use crate::theory::TheoryTable;
+
+#[derive(Args, Debug)]
+pub struct TheoryArgs {
+    #[arg(value_enum)]
+    pub model: Option<ModelName>,
+    #[command(flatten)]
+    pub model_opts: ModelOpts,
+    /// q values: `start:stop:step` or `a,b,c`.
+    #[arg(long, default_value = "-6:8:0.5", allow_hyphen_values = true)]
+    pub q: String,
+    /// Also write theory.json, tau.png and dh.png here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
+    let r = args.model_opts.resolve(args.model)?;
+    let q = parse_list("q", &args.q)?;
+    let t = TheoryTable::new(&r.model, &q);
+    let mut body = header("theory", json!({"model": r.model, "preset": r.preset, "q": q}));
+    if let (Some(o), serde_json::Value::Object(m)) = (
+        body.as_object_mut(),
+        serde_json::to_value(&t).map_err(|e| Error::Input(e.to_string()))?,
+    ) {
+        for (k, v) in m {
+            o.insert(k, v);
+        }
+    }
+    body["recommended_wavelet"] = json!(r.wavelet);
+    println!("{}", serde_json::to_string_pretty(&body).map_err(|e| Error::Input(e.to_string()))?);
+    if let Some(dir) = &args.out {
+        make_out_dir(dir)?;
+        write_json(&dir.join("theory.json"), &body)?;
+        let name = r.preset.unwrap_or(r.model.name());
+        let tc = Chart {
+            title: format!("tau(q): {name}"),
+            x_label: "q".into(),
+            y_label: "tau(q)".into(),
+            series: vec![Series::new(name, q.iter().cloned().zip(t.tau.iter().cloned()).collect(), Style::Line, 1)],
+            ..Default::default()
+        };
+        save_chart(&tc, &dir.join("tau.png"))?;
+        let style = if t.dh_h.len() > 1 { Style::Line } else { Style::Markers };
+        let dc = Chart {
+            title: format!("D(h): {name}"),
+            x_label: "h".into(),
+            y_label: "D(h)".into(),
+            series: vec![Series::new(name, t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(), style, 1)],
+            ..Default::default()
+        };
+        save_chart(&dc, &dir.join("dh.png"))?;
+    }
+    Ok(Outcome::Ok)
+}

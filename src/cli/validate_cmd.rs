@@ -1,0 +1,240 @@
+//! `wtmm validate MODEL|--preset NAME --count K --size N ...`: generate an
+//! ensemble in memory (streamed), analyse it, and check the estimates
+//! against the closed forms with the published tolerances (SPEC §11, §13).
+
+use std::fmt::Write as _;
+
+use clap::Args;
+use serde::Serialize;
+use serde_json::json;
+
+use super::analyze_cmd::{SpectraOpts, TheoryCurves, write_outputs};
+use super::common::{make_out_dir, progress, write_json};
+use super::ensemble::analyse_generated;
+use super::model_args::{ModelName, ModelOpts};
+use super::{OutDir, Outcome};
+use crate::error::{Error, Result};
+use crate::io::write_atomic;
+use crate::plot::{Chart, Series, Style, save_chart};
+use crate::stats::fit::mean_std;
+use crate::stats::powspec::{Detrend, PowerSpectrumConfig, Window, default_k_range};
+use crate::theory::{Model, TheoryTable};
+
+#[derive(Args, Debug)]
+pub struct ValidateArgs {
+    #[arg(value_enum)]
+    pub model: Option<ModelName>,
+    #[command(flatten)]
+    pub model_opts: ModelOpts,
+    /// Number of images.
+    #[arg(long, default_value_t = 32)]
+    pub count: usize,
+    /// Image side (a power of two for the cascades).
+    #[arg(long, default_value_t = 1024)]
+    pub size: usize,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub opts: SpectraOpts,
+    /// Exit with status 1 when a criterion fails.
+    #[arg(long)]
+    pub check: bool,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+/// One line of the PASS/FAIL table.
+#[derive(Clone, Debug, Serialize)]
+pub struct Criterion {
+    pub name: String,
+    pub value: f64,
+    pub target: f64,
+    pub tolerance: f64,
+    pub pass: bool,
+    pub note: String,
+}
+
+fn criterion(name: &str, value: f64, target: f64, tolerance: f64, note: &str) -> Criterion {
+    Criterion {
+        name: name.into(),
+        value,
+        target,
+        tolerance,
+        pass: value.is_finite() && (value - target).abs() <= tolerance,
+        note: note.into(),
+    }
+}
+
+/// The published q range over which τ(q) lies on the theory (II §3; SPEC §11).
+fn published_q_range(model: &Model) -> (f64, f64) {
+    match model {
+        Model::Fisc(_) => (-4.0, 9.0),
+        Model::WCascade(_) => (-6.0, 8.0),
+        Model::Fbm(_) => (-4.0, 6.0),
+    }
+}
+
+pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
+    let r = args.model_opts.resolve(args.model)?;
+    let mut opts = args.opts.clone();
+    if opts.cwt.wavelet.is_none() {
+        opts.cwt.wavelet = Some(r.wavelet);
+    }
+    let cfg = opts.analysis()?;
+    let fit = opts.fit()?;
+    let (pq_lo, pq_hi) = published_q_range(&r.model);
+    // the q grid covers the published range and the core range [-4, 6]
+    let mut q = opts.q()?;
+    for extra in [pq_lo, pq_hi] {
+        if !q.iter().any(|&x| (x - extra).abs() < 1e-12) {
+            q.push(extra);
+        }
+    }
+    q.sort_by(f64::total_cmp);
+    q.dedup_by(|a, b| (*a - *b).abs() < 1e-12);
+    if args.count == 0 {
+        return Err(Error::param("count", "must be >= 1"));
+    }
+    if !matches!(r.model, Model::Fbm(_)) && !args.size.is_power_of_two() {
+        return Err(Error::param("size", format!("{} needs a power of two, got {}", r.model.name(), args.size)));
+    }
+    // periodic models need no taper; fBm is cropped from a larger torus
+    let ps_cfg = PowerSpectrumConfig {
+        window: if matches!(r.model, Model::Fbm(_)) { Window::Hann } else { Window::None },
+        detrend: Detrend::Plane,
+        bins_per_octave: 4,
+    };
+    let t0 = std::time::Instant::now();
+    let pb = progress(args.count as u64, "validate", quiet);
+    let model = r.model;
+    let ens = analyse_generated(
+        args.count,
+        |i| model.synthesize(args.size, args.seed, i as u64),
+        &cfg,
+        &q,
+        &ps_cfg,
+        &|| pb.inc(1),
+    )?;
+    pb.finish_and_clear();
+    let wall = t0.elapsed().as_secs_f64();
+    let rule = opts.rule();
+    let s = ens.sums.spectra(rule, fit)?;
+    let other = ens.sums.spectra(if rule == crate::spectra::Rule::Sup { crate::spectra::Rule::Plain } else { crate::spectra::Rule::Sup }, fit)?;
+    let th = TheoryTable::new(&model, &q);
+    let (k_lo, k_hi) = default_k_range(args.size);
+    let beta_fit = ens.spectrum.fit(k_lo, k_hi)?;
+    let per_image_beta: Vec<f64> = ens
+        .spectra
+        .iter()
+        .map(|p| p.fit(k_lo, k_hi).map(|f| f.beta).unwrap_or(f64::NAN))
+        .collect();
+    let (_, beta_sd) = mean_std(&per_image_beta);
+
+    // criteria (SPEC §11)
+    let dev = |lo: f64, hi: f64| -> (f64, f64) {
+        let mut worst: (f64, f64) = (0.0, f64::NAN);
+        for i in 0..q.len() {
+            if q[i] >= lo - 1e-12 && q[i] <= hi + 1e-12 {
+                let d = (s.tau[i] - th.tau[i]).abs();
+                if !d.is_finite() {
+                    return (f64::INFINITY, q[i]);
+                }
+                if d > worst.0 {
+                    worst = (d, q[i]);
+                }
+            }
+        }
+        worst
+    };
+    let (core_lo, core_hi) = (pq_lo.max(-4.0), pq_hi.min(6.0));
+    let (d_core, q_core) = dev(core_lo, core_hi);
+    let (d_pub, q_pub) = dev(pq_lo, pq_hi);
+    let i0 = s.q_index(0.0).expect("q grid contains 0");
+    let mut crit = vec![
+        criterion(
+            &format!("max |tau - theory|, q in [{core_lo}, {core_hi}]"),
+            d_core,
+            0.0,
+            0.1,
+            &format!("worst at q = {q_core}; the paper's tau(q) lies on the theory over this range"),
+        ),
+        criterion(
+            &format!("max |tau - theory|, q in [{pq_lo}, {pq_hi}] (published range)"),
+            d_pub,
+            0.0,
+            0.2,
+            &format!("worst at q = {q_pub}; at large |q| few lines dominate (see warnings)"),
+        ),
+        criterion("h(q=0)", s.h[i0], th.h_of_q0, 0.02, "II §3: 0.38 +- 0.02 (W-cascades), 0.74 +- 0.02 (FISC)"),
+        criterion("D(h(q=0))", s.d[i0], 2.0, 0.02, "surfaces singular everywhere: D(h(0)) = 2"),
+        criterion(
+            "beta (power spectrum)",
+            beta_fit.beta,
+            th.beta,
+            0.05,
+            &format!("angle-averaged, k in [{k_lo:.3}, {k_hi:.3}] rad/px; per-image sd {beta_sd:.3}"),
+        ),
+    ];
+    // τ(2) + 4 is the WTMM's own estimate of beta
+    let i2 = s.q_index(2.0).filter(|&i| s.q[i] == 2.0);
+    if let Some(i2) = i2 {
+        crit.push(criterion("tau(2) + 4 (WTMM beta)", s.tau[i2] + 4.0, th.beta, 0.1, "isotropic spectral exponent from the partition function"));
+    }
+    let all_pass = crit.iter().all(|c| c.pass);
+
+    make_out_dir(&args.out.out)?;
+    let name = r.preset.unwrap_or(model.name()).to_string();
+    let theory_curves = TheoryCurves {
+        name: name.clone(),
+        tau: Box::new(move |qq| model.tau(qq)),
+        dh: th.dh_h.iter().cloned().zip(th.dh_d.iter().cloned()).collect(),
+    };
+    let params = json!({
+        "model": model, "preset": r.preset, "count": args.count, "size": args.size, "seed": args.seed,
+        "analysis": cfg, "q": q, "fit_octaves": fit, "rule": rule,
+    });
+    write_outputs(&args.out.out, "validate", params.clone(), &ens.sums, &s, &other, Some(&theory_curves))?;
+    // spectrum plot with the theoretical beta
+    let pts = ens.spectrum.points();
+    let mut chart = Chart {
+        title: format!("{name}: beta = {:.3} (theory {:.3})", beta_fit.beta, th.beta),
+        x_label: "log2 |k| (rad/px)".into(),
+        y_label: "log2 S(|k|)".into(),
+        ..Default::default()
+    };
+    chart.series.push(Series::new("S(|k|), angle-averaged", pts.iter().map(|p| (p.0.log2(), p.1.log2())).collect(), Style::Markers, 0));
+    let (x0, x1) = (k_lo.log2(), k_hi.log2());
+    let line = |b: f64, xc: f64, yc: f64| vec![(x0, yc - b * (x0 - xc)), (x1, yc - b * (x1 - xc))];
+    let xc = 0.5 * (x0 + x1);
+    let yc = beta_fit.line.intercept + beta_fit.line.slope * xc;
+    chart.series.push(Series::new(format!("fit: {:.3}", beta_fit.beta), line(beta_fit.beta, xc, yc), Style::Line, 1));
+    chart.series.push(Series::new(format!("theory: {:.3}", th.beta), line(th.beta, xc, yc), Style::Dashed, 2));
+    save_chart(&chart, &args.out.out.join("spectrum.png"))?;
+
+    let mut body = super::common::header("validate", params);
+    body["model"] = json!(name);
+    body["criteria"] = json!(crit);
+    body["pass"] = json!(all_pass);
+    body["wall_seconds"] = json!(wall);
+    body["beta"] = json!({"value": beta_fit.beta, "stderr": beta_fit.beta_stderr, "per_image_sd": beta_sd, "theory": th.beta, "k_range": [k_lo, k_hi], "convention": "angle-averaged"});
+    body["theory"] = serde_json::to_value(&th).map_err(|e| Error::Input(e.to_string()))?;
+    body["estimates"] = json!({"q": s.q, "tau": s.tau, "tau_stderr": s.tau_stderr, "h": s.h, "D": s.d,
+        "alternate_rule": {"rule": other.rule, "tau": other.tau, "h": other.h, "D": other.d}});
+    body["warnings"] = json!(s.warnings);
+    write_json(&args.out.out.join("validation.json"), &body)?;
+
+    let mut t = String::new();
+    let _ = writeln!(t, "validate {name}: {} images {}x{}, seed {}, {} wavelet, {:?} rule, fit {}:{} octaves ({:.2}-{:.2} px), {wall:.1} s",
+        args.count, args.size, args.size, args.seed, cfg.wavelet, rule, fit.0, fit.1, s.fit_scales.0, s.fit_scales.1);
+    let _ = writeln!(t, "{:<52} {:>9} {:>9} {:>9}  result", "criterion", "value", "target", "tol");
+    for c in &crit {
+        let _ = writeln!(t, "{:<52} {:>9.4} {:>9.4} {:>9.4}  {}", c.name, c.value, c.target, c.tolerance, if c.pass { "PASS" } else { "FAIL" });
+    }
+    let _ = writeln!(t, "\n{:>6} {:>9} {:>8} {:>9} {:>8} {:>9}", "q", "tau", "stderr", "theory", "diff", "alt rule");
+    for i in 0..q.len() {
+        let _ = writeln!(t, "{:>6.2} {:>9.4} {:>8.4} {:>9.4} {:>+8.4} {:>9.4}", q[i], s.tau[i], s.tau_stderr[i], th.tau[i], s.tau[i] - th.tau[i], other.tau[i]);
+    }
+    write_atomic(&args.out.out.join("validation.txt"), t.as_bytes())?;
+    print!("{t}");
+    Ok(if all_pass || !args.check { Outcome::Ok } else { Outcome::CheckFailed })
+}
