@@ -17,6 +17,8 @@ pub mod io;
 pub mod plot;
 pub mod stats;
 pub mod synth;
+pub mod theory;
+pub mod tracemoments;
 
 pub use error::{Error, Result};
 pub use field::Field;

@@ -4,6 +4,8 @@
 //! gives the same bytes whatever the thread count or the order of generation.
 
 pub mod fbm;
+pub mod fif;
+pub mod levy;
 
 use rand::SeedableRng;
 use rand::rngs::Xoshiro256PlusPlus;
