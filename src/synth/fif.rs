@@ -56,10 +56,11 @@
 //! * Acausal (isotropic, centred) kernel: space has no arrow of time.
 //! * The kernel is sharp at the outer end. The box-averaged ("dressed")
 //!   moments follow `λ^K(q)` from boxes of 2 px up to half the image
-//!   (exactly computed at α = 2, 256²: `<φ_l²>` slopes per octave 0.253,
-//!   0.243, 0.242, 0.244, 0.248, 0.255 for l = 2..128 against K(2) = 0.24);
-//!   the first octave (bare pixel vs dressed box: 0.31) and the last one
-//!   (the cut at R: 0.18) bend, as in every finite continuous-in-scale
+//!   (computed exactly from the kernel at α = 2, C1 = 0.12, 256²: slopes of
+//!   `log2 <φ_l²>` between 0.235 and 0.255 per octave for l = 2..128 against
+//!   K(2) = 0.24, i.e. a few % above K at the larger boxes); the first
+//!   octave (bare pixel vs dressed box: 0.31) and the last one (the cut at
+//!   R: 0.18) bend, as in every finite continuous-in-scale
 //!   simulation (Lovejoy & Schertzer 2010, "On the simulation of continuous
 //!   in scale universal multifractals").
 //!

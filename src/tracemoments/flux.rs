@@ -138,7 +138,7 @@ impl Pyramid {
     pub(crate) fn sums(&self, v: Vec<f64>) -> Vec<Vec<f64>> {
         let mut out = vec![v];
         for k in 1..self.levels() {
-            let (py, px) = self.dims[k - 1];
+            let px = self.dims[k - 1].1;
             let (cy, cx) = self.dims[k];
             let prev = &out[k - 1];
             let mut s = vec![0.0; cy * cx];
@@ -148,7 +148,6 @@ impl Pyramid {
                     s[y * cx + x] = prev[i] + prev[i + 1] + prev[i + px] + prev[i + px + 1];
                 }
             }
-            let _ = py;
             out.push(s);
         }
         out

@@ -369,7 +369,6 @@ impl TraceMomentAccumulator {
         }
         self.images += 1;
         self.max_side = self.max_side.max(ny.min(nx));
-        let _ = nx;
         Ok(())
     }
 
@@ -586,7 +585,7 @@ impl TraceMomentAccumulator {
         let mut k_eta = vec![vec![f64::NAN; eta.len()]; self.config.dtm_q.len()];
         let mut k_eta_se = k_eta.clone();
         let mut log2_m_eta = vec![vec![Vec::new(); eta.len()]; self.config.dtm_q.len()];
-        for (ie, &e) in eta.iter().enumerate() {
+        for ie in 0..eta.len() {
             let lnm_e = self.eta_sum[ie].ln() - (self.n_valid as f64).ln();
             for (iq, &qq) in self.config.dtm_q.iter().enumerate() {
                 let m = self.log2_moments(&self.dtm[ie][iq], qq, lnm_e);
@@ -595,7 +594,6 @@ impl TraceMomentAccumulator {
                     k_eta_se[iq][ie] = f.slope_stderr;
                 }
                 log2_m_eta[iq][ie] = m;
-                let _ = e;
             }
         }
         let mut dtm = Vec::new();
