@@ -23,6 +23,7 @@ pub mod spectra;
 pub mod stats;
 pub mod synth;
 pub mod theory;
+pub mod tracemoments;
 
 pub use error::{Error, Result};
 pub use field::Field;

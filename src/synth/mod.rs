@@ -5,7 +5,9 @@
 
 pub mod dwt;
 pub mod fbm;
+pub mod fif;
 pub mod fisc;
+pub mod levy;
 pub mod wcascade;
 
 use rand::SeedableRng;

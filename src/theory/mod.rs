@@ -26,6 +26,7 @@
 //! ```
 
 pub mod fbm;
+pub mod fif;
 pub mod fisc;
 pub mod wcascade;
 

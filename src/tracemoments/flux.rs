@@ -1,0 +1,203 @@
+//! The flux `φ` estimated from a field (seed 000 §5.2; SPEC §8), and the
+//! box pyramid used to coarse-grain it.
+
+use ndarray::{Array2, ArrayView2};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::field::Field;
+use crate::synth::fif::fractional_integrate;
+
+/// How the flux is obtained from the field (a fractional differentiation of
+/// order 1, enough for H < 1; seed 000 §5.2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum FluxKind {
+    /// Modulus of the forward-difference gradient, on the 3-point stencil
+    /// `φ(y,x) = sqrt((f[y,x+1] - f[y,x])² + (f[y+1,x] - f[y,x])²)`.
+    Gradient,
+    /// Modulus of the three finest-scale (undecimated) Haar wavelet
+    /// coefficients of the 2x2 cell with corners `a = f[y,x], b = f[y,x+1],
+    /// c = f[y+1,x], d = f[y+1,x+1]`:
+    /// `((b-a+d-c)/2, (c-a+d-b)/2, (a-b-c+d)/2)`.
+    Wavelet,
+}
+
+/// `f` extended to `2ny x 2nx` by mirror symmetry (even, so periodic
+/// without a jump at the borders).
+fn mirror(f: ArrayView2<f64>) -> Array2<f64> {
+    let (ny, nx) = f.dim();
+    Array2::from_shape_fn((2 * ny, 2 * nx), |(y, x)| {
+        let yy = if y < ny { y } else { 2 * ny - 1 - y };
+        let xx = if x < nx { x } else { 2 * nx - 1 - x };
+        f[[yy, xx]]
+    })
+}
+
+/// Fractional integration of order `order` of a non-periodic field: masked
+/// pixels filled with the mean, mirror extension to twice the size (no
+/// border jump for the periodic FFT filter), filter `|k|^-order`, crop.
+pub(crate) fn smooth(field: &Field, order: f64) -> Result<Array2<f64>> {
+    let filled = field.filled()?;
+    let (ny, nx) = filled.dim();
+    let ext = mirror(filled.view());
+    let out = fractional_integrate(ext.view(), order)?;
+    Ok(out.slice(ndarray::s![0..ny, 0..nx]).to_owned())
+}
+
+/// The flux of `f` on the `ny x nx` grid with its validity (`true` = valid).
+/// The last row and column (no forward neighbour) and every cell touching a
+/// masked pixel are invalid.
+pub(crate) fn flux(
+    f: ArrayView2<f64>,
+    mask: Option<ArrayView2<bool>>,
+    kind: FluxKind,
+) -> Result<(Array2<f64>, Array2<bool>)> {
+    let (ny, nx) = f.dim();
+    if ny < 2 || nx < 2 {
+        return Err(Error::Input(format!(
+            "image {ny}x{nx} too small for a flux"
+        )));
+    }
+    let bad = |y: usize, x: usize| mask.as_ref().is_some_and(|m| m[[y, x]]);
+    let mut phi = Array2::<f64>::zeros((ny, nx));
+    let mut ok = Array2::<bool>::from_elem((ny, nx), false);
+    for y in 0..ny - 1 {
+        for x in 0..nx - 1 {
+            let a = f[[y, x]];
+            let b = f[[y, x + 1]];
+            let c = f[[y + 1, x]];
+            let valid = match kind {
+                FluxKind::Gradient => !(bad(y, x) || bad(y, x + 1) || bad(y + 1, x)),
+                FluxKind::Wavelet => {
+                    !(bad(y, x) || bad(y, x + 1) || bad(y + 1, x) || bad(y + 1, x + 1))
+                }
+            };
+            if !valid {
+                continue;
+            }
+            let v = match kind {
+                FluxKind::Gradient => ((b - a).powi(2) + (c - a).powi(2)).sqrt(),
+                FluxKind::Wavelet => {
+                    let d = f[[y + 1, x + 1]];
+                    let h = 0.5 * (b - a + d - c);
+                    let v = 0.5 * (c - a + d - b);
+                    let g = 0.5 * (a - b - c + d);
+                    (h * h + v * v + g * g).sqrt()
+                }
+            };
+            if !v.is_finite() {
+                return Err(Error::Input("non-finite value in the field".into()));
+            }
+            phi[[y, x]] = v;
+            ok[[y, x]] = true;
+        }
+    }
+    Ok((phi, ok))
+}
+
+/// Sums and valid counts over boxes of side `2^k`, `k = 0..=kmax`
+/// (`kmax = floor(log2 min(ny, nx))`); boxes tile the image from the top-left
+/// corner and the remainder strips of a non-power-of-two image are dropped at
+/// the levels where a whole box does not fit.
+pub(crate) struct Pyramid {
+    /// Per level: `(ny_k, nx_k)` boxes.
+    pub dims: Vec<(usize, usize)>,
+    /// Per level: number of valid pixels in each box (row-major).
+    pub counts: Vec<Vec<u32>>,
+}
+
+impl Pyramid {
+    pub(crate) fn new(valid: ArrayView2<bool>) -> Self {
+        let (ny, nx) = valid.dim();
+        let kmax = (ny.min(nx) as f64).log2().floor() as usize;
+        let mut dims = vec![(ny, nx)];
+        let mut counts = vec![valid.iter().map(|&v| v as u32).collect::<Vec<u32>>()];
+        for k in 1..=kmax {
+            let (py, px) = dims[k - 1];
+            let (cy, cx) = (py / 2, px / 2);
+            let prev = &counts[k - 1];
+            let mut c = vec![0u32; cy * cx];
+            for y in 0..cy {
+                for x in 0..cx {
+                    let i = 2 * y * px + 2 * x;
+                    c[y * cx + x] = prev[i] + prev[i + 1] + prev[i + px] + prev[i + px + 1];
+                }
+            }
+            dims.push((cy, cx));
+            counts.push(c);
+        }
+        Pyramid { dims, counts }
+    }
+
+    pub(crate) fn levels(&self) -> usize {
+        self.dims.len()
+    }
+
+    /// Box sums of `v` (row-major, `0` where invalid) at every level.
+    pub(crate) fn sums(&self, v: Vec<f64>) -> Vec<Vec<f64>> {
+        let mut out = vec![v];
+        for k in 1..self.levels() {
+            let px = self.dims[k - 1].1;
+            let (cy, cx) = self.dims[k];
+            let prev = &out[k - 1];
+            let mut s = vec![0.0; cy * cx];
+            for y in 0..cy {
+                for x in 0..cx {
+                    let i = 2 * y * px + 2 * x;
+                    s[y * cx + x] = prev[i] + prev[i + 1] + prev[i + px] + prev[i + px + 1];
+                }
+            }
+            out.push(s);
+        }
+        out
+    }
+
+    /// Natural logs of the box averages at level `k` for the boxes that are
+    /// at least half valid (the others are dropped).
+    pub(crate) fn log_means(&self, sums: &[f64], k: usize) -> Vec<f64> {
+        let full = 1u64 << (2 * k);
+        sums.iter()
+            .zip(&self.counts[k])
+            .filter(|(_, c)| 2 * (**c as u64) >= full && **c > 0)
+            .map(|(s, c)| (s / *c as f64).ln())
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gradient_of_a_plane() {
+        // f = 3x + 4y: |grad| = 5 everywhere valid; Haar: (3, 4, 0) -> 5
+        let f = Array2::from_shape_fn((5, 6), |(y, x)| 3.0 * x as f64 + 4.0 * y as f64);
+        for kind in [FluxKind::Gradient, FluxKind::Wavelet] {
+            let (phi, ok) = flux(f.view(), None, kind).unwrap();
+            for ((y, x), &v) in ok.indexed_iter() {
+                assert_eq!(v, y < 4 && x < 5);
+                if v {
+                    assert!((phi[[y, x]] - 5.0).abs() < 1e-12);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn pyramid_drops_half_empty_boxes() {
+        let mut valid = Array2::from_elem((4, 4), true);
+        for y in 0..4 {
+            valid[[y, 0]] = false;
+            valid[[y, 1]] = false;
+            valid[[y, 2]] = false;
+        }
+        let p = Pyramid::new(valid.view());
+        assert_eq!(p.levels(), 3);
+        let s = p.sums(valid.iter().map(|&v| v as u8 as f64).collect());
+        // level 1: left boxes empty (dropped), right boxes half valid (kept)
+        assert_eq!(p.log_means(&s[1], 1).len(), 2);
+        // level 2: 4 of 16 valid: dropped
+        assert_eq!(p.log_means(&s[2], 2).len(), 0);
+    }
+}
