@@ -66,13 +66,31 @@ fn main() {
         "lines per scale: {:?}",
         s.lines.iter().step_by(5).collect::<Vec<_>>()
     );
-    let r: Vec<String> = s.lines.windows(6).step_by(5).map(|w| format!("{:.2}", w[0] as f64 / w[5] as f64)).collect();
+    let r: Vec<String> = s
+        .lines
+        .windows(6)
+        .step_by(5)
+        .map(|w| format!("{:.2}", w[0] as f64 / w[5] as f64))
+        .collect();
     println!("death ratio per half octave: {}", r.join(" "));
     let f = Field::new(fbm(FbmParams { hurst: h }, n, n, 42, 0).unwrap());
     let sk = wtmm::skeleton::skeleton(&f, &cfg).unwrap();
-    let w: Vec<String> = sk.per_scale.windows(6).step_by(5).map(|w| format!("{:.2}", w[0].wtmmm as f64 / w[5].wtmmm as f64)).collect();
-    println!("WTMMM count ratio per half octave (image 0): {}", w.join(" "));
-    let w: Vec<String> = sk.per_scale.iter().step_by(5).map(|c| format!("{}/{}/{}", c.wtmm, c.wtmmm, c.chains)).collect();
+    let w: Vec<String> = sk
+        .per_scale
+        .windows(6)
+        .step_by(5)
+        .map(|w| format!("{:.2}", w[0].wtmmm as f64 / w[5].wtmmm as f64))
+        .collect();
+    println!(
+        "WTMMM count ratio per half octave (image 0): {}",
+        w.join(" ")
+    );
+    let w: Vec<String> = sk
+        .per_scale
+        .iter()
+        .step_by(5)
+        .map(|c| format!("{}/{}/{}", c.wtmm, c.wtmmm, c.chains))
+        .collect();
     println!("WTMM/WTMMM/chains (image 0): {}", w.join(" "));
 }
 #[allow(dead_code)]

@@ -528,13 +528,21 @@ mod tests {
 
     #[test]
     fn cells_are_stable_at_large_q() {
-        let l = [-3.0, 1.5, 40.0, -60.0];
+        // exact against a direct sum where the direct sum is representable
+        let l = [-3.0, 1.5, 4.0, -6.0];
         for q in [-20.0, -5.0, 0.0, 5.0, 20.0] {
             let c = cell(&l, q);
-            assert!(c.z >= 1.0 && c.z.is_finite() && c.zl.is_finite());
             let direct: f64 = l.iter().map(|&x| (q * x as f64).exp2()).sum();
             let got = c.e as f64 + c.z.log2();
             assert!((got - direct.log2()).abs() < 1e-12, "q={q}");
+        }
+        // finite where a direct sum would overflow (2^1200) or underflow
+        let l = [-3.0, 1.5, 40.0, -60.0];
+        for q in [-20.0, 20.0] {
+            let c = cell(&l, q);
+            assert!(c.z >= 1.0 && c.z.is_finite() && c.zl.is_finite() && c.z2.is_finite());
+            let want = l.iter().map(|&x| q * x).fold(f64::NEG_INFINITY, f64::max);
+            assert!((c.e as f64 + c.z.log2() - want).abs() < 1e-9, "q={q}");
         }
     }
 }

@@ -5,10 +5,10 @@
 
 mod analyze_cmd;
 mod common;
+mod cwt_cmd;
 mod demo_cmd;
 mod ensemble;
 mod model_args;
-mod cwt_cmd;
 mod skeleton_cmd;
 mod spectrum_cmd;
 mod synth_cmd;

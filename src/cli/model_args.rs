@@ -114,7 +114,10 @@ impl ModelOpts {
         let Some(name) = name else {
             return Err(Error::param(
                 "MODEL",
-                format!("name a model (fbm, wcascade, fisc) or a --preset ({})", PRESET_NAMES.join(", ")),
+                format!(
+                    "name a model (fbm, wcascade, fisc) or a --preset ({})",
+                    PRESET_NAMES.join(", ")
+                ),
             ));
         };
         let model = match name {
@@ -136,7 +139,12 @@ impl ModelOpts {
                         beta: need(self.beta, "beta", "logpoisson W-cascade")?,
                         lambda: need(self.lambda, "lambda", "logpoisson W-cascade")?,
                     },
-                    None => return Err(Error::param("law", "required by the wcascade model (lognormal or logpoisson)")),
+                    None => {
+                        return Err(Error::param(
+                            "law",
+                            "required by the wcascade model (lognormal or logpoisson)",
+                        ));
+                    }
                 };
                 Model::WCascade(WCascadeParams {
                     law,

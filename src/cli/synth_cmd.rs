@@ -8,10 +8,10 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::{header, make_out_dir, progress, write_json};
+use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::io::{write_npy, write_png16, write_tiff_f32};
-use super::model_args::{ModelName, ModelOpts};
 use crate::theory::{Model, TheoryTable};
 
 #[derive(Args, Debug)]
@@ -74,14 +74,19 @@ pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
     let c = &args.common;
     check_common(c)?;
     if !matches!(r.model, Model::Fbm(_)) && !c.size.is_power_of_two() {
-        return Err(Error::param("size", format!("{} needs a power of two, got {}", r.model.name(), c.size)));
+        return Err(Error::param(
+            "size",
+            format!("{} needs a power of two, got {}", r.model.name(), c.size),
+        ));
     }
     let t = TheoryTable::new(&r.model, &[-2.0, -1.0, 0.0, 1.0, 2.0, 3.0]);
     let theory = json!({"beta": t.beta, "beta_convention": t.beta_convention, "h_of_q0": t.h_of_q0,
         "h_min": t.h_min, "h_max": t.h_max, "recommended_wavelet": r.wavelet});
     let params = json!({"model": r.model, "preset": r.preset});
     let model = r.model;
-    generate(c, model.name(), params, theory, quiet, |i| model.synthesize(c.size, c.seed, i as u64))
+    generate(c, model.name(), params, theory, quiet, |i| {
+        model.synthesize(c.size, c.seed, i as u64)
+    })
 }
 
 fn check_common(c: &SynthCommon) -> Result<()> {

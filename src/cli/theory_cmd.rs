@@ -31,7 +31,10 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
     let r = args.model_opts.resolve(args.model)?;
     let q = parse_list("q", &args.q)?;
     let t = TheoryTable::new(&r.model, &q);
-    let mut body = header("theory", json!({"model": r.model, "preset": r.preset, "q": q}));
+    let mut body = header(
+        "theory",
+        json!({"model": r.model, "preset": r.preset, "q": q}),
+    );
     if let (Some(o), serde_json::Value::Object(m)) = (
         body.as_object_mut(),
         serde_json::to_value(&t).map_err(|e| Error::Input(e.to_string()))?,
@@ -41,7 +44,10 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
         }
     }
     body["recommended_wavelet"] = json!(r.wavelet);
-    println!("{}", serde_json::to_string_pretty(&body).map_err(|e| Error::Input(e.to_string()))?);
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&body).map_err(|e| Error::Input(e.to_string()))?
+    );
     if let Some(dir) = &args.out {
         make_out_dir(dir)?;
         write_json(&dir.join("theory.json"), &body)?;
@@ -50,16 +56,30 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
             title: format!("tau(q): {name}"),
             x_label: "q".into(),
             y_label: "tau(q)".into(),
-            series: vec![Series::new(name, q.iter().cloned().zip(t.tau.iter().cloned()).collect(), Style::Line, 1)],
+            series: vec![Series::new(
+                name,
+                q.iter().cloned().zip(t.tau.iter().cloned()).collect(),
+                Style::Line,
+                1,
+            )],
             ..Default::default()
         };
         save_chart(&tc, &dir.join("tau.png"))?;
-        let style = if t.dh_h.len() > 1 { Style::Line } else { Style::Markers };
+        let style = if t.dh_h.len() > 1 {
+            Style::Line
+        } else {
+            Style::Markers
+        };
         let dc = Chart {
             title: format!("D(h): {name}"),
             x_label: "h".into(),
             y_label: "D(h)".into(),
-            series: vec![Series::new(name, t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(), style, 1)],
+            series: vec![Series::new(
+                name,
+                t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(),
+                style,
+                1,
+            )],
             ..Default::default()
         };
         save_chart(&dc, &dir.join("dh.png"))?;

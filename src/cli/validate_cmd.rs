@@ -96,11 +96,18 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
         return Err(Error::param("count", "must be >= 1"));
     }
     if !matches!(r.model, Model::Fbm(_)) && !args.size.is_power_of_two() {
-        return Err(Error::param("size", format!("{} needs a power of two, got {}", r.model.name(), args.size)));
+        return Err(Error::param(
+            "size",
+            format!("{} needs a power of two, got {}", r.model.name(), args.size),
+        ));
     }
     // periodic models need no taper; fBm is cropped from a larger torus
     let ps_cfg = PowerSpectrumConfig {
-        window: if matches!(r.model, Model::Fbm(_)) { Window::Hann } else { Window::None },
+        window: if matches!(r.model, Model::Fbm(_)) {
+            Window::Hann
+        } else {
+            Window::None
+        },
         detrend: Detrend::Plane,
         bins_per_octave: 4,
     };
@@ -119,7 +126,14 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     let wall = t0.elapsed().as_secs_f64();
     let rule = opts.rule();
     let s = ens.sums.spectra(rule, fit)?;
-    let other = ens.sums.spectra(if rule == crate::spectra::Rule::Sup { crate::spectra::Rule::Plain } else { crate::spectra::Rule::Sup }, fit)?;
+    let other = ens.sums.spectra(
+        if rule == crate::spectra::Rule::Sup {
+            crate::spectra::Rule::Plain
+        } else {
+            crate::spectra::Rule::Sup
+        },
+        fit,
+    )?;
     let th = TheoryTable::new(&model, &q);
     let (k_lo, k_hi) = default_k_range(args.size);
     let beta_fit = ens.spectrum.fit(k_lo, k_hi)?;
@@ -156,7 +170,9 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             d_core,
             0.0,
             0.1,
-            &format!("worst at q = {q_core}; the paper's tau(q) lies on the theory over this range"),
+            &format!(
+                "worst at q = {q_core}; the paper's tau(q) lies on the theory over this range"
+            ),
         ),
         criterion(
             &format!("max |tau - theory|, q in [{pq_lo}, {pq_hi}] (published range)"),
@@ -165,20 +181,40 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             0.2,
             &format!("worst at q = {q_pub}; at large |q| few lines dominate (see warnings)"),
         ),
-        criterion("h(q=0)", s.h[i0], th.h_of_q0, 0.02, "II §3: 0.38 +- 0.02 (W-cascades), 0.74 +- 0.02 (FISC)"),
-        criterion("D(h(q=0))", s.d[i0], 2.0, 0.02, "surfaces singular everywhere: D(h(0)) = 2"),
+        criterion(
+            "h(q=0)",
+            s.h[i0],
+            th.h_of_q0,
+            0.02,
+            "II §3: 0.38 +- 0.02 (W-cascades), 0.74 +- 0.02 (FISC)",
+        ),
+        criterion(
+            "D(h(q=0))",
+            s.d[i0],
+            2.0,
+            0.02,
+            "surfaces singular everywhere: D(h(0)) = 2",
+        ),
         criterion(
             "beta (power spectrum)",
             beta_fit.beta,
             th.beta,
             0.05,
-            &format!("angle-averaged, k in [{k_lo:.3}, {k_hi:.3}] rad/px; per-image sd {beta_sd:.3}"),
+            &format!(
+                "angle-averaged, k in [{k_lo:.3}, {k_hi:.3}] rad/px; per-image sd {beta_sd:.3}"
+            ),
         ),
     ];
     // τ(2) + 4 is the WTMM's own estimate of beta
     let i2 = s.q_index(2.0).filter(|&i| s.q[i] == 2.0);
     if let Some(i2) = i2 {
-        crit.push(criterion("tau(2) + 4 (WTMM beta)", s.tau[i2] + 4.0, th.beta, 0.1, "isotropic spectral exponent from the partition function"));
+        crit.push(criterion(
+            "tau(2) + 4 (WTMM beta)",
+            s.tau[i2] + 4.0,
+            th.beta,
+            0.1,
+            "isotropic spectral exponent from the partition function",
+        ));
     }
     let all_pass = crit.iter().all(|c| c.pass);
 
@@ -187,28 +223,59 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     let theory_curves = TheoryCurves {
         name: name.clone(),
         tau: Box::new(move |qq| model.tau(qq)),
-        dh: th.dh_h.iter().cloned().zip(th.dh_d.iter().cloned()).collect(),
+        dh: th
+            .dh_h
+            .iter()
+            .cloned()
+            .zip(th.dh_d.iter().cloned())
+            .collect(),
     };
     let params = json!({
         "model": model, "preset": r.preset, "count": args.count, "size": args.size, "seed": args.seed,
         "analysis": cfg, "q": q, "fit_octaves": fit, "rule": rule,
     });
-    write_outputs(&args.out.out, "validate", params.clone(), &ens.sums, &s, &other, Some(&theory_curves))?;
+    write_outputs(
+        &args.out.out,
+        "validate",
+        params.clone(),
+        &ens.sums,
+        &s,
+        &other,
+        Some(&theory_curves),
+    )?;
     // spectrum plot with the theoretical beta
     let pts = ens.spectrum.points();
     let mut chart = Chart {
-        title: format!("{name}: beta = {:.3} (theory {:.3})", beta_fit.beta, th.beta),
+        title: format!(
+            "{name}: beta = {:.3} (theory {:.3})",
+            beta_fit.beta, th.beta
+        ),
         x_label: "log2 |k| (rad/px)".into(),
         y_label: "log2 S(|k|)".into(),
         ..Default::default()
     };
-    chart.series.push(Series::new("S(|k|), angle-averaged", pts.iter().map(|p| (p.0.log2(), p.1.log2())).collect(), Style::Markers, 0));
+    chart.series.push(Series::new(
+        "S(|k|), angle-averaged",
+        pts.iter().map(|p| (p.0.log2(), p.1.log2())).collect(),
+        Style::Markers,
+        0,
+    ));
     let (x0, x1) = (k_lo.log2(), k_hi.log2());
     let line = |b: f64, xc: f64, yc: f64| vec![(x0, yc - b * (x0 - xc)), (x1, yc - b * (x1 - xc))];
     let xc = 0.5 * (x0 + x1);
     let yc = beta_fit.line.intercept + beta_fit.line.slope * xc;
-    chart.series.push(Series::new(format!("fit: {:.3}", beta_fit.beta), line(beta_fit.beta, xc, yc), Style::Line, 1));
-    chart.series.push(Series::new(format!("theory: {:.3}", th.beta), line(th.beta, xc, yc), Style::Dashed, 2));
+    chart.series.push(Series::new(
+        format!("fit: {:.3}", beta_fit.beta),
+        line(beta_fit.beta, xc, yc),
+        Style::Line,
+        1,
+    ));
+    chart.series.push(Series::new(
+        format!("theory: {:.3}", th.beta),
+        line(th.beta, xc, yc),
+        Style::Dashed,
+        2,
+    ));
     save_chart(&chart, &args.out.out.join("spectrum.png"))?;
 
     let mut body = super::common::header("validate", params);
@@ -224,17 +291,58 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     write_json(&args.out.out.join("validation.json"), &body)?;
 
     let mut t = String::new();
-    let _ = writeln!(t, "validate {name}: {} images {}x{}, seed {}, {} wavelet, {:?} rule, fit {}:{} octaves ({:.2}-{:.2} px), {wall:.1} s",
-        args.count, args.size, args.size, args.seed, cfg.wavelet, rule, fit.0, fit.1, s.fit_scales.0, s.fit_scales.1);
-    let _ = writeln!(t, "{:<52} {:>9} {:>9} {:>9}  result", "criterion", "value", "target", "tol");
+    let _ = writeln!(
+        t,
+        "validate {name}: {} images {}x{}, seed {}, {} wavelet, {:?} rule, fit {}:{} octaves ({:.2}-{:.2} px), {wall:.1} s",
+        args.count,
+        args.size,
+        args.size,
+        args.seed,
+        cfg.wavelet,
+        rule,
+        fit.0,
+        fit.1,
+        s.fit_scales.0,
+        s.fit_scales.1
+    );
+    let _ = writeln!(
+        t,
+        "{:<52} {:>9} {:>9} {:>9}  result",
+        "criterion", "value", "target", "tol"
+    );
     for c in &crit {
-        let _ = writeln!(t, "{:<52} {:>9.4} {:>9.4} {:>9.4}  {}", c.name, c.value, c.target, c.tolerance, if c.pass { "PASS" } else { "FAIL" });
+        let _ = writeln!(
+            t,
+            "{:<52} {:>9.4} {:>9.4} {:>9.4}  {}",
+            c.name,
+            c.value,
+            c.target,
+            c.tolerance,
+            if c.pass { "PASS" } else { "FAIL" }
+        );
     }
-    let _ = writeln!(t, "\n{:>6} {:>9} {:>8} {:>9} {:>8} {:>9}", "q", "tau", "stderr", "theory", "diff", "alt rule");
+    let _ = writeln!(
+        t,
+        "\n{:>6} {:>9} {:>8} {:>9} {:>8} {:>9}",
+        "q", "tau", "stderr", "theory", "diff", "alt rule"
+    );
     for i in 0..q.len() {
-        let _ = writeln!(t, "{:>6.2} {:>9.4} {:>8.4} {:>9.4} {:>+8.4} {:>9.4}", q[i], s.tau[i], s.tau_stderr[i], th.tau[i], s.tau[i] - th.tau[i], other.tau[i]);
+        let _ = writeln!(
+            t,
+            "{:>6.2} {:>9.4} {:>8.4} {:>9.4} {:>+8.4} {:>9.4}",
+            q[i],
+            s.tau[i],
+            s.tau_stderr[i],
+            th.tau[i],
+            s.tau[i] - th.tau[i],
+            other.tau[i]
+        );
     }
     write_atomic(&args.out.out.join("validation.txt"), t.as_bytes())?;
     print!("{t}");
-    Ok(if all_pass || !args.check { Outcome::Ok } else { Outcome::CheckFailed })
+    Ok(if all_pass || !args.check {
+        Outcome::Ok
+    } else {
+        Outcome::CheckFailed
+    })
 }
