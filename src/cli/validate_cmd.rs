@@ -147,14 +147,14 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     // criteria (SPEC §11)
     let dev = |lo: f64, hi: f64| -> (f64, f64) {
         let mut worst: (f64, f64) = (0.0, f64::NAN);
-        for i in 0..q.len() {
-            if q[i] >= lo - 1e-12 && q[i] <= hi + 1e-12 {
+        for (i, &qi) in q.iter().enumerate() {
+            if qi >= lo - 1e-12 && qi <= hi + 1e-12 {
                 let d = (s.tau[i] - th.tau[i]).abs();
                 if !d.is_finite() {
-                    return (f64::INFINITY, q[i]);
+                    return (f64::INFINITY, qi);
                 }
                 if d > worst.0 {
-                    worst = (d, q[i]);
+                    worst = (d, qi);
                 }
             }
         }
@@ -326,11 +326,11 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
         "\n{:>6} {:>9} {:>8} {:>9} {:>8} {:>9}",
         "q", "tau", "stderr", "theory", "diff", "alt rule"
     );
-    for i in 0..q.len() {
+    for (i, qi) in q.iter().enumerate() {
         let _ = writeln!(
             t,
             "{:>6.2} {:>9.4} {:>8.4} {:>9.4} {:>+8.4} {:>9.4}",
-            q[i],
+            qi,
             s.tau[i],
             s.tau_stderr[i],
             th.tau[i],
