@@ -99,7 +99,10 @@ impl PartitionSums {
         for j in 0..ns {
             lp.clear();
             ls.clear();
-            for l in sk.alive_at(j) {
+            // a WTMMM counts when it is linked to an adjacent scale: lines
+            // that never link beyond a_min contribute nothing (xsmurf
+            // `efct -vc`, the reference partition function)
+            for l in sk.alive_at(j).filter(|l| l.points.len() > 1) {
                 let p = l.points[j];
                 lp.push(p.m.log2());
                 ls.push(p.sup.log2());

@@ -8,6 +8,7 @@ mod common;
 mod cwt_cmd;
 mod demo_cmd;
 mod ensemble;
+mod merge_cmd;
 mod model_args;
 mod skeleton_cmd;
 mod spectrum_cmd;
@@ -47,6 +48,8 @@ pub enum Command {
     Validate(validate_cmd::ValidateArgs),
     /// Generate a small ensemble with a known spectrum, analyse it, compare with theory.
     Demo(demo_cmd::DemoArgs),
+    /// Merge saved partition sums (ensemble shards) and recompute the spectra.
+    Merge(merge_cmd::MergeArgs),
     /// WT skeleton: WTMMM, maxima lines and pictures of chosen scales.
     Skeleton(skeleton_cmd::SkeletonArgs),
     /// WTMM multifractal spectra tau(q), h(q), D(q), D(h) of an ensemble.
@@ -100,6 +103,7 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Analyze(a) => analyze_cmd::run(a, quiet),
         Command::Skeleton(a) => skeleton_cmd::run(a, quiet),
         Command::Demo(a) => demo_cmd::run(a, quiet),
+        Command::Merge(a) => merge_cmd::run(a, quiet),
         Command::Theory(a) => theory_cmd::run(a, quiet),
         Command::Validate(a) => validate_cmd::run(a, quiet),
     }

@@ -16,7 +16,9 @@ use super::maxima::ScaleMaxima;
 #[serde(tag = "rule", rename_all = "lowercase")]
 pub enum SearchRadius {
     /// The reference implementation's box, `min(cap, 2 log2(6.98 a))`
-    /// (SPEC §3; about 6.8 px at a = 1.5, capped at 7 px).
+    /// (SPEC §3; about 6.8 px at a = 1.5, capped at 7 px), with candidates
+    /// also within the Euclidean distance `d^2 < cap^2 + 1` (xsmurf
+    /// `wt2d/chain2.c`: `dist < 50` for the 7 px cap).
     Reference { cap: f64 },
     /// `max(min, factor * a)`: proportional to scale.
     Proportional { factor: f64, min: f64 },
@@ -29,6 +31,14 @@ impl Default for SearchRadius {
 }
 
 impl SearchRadius {
+    /// Largest accepted squared distance (px^2), whatever the box.
+    pub fn max_d2(&self) -> f64 {
+        match *self {
+            SearchRadius::Reference { cap } => cap * cap + 1.0 - 1e-9,
+            SearchRadius::Proportional { .. } => f64::INFINITY,
+        }
+    }
+
     /// Half-width in pixels at scale `a`.
     pub fn at(&self, a: f64) -> f64 {
         match *self {
@@ -130,6 +140,7 @@ impl Linker {
             return;
         }
         let r = self.params.radius.at(sm.a);
+        let max_d2 = self.params.radius.max_d2();
         let (lo, hi) = self.params.ratio;
         let ri = r.floor() as i64;
         // bucket the candidates on a grid of cell size `cell`
@@ -178,6 +189,9 @@ impl Linker {
                             continue;
                         }
                         let d2 = (dx * dx + dy * dy) as f64;
+                        if d2 > max_d2 {
+                            continue;
+                        }
                         if d2 < best.1 || (d2 == best.1 && k < best.0) {
                             best = (k, d2);
                         }

@@ -472,9 +472,12 @@ fn adjacent(p: (u32, u32), q: (u32, u32)) -> bool {
 }
 
 /// Calls `f(i)` for each local maximum of `v` along a chain: one call per
-/// plateau (its middle index). On an open chain the ends count as maxima
-/// when they exceed their single neighbour; on a closed chain indices wrap.
-/// A chain whose values are all equal yields its middle point.
+/// plateau (its middle index), which must be strictly above its neighbours
+/// on both sides. On a closed chain indices wrap; on an open chain a plateau
+/// that reaches an end is never a maximum (the end points of a chain carry
+/// no WTMMM, as in the reference implementation xsmurf, `wt2d/single_max.c`,
+/// where a WTMMM needs occupied neighbours on two sides). A chain whose
+/// values are all equal yields its middle point.
 pub fn for_each_chain_max(v: &[f64], closed: bool, mut f: impl FnMut(usize)) {
     let n = v.len();
     if n == 0 {
@@ -504,7 +507,7 @@ pub fn for_each_chain_max(v: &[f64], closed: bool, mut f: impl FnMut(usize)) {
     let mut b = first_end;
     // left neighbour of the first run: wraps on a closed chain
     let mut prev: Option<f64> = match (closed, wrap) {
-        (false, _) => None,
+        (false, _) => None, // the first run touches an end
         (true, false) => Some(v[n - 1]),
         (true, true) => Some(v[last_start - 1]),
     };
@@ -520,7 +523,7 @@ pub fn for_each_chain_max(v: &[f64], closed: bool, mut f: impl FnMut(usize)) {
         } else {
             None
         };
-        if prev.is_none_or(|l| val > l) && right.is_none_or(|r| val > r) {
+        if prev.is_some_and(|l| val > l) && right.is_some_and(|r| val > r) {
             let len = if a <= b { b - a + 1 } else { n - a + b + 1 };
             f((a + len / 2) % n);
         }
@@ -546,8 +549,9 @@ mod tests {
     #[test]
     fn chain_maxima_rules() {
         assert_eq!(maxima(&[1.0, 3.0, 2.0, 5.0, 4.0], false), vec![1, 3]);
-        // ends count on an open chain
-        assert_eq!(maxima(&[5.0, 3.0, 2.0, 4.0], false), vec![0, 3]);
+        // the ends of an open chain are never maxima
+        assert_eq!(maxima(&[5.0, 3.0, 2.0, 4.0], false), Vec::<usize>::new());
+        assert_eq!(maxima(&[5.0, 5.0, 2.0, 3.0, 1.0], false), vec![3]);
         // ends wrap on a closed chain: 5 vs 4 -> only index 0
         assert_eq!(maxima(&[5.0, 3.0, 2.0, 4.0], true), vec![0]);
         // a plateau gives its middle
@@ -596,7 +600,7 @@ mod tests {
             } else {
                 None
             };
-            if left.is_none_or(|l| val > l) && right.is_none_or(|rr| val > rr) {
+            if left.is_some_and(|l| val > l) && right.is_some_and(|rr| val > rr) {
                 let len = if a <= b { b - a + 1 } else { n - a + b + 1 };
                 out.push((a + len / 2) % n);
             }
