@@ -104,6 +104,9 @@ impl PartitionSums {
             // `efct -vc`, the reference partition function)
             for l in sk.alive_at(j).filter(|l| l.points.len() > 1) {
                 let p = l.points[j];
+                if !sk.counts(p.x, p.y) {
+                    continue; // traced in the guard band, counted only inside
+                }
                 lp.push(p.m.log2());
                 ls.push(p.sup.log2());
             }

@@ -44,8 +44,12 @@ pub struct ScaleMaxima {
     pub chains: Vec<Chain>,
 }
 
-/// Where maxima are looked for: the interior rectangle `[y0, y1) x [x0, x1)`
-/// (SPEC §1 margin), minus the pixels too close to a masked pixel.
+/// Where maxima are counted: the interior rectangle `[y0, y1) x [x0, x1)`
+/// (SPEC §1 margin, the same at every scale), minus the pixels too close to a
+/// masked pixel. With `guard` set, chains are traced (and lines linked) over
+/// the wider rectangle where the transform is trusted at the current scale
+/// (margin `ceil(support a)`), so that the counting rectangle does not cut
+/// chains and end the lines that cross it.
 #[derive(Clone, Debug)]
 pub struct Domain {
     pub ny: usize,
@@ -57,8 +61,10 @@ pub struct Domain {
     /// Euclidean distance (px) from each pixel to the nearest masked pixel;
     /// `None` without a mask.
     pub mask_distance: Option<Array2<f32>>,
-    /// A WTMM at scale a is kept only if `mask_distance > support * a`.
+    /// Radius of the wavelet in units of a (its margin per unit scale).
     pub support: f64,
+    /// Trace chains beyond the counting rectangle where the scale allows.
+    pub guard: bool,
 }
 
 impl Domain {
@@ -73,7 +79,28 @@ impl Domain {
             x1: nx.saturating_sub(margin),
             mask_distance: None,
             support: 0.0,
+            guard: false,
         }
+    }
+
+    /// The rectangle `(y0, y1, x0, x1)` where chains are traced at scale `a`.
+    pub fn detection_rect(&self, a: f64) -> (usize, usize, usize, usize) {
+        if !self.guard {
+            return (self.y0, self.y1, self.x0, self.x1);
+        }
+        let m = ((self.support * a).ceil() as usize).max(2);
+        (
+            m.min(self.y0),
+            self.ny.saturating_sub(m).max(self.y1),
+            m.min(self.x0),
+            self.nx.saturating_sub(m).max(self.x1),
+        )
+    }
+
+    /// True if pixel `(x, y)` is inside the counting rectangle.
+    pub fn counts(&self, x: u32, y: u32) -> bool {
+        let (x, y) = (x as usize, y as usize);
+        x >= self.x0 && x < self.x1 && y >= self.y0 && y < self.y1
     }
 
     /// True if the interior has no pixel.
@@ -153,6 +180,7 @@ pub fn detect(
     s.modulus.resize(ny * nx, 0.0);
     modulus_into(ts, &mut s.modulus);
     let m = &s.modulus;
+    let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
     let mut mmax: f64 = 0.0;
     for y in domain.y0..domain.y1 {
         for &v in &m[y * nx + domain.x0..y * nx + domain.x1] {
@@ -163,6 +191,7 @@ pub fn detect(
         return out;
     }
     let thr = eps * mmax;
+    // a WTMM whose wavelet support reaches a masked pixel is dropped
     let min_dist = (domain.support * a) as f32;
 
     // 1. non-maximum suppression along the gradient. Flags live on a grid
@@ -180,11 +209,11 @@ pub fn detect(
     s.wtmm.clear();
     // without wrap-around when the domain keeps two pixels from the border
     // (p ± u and the cell beyond it stay inside the image)
-    let wraps = domain.y0 < 2 || domain.x0 < 2 || domain.y1 + 2 > ny || domain.x1 + 2 > nx;
+    let wraps = dy0 < 2 || dx0 < 2 || dy1 + 2 > ny || dx1 + 2 > nx;
     s.row_mask.resize(nx, 0);
-    for y in domain.y0..domain.y1 {
+    for y in dy0..dy1 {
         if wraps {
-            for x in domain.x0..domain.x1 {
+            for x in dx0..dx1 {
                 let p = y * nx + x;
                 let mp = m[p];
                 s.row_mask[x] = (mp >= thr
@@ -193,9 +222,9 @@ pub fn detect(
                     as u8;
             }
         } else {
-            nms_row(m, ts, nx, y, domain.x0, domain.x1, thr, &mut s.row_mask);
+            nms_row(m, ts, nx, y, dx0, dx1, thr, &mut s.row_mask);
         }
-        for x in domain.x0..domain.x1 {
+        for x in dx0..dx1 {
             if s.row_mask[x] == 0 {
                 continue;
             }
