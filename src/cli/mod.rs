@@ -5,6 +5,7 @@
 
 mod analyze_cmd;
 mod common;
+mod compare_cmd;
 mod cwt_cmd;
 mod demo_cmd;
 mod ensemble;
@@ -14,6 +15,7 @@ mod skeleton_cmd;
 mod spectrum_cmd;
 mod synth_cmd;
 mod theory_cmd;
+mod tm_cmd;
 mod validate_cmd;
 
 use std::path::PathBuf;
@@ -54,6 +56,10 @@ pub enum Command {
     Skeleton(skeleton_cmd::SkeletonArgs),
     /// WTMM multifractal spectra tau(q), h(q), D(q), D(h) of an ensemble.
     Analyze(analyze_cmd::AnalyzeArgs),
+    /// Trace moments K(q), universal alpha and C1, double trace moments, H.
+    Tm(tm_cmd::TmArgs),
+    /// WTMM against trace moments on one generated ensemble, both against the theory.
+    Compare(Box<compare_cmd::CompareArgs>),
 }
 
 /// Wavelet and scale-grid options shared by the analysis commands.
@@ -106,6 +112,8 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Merge(a) => merge_cmd::run(a, quiet),
         Command::Theory(a) => theory_cmd::run(a, quiet),
         Command::Validate(a) => validate_cmd::run(a, quiet),
+        Command::Tm(a) => tm_cmd::run(a, quiet),
+        Command::Compare(a) => compare_cmd::run(*a, quiet),
     }
 }
 

@@ -71,6 +71,8 @@ fn published_q_range(model: &Model) -> (f64, f64) {
         Model::Fisc(_) => (-4.0, 9.0),
         Model::WCascade(_) => (-6.0, 8.0),
         Model::Fbm(_) => (-4.0, 6.0),
+        // no published WTMM result; q >= 0, where K(q) is finite (α < 2)
+        Model::Fif(_) => (0.0, 4.0),
     }
 }
 
