@@ -104,8 +104,16 @@ fn step_edge() {
             .filter(|ch| ch.pixels.len() >= 3 && ch.pixels.iter().any(|&(x, y)| sk.counts(x, y)))
             .collect();
         assert_eq!(inside.len(), 1, "a={:.2}: {} chains", sm.a, inside.len());
-        assert!(inside[0].pixels.iter().all(|&(x, _)| x == 128), "a={:.2}: chain leaves the edge", sm.a);
-        let n_in = inside[0].pixels.iter().filter(|&&(x, y)| sk.counts(x, y)).count();
+        assert!(
+            inside[0].pixels.iter().all(|&(x, _)| x == 128),
+            "a={:.2}: chain leaves the edge",
+            sm.a
+        );
+        let n_in = inside[0]
+            .pixels
+            .iter()
+            .filter(|&&(x, y)| sk.counts(x, y))
+            .count();
         assert_eq!(n_in, n - 80, "the chain spans the interior");
     }
     let full: Vec<&MaximaLine> = sk.lines.iter().filter(|l| l.points.len() == 30).collect();
@@ -133,7 +141,11 @@ fn smooth_bump_gives_the_wavelet_order() {
         (-(dx * dx + 1.5 * dy * dy) / (2.0 * s2)).exp()
     });
     for (wavelet, order) in [(Wavelet::Gauss, 1.0), (Wavelet::Mexican, 3.0)] {
-        let sk = skeleton(&Field::new(img.clone()), &cfg(wavelet, 2, 30)).unwrap();
+        // a^3 over a tenth of an octave is a ratio of 1.23: the linking
+        // window must admit it (the default admits |h| < 1.5)
+        let mut c = cfg(wavelet, 2, 30);
+        c.link.ratio = (0.8, 1.3);
+        let sk = skeleton(&Field::new(img.clone()), &c).unwrap();
         let full: Vec<&MaximaLine> = sk.lines.iter().filter(|l| l.points.len() == 20).collect();
         assert!(!full.is_empty(), "{wavelet}: no line survives 2 octaves");
         for l in full {

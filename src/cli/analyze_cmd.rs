@@ -24,17 +24,21 @@ pub struct SpectraOpts {
     /// q values: `start:stop:step` or `a,b,c`.
     #[arg(long, default_value = "-4:6:0.5", allow_hyphen_values = true)]
     pub q: String,
-    /// Fit range in octaves above a_min, `LO:HI`.
-    #[arg(long, default_value = "0:4")]
+    /// Fit range in octaves above a_min, `LO:HI` (the first half octave is
+    /// left out: see the README's validation section).
+    #[arg(long, default_value = "0.5:4")]
     pub fit: String,
-    /// Use the plain modulus instead of the sup rule.
+    /// Modulus along a maxima line: plain (M at a) or sup (max of M over scales <= a).
+    #[arg(long, value_enum, default_value_t = Rule::Plain)]
+    pub rule: Rule,
+    /// Same as `--rule plain` (kept for scripts).
     #[arg(long)]
     pub plain: bool,
     /// Linking: modulus-ratio window `LO:HI` between successive scales.
-    #[arg(long, default_value = "0.8:1.25")]
+    #[arg(long, default_value = "0.9:1.11")]
     pub ratio: String,
-    /// Linking: cap of the search box half-width (px), reference rule min(cap, 2 log2(6.98 a)).
-    #[arg(long, default_value_t = 7.0)]
+    /// Linking: cap (px) of the search box half-width min(cap, 2 log2(6.98 a)).
+    #[arg(long, default_value_t = 12.0)]
     pub radius_cap: f64,
     /// Cut chains at the analysis domain, as the reference implementation
     /// does, instead of tracing them in the guard band outside it.
@@ -93,7 +97,7 @@ impl SpectraOpts {
     }
 
     pub fn rule(&self) -> Rule {
-        if self.plain { Rule::Plain } else { Rule::Sup }
+        if self.plain { Rule::Plain } else { self.rule }
     }
 }
 

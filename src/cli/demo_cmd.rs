@@ -7,11 +7,11 @@ use std::path::PathBuf;
 
 use clap::Args;
 
+use super::OutDir;
 use super::Outcome;
 use super::analyze_cmd::SpectraOpts;
 use super::model_args::ModelOpts;
 use super::validate_cmd::{ValidateArgs, run as validate};
-use super::OutDir;
 use crate::error::Result;
 
 #[derive(Args, Debug)]
@@ -41,7 +41,9 @@ pub fn run(args: DemoArgs, quiet: bool) -> Result<Outcome> {
         seed: args.seed,
         opts: SpectraOpts::defaults(),
         check: false,
-        out: OutDir { out: args.out.clone() },
+        out: OutDir {
+            out: args.out.clone(),
+        },
     };
     let r = validate(v, quiet)?;
     let dir = args.out.display();

@@ -22,11 +22,11 @@ pub struct MergeArgs {
     #[arg(required = true)]
     pub sums: Vec<PathBuf>,
     /// Fit range in octaves above a_min, `LO:HI`.
-    #[arg(long, default_value = "1:4")]
+    #[arg(long, default_value = "0.5:4")]
     pub fit: String,
-    /// Use the plain modulus instead of the sup rule.
-    #[arg(long)]
-    pub plain: bool,
+    /// Modulus along a maxima line: plain or sup.
+    #[arg(long, value_enum, default_value_t = Rule::Plain)]
+    pub rule: Rule,
     /// Theory to draw and compare with (MODEL with its options, or --preset).
     #[arg(long, value_enum)]
     pub theory: Option<ModelName>,
@@ -54,8 +54,12 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     } else {
         None
     };
-    let rule = if args.plain { Rule::Plain } else { Rule::Sup };
-    let other = if args.plain { Rule::Sup } else { Rule::Plain };
+    let rule = args.rule;
+    let other = if rule == Rule::Plain {
+        Rule::Sup
+    } else {
+        Rule::Plain
+    };
     let s = sums.spectra(rule, fit)?;
     let o = sums.spectra(other, fit)?;
     make_out_dir(&args.out.out)?;
@@ -68,9 +72,22 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         }
     });
     let params = json!({"sums": args.sums, "fit_octaves": fit, "rule": rule, "theory": theory});
-    write_outputs(&args.out.out, "merge", params, &sums, &s, &o, curves.as_ref())?;
+    write_outputs(
+        &args.out.out,
+        "merge",
+        params,
+        &sums,
+        &s,
+        &o,
+        curves.as_ref(),
+    )?;
     if !quiet {
-        eprintln!("merged {} images from {} files into {}", s.images, args.sums.len(), args.out.out.display());
+        eprintln!(
+            "merged {} images from {} files into {}",
+            s.images,
+            args.sums.len(),
+            args.out.out.display()
+        );
     }
     Ok(Outcome::Ok)
 }

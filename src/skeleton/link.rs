@@ -25,8 +25,12 @@ pub enum SearchRadius {
 }
 
 impl Default for SearchRadius {
+    /// The reference box with a 12 px cap: with the reference's 7 px, lines
+    /// die too fast beyond a ~ 8 px (no candidate in the box) and τ(0)
+    /// steepens to -2.07..-2.09 over the fit range; 12 px gives
+    /// D(h(0)) = 1.98..2.03 on the presets (README, validation).
     fn default() -> Self {
-        SearchRadius::Reference { cap: 7.0 }
+        SearchRadius::Reference { cap: 12.0 }
     }
 }
 
@@ -72,15 +76,22 @@ pub struct MaximaLine {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LinkParams {
     pub radius: SearchRadius,
-    /// Accept a candidate only when `lo < M_up / M_down < hi`.
+    /// Accept a candidate only when `lo < M_up / M_down < hi`. This bounds
+    /// the local exponents a line can follow: with `v` voices per octave,
+    /// `v log2(lo) < h < v log2(hi)` (±1.5 for (0.9, 1.11) and 10 voices:
+    /// rough surfaces; smooth regions seen by the mexican wavelet grow as
+    /// a^3 and need a wider window).
     pub ratio: (f64, f64),
 }
 
 impl Default for LinkParams {
+    /// Ratio window (0.9, 1.11): with the plain modulus it gives the best
+    /// worst case of τ(q) over the presets (README, validation), as the
+    /// prototype of SPEC §14 found.
     fn default() -> Self {
         LinkParams {
             radius: SearchRadius::default(),
-            ratio: (0.8, 1.25),
+            ratio: (0.9, 1.11),
         }
     }
 }
