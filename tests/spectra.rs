@@ -99,17 +99,23 @@ fn merge_is_exact_and_order_independent() {
     assert!(forward.clone().merge(&other_q[0]).is_err());
 }
 
-/// fBm ensembles (16 x 256^2): τ(q) = qH - 2, τ(0) = -2, h(q) flat. The
-/// tolerance on τ(q) is 3 jackknife standard errors (the ensemble's own
-/// scatter) plus 0.05 for the finite-size bias of 256^2 images over three
-/// octaves (measured at 1024^2 it is below 0.05 on this q range); on τ(0)
-/// it is 0.05 (the bound); h(q) must stay within 0.05 of H.
+/// fBm ensembles (16 x 512^2, 4 octaves, fit 0.5-3.5): τ(q) = qH - 2 for
+/// q in [-2, 3], τ(0) = -2, h(q) flat. The tolerance on τ(q) is 3 jackknife
+/// standard errors (the ensemble's own scatter) plus 0.05 for the finite-size
+/// bias; on τ(0) it is 0.05 (the bound); h(q) must stay within
+/// 0.05 + 3 se of H and vary by less than 0.05 over the q range. Measured:
+/// h(0) = 0.29 for H = 0.3 and 0.65 for H = 0.7 (the plain rule reads h low
+/// by about 0.05 at H = 0.7; README).
 #[test]
 fn fbm_ensembles_match_theory() {
-    let q: Vec<f64> = (-4..=8).map(|i| 0.5 * i as f64).collect();
-    let fit = (0.5, 3.0);
+    let q: Vec<f64> = (-4..=6).map(|i| 0.5 * i as f64).collect();
+    let fit = (0.5, 3.5);
     for h in [0.3, 0.7] {
-        let parts = fbm_sums(h, 256, 16, &small_cfg(), &q);
+        let cfg = AnalysisConfig {
+            octaves: 4,
+            ..Default::default()
+        };
+        let parts = fbm_sums(h, 512, 16, &cfg, &q);
         let sums = PartitionSums::merge_all(parts).unwrap().unwrap();
         let s = sums.spectra(Rule::Plain, fit).unwrap();
         let mut report = String::new();
@@ -124,6 +130,9 @@ fn fbm_ensembles_match_theory() {
                 s.h[i]
             );
         }
+        let spread = s.h.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - s.h.iter().cloned().fold(f64::INFINITY, f64::min);
+        assert!(spread < 0.05, "H={h}: h(q) not flat, spread {spread}");
         let i0 = s.q_index(0.0).unwrap();
         eprintln!(
             "H={h}: {report}h(0) = {:.3}; h(q) = {:?}",
