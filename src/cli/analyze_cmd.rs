@@ -8,6 +8,7 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::{f, header, make_out_dir, parse_list, parse_range, progress, write_csv};
+use super::model_args::{ModelName, ModelOpts};
 use super::{CwtOpts, OutDir, Outcome};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
@@ -15,6 +16,7 @@ use crate::io::read_field;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::skeleton::{AnalysisConfig, LinkParams, SearchRadius};
 use crate::spectra::{PartitionSums, Rule, Spectra, image_sums};
+use crate::theory::{Model, TheoryTable};
 
 /// Options shared by every command that builds spectra.
 #[derive(Args, Debug, Clone)]
@@ -108,9 +110,11 @@ pub struct AnalyzeArgs {
     pub images: Vec<PathBuf>,
     #[command(flatten)]
     pub opts: SpectraOpts,
-    /// Theory to draw over the estimates: `fbm:H`, e.g. `fbm:0.333`.
-    #[arg(long)]
-    pub theory: Option<String>,
+    /// Theory to draw over the estimates: MODEL with its options (or --preset).
+    #[arg(long, value_enum)]
+    pub theory: Option<ModelName>,
+    #[command(flatten)]
+    pub model_opts: ModelOpts,
     #[command(flatten)]
     pub out: OutDir,
 }
@@ -123,24 +127,14 @@ pub struct TheoryCurves {
     pub dh: Vec<(f64, f64)>,
 }
 
-fn parse_theory(s: &str) -> Result<TheoryCurves> {
-    let (model, arg) = s.split_once(':').unwrap_or((s, ""));
-    match model {
-        "fbm" => {
-            let h: f64 = arg
-                .parse()
-                .map_err(|_| Error::param("theory", format!("`{s}`: use fbm:H")))?;
-            crate::synth::fbm::FbmParams { hurst: h }.validate()?;
-            Ok(TheoryCurves {
-                name: format!("fBm H = {h}"),
-                tau: Box::new(move |q| q * h - 2.0),
-                dh: vec![(h, 2.0)],
-            })
-        }
-        _ => Err(Error::param(
-            "theory",
-            format!("unknown model `{model}` (known: fbm:H)"),
-        )),
+/// The closed-form curves of a resolved model.
+pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> TheoryCurves {
+    let t = TheoryTable::new(model, q);
+    let m = *model;
+    TheoryCurves {
+        name: name.to_string(),
+        tau: Box::new(move |qq| m.tau(qq)),
+        dh: t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(),
     }
 }
 
@@ -148,7 +142,16 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     let cfg = args.opts.analysis()?;
     let q = args.opts.q()?;
     let fit = args.opts.fit()?;
-    let theory = args.theory.as_deref().map(parse_theory).transpose()?;
+    let theory = if args.theory.is_some() || args.model_opts.preset.is_some() {
+        let r = args.model_opts.resolve(args.theory)?;
+        Some(theory_curves(
+            &r.model,
+            r.preset.unwrap_or(r.model.name()),
+            &q,
+        ))
+    } else {
+        None
+    };
     let sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
     let spectra = sums.spectra(args.opts.rule(), fit)?;
     let other_rule = match args.opts.rule() {
@@ -159,7 +162,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     make_out_dir(&args.out.out)?;
     let params = json!({
         "images": args.images, "analysis": cfg, "q": q, "fit_octaves": fit,
-        "rule": args.opts.rule(), "theory": args.theory,
+        "rule": args.opts.rule(), "theory": theory.as_ref().map(|t| t.name.clone()),
     });
     write_outputs(
         &args.out.out,
