@@ -5,10 +5,13 @@
 
 mod analyze_cmd;
 mod common;
+mod correlate_cmd;
 mod cwt_cmd;
 mod demo_cmd;
 mod ensemble;
+mod kernel_cmd;
 mod model_args;
+mod pdf_cmd;
 mod skeleton_cmd;
 mod spectrum_cmd;
 mod synth_cmd;
@@ -51,6 +54,12 @@ pub enum Command {
     Skeleton(skeleton_cmd::SkeletonArgs),
     /// WTMM multifractal spectra tau(q), h(q), D(q), D(h) of an ensemble.
     Analyze(analyze_cmd::AnalyzeArgs),
+    /// Pdfs of the WTMMM modulus and argument per scale (II Figs 11-14, 17-20).
+    Pdf(pdf_cmd::PdfArgs),
+    /// Self-similarity kernel and its cumulants c1, c2, c3 (II Figs 25-29).
+    Kernel(kernel_cmd::KernelArgs),
+    /// Space-scale correlation of the magnitudes ln M (II Fig 30).
+    Correlate(correlate_cmd::CorrelateArgs),
 }
 
 /// Wavelet and scale-grid options shared by the analysis commands.
@@ -102,6 +111,9 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Demo(a) => demo_cmd::run(a, quiet),
         Command::Theory(a) => theory_cmd::run(a, quiet),
         Command::Validate(a) => validate_cmd::run(a, quiet),
+        Command::Pdf(a) => pdf_cmd::run(a, quiet),
+        Command::Kernel(a) => kernel_cmd::run(a, quiet),
+        Command::Correlate(a) => correlate_cmd::run(a, quiet),
     }
 }
 
