@@ -220,6 +220,9 @@ pub struct CwtWorkspace {
     scratch: Vec<Complex64>,
     gx: Vec<f64>,
     gy: Vec<f64>,
+    /// Rows of `tbuf` known to hold zeros (pruned at an earlier scale), so
+    /// they are not cleared again.
+    zero_rows: Vec<bool>,
 }
 
 /// A resolved CWT: FFT plans and frequency tables for one image size, one
@@ -334,6 +337,7 @@ impl CwtPlan {
             scratch: vec![Complex64::default(); self.scratch_len],
             gx: vec![0.0; self.nx],
             gy: vec![0.0; self.ny],
+            zero_rows: vec![false; self.nx],
         }
     }
 
@@ -408,9 +412,13 @@ impl CwtPlan {
             let row = &mut ws.tbuf[kx * ny..(kx + 1) * ny];
             let gx = ws.gx[kx];
             if gx < PRUNE {
-                row.fill(Complex64::default());
+                if !ws.zero_rows[kx] {
+                    row.fill(Complex64::default());
+                    ws.zero_rows[kx] = true;
+                }
                 continue;
             }
+            ws.zero_rows[kx] = false;
             let src = &fi.spec[kx * ny..(kx + 1) * ny];
             let dkx = self.dkx[kx];
             let kx2 = self.kx[kx] * self.kx[kx];

@@ -99,8 +99,14 @@ impl PartitionSums {
         for j in 0..ns {
             lp.clear();
             ls.clear();
-            for l in sk.alive_at(j) {
+            // a WTMMM counts when it is linked to an adjacent scale: lines
+            // that never link beyond a_min contribute nothing (xsmurf
+            // `efct -vc`, the reference partition function)
+            for l in sk.alive_at(j).filter(|l| l.points.len() > 1) {
                 let p = l.points[j];
+                if !sk.counts(p.x, p.y) {
+                    continue; // traced in the guard band, counted only inside
+                }
                 lp.push(p.m.log2());
                 ls.push(p.sup.log2());
             }
@@ -509,6 +515,18 @@ impl Spectra {
     }
 }
 
+/// One image through the pipeline: CWT → skeleton → partition sums.
+/// Serial inside (parallelise over images).
+pub fn image_sums(
+    field: &crate::Field,
+    cfg: &crate::skeleton::AnalysisConfig,
+    q: &[f64],
+    label: impl Into<String>,
+) -> Result<PartitionSums> {
+    let sk = crate::skeleton::skeleton(field, cfg)?;
+    Ok(PartitionSums::from_skeleton(&sk, q, label))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -532,7 +550,7 @@ mod tests {
         let l = [-3.0, 1.5, 4.0, -6.0];
         for q in [-20.0, -5.0, 0.0, 5.0, 20.0] {
             let c = cell(&l, q);
-            let direct: f64 = l.iter().map(|&x| (q * x as f64).exp2()).sum();
+            let direct: f64 = l.iter().map(|&x| (q * x).exp2()).sum();
             let got = c.e as f64 + c.z.log2();
             assert!((got - direct.log2()).abs() < 1e-12, "q={q}");
         }
@@ -545,16 +563,4 @@ mod tests {
             assert!((c.e as f64 + c.z.log2() - want).abs() < 1e-9, "q={q}");
         }
     }
-}
-
-/// One image through the pipeline: CWT → skeleton → partition sums.
-/// Serial inside (parallelise over images).
-pub fn image_sums(
-    field: &crate::Field,
-    cfg: &crate::skeleton::AnalysisConfig,
-    q: &[f64],
-    label: impl Into<String>,
-) -> Result<PartitionSums> {
-    let sk = crate::skeleton::skeleton(field, cfg)?;
-    Ok(PartitionSums::from_skeleton(&sk, q, label))
 }

@@ -105,7 +105,7 @@ fn small_png_files() {
     assert_eq!(ga.valid_count(), 10);
     for ((y, x), &e) in expect.indexed_iter() {
         assert_eq!(ga.is_masked(y, x), e as u32 % 2 == 1);
-        if e as u32 % 2 == 0 {
+        if (e as u32).is_multiple_of(2) {
             assert_eq!(ga.data[[y, x]], e);
         }
     }

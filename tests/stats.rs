@@ -713,8 +713,13 @@ fn fbm_magnitudes_decorrelate() {
     }
 }
 
+/// Diagnostic behind the kernel's bias analysis (not a check): cumulants
+/// of ln M per scale for both WTMMM sets. Environment: PRESET, SIZE, N,
+/// MARGIN, RATIO (lo:hi), SIGMA2 and M (a log-normal W-cascade, m in units
+/// of ln 2).
 #[test]
 #[ignore]
+#[allow(clippy::needless_range_loop)]
 fn experiment_kappa_per_scale() {
     let mut model = Model::preset(&std::env::var("PRESET").unwrap_or("paper-lognormal".into()))
         .unwrap()
@@ -782,8 +787,11 @@ fn experiment_kappa_per_scale() {
     }
 }
 
+/// Diagnostic: the same over every other pixel of the CWT grid (no WTMMM
+/// selection). Environment: SIGMA2, M, SIZE, N.
 #[test]
 #[ignore]
+#[allow(clippy::needless_range_loop)]
 fn experiment_kappa_cwt_grid() {
     let s2: f64 = std::env::var("SIGMA2").unwrap().parse().unwrap();
     let m: f64 = std::env::var("M")

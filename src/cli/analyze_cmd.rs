@@ -36,9 +36,21 @@ pub struct SpectraOpts {
     /// Linking: cap of the search box half-width (px), reference rule min(cap, 2 log2(6.98 a)).
     #[arg(long, default_value_t = 7.0)]
     pub radius_cap: f64,
+    /// Cut chains at the analysis domain, as the reference implementation
+    /// does, instead of tracing them in the guard band outside it.
+    #[arg(long)]
+    pub no_guard: bool,
 }
 
 impl SpectraOpts {
+    /// The options as the command line leaves them by default (taken from
+    /// the clap definitions, so the defaults live in one place).
+    pub fn defaults() -> Self {
+        use clap::{Args as _, FromArgMatches as _};
+        let cmd = SpectraOpts::augment_args(clap::Command::new("defaults"));
+        SpectraOpts::from_arg_matches(&cmd.get_matches_from(["defaults"])).expect("defaults parse")
+    }
+
     pub fn analysis(&self) -> Result<AnalysisConfig> {
         let g = self.cwt.grid()?;
         let ratio = parse_range("ratio", &self.ratio)?;
@@ -56,6 +68,7 @@ impl SpectraOpts {
                 },
                 ratio,
             },
+            guard: !self.no_guard,
         };
         cfg.validate()?;
         Ok(cfg)

@@ -172,7 +172,7 @@ pub fn theory_log_kernel(model: &Model, p: f64) -> Option<Complex64> {
         }),
         // a pure shift: c1 = -H (II eq 64 with τ = qH - 2)
         Model::Fbm(b) => Some(Complex64::new(0.0, -b.hurst * p)),
-        Model::Fisc(_) => None,
+        Model::Fisc(_) | Model::Fif(_) => None,
     }
 }
 

@@ -5,17 +5,20 @@
 
 mod analyze_cmd;
 mod common;
+mod compare_cmd;
 mod correlate_cmd;
 mod cwt_cmd;
 mod demo_cmd;
 mod ensemble;
 mod kernel_cmd;
+mod merge_cmd;
 mod model_args;
 mod pdf_cmd;
 mod skeleton_cmd;
 mod spectrum_cmd;
 mod synth_cmd;
 mod theory_cmd;
+mod tm_cmd;
 mod validate_cmd;
 
 use std::path::PathBuf;
@@ -50,10 +53,16 @@ pub enum Command {
     Validate(validate_cmd::ValidateArgs),
     /// Generate a small ensemble with a known spectrum, analyse it, compare with theory.
     Demo(demo_cmd::DemoArgs),
+    /// Merge saved partition sums (ensemble shards) and recompute the spectra.
+    Merge(merge_cmd::MergeArgs),
     /// WT skeleton: WTMMM, maxima lines and pictures of chosen scales.
     Skeleton(skeleton_cmd::SkeletonArgs),
     /// WTMM multifractal spectra tau(q), h(q), D(q), D(h) of an ensemble.
     Analyze(analyze_cmd::AnalyzeArgs),
+    /// Trace moments K(q), universal alpha and C1, double trace moments, H.
+    Tm(tm_cmd::TmArgs),
+    /// WTMM against trace moments on one generated ensemble, both against the theory.
+    Compare(Box<compare_cmd::CompareArgs>),
     /// Pdfs of the WTMMM modulus and argument per scale (II Figs 11-14, 17-20).
     Pdf(pdf_cmd::PdfArgs),
     /// Self-similarity kernel and its cumulants c1, c2, c3 (II Figs 25-29).
@@ -109,8 +118,11 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Analyze(a) => analyze_cmd::run(a, quiet),
         Command::Skeleton(a) => skeleton_cmd::run(a, quiet),
         Command::Demo(a) => demo_cmd::run(a, quiet),
+        Command::Merge(a) => merge_cmd::run(a, quiet),
         Command::Theory(a) => theory_cmd::run(a, quiet),
         Command::Validate(a) => validate_cmd::run(a, quiet),
+        Command::Tm(a) => tm_cmd::run(a, quiet),
+        Command::Compare(a) => compare_cmd::run(*a, quiet),
         Command::Pdf(a) => pdf_cmd::run(a, quiet),
         Command::Kernel(a) => kernel_cmd::run(a, quiet),
         Command::Correlate(a) => correlate_cmd::run(a, quiet),

@@ -1,5 +1,5 @@
 //! `MODEL [model options]` and `--preset NAME` (SPEC §13), shared by
-//! `synth`, `theory`, `validate` and `analyze --theory`.
+//! `synth`, `theory`, `validate`, `compare` and `analyze --theory`.
 
 use clap::{Args, ValueEnum};
 
@@ -7,6 +7,7 @@ use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::synth::dwt::Basis;
 use crate::synth::fbm::FbmParams;
+use crate::synth::fif::FifParams;
 use crate::synth::fisc::FiscParams;
 use crate::synth::wcascade::{Isotropy, Law, WCascadeParams};
 use crate::theory::{Model, PRESET_NAMES};
@@ -17,6 +18,8 @@ pub enum ModelName {
     Fbm,
     Wcascade,
     Fisc,
+    /// Universal multifractal (fractionally integrated flux).
+    Fif,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -28,12 +31,18 @@ pub enum LawName {
 /// Model parameters; which ones apply depends on the model.
 #[derive(Args, Debug, Clone, Default)]
 pub struct ModelOpts {
-    /// A published parameter set (paper-fbm, paper-lognormal, paper-logpoisson, paper-fisc).
+    /// A published parameter set (paper-fbm, paper-lognormal, paper-logpoisson, paper-fisc, topo-fif).
     #[arg(long)]
     pub preset: Option<String>,
-    /// fbm: Hurst exponent H in (0, 1).
+    /// fbm: Hurst exponent H in (0, 1); fif: order H of the fractional integration of the flux.
     #[arg(long, allow_negative_numbers = true)]
     pub hurst: Option<f64>,
+    /// fif: Lévy index alpha in (0, 2] (2 = log-normal generator).
+    #[arg(long, allow_negative_numbers = true)]
+    pub alpha: Option<f64>,
+    /// fif: codimension of the mean C1 in [0, 2).
+    #[arg(long, allow_negative_numbers = true)]
+    pub c1: Option<f64>,
     /// wcascade: law of the multipliers.
     #[arg(long, value_enum)]
     pub law: Option<LawName>,
@@ -80,6 +89,8 @@ fn need(v: Option<f64>, flag: &str, model: &str) -> Result<f64> {
 impl ModelOpts {
     fn any_param(&self) -> bool {
         self.hurst.is_some()
+            || self.alpha.is_some()
+            || self.c1.is_some()
             || self.law.is_some()
             || self.m.is_some()
             || self.sigma2.is_some()
@@ -115,7 +126,7 @@ impl ModelOpts {
             return Err(Error::param(
                 "MODEL",
                 format!(
-                    "name a model (fbm, wcascade, fisc) or a --preset ({})",
+                    "name a model (fbm, wcascade, fisc, fif) or a --preset ({})",
                     PRESET_NAMES.join(", ")
                 ),
             ));
@@ -127,6 +138,11 @@ impl ModelOpts {
             ModelName::Fisc => Model::Fisc(FiscParams {
                 p: need(self.p, "p", "fisc")?,
                 hstar: need(self.hstar, "hstar", "fisc")?,
+            }),
+            ModelName::Fif => Model::Fif(FifParams {
+                alpha: need(self.alpha, "alpha", "fif")?,
+                c1: need(self.c1, "c1", "fif")?,
+                hurst: need(self.hurst, "hurst", "fif")?,
             }),
             ModelName::Wcascade => {
                 let law = match self.law {
@@ -157,6 +173,7 @@ impl ModelOpts {
         let wavelet = match model {
             // h_max > 1 needs more vanishing moments (II §3.1)
             Model::Fisc(_) => Wavelet::Mexican,
+            Model::Fif(_) if model.h_range().1 >= 1.0 => Wavelet::Mexican,
             _ => Wavelet::Gauss,
         };
         Ok(Resolved {

@@ -71,6 +71,8 @@ fn published_q_range(model: &Model) -> (f64, f64) {
         Model::Fisc(_) => (-4.0, 9.0),
         Model::WCascade(_) => (-6.0, 8.0),
         Model::Fbm(_) => (-4.0, 6.0),
+        // no published WTMM result; q >= 0, where K(q) is finite (α < 2)
+        Model::Fif(_) => (0.0, 4.0),
     }
 }
 
@@ -147,14 +149,14 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     // criteria (SPEC §11)
     let dev = |lo: f64, hi: f64| -> (f64, f64) {
         let mut worst: (f64, f64) = (0.0, f64::NAN);
-        for i in 0..q.len() {
-            if q[i] >= lo - 1e-12 && q[i] <= hi + 1e-12 {
+        for (i, &qi) in q.iter().enumerate() {
+            if qi >= lo - 1e-12 && qi <= hi + 1e-12 {
                 let d = (s.tau[i] - th.tau[i]).abs();
                 if !d.is_finite() {
-                    return (f64::INFINITY, q[i]);
+                    return (f64::INFINITY, qi);
                 }
                 if d > worst.0 {
-                    worst = (d, q[i]);
+                    worst = (d, qi);
                 }
             }
         }
@@ -338,11 +340,11 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
         "\n{:>6} {:>9} {:>8} {:>9} {:>8} {:>9}",
         "q", "tau", "stderr", "theory", "diff", "alt rule"
     );
-    for i in 0..q.len() {
+    for (i, qi) in q.iter().enumerate() {
         let _ = writeln!(
             t,
             "{:>6.2} {:>9.4} {:>8.4} {:>9.4} {:>+8.4} {:>9.4}",
-            q[i],
+            qi,
             s.tau[i],
             s.tau_stderr[i],
             th.tau[i],

@@ -16,7 +16,9 @@ use super::maxima::ScaleMaxima;
 #[serde(tag = "rule", rename_all = "lowercase")]
 pub enum SearchRadius {
     /// The reference implementation's box, `min(cap, 2 log2(6.98 a))`
-    /// (SPEC §3; about 6.8 px at a = 1.5, capped at 7 px).
+    /// (SPEC §3; about 6.8 px at a = 1.5, capped at 7 px), with candidates
+    /// also within the Euclidean distance `d^2 < cap^2 + 1` (xsmurf
+    /// `wt2d/chain2.c`: `dist < 50` for the 7 px cap).
     Reference { cap: f64 },
     /// `max(min, factor * a)`: proportional to scale.
     Proportional { factor: f64, min: f64 },
@@ -29,6 +31,14 @@ impl Default for SearchRadius {
 }
 
 impl SearchRadius {
+    /// Largest accepted squared distance (px^2), whatever the box.
+    pub fn max_d2(&self) -> f64 {
+        match *self {
+            SearchRadius::Reference { cap } => cap * cap + 1.0 - 1e-9,
+            SearchRadius::Proportional { .. } => f64::INFINITY,
+        }
+    }
+
     /// Half-width in pixels at scale `a`.
     pub fn at(&self, a: f64) -> f64 {
         match *self {
@@ -75,6 +85,17 @@ impl Default for LinkParams {
     }
 }
 
+/// Why lines ended at one scale (diagnostics of the linking rules).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Endings {
+    /// No WTMMM inside the search box.
+    pub no_candidate: usize,
+    /// Candidates in the box, none inside the modulus-ratio window.
+    pub ratio: usize,
+    /// The nearest acceptable candidate went to a nearer line.
+    pub contested: usize,
+}
+
 /// Streaming linker: feed scales in order with [`Linker::push`].
 pub struct Linker {
     params: LinkParams,
@@ -111,8 +132,9 @@ impl Linker {
     /// Adds the WTMMM of the next scale. At scale 0 every WTMMM starts a line.
     ///
     /// **Panics** if scales are pushed out of order.
-    pub fn push(&mut self, sm: &ScaleMaxima) {
+    pub fn push(&mut self, sm: &ScaleMaxima) -> Endings {
         assert_eq!(sm.j, self.next_scale, "scales must be pushed in order");
+        let mut ends = Endings::default();
         self.next_scale += 1;
         if sm.j == 0 {
             for w in &sm.wtmmm {
@@ -127,9 +149,10 @@ impl Linker {
                     }],
                 });
             }
-            return;
+            return ends;
         }
         let r = self.params.radius.at(sm.a);
+        let max_d2 = self.params.radius.max_d2();
         let (lo, hi) = self.params.ratio;
         let ri = r.floor() as i64;
         // bucket the candidates on a grid of cell size `cell`
@@ -162,6 +185,7 @@ impl Linker {
                 .expect("lines are never empty");
             let (cx, cy) = (last.x / cell, last.y / cell);
             let mut best = (u32::MAX, f64::INFINITY);
+            let mut in_box = false;
             for yy in cy.saturating_sub(1)..=(cy + 1).min(gy - 1) {
                 for xx in cx.saturating_sub(1)..=(cx + 1).min(gx - 1) {
                     let c = (yy * gx + xx) as usize;
@@ -173,15 +197,26 @@ impl Linker {
                         if dx.abs() > ri || dy.abs() > ri {
                             continue;
                         }
+                        let d2 = (dx * dx + dy * dy) as f64;
+                        if d2 > max_d2 {
+                            continue;
+                        }
+                        in_box = true;
                         let ratio = w.m / last.m;
                         if !(ratio > lo && ratio < hi) {
                             continue;
                         }
-                        let d2 = (dx * dx + dy * dy) as f64;
                         if d2 < best.1 || (d2 == best.1 && k < best.0) {
                             best = (k, d2);
                         }
                     }
+                }
+            }
+            if best.0 == u32::MAX {
+                if in_box {
+                    ends.ratio += 1;
+                } else {
+                    ends.no_candidate += 1;
                 }
             }
             self.want.push(best);
@@ -202,8 +237,12 @@ impl Linker {
         let mut next_alive = Vec::with_capacity(self.alive.len());
         for (i, &(k, _)) in self.want.iter().enumerate() {
             let l = self.alive[i];
-            if k == u32::MAX || self.owner[k as usize].0 != l {
-                continue; // the line ends here
+            if k == u32::MAX {
+                continue; // the line ends here (counted above)
+            }
+            if self.owner[k as usize].0 != l {
+                ends.contested += 1;
+                continue;
             }
             let w = &sm.wtmmm[k as usize];
             let line = &mut self.lines[l as usize];
@@ -218,6 +257,7 @@ impl Linker {
             next_alive.push(l);
         }
         self.alive = next_alive;
+        ends
     }
 
     /// The finished lines.

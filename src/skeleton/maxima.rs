@@ -44,8 +44,12 @@ pub struct ScaleMaxima {
     pub chains: Vec<Chain>,
 }
 
-/// Where maxima are looked for: the interior rectangle `[y0, y1) x [x0, x1)`
-/// (SPEC §1 margin), minus the pixels too close to a masked pixel.
+/// Where maxima are counted: the interior rectangle `[y0, y1) x [x0, x1)`
+/// (SPEC §1 margin, the same at every scale), minus the pixels too close to a
+/// masked pixel. With `guard` set, chains are traced (and lines linked) over
+/// the wider rectangle where the transform is trusted at the current scale
+/// (margin `ceil(support a)`), so that the counting rectangle does not cut
+/// chains and end the lines that cross it.
 #[derive(Clone, Debug)]
 pub struct Domain {
     pub ny: usize,
@@ -57,8 +61,10 @@ pub struct Domain {
     /// Euclidean distance (px) from each pixel to the nearest masked pixel;
     /// `None` without a mask.
     pub mask_distance: Option<Array2<f32>>,
-    /// A WTMM at scale a is kept only if `mask_distance > support * a`.
+    /// Radius of the wavelet in units of a (its margin per unit scale).
     pub support: f64,
+    /// Trace chains beyond the counting rectangle where the scale allows.
+    pub guard: bool,
 }
 
 impl Domain {
@@ -73,7 +79,28 @@ impl Domain {
             x1: nx.saturating_sub(margin),
             mask_distance: None,
             support: 0.0,
+            guard: false,
         }
+    }
+
+    /// The rectangle `(y0, y1, x0, x1)` where chains are traced at scale `a`.
+    pub fn detection_rect(&self, a: f64) -> (usize, usize, usize, usize) {
+        if !self.guard {
+            return (self.y0, self.y1, self.x0, self.x1);
+        }
+        let m = ((self.support * a).ceil() as usize).max(2);
+        (
+            m.min(self.y0),
+            self.ny.saturating_sub(m).max(self.y1),
+            m.min(self.x0),
+            self.nx.saturating_sub(m).max(self.x1),
+        )
+    }
+
+    /// True if pixel `(x, y)` is inside the counting rectangle.
+    pub fn counts(&self, x: u32, y: u32) -> bool {
+        let (x, y) = (x as usize, y as usize);
+        x >= self.x0 && x < self.x1 && y >= self.y0 && y < self.y1
     }
 
     /// True if the interior has no pixel.
@@ -91,8 +118,12 @@ impl Domain {
 #[derive(Default)]
 pub struct DetectScratch {
     modulus: Vec<f64>,
-    /// 1 = WTMM pixel not yet chained, 2 = chained.
+    /// On the grid padded by one pixel: 1 = WTMM pixel not yet chained,
+    /// 3 = in the component being traced, 2 = chained.
     flag: Vec<u8>,
+    /// WTMM test results of one row.
+    row_mask: Vec<u8>,
+    /// Padded indices of this scale's WTMM pixels.
     wtmm: Vec<u32>,
     stack: Vec<u32>,
     comp: Vec<u32>,
@@ -147,10 +178,9 @@ pub fn detect(
     }
     let ts = t.as_slice().expect("CWT output is contiguous");
     s.modulus.resize(ny * nx, 0.0);
-    for (m, z) in s.modulus.iter_mut().zip(ts) {
-        *m = (z.re * z.re + z.im * z.im).sqrt();
-    }
+    modulus_into(ts, &mut s.modulus);
     let m = &s.modulus;
+    let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
     let mut mmax: f64 = 0.0;
     for y in domain.y0..domain.y1 {
         for &v in &m[y * nx + domain.x0..y * nx + domain.x1] {
@@ -161,52 +191,41 @@ pub fn detect(
         return out;
     }
     let thr = eps * mmax;
+    // a WTMM whose wavelet support reaches a masked pixel is dropped
     let min_dist = (domain.support * a) as f32;
 
-    // 1. non-maximum suppression along the gradient
-    s.flag.clear();
-    s.flag.resize(ny * nx, 0);
+    // 1. non-maximum suppression along the gradient. Flags live on a grid
+    //    padded by one pixel, so neighbour lookups need no bounds test, and
+    //    only the flags set at the previous scale are cleared.
+    let pw = nx + 2;
+    if s.flag.len() != (ny + 2) * pw {
+        s.flag.clear();
+        s.flag.resize((ny + 2) * pw, 0);
+    } else {
+        for &q in &s.wtmm {
+            s.flag[q as usize] = 0;
+        }
+    }
     s.wtmm.clear();
-    for y in domain.y0..domain.y1 {
-        let ym = if y == 0 { ny - 1 } else { y - 1 };
-        let yp = if y + 1 == ny { 0 } else { y + 1 };
-        for x in domain.x0..domain.x1 {
-            let p = y * nx + x;
-            let mp = m[p];
-            if mp < thr || mp == 0.0 {
-                continue;
+    // without wrap-around when the domain keeps two pixels from the border
+    // (p ± u and the cell beyond it stay inside the image)
+    let wraps = dy0 < 2 || dx0 < 2 || dy1 + 2 > ny || dx1 + 2 > nx;
+    s.row_mask.resize(nx, 0);
+    for y in dy0..dy1 {
+        if wraps {
+            for x in dx0..dx1 {
+                let p = y * nx + x;
+                let mp = m[p];
+                s.row_mask[x] = (mp >= thr
+                    && mp > 0.0
+                    && nms_wrapping(m, nx, ny, x, y, ts[p].re / mp, ts[p].im / mp, mp))
+                    as u8;
             }
-            let inv = 1.0 / mp;
-            let (u1, u2) = (ts[p].re * inv, ts[p].im * inv);
-            let xm = if x == 0 { nx - 1 } else { x - 1 };
-            let xp = if x + 1 == nx { 0 } else { x + 1 };
-            // forward point p + u: the cell spanned by (x or xm .. x or xp)
-            let (cx0, cx1, fx) = if u1 >= 0.0 {
-                (x, xp, u1)
-            } else {
-                (xm, x, 1.0 + u1)
-            };
-            let (cy0, cy1, fy) = if u2 >= 0.0 {
-                (y, yp, u2)
-            } else {
-                (ym, y, 1.0 + u2)
-            };
-            let fwd = bilinear(m, nx, cy0, cy1, cx0, cx1, fx, fy);
-            if !(mp > fwd) {
-                continue;
-            }
-            let (bx0, bx1, gx) = if u1 > 0.0 {
-                (xm, x, 1.0 - u1)
-            } else {
-                (x, xp, -u1)
-            };
-            let (by0, by1, gy) = if u2 > 0.0 {
-                (ym, y, 1.0 - u2)
-            } else {
-                (y, yp, -u2)
-            };
-            let bwd = bilinear(m, nx, by0, by1, bx0, bx1, gx, gy);
-            if !(mp >= bwd) {
+        } else {
+            nms_row(m, ts, nx, y, dx0, dx1, thr, &mut s.row_mask);
+        }
+        for x in dx0..dx1 {
+            if s.row_mask[x] == 0 {
                 continue;
             }
             if let Some(d) = &domain.mask_distance
@@ -214,19 +233,18 @@ pub fn detect(
             {
                 continue;
             }
-            s.flag[p] = 1;
-            s.wtmm.push(p as u32);
+            let q = (y + 1) * pw + x + 1;
+            s.flag[q] = 1;
+            s.wtmm.push(q as u32);
         }
     }
     out.n_wtmm = s.wtmm.len();
 
-    // 2. chains, 3. WTMMM
-    let inside = |x: i64, y: i64| {
-        x >= domain.x0 as i64
-            && x < domain.x1 as i64
-            && y >= domain.y0 as i64
-            && y < domain.y1 as i64
-    };
+    // 2. chains, 3. WTMMM (indices on the padded grid; flags outside the
+    //    domain are always 0, so neighbours need no domain test)
+    let offs: [isize; 8] = NEIGH.map(|(dx, dy)| dy as isize * pw as isize + dx as isize);
+    let unpad =
+        |q: u32| -> (u32, u32) { ((q as usize % pw - 1) as u32, (q as usize / pw - 1) as u32) };
     for wi in 0..s.wtmm.len() {
         let seed = s.wtmm[wi];
         if s.flag[seed as usize] != 1 {
@@ -239,13 +257,8 @@ pub fn detect(
         s.flag[seed as usize] = 3;
         while let Some(p) = s.stack.pop() {
             s.comp.push(p);
-            let (x, y) = ((p as usize % nx) as i64, (p as usize / nx) as i64);
-            for (dx, dy) in NEIGH {
-                let (xx, yy) = (x + dx as i64, y + dy as i64);
-                if !inside(xx, yy) {
-                    continue;
-                }
-                let q = yy as usize * nx + xx as usize;
+            for o in offs {
+                let q = (p as isize + o) as usize;
                 if s.flag[q] == 1 {
                     s.flag[q] = 3;
                     s.stack.push(q as u32);
@@ -265,7 +278,10 @@ pub fn detect(
                 if s.flag[p as usize] != 3 {
                     continue;
                 }
-                let c = count_neighbours(&s.flag, nx, p, 3, &inside);
+                let c = offs
+                    .iter()
+                    .filter(|&&o| s.flag[(p as isize + o) as usize] == 3)
+                    .count() as u32;
                 if c < best {
                     best = c;
                     start = p;
@@ -281,16 +297,12 @@ pub fn detect(
                 s.flag[cur as usize] = 2;
                 s.order.push(cur);
                 remaining -= 1;
-                let (x, y) = ((cur as usize % nx) as i64, (cur as usize / nx) as i64);
                 let mut next = u32::MAX;
-                for (dx, dy) in NEIGH {
-                    let (xx, yy) = (x + dx as i64, y + dy as i64);
-                    if inside(xx, yy) {
-                        let q = yy as usize * nx + xx as usize;
-                        if s.flag[q] == 3 {
-                            next = q as u32;
-                            break;
-                        }
+                for o in offs {
+                    let q = (cur as isize + o) as usize;
+                    if s.flag[q] == 3 {
+                        next = q as u32;
+                        break;
                     }
                 }
                 if next == u32::MAX {
@@ -303,18 +315,22 @@ pub fn detect(
                 && !had_end
                 && n == comp_len
                 && n >= 3
-                && adjacent(s.order[0], s.order[n - 1], nx);
+                && adjacent(unpad(s.order[0]), unpad(s.order[n - 1]));
             first_walk = false;
             let chain_id = out.n_chains as u32;
             out.n_chains += 1;
             if n >= 3 {
                 s.mvals.clear();
-                s.mvals.extend(s.order.iter().map(|&p| m[p as usize]));
+                s.mvals.extend(s.order.iter().map(|&q| {
+                    let (x, y) = unpad(q);
+                    m[y as usize * nx + x as usize]
+                }));
                 for_each_chain_max(&s.mvals, closed, |i| {
-                    let p = s.order[i] as usize;
+                    let (x, y) = unpad(s.order[i]);
+                    let p = y as usize * nx + x as usize;
                     out.wtmmm.push(Wtmmm {
-                        x: (p % nx) as u32,
-                        y: (p / nx) as u32,
+                        x,
+                        y,
                         m: m[p],
                         arg: argument(ts[p]),
                         chain: chain_id,
@@ -323,110 +339,229 @@ pub fn detect(
             }
             if keep_chains {
                 out.chains.push(Chain {
-                    pixels: s
-                        .order
-                        .iter()
-                        .map(|&p| ((p as usize % nx) as u32, (p as usize / nx) as u32))
-                        .collect(),
+                    pixels: s.order.iter().map(|&q| unpad(q)).collect(),
                     closed,
                 });
             }
         }
     }
-    // leave the flags clean for the next scale is not needed: they are reset
     out
+}
+
+/// `M = sqrt(T1^2 + T2^2)` for every pixel (AVX2 when available; same bits).
+fn modulus_into(ts: &[Complex64], m: &mut [f64]) {
+    #[inline(always)]
+    fn imp(ts: &[Complex64], m: &mut [f64]) {
+        for (v, z) in m.iter_mut().zip(ts) {
+            *v = (z.re * z.re + z.im * z.im).sqrt();
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn avx2(ts: &[Complex64], m: &mut [f64]) {
+        imp(ts, m)
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            unsafe { avx2(ts, m) };
+            return;
+        }
+    }
+    imp(ts, m)
+}
+
+/// The WTMM test for the pixels `x0..x1` of row `y` (at least two pixels
+/// from every border), writing 1 or 0 into `mask[x]`.
+///
+/// With `A = |T1|`, `B = |T2|`, the point `p + u` lies in the quadrant cell
+/// `{x, x + sx} x {y, y + sy}` (`s = sign(T)`), with bilinear weights
+/// `(M-A)(M-B), A(M-B), (M-A)B, AB` over `M^2`; `p - u` uses the opposite
+/// quadrant with the same weights. Multiplying through by `M^2` removes the
+/// division, and selects instead of branches let the loop vectorise.
+#[allow(clippy::too_many_arguments)]
+fn nms_row(
+    m: &[f64],
+    ts: &[Complex64],
+    nx: usize,
+    y: usize,
+    x0: usize,
+    x1: usize,
+    thr: f64,
+    mask: &mut [u8],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            unsafe { nms_row_avx2(m, ts, nx, y, x0, x1, thr, mask) };
+            return;
+        }
+    }
+    nms_row_impl(m, ts, nx, y, x0, x1, thr, mask)
+}
+
+/// The same kernel compiled for AVX2 (4 f64 lanes). No FMA contraction
+/// happens without `mul_add`, so both paths give identical bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn nms_row_avx2(
+    m: &[f64],
+    ts: &[Complex64],
+    nx: usize,
+    y: usize,
+    x0: usize,
+    x1: usize,
+    thr: f64,
+    mask: &mut [u8],
+) {
+    nms_row_impl(m, ts, nx, y, x0, x1, thr, mask)
 }
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn bilinear(
+fn nms_row_impl(
     m: &[f64],
+    ts: &[Complex64],
     nx: usize,
-    y0: usize,
-    y1: usize,
+    y: usize,
     x0: usize,
     x1: usize,
-    fx: f64,
-    fy: f64,
-) -> f64 {
-    let a = m[y0 * nx + x0] + fx * (m[y0 * nx + x1] - m[y0 * nx + x0]);
-    let b = m[y1 * nx + x0] + fx * (m[y1 * nx + x1] - m[y1 * nx + x0]);
-    a + fy * (b - a)
-}
-
-fn count_neighbours(
-    flag: &[u8],
-    nx: usize,
-    p: u32,
-    want: u8,
-    inside: &impl Fn(i64, i64) -> bool,
-) -> u32 {
-    let (x, y) = ((p as usize % nx) as i64, (p as usize / nx) as i64);
-    let mut c = 0;
-    for (dx, dy) in NEIGH {
-        let (xx, yy) = (x + dx as i64, y + dy as i64);
-        if inside(xx, yy) && flag[yy as usize * nx + xx as usize] == want {
-            c += 1;
-        }
+    thr: f64,
+    mask: &mut [u8],
+) {
+    let r = y * nx;
+    let (up, mid, dn) = (&m[r - nx..r], &m[r..r + nx], &m[r + nx..r + 2 * nx]);
+    let trow = &ts[r..r + nx];
+    for x in x0..x1 {
+        let mp = mid[x];
+        let (t1, t2) = (trow[x].re, trow[x].im);
+        let (a, b) = (t1.abs(), t2.abs());
+        let (px, py) = (t1 >= 0.0, t2 >= 0.0);
+        // neighbours towards +u (f) and -u (b)
+        let (hl, hr) = (mid[x - 1], mid[x + 1]);
+        let (hf, hb) = if px { (hr, hl) } else { (hl, hr) };
+        let (vu, vd) = (up[x], dn[x]);
+        let (vf, vb) = if py { (vd, vu) } else { (vu, vd) };
+        let (dul, dur, ddl, ddr) = (up[x - 1], up[x + 1], dn[x - 1], dn[x + 1]);
+        let d_f = if py {
+            if px { ddr } else { ddl }
+        } else if px {
+            dur
+        } else {
+            dul
+        };
+        let d_b = if py {
+            if px { dul } else { dur }
+        } else if px {
+            ddl
+        } else {
+            ddr
+        };
+        let (w00, w10, w01, w11) = ((mp - a) * (mp - b), a * (mp - b), (mp - a) * b, a * b);
+        let base = w00 * mp;
+        let fwd = base + w10 * hf + w01 * vf + w11 * d_f;
+        let bwd = base + w10 * hb + w01 * vb + w11 * d_b;
+        let m3 = mp * mp * mp;
+        mask[x] = ((m3 > fwd) & (m3 >= bwd) & (mp >= thr) & (mp > 0.0)) as u8;
     }
-    c
 }
 
-fn adjacent(p: u32, q: u32, nx: usize) -> bool {
-    let (px, py) = ((p as usize % nx) as i64, (p as usize / nx) as i64);
-    let (qx, qy) = ((q as usize % nx) as i64, (q as usize / nx) as i64);
-    (px - qx).abs() <= 1 && (py - qy).abs() <= 1
+/// The WTMM test at `(x, y)` with periodic indexing (domains that reach the
+/// image border: periodic fields analysed with no margin).
+#[allow(clippy::too_many_arguments)]
+fn nms_wrapping(
+    m: &[f64],
+    nx: usize,
+    ny: usize,
+    x: usize,
+    y: usize,
+    u1: f64,
+    u2: f64,
+    mp: f64,
+) -> bool {
+    let at = |px: f64, py: f64| {
+        let (x0, y0) = (px.floor(), py.floor());
+        let (fx, fy) = (px - x0, py - y0);
+        let wx = |v: f64| (v as isize).rem_euclid(nx as isize) as usize;
+        let wy = |v: f64| (v as isize).rem_euclid(ny as isize) as usize;
+        let (xa, xb, ya, yb) = (wx(x0), wx(x0 + 1.0), wy(y0), wy(y0 + 1.0));
+        let a = m[ya * nx + xa] + fx * (m[ya * nx + xb] - m[ya * nx + xa]);
+        let b = m[yb * nx + xa] + fx * (m[yb * nx + xb] - m[yb * nx + xa]);
+        a + fy * (b - a)
+    };
+    let (xf, yf) = (x as f64, y as f64);
+    mp > at(xf + u1, yf + u2) && mp >= at(xf - u1, yf - u2)
+}
+
+fn adjacent(p: (u32, u32), q: (u32, u32)) -> bool {
+    (p.0 as i64 - q.0 as i64).abs() <= 1 && (p.1 as i64 - q.1 as i64).abs() <= 1
 }
 
 /// Calls `f(i)` for each local maximum of `v` along a chain: one call per
-/// plateau (its middle index). On an open chain the ends count as maxima
-/// when they exceed their single neighbour; on a closed chain indices wrap.
-/// A chain whose values are all equal yields its middle point.
+/// plateau (its middle index), which must be strictly above its neighbours
+/// on both sides. On a closed chain indices wrap; on an open chain a plateau
+/// that reaches an end is never a maximum (the end points of a chain carry
+/// no WTMMM, as in the reference implementation xsmurf, `wt2d/single_max.c`,
+/// where a WTMMM needs occupied neighbours on two sides). A chain whose
+/// values are all equal yields its middle point.
 pub fn for_each_chain_max(v: &[f64], closed: bool, mut f: impl FnMut(usize)) {
     let n = v.len();
     if n == 0 {
         return;
     }
-    // runs of equal values
-    let mut runs: Vec<(usize, usize)> = Vec::new();
-    let mut s = 0;
-    for i in 1..=n {
-        if i == n || v[i] != v[s] {
-            runs.push((s, i - 1));
-            s = i;
+    // runs of equal values, walked without storing them: `run(k)` starts
+    // where the previous one ended
+    let run_end = |a: usize| {
+        let mut b = a;
+        while b + 1 < n && v[b + 1] == v[a] {
+            b += 1;
         }
-    }
-    if closed && runs.len() > 1 && v[0] == v[n - 1] {
-        // the first and last runs are one plateau across the closing point
-        let (ls, _) = runs.pop().expect("len > 1");
-        runs[0].0 = ls; // start index > end index marks the wrap
-    }
-    let r = runs.len();
-    if r == 1 {
-        f(n / 2);
+        b
+    };
+    let first_end = run_end(0);
+    if first_end == n - 1 {
+        f(n / 2); // a flat chain
         return;
     }
-    for k in 0..r {
-        let (a, b) = runs[k];
+    // on a closed chain, the last run joins the first when their values match
+    let mut last_start = n - 1;
+    while last_start > 0 && v[last_start - 1] == v[n - 1] {
+        last_start -= 1;
+    }
+    let wrap = closed && v[0] == v[n - 1];
+    let mut a = if wrap { last_start } else { 0 };
+    let mut b = first_end;
+    // left neighbour of the first run: wraps on a closed chain
+    let mut prev: Option<f64> = match (closed, wrap) {
+        (false, _) => None, // the first run touches an end
+        (true, false) => Some(v[n - 1]),
+        (true, true) => Some(v[last_start - 1]),
+    };
+    loop {
         let val = v[b];
-        let left = if k > 0 {
-            Some(v[runs[k - 1].1])
+        let next_start = b + 1;
+        let done = next_start >= if wrap { last_start } else { n };
+        // right neighbour of the last run: the first run on a closed chain
+        let right = if !done {
+            Some(v[next_start])
         } else if closed {
-            Some(v[runs[r - 1].1])
+            Some(v[0])
         } else {
             None
         };
-        let right = if k + 1 < r {
-            Some(v[runs[k + 1].0])
-        } else if closed {
-            Some(v[runs[0].0])
-        } else {
-            None
-        };
-        if left.is_none_or(|l| val > l) && right.is_none_or(|rr| val > rr) {
+        if prev.is_some_and(|l| val > l) && right.is_some_and(|r| val > r) {
             let len = if a <= b { b - a + 1 } else { n - a + b + 1 };
             f((a + len / 2) % n);
         }
+        if done {
+            break;
+        }
+        prev = Some(val);
+        a = next_start;
+        b = run_end(a);
     }
 }
 
@@ -443,8 +578,9 @@ mod tests {
     #[test]
     fn chain_maxima_rules() {
         assert_eq!(maxima(&[1.0, 3.0, 2.0, 5.0, 4.0], false), vec![1, 3]);
-        // ends count on an open chain
-        assert_eq!(maxima(&[5.0, 3.0, 2.0, 4.0], false), vec![0, 3]);
+        // the ends of an open chain are never maxima
+        assert_eq!(maxima(&[5.0, 3.0, 2.0, 4.0], false), Vec::<usize>::new());
+        assert_eq!(maxima(&[5.0, 5.0, 2.0, 3.0, 1.0], false), vec![3]);
         // ends wrap on a closed chain: 5 vs 4 -> only index 0
         assert_eq!(maxima(&[5.0, 3.0, 2.0, 4.0], true), vec![0]);
         // a plateau gives its middle
@@ -453,5 +589,71 @@ mod tests {
         assert_eq!(maxima(&[2.0; 6], true), vec![3]);
         // a plateau across the closing point of a closed chain
         assert_eq!(maxima(&[3.0, 3.0, 1.0, 2.0, 1.0, 3.0], true), vec![0, 3]);
+    }
+
+    /// The slow reference: list the runs, then test each against its
+    /// neighbouring runs.
+    fn reference(v: &[f64], closed: bool) -> Vec<usize> {
+        let n = v.len();
+        let mut runs: Vec<(usize, usize)> = Vec::new();
+        let mut s = 0;
+        for i in 1..=n {
+            if i == n || v[i] != v[s] {
+                runs.push((s, i - 1));
+                s = i;
+            }
+        }
+        if runs.len() == 1 {
+            return vec![n / 2];
+        }
+        if closed && v[0] == v[n - 1] {
+            let (ls, _) = runs.pop().unwrap();
+            runs[0].0 = ls;
+        }
+        let r = runs.len();
+        let mut out = Vec::new();
+        for k in 0..r {
+            let (a, b) = runs[k];
+            let val = v[b];
+            let left = if k > 0 {
+                Some(v[runs[k - 1].1])
+            } else if closed {
+                Some(v[runs[r - 1].1])
+            } else {
+                None
+            };
+            let right = if k + 1 < r {
+                Some(v[runs[k + 1].0])
+            } else if closed {
+                Some(v[runs[0].0])
+            } else {
+                None
+            };
+            if left.is_some_and(|l| val > l) && right.is_some_and(|rr| val > rr) {
+                let len = if a <= b { b - a + 1 } else { n - a + b + 1 };
+                out.push((a + len / 2) % n);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn chain_maxima_match_the_reference() {
+        // small alphabets make plateaus and wrapped plateaus frequent
+        let mut state = 12345u64;
+        for _ in 0..20000 {
+            state = crate::synth::splitmix64(state);
+            let n = 1 + (state % 9) as usize;
+            let v: Vec<f64> = (0..n)
+                .map(|i| (crate::synth::splitmix64(state ^ i as u64) % 3) as f64)
+                .collect();
+            for closed in [false, true] {
+                let mut got = maxima(&v, closed);
+                let mut want = reference(&v, closed);
+                got.sort_unstable();
+                want.sort_unstable();
+                assert_eq!(got, want, "{v:?} closed={closed}");
+            }
+        }
     }
 }

@@ -29,7 +29,7 @@ pub mod maxima;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-pub use link::{LinePoint, LinkParams, Linker, MaximaLine, SearchRadius};
+pub use link::{Endings, LinePoint, LinkParams, Linker, MaximaLine, SearchRadius};
 pub use maxima::{Chain, DetectScratch, Domain, ScaleMaxima, Wtmmm, detect};
 
 use crate::cwt::{CwtPlan, ScaleGrid, Wavelet, default_margin};
@@ -63,6 +63,17 @@ pub struct AnalysisConfig {
     /// Moduli below `eps * max M` are ignored (SPEC §2).
     pub eps: f64,
     pub link: LinkParams,
+    /// Trace chains and link lines beyond the counting domain, wherever the
+    /// transform is trusted at each scale (margin `R a`), and count maxima
+    /// only inside the domain. Without it (the reference implementation's
+    /// behaviour) the domain edge cuts chains and ends lines, a loss that
+    /// grows like a / L and steepens τ(0) at large scales.
+    #[serde(default = "yes")]
+    pub guard: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 impl Default for AnalysisConfig {
@@ -77,6 +88,7 @@ impl Default for AnalysisConfig {
             margin: None,
             eps: 1e-7,
             link: LinkParams::default(),
+            guard: true,
         }
     }
 }
@@ -154,9 +166,10 @@ impl AnalysisConfig {
                  on each side at the largest scale {a_max:.1} px (use fewer octaves or a smaller --margin)"
             )));
         }
+        d.support = self.wavelet.support_radius();
+        d.guard = self.guard;
         if let Some(mask) = &field.mask {
             d.mask_distance = Some(distance_to_mask(mask));
-            d.support = self.wavelet.support_radius();
         }
         Ok(d)
     }
@@ -171,6 +184,8 @@ pub struct ScaleCounts {
     pub wtmmm: usize,
     /// Maxima lines alive at this scale.
     pub lines: usize,
+    /// Why lines ended on the way to this scale.
+    pub ended: Endings,
 }
 
 /// The WT skeleton of one image.
@@ -179,6 +194,8 @@ pub struct Skeleton {
     pub scales: Vec<f64>,
     pub shape: (usize, usize),
     pub margin: usize,
+    /// The counting domain `(y0, y1, x0, x1)`: maxima count only inside.
+    pub domain: (usize, usize, usize, usize),
     pub per_scale: Vec<ScaleCounts>,
     pub lines: Vec<MaximaLine>,
     /// Chains and WTMMM of the scales asked for in `keep`.
@@ -189,6 +206,12 @@ impl Skeleton {
     /// The lines alive at scale `j` (length > j).
     pub fn alive_at(&self, j: usize) -> impl Iterator<Item = &MaximaLine> {
         self.lines.iter().filter(move |l| l.points.len() > j)
+    }
+
+    /// True if `(x, y)` lies in the counting domain.
+    pub fn counts(&self, x: u32, y: u32) -> bool {
+        let (y0, y1, x0, x1) = self.domain;
+        (x as usize) >= x0 && (x as usize) < x1 && (y as usize) >= y0 && (y as usize) < y1
     }
 }
 
@@ -219,6 +242,7 @@ pub fn skeleton_with(
         scales: scales.clone(),
         shape: (ny, nx),
         margin: cfg.margin_px(),
+        domain: (domain.y0, domain.y1, domain.x0, domain.x1),
         ..Default::default()
     };
     let mut asm = Assembler {
@@ -266,8 +290,9 @@ struct Assembler<'k> {
 
 impl Assembler<'_> {
     fn push(&mut self, sm: ScaleMaxima) {
-        self.linker.push(&sm);
+        let ended = self.linker.push(&sm);
         self.sk.per_scale.push(ScaleCounts {
+            ended,
             a: sm.a,
             wtmm: sm.n_wtmm,
             chains: sm.n_chains,

@@ -152,9 +152,12 @@ pub fn image_wtmmm(
         if link {
             linker.push(sm);
         }
+        // chains may be traced in a guard band around the domain; only the
+        // WTMMM inside the domain count (as in the partition functions)
         out.all.push(
             sm.wtmmm
                 .iter()
+                .filter(|w| domain.counts(w.x, w.y))
                 .map(|w| Point {
                     x: w.x,
                     y: w.y,
@@ -165,14 +168,18 @@ pub fn image_wtmmm(
         );
     }
     if link {
-        for l in linker.finish() {
+        // lines that never link beyond a_min carry no scale information
+        // and are left out, as in the partition functions
+        for l in linker.finish().iter().filter(|l| l.points.len() > 1) {
             for (j, p) in l.points.iter().enumerate() {
-                out.lines[j].push(Point {
-                    x: p.x,
-                    y: p.y,
-                    m: p.m,
-                    arg: p.arg,
-                });
+                if domain.counts(p.x, p.y) {
+                    out.lines[j].push(Point {
+                        x: p.x,
+                        y: p.y,
+                        m: p.m,
+                        arg: p.arg,
+                    });
+                }
             }
         }
     }

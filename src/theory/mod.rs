@@ -12,8 +12,9 @@
 //!   `S(|k|) ~ |k|^-β` (the angle-integrated spectrum has `β - 1`).
 //! - Kernel cumulants `c_k` with `τ(q) = -Σ c_k q^k / k! - 2` (II eq 64).
 //!
-//! One file per model: [`fbm`], [`fisc`], [`wcascade`] (formulas and paper
-//! equations there). [`Model`] is the serialisable union the CLI works with,
+//! One file per model: [`fbm`], [`fisc`], [`wcascade`], [`fif`] (formulas
+//! and paper equations there; the FIF's [`Multifractal`] implementation is
+//! below, with its negative-q convention). [`Model`] is the serialisable union the CLI works with,
 //! [`Model::preset`] gives the parameter sets of the paper (SPEC §11) and
 //! [`TheoryTable`] the JSON of `wtmm theory`.
 //!
@@ -37,6 +38,7 @@ use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::synth::dwt::Basis;
 use crate::synth::fbm::FbmParams;
+use crate::synth::fif::FifParams;
 use crate::synth::fisc::FiscParams;
 use crate::synth::wcascade::{Isotropy, Law, WCascadeParams};
 
@@ -71,6 +73,88 @@ pub trait Multifractal {
     }
 }
 
+/// FIF surfaces (seed 000 eqs 8-11; closed forms in [`fif`]).
+///
+/// For `q >= 0` (every q at α = 2): `τ(q) = qH - K(q) - 2`,
+/// `h(q) = H - K'(q)`, `D(h) = 2 - c(H - h)` with the universal codimension
+/// `c(γ)`, so `D(h(q)) = 2 - C1 q^α`.
+///
+/// **Negative q (α < 2).** The flux moments of order q < 0 diverge (the
+/// generator's heavy tail is on the negative side): the singularities
+/// `γ = H - h` reach down only to `γ_min = K'(0+) = -C1/(α-1)` (1 < α < 2),
+/// where `c(γ_min) = 0`, so `D(h)` rises to its maximum 2 at
+/// `h_max = H + C1/(α-1)` and has no right-hand branch. τ(q) for q < 0 is the
+/// Legendre transform of this `D(h)`, `τ(q) = min_h (q h - D(h)) =
+/// q h_max - 2`: linear, `h(q) = h_max`, `D(q) = 2` (a phase transition at
+/// q = 0, where τ is C¹ but not C²). For α <= 1, `K'(0+) = -∞`: `h_max = +∞`
+/// and `τ(q < 0) = -∞`. The kernel cumulants exist only at α = 2 (K is
+/// analytic at 0): `c1 = -(H + C1)`, `c2 = 2 C1`, `c3 = 0`.
+impl Multifractal for FifParams {
+    fn tau(&self, q: f64) -> f64 {
+        if q < 0.0 && self.alpha < 2.0 && self.c1 > 0.0 {
+            return q * self.h_range().1 - 2.0;
+        }
+        fif::tau(self, q)
+    }
+
+    fn h(&self, q: f64) -> f64 {
+        if q < 0.0 && self.alpha < 2.0 && self.c1 > 0.0 {
+            return self.h_range().1;
+        }
+        fif::h(self, q)
+    }
+
+    fn dh(&self, h: f64) -> Option<f64> {
+        if self.c1 == 0.0 {
+            return ((h - self.hurst).abs() <= 1e-12).then_some(2.0);
+        }
+        let h_max = self.h_range().1;
+        if self.alpha < 2.0 && h_max.is_finite() {
+            if h > h_max + 1e-12 {
+                return None;
+            }
+            if h >= h_max - 1e-12 {
+                return Some(2.0);
+            }
+        }
+        let gamma = self.hurst - h;
+        let c = if self.alpha >= 2.0 {
+            // both branches (q of either sign): c = C1 q², γ = C1 (2q - 1)
+            self.c1 * (gamma / (2.0 * self.c1) + 0.5).powi(2)
+        } else {
+            fif::UniversalK::new(self.alpha, self.c1).codimension(gamma)
+        };
+        c.is_finite().then_some(fif::D - c)
+    }
+
+    /// `h_min = h(q*)` with `C1 q*^α = 2` (`D = 0`); `h_max` where `D = 2`
+    /// (`H + C1/(α-1)`, `+∞` for α <= 1) or, at α = 2, the other zero
+    /// `h(-q*)`.
+    fn h_range(&self) -> (f64, f64) {
+        if self.c1 == 0.0 {
+            return (self.hurst, self.hurst);
+        }
+        let qs = (fif::D / self.c1).powf(1.0 / self.alpha);
+        let h_min = fif::h(self, qs);
+        let h_max = if self.alpha >= 2.0 {
+            fif::h(self, -qs)
+        } else if self.alpha > 1.0 {
+            self.hurst + self.c1 / (self.alpha - 1.0)
+        } else {
+            f64::INFINITY
+        };
+        (h_min, h_max)
+    }
+
+    fn cumulants(&self) -> Option<[f64; 3]> {
+        (self.alpha >= 2.0 || self.c1 == 0.0).then_some([
+            -(self.hurst + self.c1),
+            2.0 * self.c1,
+            0.0,
+        ])
+    }
+}
+
 /// A generator with its parameters (the `MODEL` of the CLI).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "model", rename_all = "lowercase")]
@@ -78,14 +162,17 @@ pub enum Model {
     Fbm(FbmParams),
     Fisc(FiscParams),
     WCascade(WCascadeParams),
+    /// Universal multifractal FIF surface (seed 000 §3.3; see [`fif`]).
+    Fif(FifParams),
 }
 
 /// Names accepted by [`Model::preset`].
-pub const PRESET_NAMES: [&str; 4] = [
+pub const PRESET_NAMES: [&str; 5] = [
     "paper-fbm",
     "paper-lognormal",
     "paper-logpoisson",
     "paper-fisc",
+    "topo-fif",
 ];
 
 /// A published parameter set (SPEC §11) with the analysing wavelet the paper
@@ -94,20 +181,22 @@ pub const PRESET_NAMES: [&str; 4] = [
 pub struct Preset {
     pub name: &'static str,
     pub model: Model,
-    /// gauss for fBm and the W-cascades (h in (0, 1)); mexican for FISC,
-    /// whose `h_max = 1.30 > 1` needs more than one vanishing moment (II §3.1).
+    /// gauss for fBm, the W-cascades and topo-fif (h in (-0.1, 0.85)); mexican
+    /// for FISC, whose `h_max = 1.30 > 1` needs more than one vanishing
+    /// moment (II §3.1).
     pub wavelet: Wavelet,
     /// Where the numbers come from.
     pub source: &'static str,
 }
 
 impl Model {
-    /// `fbm`, `fisc` or `wcascade` (the CLI's MODEL).
+    /// `fbm`, `fisc`, `wcascade` or `fif` (the CLI's MODEL).
     pub fn name(&self) -> &'static str {
         match self {
             Model::Fbm(_) => "fbm",
             Model::Fisc(_) => "fisc",
             Model::WCascade(_) => "wcascade",
+            Model::Fif(_) => "fif",
         }
     }
 
@@ -117,6 +206,7 @@ impl Model {
             Model::Fbm(p) => p.validate(),
             Model::Fisc(p) => p.validate(),
             Model::WCascade(p) => p.validate(),
+            Model::Fif(p) => p.validate(),
         }
     }
 
@@ -125,6 +215,17 @@ impl Model {
             Model::Fbm(p) => p,
             Model::Fisc(p) => p,
             Model::WCascade(p) => p,
+            Model::Fif(p) => p,
+        }
+    }
+
+    /// The flux moment function `K(q)` of a FIF (`None` for the other
+    /// models, which are not defined through a flux; `+∞` for q < 0 when
+    /// α < 2).
+    pub fn k(&self, q: f64) -> Option<f64> {
+        match self {
+            Model::Fif(p) => Some(fif::k(p, q)),
+            _ => None,
         }
     }
 
@@ -181,6 +282,7 @@ impl Model {
             Model::Fbm(p) => crate::synth::fbm::fbm(p, size, size, seed, index),
             Model::Fisc(p) => crate::synth::fisc::fisc(p, size, seed, index),
             Model::WCascade(p) => crate::synth::wcascade::wcascade(&p, size, seed, index),
+            Model::Fif(p) => crate::synth::fif::fif(&p, size, size, seed, index),
         }
     }
 
@@ -188,7 +290,8 @@ impl Model {
     /// `paper-lognormal` (m = -0.38 ln2, σ² = 0.03 ln2), `paper-logpoisson`
     /// (γ = -ln2/9, β = (2/3)^(1/3), λ = 2 ln2), both isotropic on db8 (the
     /// paper's "Daubechies 8", see [`crate::synth::dwt`]), and `paper-fisc`
-    /// (p = 0.32, H* = 0.638).
+    /// (p = 0.32, H* = 0.638); and `topo-fif`, the FIF with the topography
+    /// parameters of seed 000 Tables 4-5 (α = 1.8, C1 = 0.12, H = 0.7).
     ///
     /// **Errors** on an unknown name, listing the known ones.
     pub fn preset(name: &str) -> Result<Preset> {
@@ -234,6 +337,12 @@ impl Model {
                 }),
                 Wavelet::Mexican,
                 "II §2.1, §3.1, Figs 1-3, 9-14",
+            ),
+            "topo-fif" => (
+                "topo-fif",
+                Model::Fif(FifParams::TOPO),
+                Wavelet::Gauss,
+                "seed 000 Tables 4-5 (topography), seed 001 Fig 1b",
             ),
             other => {
                 return Err(Error::param(
@@ -282,6 +391,9 @@ pub struct TheoryTable {
     pub beta_convention: String,
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub cumulants: Option<Cumulants>,
+    /// The flux moment function K(q) (FIF only; `null` where infinite).
+    #[serde(rename = "K", skip_serializing_if = "Option::is_none", default)]
+    pub k: Option<Vec<f64>>,
     /// The D(h) curve sampled on `[h_min, h_max]` (one point for a
     /// monofractal).
     pub dh_h: Vec<f64>,
@@ -296,8 +408,14 @@ impl TheoryTable {
     /// The table of `model` on the grid `q`.
     pub fn new(model: &Model, q: &[f64]) -> Self {
         let (h_min, h_max) = model.h_range();
+        // an unbounded support (FIF with α <= 1) is sampled up to h(q = 0.001)
+        let h_hi = if h_max.is_finite() {
+            h_max
+        } else {
+            model.h(1e-3)
+        };
         let (mut dh_h, mut dh_d) = (Vec::new(), Vec::new());
-        let n = if h_max - h_min > 1e-12 {
+        let n = if h_hi - h_min > 1e-12 {
             Self::DH_POINTS
         } else {
             1
@@ -306,7 +424,7 @@ impl TheoryTable {
             let h = if n == 1 {
                 h_min
             } else {
-                h_min + (h_max - h_min) * i as f64 / (n - 1) as f64
+                h_min + (h_hi - h_min) * i as f64 / (n - 1) as f64
             };
             if let Some(d) = model.dh(h) {
                 dh_h.push(h);
@@ -327,6 +445,9 @@ impl TheoryTable {
             cumulants: model
                 .cumulants()
                 .map(|[c1, c2, c3]| Cumulants { c1, c2, c3 }),
+            k: model
+                .k(0.0)
+                .map(|_| q.iter().map(|&v| model.k(v).unwrap_or(f64::NAN)).collect()),
             dh_h,
             dh_d,
         }
@@ -362,6 +483,12 @@ mod tests {
             isotropy: Isotropy::Isotropic,
             basis: Basis::Db8,
         }));
+        // a log-normal FIF: analytic τ for every q, both branches of D(h)
+        v.push(Model::Fif(FifParams {
+            alpha: 2.0,
+            c1: 0.1,
+            hurst: 0.5,
+        }));
         v
     }
 
@@ -372,6 +499,12 @@ mod tests {
         for m in models() {
             for i in -40..=40 {
                 let q = i as f64 * 0.25;
+                // a FIF with α < 2 has K'' ~ q^(α-2) at 0+ (and the linear
+                // branch below 0): τ is C¹ but not C² at q = 0, where the
+                // central difference is off by O(δ^(α-1))
+                if q == 0.0 && matches!(m, Model::Fif(p) if p.alpha < 2.0) {
+                    continue;
+                }
                 let d = 1e-4;
                 let fd = (m.tau(q + d) - m.tau(q - d)) / (2.0 * d);
                 assert!(
@@ -440,6 +573,12 @@ mod tests {
                     assert!(dhi.abs() < 1e-9, "{m:?}: D(h_max) = {dhi}");
                     assert!(dlo >= -1e-9, "{m:?}: D(h_min) = {dlo}");
                 }
+                // α < 2: D rises to 2 at h_max (no right branch); α = 2: a zero
+                Model::Fif(p) => {
+                    let top = if p.alpha < 2.0 { 2.0 } else { 0.0 };
+                    assert!((dhi - top).abs() < 1e-9, "{m:?}: D(h_max) = {dhi}");
+                    assert!(dlo.abs() < 1e-9, "{m:?}: D(h_min) = {dlo}");
+                }
             }
             for i in 0..=20 {
                 let h = lo + (hi - lo) * i as f64 / 20.0;
@@ -461,7 +600,11 @@ mod tests {
     #[test]
     fn cumulants_are_taylor_coefficients() {
         for m in models() {
-            let c = m.cumulants().unwrap();
+            let Some(c) = m.cumulants() else {
+                // only a FIF with α < 2 (K not analytic at 0) has none
+                assert!(matches!(m, Model::Fif(p) if p.alpha < 2.0), "{m:?}");
+                continue;
+            };
             let f = |q: f64| -m.tau(q) - 2.0;
             let d = 1e-2;
             let c1 = (f(d) - f(-d)) / (2.0 * d);
@@ -507,5 +650,38 @@ mod tests {
         assert_eq!(t.dh_h.len(), TheoryTable::DH_POINTS);
         let f = TheoryTable::new(&Model::preset("paper-fbm").unwrap().model, &[0.0]);
         assert_eq!((f.dh_h.len(), f.dh_d[0]), (1, 2.0));
+        let jf = serde_json::to_value(&f).unwrap();
+        assert!(jf.get("K").is_none(), "K is for the FIF only");
+        let t = TheoryTable::new(&Model::preset("topo-fif").unwrap().model, &[-1.0, 2.0]);
+        let j = serde_json::to_value(&t).unwrap();
+        assert_eq!(j["model"]["model"], "fif");
+        assert!(j["K"][0].is_null(), "K(-1) diverges for α < 2");
+        assert!((j["K"][1].as_f64().unwrap() - 0.15 * (2f64.powf(1.8) - 2.0)).abs() < 1e-12);
+    }
+
+    /// topo-fif: τ = qH - K(q) - 2 for q >= 0, linear with slope h_max below
+    /// (module docs), β = τ(2) + 4 = 2 + 2H - K(2) (angle-averaged).
+    #[test]
+    fn fif_negative_q_and_beta() {
+        let m = Model::preset("topo-fif").unwrap().model;
+        let Model::Fif(p) = m else { unreachable!() };
+        let (h_min, h_max) = m.h_range();
+        assert!((h_max - (0.7 + 0.12 / 0.8)).abs() < 1e-12);
+        assert!(h_min < 0.0 && m.dh(h_min).unwrap().abs() < 1e-9);
+        assert!((m.tau(-2.0) - (-2.0 * h_max - 2.0)).abs() < 1e-12);
+        assert!((m.tau(1.5) - fif::tau(&p, 1.5)).abs() < 1e-15);
+        assert!((m.beta() - fif::beta_averaged(&p)).abs() < 1e-12);
+        assert_eq!(m.h(-1.0), h_max);
+        assert!(m.dh(h_max + 0.01).is_none());
+        // α < 1: no finite h_max, τ(q < 0) = -∞, and the table stays finite
+        let low = Model::Fif(FifParams {
+            alpha: 0.7,
+            c1: 0.1,
+            hurst: 0.5,
+        });
+        assert!(low.h_range().1.is_infinite() && low.tau(-1.0) == f64::NEG_INFINITY);
+        let t = TheoryTable::new(&low, &[0.5, 1.0]);
+        assert_eq!(t.dh_h.len(), TheoryTable::DH_POINTS);
+        assert!(t.dh_d.iter().all(|d| d.is_finite()));
     }
 }

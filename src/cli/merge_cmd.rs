@@ -1,0 +1,89 @@
+//! `wtmm merge SUMS.json... --out DIR`: combine partition sums saved by
+//! `analyze`/`validate` (shards of an ensemble analysed anywhere) and
+//! recompute the spectra, for any rule and fit range, without redoing the
+//! wavelet transforms.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use serde_json::json;
+
+use super::analyze_cmd::{TheoryCurves, write_outputs};
+use super::common::{make_out_dir, parse_range};
+use super::model_args::{ModelName, ModelOpts};
+use super::{OutDir, Outcome};
+use crate::error::{Error, Result};
+use crate::spectra::{PartitionSums, Rule};
+use crate::theory::TheoryTable;
+
+#[derive(Args, Debug)]
+pub struct MergeArgs {
+    /// `sums.json` files written by analyze or validate.
+    #[arg(required = true)]
+    pub sums: Vec<PathBuf>,
+    /// Fit range in octaves above a_min, `LO:HI`.
+    #[arg(long, default_value = "1:4")]
+    pub fit: String,
+    /// Use the plain modulus instead of the sup rule.
+    #[arg(long)]
+    pub plain: bool,
+    /// Theory to draw and compare with (MODEL with its options, or --preset).
+    #[arg(long, value_enum)]
+    pub theory: Option<ModelName>,
+    #[command(flatten)]
+    pub model_opts: ModelOpts,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
+    let fit = parse_range("fit", &args.fit)?;
+    let mut parts = Vec::new();
+    for p in &args.sums {
+        let text = std::fs::read_to_string(p).map_err(|source| Error::Read {
+            path: p.clone(),
+            source,
+        })?;
+        let s: PartitionSums = serde_json::from_str(&text)
+            .map_err(|e| Error::format(p, format!("not a partition-sums file: {e}")))?;
+        parts.push(s);
+    }
+    let sums = PartitionSums::merge_all(parts)?.expect("at least one file");
+    let theory = if args.theory.is_some() || args.model_opts.preset.is_some() {
+        Some(args.model_opts.resolve(args.theory)?.model)
+    } else {
+        None
+    };
+    let rule = if args.plain { Rule::Plain } else { Rule::Sup };
+    let other = if args.plain { Rule::Sup } else { Rule::Plain };
+    let s = sums.spectra(rule, fit)?;
+    let o = sums.spectra(other, fit)?;
+    make_out_dir(&args.out.out)?;
+    let curves = theory.map(|m| {
+        let t = TheoryTable::new(&m, &s.q);
+        TheoryCurves {
+            name: m.name().to_string(),
+            tau: Box::new(move |q| m.tau(q)),
+            dh: t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(),
+        }
+    });
+    let params = json!({"sums": args.sums, "fit_octaves": fit, "rule": rule, "theory": theory});
+    write_outputs(
+        &args.out.out,
+        "merge",
+        params,
+        &sums,
+        &s,
+        &o,
+        curves.as_ref(),
+    )?;
+    if !quiet {
+        eprintln!(
+            "merged {} images from {} files into {}",
+            s.images,
+            args.sums.len(),
+            args.out.out.display()
+        );
+    }
+    Ok(Outcome::Ok)
+}

@@ -1,0 +1,590 @@
+//! `wtmm tm IMAGE... --out DIR`: trace moments, universal parameters, double
+//! trace moments, structure functions and the spectral H of an annealed
+//! ensemble (SPEC §8, §13; seed 000 §5.2, §6, Figs 19-20, 25-28), with CSVs
+//! and plots.
+
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use rayon::prelude::*;
+use serde_json::json;
+
+use super::common::{
+    f, header, make_out_dir, parse_list, parse_range, progress, write_csv, write_json,
+};
+use super::{OutDir, Outcome};
+use crate::error::{Error, Result};
+use crate::io::read_field;
+use crate::plot::{Chart, Series, Style, save_chart};
+use crate::stats::powspec::{Detrend, PowerSpectrum, PowerSpectrumConfig, Window};
+use crate::tracemoments::{
+    FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig, TraceMomentResult,
+    universal_shape,
+};
+
+/// Trace-moment options shared by `tm` and `compare` (everything but the
+/// trace-moment q grid).
+#[derive(Args, Debug, Clone)]
+pub struct TmOpts {
+    /// How the flux is obtained from the field: modulus of the finite-difference
+    /// gradient, or of the finest Haar wavelet coefficients.
+    #[arg(long, value_enum, default_value_t = FluxKind::Gradient)]
+    pub flux: FluxKind,
+    /// Fractional integration of this order before the flux (seed 000 §5.2: it
+    /// removes the spurious zero gradients of quantised DEMs); `--frac-int`
+    /// alone means 0.1. A negative order differentiates further: the flux is
+    /// then a differentiation of order 1 - ORDER of the field, which the
+    /// modulus needs well above H (for H = 0.7 the gradient alone leaves a
+    /// derivative of order 0.3 of the flux, whose modulus fills its holes:
+    /// alpha biased high, C1 low).
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.1", allow_negative_numbers = true)]
+    pub frac_int: Option<f64>,
+    /// Double trace moments: η values, `start:stop:step` or `a,b,c` [default: 16
+    /// log-spaced values from 0.1 to 3.16].
+    #[arg(long)]
+    pub eta: Option<String>,
+    /// Double trace moments: orders q (the first one gives dtm_alpha, dtm_C1).
+    #[arg(long, default_value = "1.5")]
+    pub dtm_q: String,
+    /// Structure-function orders (q = 1 gives H_sf).
+    #[arg(long, default_value = "0.5,1,1.5,2,2.5,3")]
+    pub sf_q: String,
+    /// Fit range of K(q) and K(q, η) in log2 λ (λ = L/l), `LO:HI`
+    /// [default: 1:log2(L)-1, dropping the finest and the coarsest octave].
+    #[arg(long)]
+    pub lambda_fit: Option<String>,
+    /// η range of the double-trace-moment fit, `LO:HI`.
+    #[arg(long, default_value = "0.3:2")]
+    pub eta_fit: String,
+    /// Structure functions: fit range of log2 lag (px), `LO:HI` [default: 1:log2(L)-3].
+    #[arg(long)]
+    pub lag_fit: Option<String>,
+    /// Power-spectrum fit range in rad/px, `LO:HI` [default: 8 cycles per image to pi/4].
+    #[arg(long)]
+    pub k_range: Option<String>,
+    /// Upper bound on q in the universal fit (on top of the automatic q_s/2).
+    #[arg(long)]
+    pub q_fit_max: Option<f64>,
+    /// Taper before the FFT of the spectrum [default: hann for `tm`; none for
+    /// the periodic models of `compare`, hann for fbm].
+    #[arg(long, value_enum)]
+    pub window: Option<Window>,
+}
+
+impl TmOpts {
+    /// The accumulation settings for the trace-moment orders `q`.
+    ///
+    /// **Errors** naming the flag on a malformed list or an invalid value.
+    pub fn config(&self, q: Vec<f64>, default_window: Window) -> Result<TraceMomentConfig> {
+        let d = TraceMomentConfig::default();
+        let cfg = TraceMomentConfig {
+            flux: self.flux,
+            frac_int: self.frac_int,
+            q,
+            eta: match &self.eta {
+                Some(s) => parse_list("eta", s)?,
+                None => d.eta,
+            },
+            dtm_q: parse_list("dtm-q", &self.dtm_q)?,
+            sf_q: parse_list("sf-q", &self.sf_q)?,
+            spectrum: PowerSpectrumConfig {
+                window: self.window.unwrap_or(default_window),
+                detrend: Detrend::Plane,
+                bins_per_octave: 4,
+            },
+        };
+        if let Some(h) = cfg.frac_int
+            && !(h.is_finite() && h > -1.0 && h < 1.0)
+        {
+            return Err(Error::param(
+                "frac-int",
+                format!("a small smoothing order is expected (|order| < 1, e.g. 0.1), got {h}"),
+            ));
+        }
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// The fit ranges.
+    ///
+    /// **Errors** naming the flag on a malformed range.
+    pub fn fit(&self) -> Result<TraceMomentFitConfig> {
+        let opt =
+            |flag: &str, s: &Option<String>| s.as_deref().map(|v| parse_range(flag, v)).transpose();
+        let eta = parse_range("eta-fit", &self.eta_fit)?;
+        if eta.0 <= 0.0 {
+            return Err(Error::param("eta-fit", "η must be > 0"));
+        }
+        let k_range = opt("k-range", &self.k_range)?;
+        if k_range.is_some_and(|(lo, _)| lo <= 0.0) {
+            return Err(Error::param("k-range", "wavenumbers must be > 0"));
+        }
+        if let Some(q) = self.q_fit_max
+            && !(q.is_finite() && q > 0.0)
+        {
+            return Err(Error::param("q-fit-max", format!("must be > 0, got {q}")));
+        }
+        Ok(TraceMomentFitConfig {
+            log2_lambda: opt("lambda-fit", &self.lambda_fit)?,
+            eta,
+            log2_lag: opt("lag-fit", &self.lag_fit)?,
+            k_range,
+            q_fit_max: self.q_fit_max,
+        })
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct TmArgs {
+    /// Input images, analysed as one annealed ensemble.
+    #[arg(required = true)]
+    pub images: Vec<PathBuf>,
+    /// Trace-moment orders q >= 0: `start:stop:step` or `a,b,c`.
+    #[arg(long, default_value = "0.1:4:0.1", allow_hyphen_values = true)]
+    pub q: String,
+    #[command(flatten)]
+    pub tm: TmOpts,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
+    let q = parse_list("q", &args.q)?;
+    let cfg = args.tm.config(q, Window::Hann)?;
+    let fc = args.tm.fit()?;
+    let acc = accumulate_paths(&args.images, &cfg, quiet)?;
+    let res = acc.finish(&fc)?;
+    make_out_dir(&args.out.out)?;
+    let params = json!({"images": args.images, "config": cfg, "fit": fc});
+    write_outputs(&args.out.out, "tm", params, &res, acc.spectrum.as_ref())?;
+    print!("{}", summary(&res));
+    if !res.alpha.is_finite() {
+        eprintln!("warning: the universal fit failed (fewer than 3 q values below q_s/2?)");
+    }
+    if !quiet {
+        eprintln!("wrote {}", args.out.out.join("tm.json").display());
+    }
+    Ok(Outcome::Ok)
+}
+
+/// Reads and accumulates every image (in parallel); a bad file stops
+/// everything before any output is written. Merged in input order.
+pub fn accumulate_paths(
+    paths: &[PathBuf],
+    cfg: &TraceMomentConfig,
+    quiet: bool,
+) -> Result<TraceMomentAccumulator> {
+    let pb = progress(paths.len() as u64, "tm", quiet);
+    let parts: Vec<TraceMomentAccumulator> = paths
+        .par_iter()
+        .map(|p| {
+            let field = read_field(p)?;
+            let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
+            acc.add_field(&field)
+                .map_err(|e| Error::format(p, e.to_string()))?;
+            pb.inc(1);
+            Ok(acc)
+        })
+        .collect::<Result<_>>()?;
+    pb.finish_and_clear();
+    let mut all = TraceMomentAccumulator::new(cfg.clone())?;
+    for p in &parts {
+        all.merge(p)?;
+    }
+    Ok(all)
+}
+
+/// `τ(q) = qH - K(q) - 2` from the measured K(q) and the spectral H (NaN
+/// without H).
+pub fn tau_from_tm(res: &TraceMomentResult) -> Vec<f64> {
+    let h = res.h.unwrap_or(f64::NAN);
+    res.q
+        .iter()
+        .zip(&res.k)
+        .map(|(&q, &k)| q * h - k - 2.0)
+        .collect()
+}
+
+/// The fitted universal K(q) on the grid `q`.
+pub fn k_universal(res: &TraceMomentResult, q: &[f64]) -> Vec<f64> {
+    q.iter()
+        .map(|&v| res.c1 * universal_shape(res.alpha, v))
+        .collect()
+}
+
+/// Human summary (also the first lines of the report).
+pub fn summary(r: &TraceMomentResult) -> String {
+    let o = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.4}"));
+    format!(
+        "trace moments: {} image(s), flux {:?}{}, fit log2 lambda {}:{}\n  \
+         alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} (universal fit over 0 < q <= {:.2}; q_s {:.2})\n  \
+         DTM (q = {}): alpha {:.3}, C1 {:.4}\n  \
+         beta {} (angle-integrated), H {} (spectrum), H_sf {} (structure functions)\n",
+        r.images,
+        r.flux,
+        r.frac_int
+            .map_or(String::new(), |h| format!(", fractional integration {h}")),
+        r.fit_log2_lambda.0,
+        r.fit_log2_lambda.1,
+        r.alpha,
+        r.alpha_stderr,
+        r.c1,
+        r.c1_stderr,
+        r.universal_q_max,
+        r.q_s,
+        r.dtm_q.first().copied().unwrap_or(f64::NAN),
+        r.dtm_alpha,
+        r.dtm_c1,
+        o(r.beta),
+        o(r.h),
+        o(r.h_sf),
+    )
+}
+
+/// The `tm.json` body: the header, every key of [`TraceMomentResult`], and
+/// the derived `tau` and `K_universal`.
+pub fn result_json(
+    command: &str,
+    params: serde_json::Value,
+    res: &TraceMomentResult,
+) -> Result<serde_json::Value> {
+    let mut body = header(command, params);
+    let r = serde_json::to_value(res).map_err(|e| Error::Input(e.to_string()))?;
+    if let (Some(obj), serde_json::Value::Object(m)) = (body.as_object_mut(), r) {
+        for (k, v) in m {
+            obj.insert(k, v);
+        }
+    }
+    body["K_universal"] = json!(k_universal(res, &res.q));
+    body["tau"] = json!(tau_from_tm(res));
+    body["tau_definition"] =
+        json!("tau(q) = q H - K(q) - 2 (measured K, spectral H; WTMM convention for a surface)");
+    Ok(body)
+}
+
+/// Writes tm.json, the CSVs and the plots.
+pub fn write_outputs(
+    dir: &Path,
+    command: &str,
+    params: serde_json::Value,
+    res: &TraceMomentResult,
+    spectrum: Option<&PowerSpectrum>,
+) -> Result<()> {
+    write_json(&dir.join("tm.json"), &result_json(command, params, res)?)?;
+    let ku = k_universal(res, &res.q);
+    let tau = tau_from_tm(res);
+    let rows: Vec<Vec<String>> = (0..res.q.len())
+        .map(|i| {
+            vec![
+                f(res.q[i]),
+                f(res.k[i]),
+                f(res.k_stderr[i]),
+                f(res.k_intercept[i]),
+                f(ku[i]),
+                f(tau[i]),
+            ]
+        })
+        .collect();
+    write_csv(
+        &dir.join("K.csv"),
+        &["q", "K", "K_stderr", "K_intercept", "K_universal", "tau"],
+        &rows,
+    )?;
+    // moments per level
+    let mut hdr = vec!["q".to_string()];
+    hdr.extend(res.log2_lambda.iter().map(|l| format!("log2lambda={l}")));
+    let hdr_ref: Vec<&str> = hdr.iter().map(String::as_str).collect();
+    let rows: Vec<Vec<String>> = res
+        .q
+        .iter()
+        .zip(&res.log2_moments)
+        .map(|(q, m)| {
+            std::iter::once(f(*q))
+                .chain(m.iter().map(|v| f(*v)))
+                .collect()
+        })
+        .collect();
+    write_csv(&dir.join("moments.csv"), &hdr_ref, &rows)?;
+    // double trace moments
+    let mut hdr = vec!["eta".to_string()];
+    for q in &res.dtm_q {
+        hdr.push(format!("K(q={q},eta)"));
+        hdr.push(format!("K(q={q},eta)_stderr"));
+    }
+    let hdr_ref: Vec<&str> = hdr.iter().map(String::as_str).collect();
+    let rows: Vec<Vec<String>> = (0..res.eta.len())
+        .map(|ie| {
+            let mut r = vec![f(res.eta[ie])];
+            for iq in 0..res.dtm_q.len() {
+                r.push(f(res.k_eta[iq][ie]));
+                r.push(f(res.k_eta_stderr[iq][ie]));
+            }
+            r
+        })
+        .collect();
+    write_csv(&dir.join("dtm.csv"), &hdr_ref, &rows)?;
+    // structure functions
+    let h = res.h.unwrap_or(f64::NAN);
+    let rows: Vec<Vec<String>> = (0..res.sf_q.len())
+        .map(|i| {
+            let q = res.sf_q[i];
+            vec![
+                f(q),
+                f(res.xi[i]),
+                f(res.xi_stderr[i]),
+                f(q * h - res.c1 * universal_shape(res.alpha, q)),
+            ]
+        })
+        .collect();
+    write_csv(
+        &dir.join("sf.csv"),
+        &["q", "xi", "xi_stderr", "xi_universal"],
+        &rows,
+    )?;
+    if let Some(ps) = spectrum {
+        let rows: Vec<Vec<String>> = ps.points().iter().map(|&(k, s)| vec![f(k), f(s)]).collect();
+        write_csv(
+            &dir.join("spectrum.csv"),
+            &["k_rad_per_px", "S_angle_averaged"],
+            &rows,
+        )?;
+    }
+    plot_moments(dir, res)?;
+    plot_k(dir, res, None)?;
+    plot_dtm(dir, res)?;
+    plot_sf(dir, res)?;
+    if let Some(ps) = spectrum {
+        plot_spectrum(dir, res, ps)?;
+    }
+    Ok(())
+}
+
+const LOG10_2: f64 = std::f64::consts::LOG10_2;
+
+/// The orders shown in seed 000 Figs 19, 25-26 (top to bottom 2.18 ... 0.04),
+/// plus 3, snapped to the grid.
+fn shown_q(q: &[f64]) -> Vec<usize> {
+    let mut v: Vec<usize> = [0.04, 0.12, 0.51, 1.17, 1.44, 1.77, 2.18, 3.0]
+        .iter()
+        .filter_map(|&t: &f64| {
+            (0..q.len()).min_by(|&a, &b| (q[a] - t).abs().total_cmp(&(q[b] - t).abs()))
+        })
+        .collect();
+    v.sort_unstable();
+    v.dedup();
+    v
+}
+
+/// Seed 000 Figs 19, 25: `log10 <φ_λ^q>` against `log10 λ` with the fitted
+/// lines, extended to their common crossing λ_eff (the effective outer scale).
+fn plot_moments(dir: &Path, r: &TraceMomentResult) -> Result<()> {
+    let mut c = Chart {
+        title: format!(
+            "trace moments, {} image(s), fit log2 λ {}:{}",
+            r.images, r.fit_log2_lambda.0, r.fit_log2_lambda.1
+        ),
+        x_label: "log10 λ  (λ = L / l)".into(),
+        y_label: "log10 <φ_λ^q>".into(),
+        ..Default::default()
+    };
+    let x_max = r.log2_lambda.iter().copied().fold(0.0, f64::max) * LOG10_2;
+    let x_eff = r.log2_lambda_eff * LOG10_2;
+    let x_lo = if x_eff.is_finite() {
+        x_eff.clamp(-x_max, 0.0)
+    } else {
+        0.0
+    };
+    for (n, &i) in shown_q(&r.q).iter().enumerate() {
+        let pts: Vec<(f64, f64)> = r
+            .log2_lambda
+            .iter()
+            .zip(&r.log2_moments[i])
+            .map(|(x, y)| (x * LOG10_2, y * LOG10_2))
+            .collect();
+        c.series.push(Series::new(
+            format!("q = {:.2}, K = {:.3}", r.q[i], r.k[i]),
+            pts,
+            Style::Markers,
+            n,
+        ));
+        let (k, b) = (r.k[i], r.k_intercept[i] * LOG10_2);
+        if k.is_finite() && b.is_finite() {
+            c.series.push(Series::new(
+                "",
+                vec![(x_lo, b + k * x_lo), (x_max, b + k * x_max)],
+                Style::Line,
+                n,
+            ));
+        }
+    }
+    save_chart(&c, &dir.join("moments.png"))
+}
+
+/// Seed 000 Figs 20, 27-28: K(q) with the universal fit, the fit range and
+/// q_s. `theory`: an optional (name, K(q)) curve on the same grid.
+pub fn plot_k(dir: &Path, r: &TraceMomentResult, theory: Option<(&str, &[f64])>) -> Result<()> {
+    let mut c = Chart {
+        title: format!(
+            "K(q): alpha = {:.2}, C1 = {:.3} (fit q <= {:.2}), q_s = {:.2}",
+            r.alpha, r.c1, r.universal_q_max, r.q_s
+        ),
+        x_label: "q".into(),
+        y_label: "K(q)".into(),
+        ..Default::default()
+    };
+    c.series.push(
+        Series::new(
+            "K(q), trace moments",
+            r.q.iter().copied().zip(r.k.iter().copied()).collect(),
+            Style::Markers,
+            0,
+        )
+        .with_errors(r.k_stderr.clone()),
+    );
+    let q_hi = r.q.iter().copied().fold(0.0, f64::max);
+    let grid: Vec<f64> = (0..=200).map(|i| q_hi * i as f64 / 200.0).collect();
+    if r.alpha.is_finite() {
+        c.series.push(Series::new(
+            "universal fit",
+            grid.iter().copied().zip(k_universal(r, &grid)).collect(),
+            Style::Line,
+            1,
+        ));
+    }
+    if let Some((name, k)) = theory {
+        c.series.push(Series::new(
+            name,
+            r.q.iter().copied().zip(k.iter().copied()).collect(),
+            Style::Dashed,
+            2,
+        ));
+    }
+    let ys: Vec<f64> = r.k.iter().copied().filter(|v| v.is_finite()).collect();
+    let (y0, y1) = (
+        ys.iter().copied().fold(0.0, f64::min),
+        ys.iter().copied().fold(0.0, f64::max),
+    );
+    for (x, name, col) in [(r.universal_q_max, "fit limit", 3), (r.q_s, "q_s", 4)] {
+        if x.is_finite() && x <= q_hi {
+            c.series.push(Series::new(
+                format!("{name} = {x:.2}"),
+                vec![(x, y0), (x, y1)],
+                Style::Dashed,
+                col,
+            ));
+        }
+    }
+    save_chart(&c, &dir.join("K.png"))
+}
+
+/// Double trace moments: `log10 K(q, η)` against `log10 η` with the fitted
+/// line of slope α over the η fit range.
+fn plot_dtm(dir: &Path, r: &TraceMomentResult) -> Result<()> {
+    let mut c = Chart {
+        title: format!(
+            "double trace moments: alpha = {:.2}, C1 = {:.3}",
+            r.dtm_alpha, r.dtm_c1
+        ),
+        x_label: "log10 η".into(),
+        y_label: "log10 K(q, η)".into(),
+        ..Default::default()
+    };
+    for (iq, d) in r.dtm.iter().enumerate() {
+        let pts: Vec<(f64, f64)> = r
+            .eta
+            .iter()
+            .zip(&r.k_eta[iq])
+            .filter(|(_, k)| **k > 0.0)
+            .map(|(e, k)| (e.log10(), k.log10()))
+            .collect();
+        c.series.push(Series::new(
+            format!("q = {}", d.q),
+            pts,
+            Style::Markers,
+            2 * iq,
+        ));
+        if d.alpha.is_finite() && d.c1.is_finite() {
+            // log K = α log η + log(C1 |shape(α, q)|)
+            let b = (d.c1 * universal_shape(d.alpha, d.q).abs()).log10();
+            let (x0, x1) = (r.dtm_eta_range.0.log10(), r.dtm_eta_range.1.log10());
+            c.series.push(Series::new(
+                format!("slope alpha = {:.3}", d.alpha),
+                vec![(x0, b + d.alpha * x0), (x1, b + d.alpha * x1)],
+                Style::Line,
+                2 * iq + 1,
+            ));
+        }
+    }
+    save_chart(&c, &dir.join("dtm.png"))
+}
+
+/// Generalised structure functions `log2 <|Δf(l)|^q>` against `log2 l`.
+fn plot_sf(dir: &Path, r: &TraceMomentResult) -> Result<()> {
+    let mut c = Chart {
+        title: format!(
+            "structure functions, fit log2 l {}:{}, H_sf = {}",
+            r.fit_log2_lag.0,
+            r.fit_log2_lag.1,
+            r.h_sf.map_or("n/a".into(), |h| format!("{h:.3}"))
+        ),
+        x_label: "log2 l (px)".into(),
+        y_label: "log2 <|Δf(l)|^q>".into(),
+        ..Default::default()
+    };
+    for (i, q) in r.sf_q.iter().enumerate() {
+        c.series.push(Series::new(
+            format!("q = {q}, xi = {:.3}", r.xi[i]),
+            r.log2_lag
+                .iter()
+                .copied()
+                .zip(r.log2_sf[i].iter().copied())
+                .collect(),
+            Style::LineMarkers,
+            i,
+        ));
+    }
+    save_chart(&c, &dir.join("sf.png"))
+}
+
+/// The ensemble's angle-averaged spectrum with the fitted slope.
+fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum) -> Result<()> {
+    let pts = ps.points();
+    let mut c = Chart {
+        title: format!(
+            "spectrum: beta = {} (angle-integrated), H = {}",
+            r.beta.map_or("n/a".into(), |b| format!("{b:.3}")),
+            r.h.map_or("n/a".into(), |h| format!("{h:.3}"))
+        ),
+        x_label: "log2 |k| (rad/px)".into(),
+        y_label: "log2 S(|k|), angle-averaged".into(),
+        ..Default::default()
+    };
+    c.series.push(Series::new(
+        "S(|k|)",
+        pts.iter()
+            .filter(|p| p.1 > 0.0)
+            .map(|p| (p.0.log2(), p.1.log2()))
+            .collect(),
+        Style::Markers,
+        0,
+    ));
+    if let (Some((k0, k1)), Some(b)) = (r.k_range, r.beta_averaged) {
+        let sel: Vec<(f64, f64)> = pts
+            .iter()
+            .filter(|p| p.0 >= k0 && p.0 <= k1 && p.1 > 0.0)
+            .map(|p| (p.0.log2(), p.1.log2()))
+            .collect();
+        if !sel.is_empty() {
+            let mx = sel.iter().map(|p| p.0).sum::<f64>() / sel.len() as f64;
+            let my = sel.iter().map(|p| p.1).sum::<f64>() / sel.len() as f64;
+            let (x0, x1) = (k0.log2(), k1.log2());
+            c.series.push(Series::new(
+                format!("fit: beta_averaged = {b:.3}"),
+                vec![(x0, my - b * (x0 - mx)), (x1, my - b * (x1 - mx))],
+                Style::Line,
+                1,
+            ));
+        }
+    }
+    save_chart(&c, &dir.join("spectrum.png"))
+}
