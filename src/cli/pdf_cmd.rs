@@ -100,12 +100,12 @@ impl StatsInput {
         let resolved = if named {
             Some(self.model.resolve(self.theory)?)
         } else {
-            // model options without a model name: let resolve name the problem
-            let probe = self.model.resolve(None);
-            if let Err(e) = probe
-                && !matches!(&e, Error::Param { name, .. } if name == "MODEL")
-            {
-                return Err(e);
+            // model options without a model name
+            if format!("{:?}", self.model) != format!("{:?}", ModelOpts::default()) {
+                return Err(Error::param(
+                    "theory",
+                    "model options need a model: --theory MODEL (or use --preset NAME)",
+                ));
             }
             None
         };

@@ -43,6 +43,18 @@
 //! correlations are linear: zero-padded FFTs, pair counts from the mask, so
 //! no pair crosses the border.
 //!
+//! **Measured (32 x 1024², paper log-normal W-cascade, torus).** With the
+//! paper's first-order wavelet (gauss), the ensemble-centred C follows II
+//! eq 76 at large `Δx` but falls below it at intermediate `Δx`: max
+//! |C - eq 76| = 0.017 for `8.3 sup(a1, a2) < Δx < L/4` (0.14 from
+//! `Δx > sup(a1, a2)`, where the two wavelets still overlap). With the
+//! 3-vanishing-moment mexican wavelet it is 0.0024: the coarser cascade
+//! levels leak into `M(a)` like `(a/s)^(1-h)` with one vanishing moment,
+//! `(a/s)^(3-h)` with three. Per-image centring sits `σ²/3 ≈ 0.007` lower,
+//! as expected. fBm (H = 1/3): |C| <= 0.003 for `Δx > 8.3 sup(a1, a2)`;
+//! magnitudes decorrelate only beyond the wavelets' support (C ≈ 0.016 at
+//! `Δx ≈ 4.6 a`).
+//!
 //! ```
 //! use ndarray::Array2;
 //! use wtmm::Field;

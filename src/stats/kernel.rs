@@ -52,6 +52,35 @@
 //! bit) and a delete-one jackknife over images gives the standard errors, as
 //! in [`crate::spectra`].
 //!
+//! **Which WTMMM, and what it does to c2 (measured; SPEC §14).** On 32
+//! paper-log-normal W-cascades of 1024² (torus, gauss, fit 0-4 octaves
+//! above a_min = 1.5 px; theory c1 = -0.38, c2 = 0.030, c3 = 0):
+//!
+//! | set | c1 | c2 | c3 |
+//! |---|---|---|---|
+//! | WTMMM on maxima lines (default) | -0.370 | 0.021 | 0.005 |
+//! | all WTMMM of each scale | -0.297 | -0.007 | 0.028 |
+//! | every CWT pixel ([`cwt_grid_sums`]) | -0.372 | 0.026 | 0.002 |
+//!
+//! - *All WTMMM* are biased whatever the cascade: their number falls like
+//!   `a^-1.7`, not `a^-2` (weak maxima along ever longer chains), a
+//!   population of small moduli whose weight grows with scale; with the
+//!   multiplier variance set to 0 (a monofractal cascade, true c2 = 0) they
+//!   still give c2 = -0.032, c3 = +0.021.
+//! - *Lines* follow `a^-2` beyond the first octave and pass that control
+//!   (c1 = -0.381, c2 = -0.002 ± 0.003), except that the spread of `ln M`
+//!   rises over the first half octave above a_min; a fit from octave 1
+//!   gives c2 = 0.025 (log-Poisson: 0.028, c3 = -0.0052 for -0.0049). The
+//!   ratio window matters the other way round from the prototype's note: on
+//!   4 images, (0.9, 1.11) gave c2 = 0.017, (0.8, 1.25) 0.012, (0.5, 2)
+//!   0.003 with c3 = +0.022: a wide window keeps lines whose `ln M` jumps
+//!   to a neighbouring, weaker maximum.
+//! - *The CWT itself* carries only part of the multiplier variance per
+//!   octave over this range: on the grid c2 = 0.017-0.026 (gauss) and
+//!   0.025-0.030 (mexican). With one vanishing moment the coarser cascade
+//!   levels leak into `M(a)` like `(a/s)^(1-h)`, mixing ancestors in; the
+//!   correlation functions show the same ([`crate::stats::correlation`]).
+//!
 //! ```
 //! use wtmm::stats::kernel::{KernelConfig, KernelOptions, KernelSums, kernel_estimates};
 //! use wtmm::stats::pdf::WtmmmSet;
@@ -62,7 +91,8 @@
 //!     .map(|a| (0..100).map(|i| -0.4 * a.ln() + (i as f64 - 49.5) / 100.0).collect())
 //!     .collect();
 //! let s = KernelSums::from_ln_m(&scales, KernelConfig::default(), WtmmmSet::All, &vals, "x").unwrap();
-//! let k = kernel_estimates(&s, &KernelOptions { fit: (0.0, 2.0), ..Default::default() }).unwrap();
+//! let opts = KernelOptions { fit: (0.0, 2.0), refs: vec![1.0, 2.0], pairs: vec![(0.5, 2.0)] };
+//! let k = kernel_estimates(&s, &opts).unwrap();
 //! assert!((k.cumulants.c1.value - 0.4).abs() < 1e-12);
 //! assert!(k.cumulants.c2.value.abs() < 1e-12);
 //! ```
