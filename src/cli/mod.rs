@@ -6,11 +6,14 @@
 mod analyze_cmd;
 mod common;
 mod compare_cmd;
+mod correlate_cmd;
 mod cwt_cmd;
 mod demo_cmd;
 mod ensemble;
+mod kernel_cmd;
 mod merge_cmd;
 mod model_args;
+mod pdf_cmd;
 mod skeleton_cmd;
 mod spectrum_cmd;
 mod synth_cmd;
@@ -60,6 +63,12 @@ pub enum Command {
     Tm(tm_cmd::TmArgs),
     /// WTMM against trace moments on one generated ensemble, both against the theory.
     Compare(Box<compare_cmd::CompareArgs>),
+    /// Pdfs of the WTMMM modulus and argument per scale (II Figs 11-14, 17-20).
+    Pdf(pdf_cmd::PdfArgs),
+    /// Self-similarity kernel and its cumulants c1, c2, c3 (II Figs 25-29).
+    Kernel(kernel_cmd::KernelArgs),
+    /// Space-scale correlation of the magnitudes ln M (II Fig 30).
+    Correlate(correlate_cmd::CorrelateArgs),
 }
 
 /// Wavelet and scale-grid options shared by the analysis commands.
@@ -114,6 +123,9 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         Command::Validate(a) => validate_cmd::run(a, quiet),
         Command::Tm(a) => tm_cmd::run(a, quiet),
         Command::Compare(a) => compare_cmd::run(*a, quiet),
+        Command::Pdf(a) => pdf_cmd::run(a, quiet),
+        Command::Kernel(a) => kernel_cmd::run(a, quiet),
+        Command::Correlate(a) => correlate_cmd::run(a, quiet),
     }
 }
 

@@ -218,6 +218,18 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             "isotropic spectral exponent from the partition function",
         ));
     }
+    // kernel cumulants and magnitude correlation (SPEC §5-§6, §11): one more streamed pass
+    crit.extend(super::correlate_cmd::validation_criteria(
+        &model,
+        r.preset,
+        args.count,
+        args.size,
+        args.seed,
+        &cfg,
+        fit,
+        &args.out.out,
+        quiet,
+    )?);
     let all_pass = crit.iter().all(|c| c.pass);
 
     make_out_dir(&args.out.out)?;

@@ -1,0 +1,774 @@
+//! `wtmm correlate IMAGE... --out DIR`: space-scale correlation functions of
+//! the magnitudes (SPEC §6, §13; II §5, Fig 30), from the CWT grid and/or
+//! the WTMMM of the skeleton, with II eq 76 drawn over them when the model
+//! is named. Also the kernel and correlation criteria of `wtmm validate`.
+//!
+//! **Scales.** Pairs are given in octaves above a_min, the paper's `σ_W`
+//! units: II Fig 30 uses `a1 = a2 = 2`, `(1, 2)`, `(1, 4)`, `(2, 4)`, i.e.
+//! `1:1,0:1,0:2,1:2` here.
+//!
+//! **Where eq 76 applies.** The paper states it for `Δx > sup(a1, a2)` with
+//! `a` in `σ_W` units, `σ_W ≈ 13 px` being the size of its smallest wavelet
+//! whose Gaussian has a standard deviation of 1.5703 px (SPEC §1, §12): in
+//! our pixels (a = the standard deviation) that is
+//! `Δx > (13/1.5703) sup(a1, a2) ≈ 8.3 sup(a1, a2)`, which is also where the
+//! magnitudes of an fBm decorrelate. Both windows are reported: `literal`
+//! (`Δx > sup(a1, a2)` px) and `paper` (`Δx > 8.3 sup(a1, a2)` px), each up
+//! to `L/4`.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use clap::{Args, ValueEnum};
+use serde_json::json;
+
+use super::analyze_cmd::SpectraOpts;
+use super::common::{f, header, make_out_dir, progress, write_csv, write_json};
+use super::kernel_cmd::{KernelOutputs, parse_pairs, write_kernel_outputs};
+use super::pdf_cmd::{Input, ShapeCache, check_octaves};
+use super::validate_cmd::Criterion;
+use super::{OutDir, Outcome};
+use crate::cwt::CwtPlan;
+use crate::error::{Error, Result};
+use crate::field::Field;
+use crate::plot::{Chart, Series, Style, save_chart};
+use crate::skeleton::{AnalysisConfig, Parallelism};
+use crate::stats::correlation::{
+    CorrelationConfig, CorrelationPlan, CorrelationResult, CorrelationSums, Magnitude,
+    correlation_estimates, cwt_correlation, wtmmm_correlation,
+};
+use crate::stats::kernel::{
+    KernelConfig, KernelOptions, KernelSums, kernel_estimates, nearest_scale,
+};
+use crate::stats::pdf::{Point, WtmmmSet, image_wtmmm};
+use crate::theory::Model;
+
+/// `σ_W / σ_min` of the reference implementation: 13 px / 1.5703 px
+/// (II §3; SPEC §1): the paper's scale unit in units of the Gaussian's
+/// standard deviation.
+pub const PAPER_UNIT: f64 = 13.0 / 1.5703;
+
+/// Where the magnitudes come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Source {
+    /// ln M on the CWT grid (II eq 67; Fig 30).
+    Cwt,
+    /// ln M at the WTMMM of the skeleton (II §5.1 remark).
+    Wtmmm,
+    Both,
+}
+
+#[derive(Args, Debug)]
+pub struct CorrelateArgs {
+    #[command(flatten)]
+    pub input: super::pdf_cmd::StatsInput,
+    #[command(flatten)]
+    pub opts: SpectraOpts,
+    /// Scale pairs a1:a2 in octaves above a_min (II Fig 30: 1:1,0:1,0:2,1:2).
+    #[arg(long, default_value = "1:1,0:1,0:2,1:2")]
+    pub pairs: String,
+    /// Magnitudes from the CWT grid, the skeleton's WTMMM, or both.
+    #[arg(long, value_enum, default_value = "cwt")]
+    pub source: Source,
+    /// Magnitude on the CWT grid: ln M, or half the log of the box-averaged |T|^2.
+    #[arg(long, value_enum, default_value = "lnm")]
+    pub magnitude: Magnitude,
+    /// WTMMM set of the skeleton source.
+    #[arg(long, value_enum, default_value = "lines")]
+    pub set: WtmmmSet,
+    /// Log-spaced |dx| bins per octave.
+    #[arg(long, default_value_t = 4)]
+    pub bins_per_octave: usize,
+    /// Largest |dx| in pixels (default: half the smaller side of the domain).
+    #[arg(long)]
+    pub max_dx: Option<f64>,
+    /// Integral scale L of II eq 76 in pixels (default: the image side).
+    #[arg(long)]
+    pub integral_scale: Option<f64>,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+/// Distinct scales (px) and index pairs for octave pairs.
+fn pair_scales(a_min: f64, pairs: &[(f64, f64)]) -> (Vec<f64>, Vec<(usize, usize)>) {
+    let mut oct: Vec<f64> = pairs.iter().flat_map(|&(a, b)| [a, b]).collect();
+    oct.sort_by(f64::total_cmp);
+    oct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    let idx = |o: f64| {
+        oct.iter()
+            .position(|&x| (x - o).abs() < 1e-9)
+            .expect("listed")
+    };
+    (
+        oct.iter().map(|o| a_min * o.exp2()).collect(),
+        pairs.iter().map(|&(a, b)| (idx(a), idx(b))).collect(),
+    )
+}
+
+/// The correlation run: plans per image shape, accumulated sums.
+struct Runner {
+    ccfg: CorrelationConfig,
+    /// Skeleton: analysis over the needed scales, and the plan's scale indices.
+    skel: Option<(AnalysisConfig, Vec<usize>, WtmmmSet)>,
+    cwt_plans: ShapeCache<CorrelationPlan>,
+    sk_plans: ShapeCache<CorrelationPlan>,
+}
+
+fn plan_for(
+    cache: &ShapeCache<CorrelationPlan>,
+    shape: (usize, usize),
+    cfg: &CorrelationConfig,
+) -> Result<Arc<CorrelationPlan>> {
+    let mut c = cache.lock().expect("no panic while holding the plan cache");
+    if let Some((_, p)) = c.iter().find(|(s, _)| *s == shape) {
+        return Ok(p.clone());
+    }
+    let p = Arc::new(CorrelationPlan::new(shape.0, shape.1, cfg)?);
+    c.push((shape, p.clone()));
+    Ok(p)
+}
+
+#[derive(Default)]
+struct Sums {
+    cwt: Option<CorrelationSums>,
+    wtmmm: Option<CorrelationSums>,
+}
+
+fn merge_c(a: &mut Option<CorrelationSums>, b: Option<CorrelationSums>) -> Result<()> {
+    match (a.as_mut(), b) {
+        (_, None) => Ok(()),
+        (None, Some(b)) => {
+            *a = Some(b);
+            Ok(())
+        }
+        (Some(x), Some(b)) => x.merge(&b),
+    }
+}
+
+impl Runner {
+    fn image(&self, field: &Field, label: &str, par: Parallelism, do_cwt: bool) -> Result<Sums> {
+        let shape = field.dim();
+        let mut out = Sums::default();
+        if do_cwt {
+            let plan = plan_for(&self.cwt_plans, shape, &self.ccfg)?;
+            out.cwt = Some(cwt_correlation(field, &plan, label)?);
+        }
+        if let Some((acfg, idx, set)) = &self.skel {
+            let w = image_wtmmm(field, acfg, par, *set == WtmmmSet::Lines)?;
+            let pts: Vec<&[Point]> = idx.iter().map(|&j| w.set(*set)[j].as_slice()).collect();
+            let scfg = CorrelationConfig {
+                margin: Some(0),
+                ..self.ccfg.clone()
+            };
+            let plan = plan_for(&self.sk_plans, shape, &scfg)?;
+            out.wtmmm = Some(wtmmm_correlation(&pts, &plan, label)?);
+        }
+        Ok(out)
+    }
+}
+
+pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
+    let input = args.input.resolve()?;
+    let cfg = input.analysis(&args.opts)?;
+    let grid = cfg.scale_list();
+    let pairs_oct = parse_pairs("pairs", &args.pairs)?;
+    for &(a, b) in &pairs_oct {
+        check_octaves("pairs", &[a, b], &grid)?;
+    }
+    let (scales, pairs) = pair_scales(cfg.a_min, &pairs_oct);
+    if let Some(l) = args.integral_scale
+        && !(l > 0.0 && l.is_finite())
+    {
+        return Err(Error::param(
+            "integral-scale",
+            "must be a positive number of pixels",
+        ));
+    }
+    let ccfg = CorrelationConfig {
+        wavelet: cfg.wavelet,
+        scales: scales.clone(),
+        pairs: pairs.clone(),
+        periodic: input.periodic,
+        margin: args.opts.cwt.margin,
+        bins_per_octave: args.bins_per_octave,
+        max_dx: args.max_dx,
+        magnitude: args.magnitude,
+        eps: cfg.eps,
+    };
+    ccfg.validate()?;
+    let do_cwt = args.source != Source::Wtmmm;
+    let skel = if args.source != Source::Cwt {
+        // the skeleton over the grid scales up to the largest one needed;
+        // with all WTMMM no linking is needed: only the pair scales
+        let idx_grid: Vec<usize> = scales
+            .iter()
+            .map(|&a| nearest_scale(&grid, (a / grid[0]).log2()))
+            .collect();
+        let (list, idx) = if args.set == WtmmmSet::Lines {
+            let top = *idx_grid.iter().max().expect("pairs");
+            (grid[..=top].to_vec(), idx_grid)
+        } else {
+            let list: Vec<f64> = idx_grid.iter().map(|&j| grid[j]).collect();
+            (list, (0..scales.len()).collect())
+        };
+        let acfg = AnalysisConfig {
+            scales: Some(list),
+            ..cfg.clone()
+        };
+        acfg.validate()?;
+        Some((acfg, idx, args.set))
+    } else {
+        None
+    };
+    let runner = Runner {
+        ccfg: ccfg.clone(),
+        skel,
+        cwt_plans: Default::default(),
+        sk_plans: Default::default(),
+    };
+    let t0 = std::time::Instant::now();
+    let sums = input.fold(
+        quiet,
+        "correlate",
+        Sums::default,
+        |acc, field, label, par| {
+            let s = runner.image(field, label, par, do_cwt)?;
+            merge_c(&mut acc.cwt, s.cwt)?;
+            merge_c(&mut acc.wtmmm, s.wtmmm)
+        },
+        |mut a, b| {
+            merge_c(&mut a.cwt, b.cwt)?;
+            merge_c(&mut a.wtmmm, b.wtmmm)?;
+            Ok(a)
+        },
+    )?;
+    let wall = t0.elapsed().as_secs_f64();
+    // cost of the correlation against one CWT scale, on the first image
+    let cost = if input.len() == 1 && do_cwt {
+        Some(cost_ratio(&input, &ccfg)?)
+    } else {
+        None
+    };
+    let cwt_res = sums.cwt.as_ref().map(correlation_estimates).transpose()?;
+    let sk_res = sums.wtmmm.as_ref().map(correlation_estimates).transpose()?;
+    let side = if input.generated() {
+        input.size as f64
+    } else {
+        let (f0, _) = input.load(0)?;
+        let (ny, nx) = f0.dim();
+        ny.min(nx) as f64
+    };
+    let l = args.integral_scale.unwrap_or(side);
+    make_out_dir(&args.out.out)?;
+    let params = json!({"input": input.params_json(), "analysis": cfg, "correlation": ccfg,
+        "pairs_octaves": pairs_oct, "source": format!("{:?}", args.source).to_lowercase(),
+        "set": args.set, "integral_scale": l});
+    let body = write_correlation_outputs(
+        &args.out.out,
+        "correlate",
+        params,
+        cwt_res.as_ref(),
+        sk_res.as_ref(),
+        input.model.as_ref(),
+        &input.name,
+        l,
+        cfg.a_min,
+        wall,
+        cost,
+    )?;
+    if !quiet {
+        if let Some(c) = body.get("checks") {
+            eprintln!("correlate: {} images, {wall:.1} s; checks {c}", input.len());
+        }
+        if let Some(c) = cost {
+            eprintln!(
+                "cost: correlation {:.3} s = {:.1} CWT scales ({:.3} s each)",
+                c.0, c.2, c.1
+            );
+        }
+    }
+    Ok(Outcome::Ok)
+}
+
+/// CPU time of the calling thread (Linux `/proc/thread-self/schedstat`,
+/// nanoseconds on CPU), or wall time where that is not available.
+struct CpuClock {
+    cpu: Option<u64>,
+    wall: std::time::Instant,
+}
+
+impl CpuClock {
+    fn read() -> Option<u64> {
+        std::fs::read_to_string("/proc/thread-self/schedstat")
+            .ok()?
+            .split_whitespace()
+            .next()?
+            .parse()
+            .ok()
+    }
+
+    fn start() -> Self {
+        CpuClock {
+            cpu: Self::read(),
+            wall: std::time::Instant::now(),
+        }
+    }
+
+    fn seconds(&self) -> f64 {
+        match (self.cpu, Self::read()) {
+            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+            _ => self.wall.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// `(correlation seconds, one CWT scale seconds, ratio)` on image 0
+/// (single thread, minimum over repetitions).
+fn cost_ratio(input: &Input, ccfg: &CorrelationConfig) -> Result<(f64, f64, f64)> {
+    let (field, _) = input.load(0)?;
+    let (ny, nx) = field.dim();
+    let plan = CorrelationPlan::new(ny, nx, ccfg)?;
+    // thread CPU time, minimum over repetitions: the machine may be shared
+    let mut tc = f64::INFINITY;
+    for _ in 0..3 {
+        let t = CpuClock::start();
+        cwt_correlation(&field, &plan, "timing")?;
+        tc = tc.min(t.seconds());
+    }
+    let cwt = CwtPlan::new(ny, nx, ccfg.wavelet, &[ccfg.scales[0]])?;
+    let img = field.filled()?;
+    let fi = cwt.forward(img.view())?;
+    let mut ws = cwt.workspace();
+    let mut ts = f64::INFINITY;
+    for _ in 0..7 {
+        let t = CpuClock::start();
+        let _ = cwt.scale(&fi, 0, &mut ws);
+        ts = ts.min(t.seconds());
+    }
+    Ok((tc, ts, tc / ts))
+}
+
+/// Max |C - eq 76| over the bins with `k sup(a1, a2) < Δx < L/4`, per pair
+/// and over all pairs, for C (per-image centring) and C_ensemble.
+fn window_check(r: &CorrelationResult, model: &Model, l: f64, k: f64) -> serde_json::Value {
+    let mut worst = (0.0f64, 0.0f64, 0usize);
+    let per: Vec<serde_json::Value> = r
+        .pairs
+        .iter()
+        .map(|p| {
+            let lo = k * p.a1.max(p.a2);
+            let (mut d_img, mut d_ens, mut n) = (0.0f64, 0.0f64, 0usize);
+            for (i, &dx) in p.dx.iter().enumerate() {
+                if dx > lo
+                    && dx < l / 4.0
+                    && let Some(t) = model.magnitude_correlation(dx, l)
+                {
+                    d_img = d_img.max((p.c[i] - t).abs());
+                    d_ens = d_ens.max((p.c_ensemble[i] - t).abs());
+                    n += 1;
+                }
+            }
+            worst = (worst.0.max(d_img), worst.1.max(d_ens), worst.2 + n);
+            json!({"a1": p.a1, "a2": p.a2, "dx_min": lo, "dx_max": l / 4.0, "bins": n,
+                "max_abs_dev_C": d_img, "max_abs_dev_C_ensemble": d_ens})
+        })
+        .collect();
+    json!({"factor": k, "bins": worst.2, "max_abs_dev_C": worst.0,
+        "max_abs_dev_C_ensemble": worst.1, "pairs": per})
+}
+
+fn result_json(
+    r: &CorrelationResult,
+    model: Option<&Model>,
+    l: f64,
+    a_min: f64,
+) -> serde_json::Value {
+    let pairs: Vec<serde_json::Value> = r
+        .pairs
+        .iter()
+        .map(|p| {
+            let th: Option<Vec<Option<f64>>> = model.map(|m| {
+                p.dx.iter()
+                    .map(|&dx| m.magnitude_correlation(dx, l))
+                    .collect()
+            });
+            json!({"a1": p.a1, "a2": p.a2, "octave1": (p.a1 / a_min).log2(), "octave2": (p.a2 / a_min).log2(),
+                "log2_dx": p.log2_dx, "dx": p.dx, "C": p.c, "C_stderr": p.c_stderr,
+                "C_ensemble": p.c_ensemble, "C_ensemble_stderr": p.c_ensemble_stderr,
+                "pairs": p.pairs, "C0": p.c0, "C0_ensemble": p.c0_ensemble, "theory": th})
+        })
+        .collect();
+    json!({"source": r.source, "magnitude": r.magnitude, "periodic": r.periodic, "images": r.images,
+        "mean": r.mean, "stderr_method": r.stderr_method, "pairs": pairs})
+}
+
+/// Writes correlation.json, correlation.csv and the Fig 30 plots; returns
+/// the JSON body.
+#[allow(clippy::too_many_arguments)]
+fn write_correlation_outputs(
+    dir: &Path,
+    command: &str,
+    params: serde_json::Value,
+    cwt: Option<&CorrelationResult>,
+    sk: Option<&CorrelationResult>,
+    model: Option<&Model>,
+    name: &str,
+    l: f64,
+    a_min: f64,
+    wall: f64,
+    cost: Option<(f64, f64, f64)>,
+) -> Result<serde_json::Value> {
+    let mut body = header(command, params);
+    body["integral_scale"] = json!(l);
+    body["centring"] = json!({
+        "C": "per image: w - mean of w over the image's valid points (SPEC §6)",
+        "C_ensemble": "ensemble mean of w per scale (II eq 68)"});
+    body["theory_note"] = json!(
+        "II eq 76: sigma^2 (log2(L/dx) - 2 + 2 dx/L), sigma^2 = Var(ln W); windows: literal dx > max(a1, a2) px, \
+         paper dx > 8.28 max(a1, a2) px (the paper's sigma_W units), both up to L/4"
+    );
+    let main = cwt.or(sk).expect("one source at least");
+    body["source"] = json!(main.source);
+    body["images"] = json!(main.images);
+    body["periodic"] = json!(main.periodic);
+    if let Some(r) = cwt {
+        body["pairs"] = result_json(r, model, l, a_min)["pairs"].clone();
+        body["cwt"] = result_json(r, model, l, a_min);
+    }
+    if let Some(r) = sk {
+        if cwt.is_none() {
+            body["pairs"] = result_json(r, model, l, a_min)["pairs"].clone();
+        }
+        body["wtmmm"] = result_json(r, model, l, a_min);
+    }
+    if let Some(m) = model
+        && m.magnitude_correlation(l / 8.0, l).is_some()
+    {
+        let mut checks = serde_json::Map::new();
+        for (key, r) in [("cwt", cwt), ("wtmmm", sk)] {
+            if let Some(r) = r {
+                checks.insert(
+                    key.into(),
+                    json!({"literal": window_check(r, m, l, 1.0), "paper": window_check(r, m, l, PAPER_UNIT)}),
+                );
+            }
+        }
+        body["checks"] = serde_json::Value::Object(checks);
+    }
+    body["wall_seconds"] = json!(wall);
+    if let Some((tc, ts, ratio)) = cost {
+        body["cost"] = json!({"correlation_seconds": tc, "cwt_scale_seconds": ts, "ratio": ratio,
+            "note": "one image, one thread: the whole correlation (its CWT scales included) in units of one CWT scale"});
+    }
+    write_json(&dir.join("correlation.json"), &body)?;
+    let mut rows = Vec::new();
+    for r in [cwt, sk].into_iter().flatten() {
+        for p in &r.pairs {
+            for i in 0..p.dx.len() {
+                let th = model
+                    .and_then(|m| m.magnitude_correlation(p.dx[i], l))
+                    .unwrap_or(f64::NAN);
+                rows.push(vec![
+                    r.source.clone(),
+                    f(p.a1),
+                    f(p.a2),
+                    f(p.log2_dx[i]),
+                    f(p.dx[i]),
+                    f(p.c[i]),
+                    f(p.c_stderr[i]),
+                    f(p.c_ensemble[i]),
+                    f(p.c_ensemble_stderr[i]),
+                    f(p.pairs[i]),
+                    f(th),
+                ]);
+            }
+        }
+    }
+    write_csv(
+        &dir.join("correlation.csv"),
+        &[
+            "source",
+            "a1",
+            "a2",
+            "log2_dx",
+            "dx",
+            "C",
+            "C_stderr",
+            "C_ensemble",
+            "C_ensemble_stderr",
+            "pairs",
+            "theory_eq76",
+        ],
+        &rows,
+    )?;
+    for (r, file) in [(cwt, "correlation.png"), (sk, "correlation_wtmmm.png")] {
+        let Some(r) = r else { continue };
+        for (ens, suffix) in [(false, ""), (true, "_ensemble")] {
+            let mut c = Chart {
+                title: format!(
+                    "{}C(dx; a1, a2), {} centring, {} (II Fig 30)",
+                    if name.is_empty() {
+                        String::new()
+                    } else {
+                        format!("{name}: ")
+                    },
+                    if ens { "ensemble" } else { "per-image" },
+                    if r.source == "cwt" {
+                        "CWT grid"
+                    } else {
+                        "WTMMM"
+                    }
+                ),
+                x_label: "log2 dx (px)".into(),
+                y_label: "C(dx; a1, a2)".into(),
+                ..Default::default()
+            };
+            let mut xmax: f64 = 1.0;
+            for (k, p) in r.pairs.iter().enumerate() {
+                let y = if ens { &p.c_ensemble } else { &p.c };
+                let e = if ens {
+                    &p.c_ensemble_stderr
+                } else {
+                    &p.c_stderr
+                };
+                xmax = p.log2_dx.iter().cloned().fold(xmax, f64::max);
+                c.series.push(
+                    Series::new(
+                        format!(
+                            "a1 = 2^{:.0}, a2 = 2^{:.0} ({:.1}, {:.1} px)",
+                            (p.a1 / a_min).log2(),
+                            (p.a2 / a_min).log2(),
+                            p.a1,
+                            p.a2
+                        ),
+                        p.log2_dx.iter().cloned().zip(y.iter().cloned()).collect(),
+                        Style::Markers,
+                        k,
+                    )
+                    .with_errors(e.clone()),
+                );
+            }
+            if let Some(m) = model {
+                let pts: Vec<(f64, f64)> = (0..=200)
+                    .filter_map(|i| {
+                        let x = xmax * i as f64 / 200.0;
+                        m.magnitude_correlation(x.exp2(), l).map(|v| (x, v))
+                    })
+                    .collect();
+                if !pts.is_empty() {
+                    c.series.push(Series::new("II eq 76", pts, Style::Line, 9));
+                }
+            }
+            let path = dir.join(file.replace(".png", &format!("{suffix}.png")));
+            save_chart(&c, &path)?;
+        }
+    }
+    Ok(body)
+}
+
+/// `wtmm validate`'s criteria on the kernel cumulants (II Figs 26, 28) and
+/// the magnitude correlation (II eq 76, Fig 30) (SPEC §11): one more
+/// streamed pass over the same generated images (the maxima lines up to the
+/// top of the fit range, and the correlation of the four scale pairs of
+/// Fig 30, on the torus for periodic models). Writes `kernel/` and
+/// `correlation/` under `dir`. Models without these closed forms give no
+/// criterion.
+#[allow(clippy::too_many_arguments)]
+pub fn validation_criteria(
+    model: &Model,
+    preset: Option<&str>,
+    count: usize,
+    size: usize,
+    seed: u64,
+    cfg: &AnalysisConfig,
+    fit: (f64, f64),
+    dir: &Path,
+    quiet: bool,
+) -> Result<Vec<Criterion>> {
+    let th_c = model.cumulants();
+    let has_corr = model
+        .magnitude_correlation(size as f64 / 8.0, size as f64)
+        .is_some();
+    if th_c.is_none() && !has_corr {
+        return Ok(vec![]);
+    }
+    let periodic = !matches!(model, Model::Fbm(_));
+    let mut kcfg_a = cfg.clone();
+    if periodic && kcfg_a.margin.is_none() {
+        kcfg_a.margin = Some(0);
+    }
+    // keep the margin of the full grid, but link only up to the fit range
+    kcfg_a.margin = Some(kcfg_a.margin_px());
+    let grid = cfg.scale_list();
+    let top = (0..grid.len())
+        .filter(|&j| (grid[j] / grid[0]).log2() <= fit.1 + 1e-9)
+        .max()
+        .unwrap_or(0);
+    kcfg_a.scales = Some(grid[..=top].to_vec());
+    let kcfg = KernelConfig::default();
+    let pairs_oct = [(1.0, 1.0), (0.0, 1.0), (0.0, 2.0), (1.0, 2.0)];
+    let (scales, pairs) = pair_scales(cfg.a_min, &pairs_oct);
+    let ccfg = CorrelationConfig {
+        wavelet: cfg.wavelet,
+        scales,
+        pairs,
+        periodic,
+        margin: None,
+        ..Default::default()
+    };
+    let plan = CorrelationPlan::new(size, size, &ccfg)?;
+    let input = Input {
+        images: vec![],
+        model: Some(*model),
+        name: preset.unwrap_or(model.name()).to_string(),
+        count,
+        size,
+        seed,
+        periodic,
+        wavelet: cfg.wavelet,
+    };
+    let sk_scales = kcfg_a.scale_list();
+    struct Acc {
+        lines: Option<KernelSums>,
+        all: Option<KernelSums>,
+        corr: Option<CorrelationSums>,
+    }
+    let t0 = std::time::Instant::now();
+    let pb = progress(count as u64, "validate: kernel, correlation", quiet);
+    let acc = input.fold(
+        true,
+        "",
+        || Acc {
+            lines: None,
+            all: None,
+            corr: None,
+        },
+        |acc, field, label, par| {
+            let w = image_wtmmm(field, &kcfg_a, par, true)?;
+            for (set, slot) in [
+                (WtmmmSet::Lines, &mut acc.lines),
+                (WtmmmSet::All, &mut acc.all),
+            ] {
+                let s = KernelSums::from_points(&sk_scales, kcfg, set, w.set(set), label)?;
+                match slot {
+                    None => *slot = Some(s),
+                    Some(a) => a.merge(&s)?,
+                }
+            }
+            merge_c(&mut acc.corr, Some(cwt_correlation(field, &plan, label)?))?;
+            pb.inc(1);
+            Ok(())
+        },
+        |mut a, b| {
+            for (x, y) in [(&mut a.lines, b.lines), (&mut a.all, b.all)] {
+                match (x.as_mut(), y) {
+                    (_, None) => {}
+                    (None, Some(y)) => *x = Some(y),
+                    (Some(x), Some(y)) => x.merge(&y)?,
+                }
+            }
+            merge_c(&mut a.corr, b.corr)?;
+            Ok(a)
+        },
+    )?;
+    pb.finish_and_clear();
+    let wall = t0.elapsed().as_secs_f64();
+    let mut crit = Vec::new();
+    let name = input.name.clone();
+    // kernel
+    let kopts = KernelOptions {
+        fit,
+        refs: vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5]
+            .into_iter()
+            .filter(|&o| o <= (sk_scales[top] / sk_scales[0]).log2() + 1e-9)
+            .collect(),
+        pairs: vec![(0.5, 3.5), (1.0, 3.5), (1.0, 3.0), (1.5, 3.0)]
+            .into_iter()
+            .filter(|&(_, b)| b <= (sk_scales[top] / sk_scales[0]).log2() + 1e-9)
+            .collect(),
+    };
+    let main = kernel_estimates(acc.lines.as_ref().expect("count >= 1"), &kopts)?;
+    let alt = kernel_estimates(acc.all.as_ref().expect("count >= 1"), &kopts)?;
+    if let Some(t) = th_c {
+        let c = &main.cumulants;
+        for (n, (e, tol)) in [(c.c1, 0.02), (c.c2, 0.006), (c.c3, 0.005)]
+            .into_iter()
+            .enumerate()
+        {
+            crit.push(Criterion {
+                name: format!("kernel c{} (maxima lines)", n + 1),
+                value: e.value,
+                target: t[n],
+                tolerance: tol,
+                pass: e.value.is_finite() && (e.value - t[n]).abs() <= tol,
+                note: format!(
+                    "+- {:.4} ({}); all WTMMM: {:.4}; II Figs 26, 28",
+                    e.stderr,
+                    main.stderr_method,
+                    alt.cumulants.values()[n]
+                ),
+            });
+        }
+    }
+    let kdir = dir.join("kernel");
+    make_out_dir(&kdir)?;
+    let outs = KernelOutputs {
+        main,
+        alt,
+        grid: None,
+        recon2: vec![],
+        recon3: vec![],
+    };
+    write_kernel_outputs(
+        &kdir,
+        "validate",
+        json!({"model": model, "count": count, "size": size, "seed": seed, "analysis": kcfg_a, "options": kopts}),
+        &outs,
+        Some(model),
+        &name,
+        wall,
+    )?;
+    // correlation
+    let r = correlation_estimates(acc.corr.as_ref().expect("count >= 1"))?;
+    let l = size as f64;
+    if has_corr {
+        let chk = window_check(&r, model, l, PAPER_UNIT);
+        let lit = window_check(&r, model, l, 1.0);
+        let fbm = matches!(model, Model::Fbm(_));
+        let (v, v_img) = (
+            chk["max_abs_dev_C_ensemble"].as_f64().unwrap_or(f64::NAN),
+            chk["max_abs_dev_C"].as_f64().unwrap_or(f64::NAN),
+        );
+        let tol = if fbm { 0.005 } else { 0.01 };
+        crit.push(Criterion {
+            name: format!(
+                "max |C(dx) - II eq 76|, {:.1} max(a1,a2) < dx < L/4",
+                PAPER_UNIT
+            ),
+            value: v,
+            target: 0.0,
+            tolerance: tol,
+            pass: v.is_finite() && v <= tol && chk["bins"].as_u64().unwrap_or(0) > 0,
+            note: format!(
+                "4 pairs of II Fig 30, ensemble centring; per-image centring {v_img:.4}; from dx > max(a1,a2): {:.4}",
+                lit["max_abs_dev_C_ensemble"].as_f64().unwrap_or(f64::NAN)
+            ),
+        });
+    }
+    let cdir = dir.join("correlation");
+    make_out_dir(&cdir)?;
+    write_correlation_outputs(
+        &cdir,
+        "validate",
+        json!({"model": model, "count": count, "size": size, "seed": seed, "correlation": ccfg}),
+        Some(&r),
+        None,
+        Some(model),
+        &name,
+        l,
+        cfg.a_min,
+        wall,
+        None,
+    )?;
+    Ok(crit)
+}

@@ -1,0 +1,646 @@
+//! `wtmm kernel IMAGE... --out DIR`: the self-similarity kernel of the WTMMM
+//! moduli (SPEC §5, §13; II §4, Figs 25-29): characteristic functions,
+//! `Ĝ_aa'(p)`, its collapse, the cumulants `C_n(a, a')` and the fitted
+//! `c_n`, and the reconstruction check of Fig 29.
+//!
+//! Conventions (see [`crate::stats::kernel`]): natural logarithms
+//! throughout, `c_n = dC_n / d ln(a'/a)`, which is the paper's `c_n`
+//! (`c1 = m/ln2` for a log-normal W-cascade, as `wtmm theory` prints).
+//! Both WTMMM sets are accumulated: `--set` is reported as `cumulants`, the
+//! other as `alternate_set`.
+
+use std::f64::consts::LN_2;
+use std::path::Path;
+
+use clap::Args;
+use num_complex::Complex64;
+use serde_json::json;
+
+use super::analyze_cmd::SpectraOpts;
+use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
+use super::pdf_cmd::{StatsInput, check_octaves, scales_at};
+use super::{OutDir, Outcome};
+use crate::error::{Error, Result};
+use crate::plot::{Chart, Series, Style, save_chart};
+use crate::skeleton::AnalysisConfig;
+use crate::stats::kernel::{
+    KernelConfig, KernelOptions, KernelResult, KernelSums, Reconstruction, cwt_grid_sums,
+    kernel_estimates, reconstruct,
+};
+use crate::stats::pdf::{PdfConfig, WtmmmHistograms, WtmmmSet, image_wtmmm};
+use crate::synth::wcascade::Law;
+use crate::theory::Model;
+
+#[derive(Args, Debug)]
+pub struct KernelArgs {
+    #[command(flatten)]
+    pub input: StatsInput,
+    #[command(flatten)]
+    pub opts: SpectraOpts,
+    /// WTMMM set reported as `cumulants` (the other is `alternate_set`).
+    #[arg(long, value_enum, default_value = "lines")]
+    pub set: WtmmmSet,
+    /// Reference scales a' of the C_n(a, a') tables, octaves above a_min (II Fig 26).
+    #[arg(long, default_value = "0.5,1,1.5,2,2.5,3,3.5")]
+    pub refs: String,
+    /// Pairs a:a' of the kernel curves, octaves above a_min, comma-separated (II Fig 25).
+    #[arg(long, default_value = "0.5:3.5,1:3.5,1:3,1.5:3")]
+    pub pairs: String,
+    /// Largest p of the characteristic functions.
+    #[arg(long, default_value_t = 8.0)]
+    pub p_max: f64,
+    /// Step of p.
+    #[arg(long, default_value_t = 0.05)]
+    pub dp: f64,
+    /// Fig 29: target scale then source scales, octaves above a_min.
+    #[arg(long, default_value = "0,1,2,3")]
+    pub reconstruct: String,
+    /// Also the cumulants of ln M over every CWT pixel (a diagnostic; one more CWT pass).
+    #[arg(long)]
+    pub cwt_grid: bool,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+/// Parses `a:b,c:d` (octaves).
+pub fn parse_pairs(flag: &str, s: &str) -> Result<Vec<(f64, f64)>> {
+    s.split(',')
+        .map(|p| {
+            let (a, b) = p.split_once(':').ok_or_else(|| {
+                Error::param(flag, format!("`{p}`: use a:b pairs separated by commas"))
+            })?;
+            let num = |t: &str| {
+                t.trim()
+                    .parse::<f64>()
+                    .map_err(|_| Error::param(flag, format!("`{t}` is not a number")))
+            };
+            Ok((num(a)?, num(b)?))
+        })
+        .collect()
+}
+
+/// Everything accumulated over the images.
+struct Acc {
+    main: Option<KernelSums>,
+    alt: Option<KernelSums>,
+    grid: Option<KernelSums>,
+    hist: WtmmmHistograms,
+}
+
+fn merge_opt(a: &mut Option<KernelSums>, b: Option<KernelSums>) -> Result<()> {
+    match (a.as_mut(), b) {
+        (_, None) => Ok(()),
+        (None, Some(b)) => {
+            *a = Some(b);
+            Ok(())
+        }
+        (Some(x), Some(b)) => x.merge(&b),
+    }
+}
+
+/// Kernel sums of both WTMMM sets (and histograms of `set`, and optionally
+/// the CWT-grid diagnostic) over the input.
+fn collect(
+    input: &super::pdf_cmd::Input,
+    cfg: &AnalysisConfig,
+    kcfg: KernelConfig,
+    set: WtmmmSet,
+    grid: bool,
+    quiet: bool,
+) -> Result<Acc> {
+    let scales = cfg.scale_list();
+    let empty = WtmmmHistograms::new(&scales, PdfConfig::default())?;
+    input.fold(
+        quiet,
+        "kernel",
+        || Acc {
+            main: None,
+            alt: None,
+            grid: None,
+            hist: empty.clone(),
+        },
+        |acc, field, label, par| {
+            let w = image_wtmmm(field, cfg, par, true)?;
+            if w.all.first().is_none_or(|v| v.is_empty()) {
+                return Err(Error::Input(
+                    "no WTMMM at the smallest scale: the image is constant or flat".into(),
+                ));
+            }
+            let m = KernelSums::from_points(&scales, kcfg, set, w.set(set), label)?;
+            let o = KernelSums::from_points(&scales, kcfg, set.other(), w.set(set.other()), label)?;
+            merge_opt(&mut acc.main, Some(m))?;
+            merge_opt(&mut acc.alt, Some(o))?;
+            acc.hist.merge(&WtmmmHistograms::from_points(
+                &scales,
+                PdfConfig::default(),
+                w.set(set),
+            )?)?;
+            if grid {
+                merge_opt(
+                    &mut acc.grid,
+                    Some(cwt_grid_sums(field, cfg, kcfg, 2, label)?),
+                )?;
+            }
+            Ok(())
+        },
+        |mut a, b| {
+            merge_opt(&mut a.main, b.main)?;
+            merge_opt(&mut a.alt, b.alt)?;
+            merge_opt(&mut a.grid, b.grid)?;
+            a.hist.merge(&b.hist)?;
+            Ok(a)
+        },
+    )
+}
+
+/// `ln Ĝ(p)` of the theory per unit `ln(a'/a)` (II eqs 55, 59), where known.
+pub fn theory_log_kernel(model: &Model, p: f64) -> Option<Complex64> {
+    match model {
+        Model::WCascade(w) => Some(match w.law {
+            Law::LogNormal { m, sigma2 } => Complex64::new(-sigma2 * p * p / 2.0, m * p) / LN_2,
+            Law::LogPoisson {
+                gamma,
+                beta,
+                lambda,
+            } => {
+                let lb = beta.ln();
+                Complex64::new(
+                    lambda * ((p * lb).cos() - 1.0),
+                    gamma * p + lambda * (p * lb).sin(),
+                ) / LN_2
+            }
+        }),
+        // a pure shift: c1 = -H (II eq 64 with τ = qH - 2)
+        Model::Fbm(b) => Some(Complex64::new(0.0, -b.hurst * p)),
+        Model::Fisc(_) | Model::Fif(_) => None,
+    }
+}
+
+/// The estimates and everything written.
+pub struct KernelOutputs {
+    pub main: KernelResult,
+    pub alt: KernelResult,
+    pub grid: Option<KernelResult>,
+    pub recon2: Vec<Reconstruction>,
+    pub recon3: Vec<Reconstruction>,
+}
+
+pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
+    let input = args.input.resolve()?;
+    let cfg = input.analysis(&args.opts)?;
+    let fit = args.opts.fit()?;
+    let scales = cfg.scale_list();
+    let refs = parse_list("refs", &args.refs)?;
+    check_octaves("refs", &refs, &scales)?;
+    let pairs = parse_pairs("pairs", &args.pairs)?;
+    for &(a, b) in &pairs {
+        check_octaves("pairs", &[a, b], &scales)?;
+        if !(a < b) {
+            return Err(Error::param("pairs", format!("{a}:{b}: need a < a'")));
+        }
+    }
+    let rec = parse_list("reconstruct", &args.reconstruct)?;
+    check_octaves("reconstruct", &rec, &scales)?;
+    if rec.len() < 2 || rec[1..].iter().any(|&o| o <= rec[0]) {
+        return Err(Error::param(
+            "reconstruct",
+            "give the target octave then larger source octaves, e.g. 0,1,2,3",
+        ));
+    }
+    let kcfg = KernelConfig {
+        p_max: args.p_max,
+        dp: args.dp,
+    };
+    kcfg.validate()?;
+    let kopts = KernelOptions { fit, refs, pairs };
+    let t0 = std::time::Instant::now();
+    let acc = collect(&input, &cfg, kcfg, args.set, args.cwt_grid, quiet)?;
+    let wall = t0.elapsed().as_secs_f64();
+    let main = kernel_estimates(acc.main.as_ref().expect("at least one image"), &kopts)?;
+    let alt = kernel_estimates(acc.alt.as_ref().expect("at least one image"), &kopts)?;
+    let grid = acc
+        .grid
+        .as_ref()
+        .map(|g| kernel_estimates(g, &kopts))
+        .transpose()?;
+    let rj = scales_at(&scales, &rec);
+    let c = main.cumulants.values();
+    let recon2 = reconstruct(&acc.hist, rj[0], &rj[1..], &c[..2])?;
+    let recon3 = reconstruct(&acc.hist, rj[0], &rj[1..], &c)?;
+    let out = KernelOutputs {
+        main,
+        alt,
+        grid,
+        recon2,
+        recon3,
+    };
+    make_out_dir(&args.out.out)?;
+    let params = json!({"input": input.params_json(), "analysis": cfg, "set": args.set,
+        "kernel": kcfg, "options": kopts});
+    write_kernel_outputs(
+        &args.out.out,
+        "kernel",
+        params,
+        &out,
+        input.model.as_ref(),
+        &input.name,
+        wall,
+    )?;
+    let cu = &out.main.cumulants;
+    if !quiet {
+        eprintln!(
+            "kernel ({} set, {} images, fit {}:{} octaves, {wall:.1} s): c1 = {:.4} +- {:.4}, c2 = {:.4} +- {:.4}, c3 = {:.4} +- {:.4}",
+            args.set.name(),
+            out.main.images,
+            fit.0,
+            fit.1,
+            cu.c1.value,
+            cu.c1.stderr,
+            cu.c2.value,
+            cu.c2.stderr,
+            cu.c3.value,
+            cu.c3.stderr
+        );
+    }
+    for w in &out.main.warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(Outcome::Ok)
+}
+
+fn cumulants_json(k: &KernelResult) -> serde_json::Value {
+    json!({"c1": k.cumulants.c1, "c2": k.cumulants.c2, "c3": k.cumulants.c3})
+}
+
+fn kappa_json(k: &KernelResult) -> serde_json::Value {
+    json!({"scales": k.scales, "octaves": k.octaves, "n_wtmmm": k.n_wtmmm,
+        "kappa1": k.kappa1, "kappa2": k.kappa2, "kappa3": k.kappa3})
+}
+
+/// Writes kernel.json, the CSVs and the plots of II Figs 25-29.
+pub fn write_kernel_outputs(
+    dir: &Path,
+    command: &str,
+    params: serde_json::Value,
+    o: &KernelOutputs,
+    model: Option<&Model>,
+    name: &str,
+    wall: f64,
+) -> Result<()> {
+    let k = &o.main;
+    let mut body = header(command, params);
+    body["set"] = json!(k.set);
+    body["images"] = json!(k.images);
+    body["fit_octaves"] = json!(k.fit_octaves);
+    body["fit_scales"] = json!(k.fit_scales);
+    body["convention"] = json!(
+        "natural logs: C_n(a, a') = kappa_n(ln M at a) - kappa_n(ln M at a'), c_n = slope of C_n \
+         against ln(a'/a) = -d kappa_n / d ln a (II eq 49); for a W-cascade c_n = kappa_n(ln W)/ln 2 \
+         (II eqs 56, 60), the same numbers as `wtmm theory`"
+    );
+    body["cumulants"] = cumulants_json(k);
+    body["stderr_method"] = json!(k.stderr_method);
+    if let Some(c) = model.and_then(|m| m.cumulants()) {
+        body["theory"] = json!({"name": name, "cumulants": {"c1": c[0], "c2": c[1], "c3": c[2]}});
+    }
+    body["cn_tables"] = json!(k.tables);
+    body["kernels"] = json!(k.kernels);
+    body["kappa"] = kappa_json(k);
+    body["alternate_set"] = json!({"set": o.alt.set, "cumulants": cumulants_json(&o.alt),
+        "kappa": kappa_json(&o.alt), "warnings": o.alt.warnings});
+    if let Some(g) = &o.grid {
+        body["cwt_grid"] = json!({"cumulants": cumulants_json(g), "kappa": kappa_json(g),
+            "note": "ln M over every other pixel of the CWT grid (no WTMMM selection)"});
+    }
+    let rec = |r: &[Reconstruction]| -> serde_json::Value {
+        json!(r
+            .iter()
+            .map(|x| json!({"a_from": x.a_from, "a_to": x.a_to, "ln_ratio": x.ln_ratio, "c": x.c, "l1": x.l1}))
+            .collect::<Vec<_>>())
+    };
+    body["reconstruction"] = json!({"gaussian_c1_c2": rec(&o.recon2), "with_c3": rec(&o.recon3)});
+    body["warnings"] = json!(k.warnings);
+    body["wall_seconds"] = json!(wall);
+    write_json(&dir.join("kernel.json"), &body)?;
+    // CSVs
+    let rows: Vec<Vec<String>> = (0..k.scales.len())
+        .map(|j| {
+            vec![
+                f(k.scales[j]),
+                f(k.octaves[j]),
+                k.n_wtmmm[j].to_string(),
+                f(k.kappa1[j]),
+                f(k.kappa2[j]),
+                f(k.kappa3[j]),
+                o.alt.n_wtmmm[j].to_string(),
+                f(o.alt.kappa1[j]),
+                f(o.alt.kappa2[j]),
+                f(o.alt.kappa3[j]),
+            ]
+        })
+        .collect();
+    let alt = o.alt.set.name();
+    write_csv(
+        &dir.join("kappa.csv"),
+        &[
+            "a",
+            "octave",
+            "n_wtmmm",
+            "kappa1",
+            "kappa2",
+            "kappa3",
+            &format!("n_wtmmm_{alt}"),
+            &format!("kappa1_{alt}"),
+            &format!("kappa2_{alt}"),
+            &format!("kappa3_{alt}"),
+        ],
+        &rows,
+    )?;
+    let mut rows = Vec::new();
+    for t in &k.tables {
+        for r in &t.rows {
+            rows.push(vec![
+                f(t.a_ref),
+                f(t.octave_ref),
+                f(r.a),
+                f(r.octave),
+                f(r.ln_ratio),
+                f(r.c[0]),
+                f(r.c[1]),
+                f(r.c[2]),
+                f(r.c_stderr[0]),
+                f(r.c_stderr[1]),
+                f(r.c_stderr[2]),
+            ]);
+        }
+    }
+    write_csv(
+        &dir.join("cn_tables.csv"),
+        &[
+            "a_ref",
+            "octave_ref",
+            "a",
+            "octave",
+            "ln_ratio",
+            "C1",
+            "C2",
+            "C3",
+            "C1_stderr",
+            "C2_stderr",
+            "C3_stderr",
+        ],
+        &rows,
+    )?;
+    let mut rows = Vec::new();
+    for kc in &k.kernels {
+        for i in 0..kc.p.len() {
+            rows.push(vec![
+                f(kc.a),
+                f(kc.a_ref),
+                f(kc.p[i]),
+                f(kc.cf_re[i]),
+                f(kc.cf_im[i]),
+                f(kc.cf_ref_re[i]),
+                f(kc.cf_ref_im[i]),
+                f(kc.ln_abs_g[i]),
+                f(kc.phase[i]),
+                f(kc.ln_abs_g_norm[i]),
+                f(kc.phase_norm[i]),
+            ]);
+        }
+    }
+    write_csv(
+        &dir.join("kernel_curves.csv"),
+        &[
+            "a",
+            "a_ref",
+            "p",
+            "Re_C_a",
+            "Im_C_a",
+            "Re_C_ref",
+            "Im_C_ref",
+            "ln_abs_G",
+            "phase",
+            "ln_abs_G_norm",
+            "phase_norm",
+        ],
+        &rows,
+    )?;
+    let mut rows = Vec::new();
+    for (kind, rs) in [("c1_c2", &o.recon2), ("c1_c2_c3", &o.recon3)] {
+        for r in rs {
+            for i in 0..r.ln_m.len() {
+                rows.push(vec![
+                    kind.to_string(),
+                    f(r.a_from),
+                    f(r.a_to),
+                    f(r.ln_m[i]),
+                    f(r.measured[i]),
+                    f(r.predicted[i]),
+                ]);
+            }
+        }
+    }
+    write_csv(
+        &dir.join("reconstruction.csv"),
+        &[
+            "kernel",
+            "a_from",
+            "a_to",
+            "lnM",
+            "P_lnM_measured",
+            "P_lnM_predicted",
+        ],
+        &rows,
+    )?;
+    plot_kernel(dir, o, model, name)
+}
+
+fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str) -> Result<()> {
+    let k = &o.main;
+    let title = |t: &str| {
+        if name.is_empty() {
+            format!("{t} ({} set)", k.set.name())
+        } else {
+            format!("{name}: {t} ({} set)", k.set.name())
+        }
+    };
+    let lab = |kc: &crate::stats::kernel::KernelCurve| {
+        format!("a = 2^{:.1}, a' = 2^{:.1}", kc.octave, kc.octave_ref)
+    };
+    let mut charts = [
+        ("kernel_lnG.png", "ln |G_aa'(p)| (II Fig 25a)", "ln |G|"),
+        (
+            "kernel_lnG_collapse.png",
+            "ln |G_aa'(p)| / ln(a'/a) (II Fig 25b)",
+            "ln |G| / ln(a'/a)",
+        ),
+        ("kernel_phase.png", "phase of G_aa'(p) (II Fig 25c)", "Phi"),
+        (
+            "kernel_phase_collapse.png",
+            "phase / ln(a'/a) (II Fig 25d)",
+            "Phi / ln(a'/a)",
+        ),
+    ]
+    .map(|(file, t, y)| {
+        (
+            file,
+            Chart {
+                title: title(t),
+                x_label: "p".into(),
+                y_label: y.into(),
+                ..Default::default()
+            },
+        )
+    });
+    for (c, kc) in k.kernels.iter().enumerate() {
+        let s = |v: &[f64]| -> Vec<(f64, f64)> {
+            kc.p.iter().cloned().zip(v.iter().cloned()).collect()
+        };
+        charts[0]
+            .1
+            .series
+            .push(Series::new(lab(kc), s(&kc.ln_abs_g), Style::Markers, c));
+        charts[1].1.series.push(Series::new(
+            lab(kc),
+            s(&kc.ln_abs_g_norm),
+            Style::Markers,
+            c,
+        ));
+        charts[2]
+            .1
+            .series
+            .push(Series::new(lab(kc), s(&kc.phase), Style::Markers, c));
+        charts[3]
+            .1
+            .series
+            .push(Series::new(lab(kc), s(&kc.phase_norm), Style::Markers, c));
+        if let Some(m) = model
+            && theory_log_kernel(m, 0.0).is_some()
+        {
+            let th: Vec<(f64, Complex64)> =
+                kc.p.iter()
+                    .map(|&p| (p, theory_log_kernel(m, p).expect("checked")))
+                    .collect();
+            let r = kc.ln_ratio;
+            charts[0].1.series.push(Series::new(
+                "",
+                th.iter().map(|(p, z)| (*p, z.re * r)).collect(),
+                Style::Dashed,
+                c,
+            ));
+            charts[2].1.series.push(Series::new(
+                "",
+                th.iter().map(|(p, z)| (*p, z.im * r)).collect(),
+                Style::Dashed,
+                c,
+            ));
+            if c == 0 {
+                charts[1].1.series.push(Series::new(
+                    "theory",
+                    th.iter().map(|(p, z)| (*p, z.re)).collect(),
+                    Style::Line,
+                    9,
+                ));
+                charts[3].1.series.push(Series::new(
+                    "theory",
+                    th.iter().map(|(p, z)| (*p, z.im)).collect(),
+                    Style::Line,
+                    9,
+                ));
+            }
+        }
+    }
+    for (file, chart) in &charts {
+        save_chart(chart, &dir.join(file))?;
+    }
+    // II Figs 26, 28: C_n(a, a') against ln(a'/a)
+    let th = model.and_then(|m| m.cumulants());
+    let est = k.cumulants.values();
+    let se = [
+        k.cumulants.c1.stderr,
+        k.cumulants.c2.stderr,
+        k.cumulants.c3.stderr,
+    ];
+    for n in 0..3 {
+        let mut c = Chart {
+            title: title(&format!(
+                "C{}(a, a') vs ln(a'/a): c{} = {:.4} +- {:.4} (II Fig 26{})",
+                n + 1,
+                n + 1,
+                est[n],
+                se[n],
+                ['a', 'b', 'c'][n]
+            )),
+            x_label: "ln(a'/a)".into(),
+            y_label: format!("C{}(a, a')", n + 1),
+            ..Default::default()
+        };
+        let mut xmax: f64 = 0.0;
+        for (i, t) in k.tables.iter().enumerate() {
+            let pts: Vec<(f64, f64)> = t.rows.iter().map(|r| (r.ln_ratio, r.c[n])).collect();
+            xmax = pts.iter().map(|p| p.0).fold(xmax, f64::max);
+            c.series.push(Series::new(
+                format!("a' = 2^{:.1}", t.octave_ref),
+                pts,
+                Style::Markers,
+                i,
+            ));
+        }
+        c.series.push(Series::new(
+            format!("fit: {:.4}", est[n]),
+            vec![(0.0, 0.0), (xmax, est[n] * xmax)],
+            Style::Line,
+            9,
+        ));
+        if let Some(t) = th {
+            c.series.push(Series::new(
+                format!("theory: {:.4}", t[n]),
+                vec![(0.0, 0.0), (xmax, t[n] * xmax)],
+                Style::Dashed,
+                9,
+            ));
+        }
+        save_chart(&c, &dir.join(format!("cumulant_C{}.png", n + 1)))?;
+    }
+    // II Fig 29: pdfs pushed through the estimated kernel
+    for (file, rs, what) in [
+        ("reconstruction.png", &o.recon2, "c1, c2"),
+        ("reconstruction_c3.png", &o.recon3, "c1, c2, c3"),
+    ] {
+        let Some(first) = rs.first() else { continue };
+        let mut c = Chart {
+            title: title(&format!(
+                "P_a' pushed to a = {:.2} px, {what} (Fig 29)",
+                first.a_to
+            )),
+            x_label: "M".into(),
+            y_label: "ln P_a(M)".into(),
+            ..Default::default()
+        };
+        let to_m = |u: &[f64], p: &[f64]| -> Vec<(f64, f64)> {
+            let peak = p.iter().cloned().fold(0.0, f64::max);
+            u.iter()
+                .zip(p)
+                .filter(|(_, v)| **v > 1e-4 * peak)
+                .map(|(x, v)| (x.exp(), (v / x.exp()).ln()))
+                .collect()
+        };
+        c.series.push(Series::new(
+            format!("measured at a = {:.2}", first.a_to),
+            to_m(&first.ln_m, &first.measured),
+            Style::Markers,
+            9,
+        ));
+        for (i, r) in rs.iter().enumerate() {
+            c.series.push(Series::new(
+                format!("from a' = {:.2} (L1 = {:.3})", r.a_from, r.l1),
+                to_m(&r.ln_m, &r.predicted),
+                Style::Line,
+                i,
+            ));
+        }
+        save_chart(&c, &dir.join(file))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,656 @@
+//! `wtmm pdf IMAGE... --out DIR`: the WTMMM pdfs of II Figs 11-14 and 17-20
+//! (SPEC §5, §13), and the input handling shared by `pdf`, `kernel` and
+//! `correlate`.
+//!
+//! **Inputs.** Either image files, or no image and a model (`--preset NAME`
+//! or `--theory MODEL` with its options), of which `--count` images of
+//! `--size` are generated in memory and streamed (generate, analyse, drop;
+//! in parallel over images), as `validate` does. The model, when named, is
+//! also the theory drawn over the estimates.
+//!
+//! **Domain.** `--domain torus` analyses the whole periodic image (margin 0,
+//! correlations wrap around); `interior` uses the SPEC §1 margin. `auto` =
+//! torus for generated W-cascades and FISC (periodic by construction),
+//! interior otherwise (files, fBm).
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use clap::{Args, ValueEnum};
+use rayon::prelude::*;
+use serde_json::json;
+
+use super::analyze_cmd::SpectraOpts;
+use super::common::{f, header, make_out_dir, parse_list, progress, write_csv, write_json};
+use super::model_args::{ModelName, ModelOpts};
+use super::{OutDir, Outcome};
+use crate::cwt::Wavelet;
+use crate::error::{Error, Result};
+use crate::field::Field;
+use crate::io::read_field;
+use crate::plot::{Chart, Raster, Series, Style, ramp, save_chart};
+use crate::skeleton::{AnalysisConfig, Parallelism};
+use crate::stats::fit::line_fit;
+use crate::stats::kernel::nearest_scale;
+use crate::stats::pdf::{
+    PdfConfig, PdfOptions, ScalePdf, WtmmmHistograms, WtmmmSet, image_wtmmm, wtmmm_pdfs,
+};
+use crate::theory::Model;
+
+/// Analysis domain.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum DomainChoice {
+    /// Torus for generated periodic models (W-cascades, FISC), interior otherwise.
+    Auto,
+    /// Interior at the SPEC §1 margin (non-periodic data).
+    Interior,
+    /// The whole image, periodic (margin 0, lags wrap around).
+    Torus,
+}
+
+/// Images or a generated ensemble, and the theory (shared by pdf, kernel,
+/// correlate).
+#[derive(Args, Debug, Clone)]
+pub struct StatsInput {
+    /// Input images, one ensemble. Omit them to generate `--count` images of the
+    /// model named by `--preset` or `--theory`.
+    pub images: Vec<PathBuf>,
+    /// Model drawn over the estimates (with its options, as for `synth`); without
+    /// IMAGE also the model generated. `--preset NAME` names one too.
+    #[arg(long, value_enum)]
+    pub theory: Option<ModelName>,
+    #[command(flatten)]
+    pub model: ModelOpts,
+    /// Generated ensemble: number of images.
+    #[arg(long, default_value_t = 32)]
+    pub count: usize,
+    /// Generated ensemble: image side (a power of two for the cascades).
+    #[arg(long, default_value_t = 1024)]
+    pub size: usize,
+    /// Generated ensemble: seed (image i is the same as `synth --seed S` image i).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Analysis domain: torus (periodic images) or interior (SPEC §1 margin).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub domain: DomainChoice,
+}
+
+/// A resolved input.
+pub struct Input {
+    pub images: Vec<PathBuf>,
+    /// The theory (and the generated model when `images` is empty).
+    pub model: Option<Model>,
+    /// Preset or model name, for titles.
+    pub name: String,
+    pub count: usize,
+    pub size: usize,
+    pub seed: u64,
+    pub periodic: bool,
+    /// The wavelet the preset recommends (gauss without a model).
+    pub wavelet: Wavelet,
+}
+
+impl StatsInput {
+    /// Checks the flags and resolves the model.
+    ///
+    /// **Errors** naming the flag: neither images nor a model, a model option
+    /// without a model, `--count 0`.
+    pub fn resolve(&self) -> Result<Input> {
+        let named = self.theory.is_some() || self.model.preset.is_some();
+        let resolved = if named {
+            Some(self.model.resolve(self.theory)?)
+        } else {
+            // model options without a model name
+            if format!("{:?}", self.model) != format!("{:?}", ModelOpts::default()) {
+                return Err(Error::param(
+                    "theory",
+                    "model options need a model: --theory MODEL (or use --preset NAME)",
+                ));
+            }
+            None
+        };
+        if self.images.is_empty() && resolved.is_none() {
+            return Err(Error::param(
+                "IMAGE",
+                "give image files, or a model to generate (--preset NAME, or --theory MODEL with its options)",
+            ));
+        }
+        if self.images.is_empty() && self.count == 0 {
+            return Err(Error::param("count", "must be >= 1"));
+        }
+        let generated = self.images.is_empty();
+        let periodic = match self.domain {
+            DomainChoice::Torus => true,
+            DomainChoice::Interior => false,
+            DomainChoice::Auto => {
+                generated
+                    && resolved
+                        .as_ref()
+                        .is_some_and(|r| !matches!(r.model, Model::Fbm(_)))
+            }
+        };
+        Ok(Input {
+            images: self.images.clone(),
+            name: resolved
+                .as_ref()
+                .map(|r| r.preset.unwrap_or(r.model.name()).to_string())
+                .unwrap_or_default(),
+            model: resolved.as_ref().map(|r| r.model),
+            wavelet: resolved.as_ref().map_or(Wavelet::Gauss, |r| r.wavelet),
+            count: self.count,
+            size: self.size,
+            seed: self.seed,
+            periodic,
+        })
+    }
+}
+
+impl Input {
+    /// True when the images are generated.
+    pub fn generated(&self) -> bool {
+        self.images.is_empty()
+    }
+
+    /// Number of images.
+    pub fn len(&self) -> usize {
+        if self.generated() {
+            self.count
+        } else {
+            self.images.len()
+        }
+    }
+
+    /// Always false (resolve refuses an empty input).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The analysis configuration: the preset's wavelet unless `--wavelet`,
+    /// margin 0 on the torus unless `--margin`.
+    pub fn analysis(&self, opts: &SpectraOpts) -> Result<AnalysisConfig> {
+        let mut o = opts.clone();
+        if o.cwt.wavelet.is_none() {
+            o.cwt.wavelet = Some(self.wavelet);
+        }
+        if self.periodic && o.cwt.margin.is_none() {
+            o.cwt.margin = Some(0);
+        }
+        o.analysis()
+    }
+
+    /// Image `i` and its label.
+    pub fn load(&self, i: usize) -> Result<(Field, String)> {
+        if self.generated() {
+            let model = self.model.expect("generated inputs have a model");
+            let img = model.synthesize(self.size, self.seed, i as u64)?;
+            Ok((Field::new(img), format!("{} image {i}", self.name)))
+        } else {
+            let p = &self.images[i];
+            Ok((read_field(p)?, p.display().to_string()))
+        }
+    }
+
+    /// Runs `step` on every image (in parallel over images, each image
+    /// analysed serially unless there is only one) folding into accumulators
+    /// merged with `merge`. Errors name the image.
+    pub fn fold<A, I, S, M>(&self, quiet: bool, msg: &str, init: I, step: S, merge: M) -> Result<A>
+    where
+        A: Send,
+        I: Fn() -> A + Sync + Send,
+        S: Fn(&mut A, &Field, &str, Parallelism) -> Result<()> + Sync + Send,
+        M: Fn(A, A) -> Result<A> + Sync + Send,
+    {
+        let n = self.len();
+        let par = if n == 1 {
+            Parallelism::Scales
+        } else {
+            Parallelism::Serial
+        };
+        let pb = progress(n as u64, msg, quiet);
+        let out = (0..n)
+            .into_par_iter()
+            .try_fold(&init, |mut acc, i| -> Result<A> {
+                let (field, label) = self.load(i)?;
+                step(&mut acc, &field, &label, par).map_err(|e| {
+                    if self.generated() {
+                        e
+                    } else {
+                        Error::format(&self.images[i], e.to_string())
+                    }
+                })?;
+                pb.inc(1);
+                Ok(acc)
+            })
+            .try_reduce(&init, &merge)?;
+        pb.finish_and_clear();
+        Ok(out)
+    }
+
+    /// What goes into `params` of every output.
+    pub fn params_json(&self) -> serde_json::Value {
+        if self.generated() {
+            json!({"generated": {"model": self.model, "name": self.name, "count": self.count,
+                "size": self.size, "seed": self.seed}, "periodic": self.periodic})
+        } else {
+            json!({"images": self.images, "theory": self.model, "periodic": self.periodic})
+        }
+    }
+}
+
+/// Scale indices nearest to octaves above a_min, deduplicated.
+pub fn scales_at(scales: &[f64], octaves: &[f64]) -> Vec<usize> {
+    let mut v: Vec<usize> = octaves.iter().map(|&o| nearest_scale(scales, o)).collect();
+    v.dedup();
+    v
+}
+
+/// Checks that octaves lie on the scale grid.
+pub fn check_octaves(flag: &str, octaves: &[f64], scales: &[f64]) -> Result<()> {
+    let top = (scales[scales.len() - 1] / scales[0]).log2();
+    if let Some(o) = octaves.iter().find(|&&o| !(o >= -1e-9 && o <= top + 1e-9)) {
+        return Err(Error::param(
+            flag,
+            format!("octave {o} is outside the scales (0..{top:.2} octaves above a_min)"),
+        ));
+    }
+    Ok(())
+}
+
+#[derive(Args, Debug)]
+pub struct PdfArgs {
+    #[command(flatten)]
+    pub input: StatsInput,
+    #[command(flatten)]
+    pub opts: SpectraOpts,
+    /// Which WTMMM: those on maxima lines (the skeleton) or all WTMMM of each scale.
+    #[arg(long, value_enum, default_value = "lines")]
+    pub set: WtmmmSet,
+    /// Scales shown, in octaves above a_min (II Figs 17, 20: a = 1, 2, 4, 8).
+    #[arg(long, default_value = "0,1,2,3")]
+    pub show: String,
+    /// Scales of the pdfs conditioned on A (II Fig 18: a = 2^0.1, 2^1.1), in octaves.
+    #[arg(long, default_value = "0.1,1.1")]
+    pub sectors_at: String,
+    /// Exponent of the rescaling test II eq 39 (default: the theory's h(q=0), else
+    /// the slope of <ln M> against ln a over the fit range).
+    #[arg(long, allow_negative_numbers = true)]
+    pub h0: Option<f64>,
+    /// Bin width of ln M.
+    #[arg(long, default_value_t = 0.05)]
+    pub lnm_bin: f64,
+    /// Number of bins of the argument A over [-pi, pi) (a multiple of 16).
+    #[arg(long, default_value_t = 64)]
+    pub arg_bins: usize,
+    #[command(flatten)]
+    pub out: OutDir,
+}
+
+/// Histograms of the chosen WTMMM set over the input.
+pub fn collect_histograms(
+    input: &Input,
+    cfg: &AnalysisConfig,
+    set: WtmmmSet,
+    pcfg: PdfConfig,
+    quiet: bool,
+) -> Result<WtmmmHistograms> {
+    let scales = cfg.scale_list();
+    let empty = WtmmmHistograms::new(&scales, pcfg)?;
+    input.fold(
+        quiet,
+        "pdf",
+        || empty.clone(),
+        |acc, field, _label, par| {
+            let w = image_wtmmm(field, cfg, par, set == WtmmmSet::Lines)?;
+            if w.all.first().is_none_or(|v| v.is_empty()) {
+                return Err(Error::Input(
+                    "no WTMMM at the smallest scale: the image is constant or flat".into(),
+                ));
+            }
+            acc.merge(&WtmmmHistograms::from_points(&scales, pcfg, w.set(set))?)
+        },
+        |mut a, b| {
+            a.merge(&b)?;
+            Ok(a)
+        },
+    )
+}
+
+/// `h(q=0)` estimate: the slope of `<ln M>` against `ln a` over the fit range.
+pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64)) -> f64 {
+    let oct: Vec<f64> = h.scales.iter().map(|a| (a / h.scales[0]).log2()).collect();
+    let (x, y): (Vec<f64>, Vec<f64>) = (0..h.scales.len())
+        .filter(|&j| oct[j] >= fit.0 - 1e-9 && oct[j] <= fit.1 + 1e-9)
+        .map(|j| (h.scales[j].ln(), h.mean_ln_m(j)))
+        .unzip();
+    line_fit(&x, &y).map_or(f64::NAN, |l| l.slope)
+}
+
+pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
+    let input = args.input.resolve()?;
+    let cfg = input.analysis(&args.opts)?;
+    let fit = args.opts.fit()?;
+    let scales = cfg.scale_list();
+    let show_oct = parse_list("show", &args.show)?;
+    check_octaves("show", &show_oct, &scales)?;
+    let sec_oct = parse_list("sectors-at", &args.sectors_at)?;
+    check_octaves("sectors-at", &sec_oct, &scales)?;
+    let pcfg = PdfConfig {
+        dlnm: args.lnm_bin,
+        arg_bins: args.arg_bins,
+    };
+    pcfg.validate()?;
+    if let Some(h) = args.h0
+        && !h.is_finite()
+    {
+        return Err(Error::param("h0", "must be finite"));
+    }
+    let t0 = std::time::Instant::now();
+    let hist = collect_histograms(&input, &cfg, args.set, pcfg, quiet)?;
+    let wall = t0.elapsed().as_secs_f64();
+    let h_est = h0_from_histograms(&hist, fit);
+    let (h0, h0_source) = match (args.h0, input.model) {
+        (Some(h), _) => (h, "--h0"),
+        (None, Some(m)) => (m.h_of_q0(), "theory h(q=0)"),
+        (None, None) => (h_est, "slope of <ln M> against ln a over the fit range"),
+    };
+    let show = scales_at(&scales, &show_oct);
+    let sec = scales_at(&scales, &sec_oct);
+    let mut all: Vec<usize> = show.iter().chain(&sec).copied().collect();
+    all.sort_unstable();
+    all.dedup();
+    let pdfs = wtmmm_pdfs(
+        &hist,
+        &PdfOptions {
+            show: all,
+            h0,
+            ..Default::default()
+        },
+    )?;
+    let get = |j: usize| pdfs.iter().find(|p| p.j == j).expect("computed");
+    make_out_dir(&args.out.out)?;
+    let dir = &args.out.out;
+    let mut body = header(
+        "pdf",
+        json!({"input": input.params_json(), "analysis": cfg, "set": args.set,
+            "fit_octaves": fit, "binning": pcfg}),
+    );
+    body["set"] = json!(args.set);
+    body["images"] = json!(hist.images);
+    body["h0"] = json!({"value": h0, "source": h0_source, "estimate_from_data": h_est,
+        "convention": "M / (a/a_min)^h0, a/a_min = the paper's sigma_W units (II eq 39)"});
+    body["n_wtmmm"] = json!(hist.hist.iter().map(|h| h.n).collect::<Vec<_>>());
+    body["scales"] = json!(scales);
+    body["pdfs"] = json!(show.iter().map(|&j| get(j)).collect::<Vec<_>>());
+    body["sectors"] = json!(
+        sec.iter()
+            .map(|&j| {
+                let p = get(j);
+                json!({"a": p.a, "octave": p.octave, "m": p.m, "sectors": p.sectors})
+            })
+            .collect::<Vec<_>>()
+    );
+    body["wall_seconds"] = json!(wall);
+    write_json(&dir.join("pdf.json"), &body)?;
+    write_pdf_csvs(dir, &show.iter().map(|&j| get(j)).collect::<Vec<_>>())?;
+    plot_pdfs(
+        dir,
+        &input.name,
+        &show.iter().map(|&j| get(j)).collect::<Vec<_>>(),
+        &sec.iter().map(|&j| get(j)).collect::<Vec<_>>(),
+        h0,
+    )?;
+    if !quiet {
+        eprintln!(
+            "pdf: {} images, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s; wrote {}",
+            hist.images,
+            args.set.name(),
+            dir.join("pdf.json").display()
+        );
+    }
+    Ok(Outcome::Ok)
+}
+
+fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf]) -> Result<()> {
+    let mut rows = Vec::new();
+    for s in p {
+        for i in 0..s.m.len() {
+            rows.push(vec![
+                f(s.a),
+                f(s.octave),
+                f(s.ln_m[i]),
+                f(s.p_ln_m[i]),
+                f(s.m[i]),
+                f(s.p_m[i]),
+                f(s.rescaled_m[i]),
+                f(s.p_rescaled[i]),
+            ]);
+        }
+    }
+    write_csv(
+        &dir.join("pdf_M.csv"),
+        &[
+            "a",
+            "octave",
+            "lnM",
+            "P_lnM",
+            "M",
+            "P_M",
+            "M_rescaled",
+            "P_M_rescaled",
+        ],
+        &rows,
+    )?;
+    let mut rows = Vec::new();
+    for s in p {
+        for i in 0..s.arg.len() {
+            rows.push(vec![f(s.a), f(s.octave), f(s.arg[i]), f(s.p_arg[i])]);
+        }
+    }
+    write_csv(&dir.join("pdf_A.csv"), &["a", "octave", "A", "P_A"], &rows)?;
+    let mut rows = Vec::new();
+    for s in p {
+        for sec in &s.sectors {
+            for i in 0..s.m.len() {
+                rows.push(vec![
+                    f(s.a),
+                    f(s.octave),
+                    f(sec.centre),
+                    f(s.m[i]),
+                    f(sec.p_m[i]),
+                ]);
+            }
+        }
+    }
+    write_csv(
+        &dir.join("pdf_M_sectors.csv"),
+        &["a", "octave", "sector_centre", "M", "P_M_given_sector"],
+        &rows,
+    )?;
+    let mut rows = Vec::new();
+    for s in p {
+        let t = &s.joint.t;
+        for (iy, &t2) in t.iter().enumerate() {
+            for (ix, &t1) in t.iter().enumerate() {
+                rows.push(vec![
+                    f(s.a),
+                    f(t1),
+                    f(t2),
+                    f(s.joint.density[iy * t.len() + ix]),
+                ]);
+            }
+        }
+    }
+    write_csv(
+        &dir.join("joint_T.csv"),
+        &["a", "T1", "T2", "density"],
+        &rows,
+    )
+}
+
+/// Keeps the points of a density worth drawing (positive, and in the log
+/// plots above 1e-4 of the peak).
+fn pts(x: &[f64], y: &[f64], log: bool) -> Vec<(f64, f64)> {
+    let peak = y.iter().cloned().fold(0.0, f64::max);
+    x.iter()
+        .zip(y)
+        .filter(|(_, v)| **v > 0.0 && (!log || **v > 1e-4 * peak))
+        .map(|(a, v)| (*a, if log { v.ln() } else { *v }))
+        .collect()
+}
+
+fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: f64) -> Result<()> {
+    let label = |s: &ScalePdf| format!("a = 2^{:.1} a_min ({:.1} px)", s.octave, s.a);
+    let title = |t: &str| {
+        if name.is_empty() {
+            t.to_string()
+        } else {
+            format!("{name}: {t}")
+        }
+    };
+    // M range shown: up to the 99.9% point of the largest scale shown
+    let m_hi = show
+        .iter()
+        .map(|s| {
+            let mut acc = 0.0;
+            let d = s.ln_m.get(1).map_or(0.05, |u| u - s.ln_m[0]);
+            for (i, p) in s.p_ln_m.iter().enumerate() {
+                acc += p * d;
+                if acc > 0.999 {
+                    return s.m[i];
+                }
+            }
+            s.m.last().copied().unwrap_or(1.0)
+        })
+        .fold(0.0, f64::max);
+    let clip =
+        |v: Vec<(f64, f64)>| -> Vec<(f64, f64)> { v.into_iter().filter(|p| p.0 <= m_hi).collect() };
+    let mut c = Chart {
+        title: title("(a) P_a(M) at the WTMMM (II Fig 17a)"),
+        x_label: "M".into(),
+        y_label: "P_a(M)".into(),
+        ..Default::default()
+    };
+    let mut ca = Chart {
+        title: title("(b) P_a(A) (II Fig 17b)"),
+        x_label: "A (rad)".into(),
+        y_label: "P_a(A)".into(),
+        ..Default::default()
+    };
+    let mut cl = Chart {
+        title: title("ln P_a(M) vs M (II Fig 20a)"),
+        x_label: "M".into(),
+        y_label: "ln P_a(M)".into(),
+        ..Default::default()
+    };
+    let mut cr = Chart {
+        title: title(&format!(
+            "ln P_a(M) vs M / a^h, h = {h0:.3} (II eq 39, Fig 20b)"
+        )),
+        x_label: "M / (a/a_min)^h".into(),
+        y_label: "ln P".into(),
+        ..Default::default()
+    };
+    for (k, s) in show.iter().enumerate() {
+        c.series.push(Series::new(
+            label(s),
+            clip(pts(&s.m, &s.p_m, false)),
+            Style::LineMarkers,
+            k,
+        ));
+        ca.series.push(Series::new(
+            label(s),
+            pts(&s.arg, &s.p_arg, false),
+            Style::LineMarkers,
+            k,
+        ));
+        cl.series.push(Series::new(
+            label(s),
+            clip(pts(&s.m, &s.p_m, true)),
+            Style::LineMarkers,
+            k,
+        ));
+        let r: Vec<(f64, f64)> = pts(&s.rescaled_m, &s.p_rescaled, true);
+        cr.series.push(Series::new(
+            label(s),
+            r.into_iter().filter(|p| p.0 <= m_hi).collect(),
+            Style::LineMarkers,
+            k,
+        ));
+    }
+    save_chart(&c, &dir.join("pdf_M.png"))?;
+    let top = ca
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter().map(|p| p.1))
+        .fold(0.0, f64::max);
+    ca.y_range = Some((0.0, 1.15 * top.max(1e-9)));
+    save_chart(&ca, &dir.join("pdf_A.png"))?;
+    save_chart(&cl, &dir.join("lnpdf_M.png"))?;
+    save_chart(&cr, &dir.join("lnpdf_rescaled.png"))?;
+    for (n, s) in sec.iter().enumerate() {
+        let mut cs = Chart {
+            title: title(&format!("P(M | A mod pi), {} (II Fig 18)", label(s))),
+            x_label: "M".into(),
+            y_label: "ln P_a(M | A)".into(),
+            ..Default::default()
+        };
+        for (k, q) in s.sectors.iter().enumerate() {
+            let deg = q.centre.to_degrees();
+            cs.series.push(Series::new(
+                format!("A = {deg:.0} +- 22.5 deg (n = {})", q.n),
+                pts(&s.m, &q.p_m, true),
+                Style::LineMarkers,
+                k,
+            ));
+        }
+        save_chart(&cs, &dir.join(format!("pdf_M_sectors_{n}.png")))?;
+    }
+    for (n, s) in show.iter().enumerate() {
+        joint_picture(s, &dir.join(format!("joint_T_{n}.png")))?;
+    }
+    Ok(())
+}
+
+/// II Figs 13, 19: the density of (T1, T2) at the WTMMM, log colour scale
+/// (white = no WTMMM), 4 px per cell, with the axes as a cross.
+fn joint_picture(s: &ScalePdf, path: &Path) -> Result<()> {
+    let n = s.joint.t.len();
+    let px = 4usize;
+    let d = &s.joint.density;
+    let peak = d.iter().cloned().fold(0.0, f64::max);
+    let mut r = Raster {
+        width: n * px,
+        height: n * px,
+        rgb: vec![255; n * px * n * px * 3],
+    };
+    for iy in 0..n {
+        for ix in 0..n {
+            let v = d[iy * n + ix];
+            if !(v > 0.0 && peak > 0.0) {
+                continue;
+            }
+            // 4 decades of log density
+            let t = ((v / peak).log10() + 4.0) / 4.0;
+            let c = ramp(t.clamp(0.0, 1.0));
+            for dy in 0..px {
+                for dx in 0..px {
+                    // T2 upwards
+                    r.put(
+                        (ix * px + dx) as isize,
+                        ((n - 1 - iy) * px + dy) as isize,
+                        (c.0, c.1, c.2),
+                    );
+                }
+            }
+        }
+    }
+    let mid = (n * px / 2) as f64;
+    let end = (n * px) as f64;
+    r.line(0.0, mid, end, mid, (0, 0, 0));
+    r.line(mid, 0.0, mid, end, (0, 0, 0));
+    r.save(path)
+}
+
+/// Shared by the kernel command: a mutex-guarded cache is not needed here,
+/// but the correlation plans are per image shape.
+pub type ShapeCache<T> = Mutex<Vec<((usize, usize), std::sync::Arc<T>)>>;

@@ -1,0 +1,685 @@
+//! WTMMM statistics at each scale (SPEC §5; II §3, Figs 11-14, 17-24).
+//!
+//! The probability densities of the WTMMM modulus `M` and argument `A` are
+//! the "one-point" statistics of the skeleton: how the shape of `P_a(M)`
+//! changes with `a` carries the whole multifractal content (II §3.2), while
+//! `P_a(A)` should not depend on `a`, and `P_a(M, A) = P_a(M) P_a(A)` when M
+//! and A decouple (II eq 40, the working hypothesis of the kernel).
+//!
+//! **Which WTMMM.** [`image_wtmmm`] returns, per scale, two sets:
+//! - [`WtmmmSet::All`]: every WTMMM detected at that scale (local maxima of
+//!   M along the maxima chains, SPEC §2) inside the analysis domain;
+//! - [`WtmmmSet::Lines`]: only the WTMMM through which a maxima line born at
+//!   `a_min` passes (SPEC §3). This set depends on the linking rules: the
+//!   modulus-ratio window truncates the per-step changes of `ln M` (SPEC §14).
+//!
+//! **Accumulator.** [`WtmmmHistograms`] holds, per scale, a 2D histogram of
+//! `(ln M, A)`: `ln M` in bins of fixed width `dlnm` indexed from 0 (so two
+//! images always share the bin edges), `A` in `arg_bins` bins over
+//! `[-π, π)`. Counts are integers: merging images is exact and independent of
+//! the order. Every density of II Figs 11-14 is derived from it by
+//! [`wtmmm_pdfs`]: `P(ln M)`, `P(M) = P(ln M)/M`, `P(A)`, the pdf of M
+//! conditioned on `A mod π` in the four sectors `kπ/4 ± π/8` (Figs 12, 18),
+//! the joint density of `(T1, T2) = (M cos A, M sin A)` (Figs 13, 19:
+//! `p(T1, T2) = P(ln M, A)/M²`), and the rescaled pdfs of the
+//! self-similarity test II eq 39, `M / (a/a_min)^h` (Figs 14b, 20b).
+//!
+//! ```
+//! use wtmm::stats::pdf::{PdfConfig, PdfOptions, WtmmmHistograms, wtmmm_pdfs};
+//! // ln M uniform on [0, 1) at one scale, A = 0.3
+//! let mut h = WtmmmHistograms::new(&[2.0], PdfConfig::default()).unwrap();
+//! for i in 0..1000 {
+//!     h.add(0, ((i as f64 + 0.5) / 1000.0).exp(), 0.3);
+//! }
+//! let p = wtmmm_pdfs(&h, &PdfOptions { show: vec![0], ..Default::default() }).unwrap();
+//! // density 1 on [0, 1)
+//! assert!(p[0].p_ln_m.iter().all(|&d| (d - 1.0).abs() < 1e-12));
+//! ```
+
+use std::f64::consts::PI;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::cwt::CwtPlan;
+use crate::error::{Error, Result};
+use crate::field::Field;
+use crate::skeleton::{AnalysisConfig, DetectScratch, Linker, Parallelism, ScaleMaxima, detect};
+
+/// Which WTMMM a statistic is taken over.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum WtmmmSet {
+    /// Every WTMMM of the scale (independent of the linking).
+    #[default]
+    All,
+    /// The WTMMM on maxima lines born at `a_min` and alive at the scale.
+    Lines,
+}
+
+impl WtmmmSet {
+    pub fn name(self) -> &'static str {
+        match self {
+            WtmmmSet::All => "all",
+            WtmmmSet::Lines => "lines",
+        }
+    }
+
+    /// The other set.
+    pub fn other(self) -> Self {
+        match self {
+            WtmmmSet::All => WtmmmSet::Lines,
+            WtmmmSet::Lines => WtmmmSet::All,
+        }
+    }
+}
+
+/// One WTMMM: pixel, modulus, argument.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Point {
+    pub x: u32,
+    pub y: u32,
+    pub m: f64,
+    pub arg: f64,
+}
+
+/// The WTMMM of one image, per scale, in both sets.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ImageWtmmm {
+    pub scales: Vec<f64>,
+    /// `(ny, nx)` of the image.
+    pub shape: (usize, usize),
+    /// Every WTMMM, per scale.
+    pub all: Vec<Vec<Point>>,
+    /// The WTMMM on maxima lines, per scale (empty lists without linking).
+    pub lines: Vec<Vec<Point>>,
+}
+
+impl ImageWtmmm {
+    /// The points of one set, per scale.
+    pub fn set(&self, s: WtmmmSet) -> &[Vec<Point>] {
+        match s {
+            WtmmmSet::All => &self.all,
+            WtmmmSet::Lines => &self.lines,
+        }
+    }
+}
+
+/// The WTMMM of one image at every scale of `cfg`: CWT, maxima chains and
+/// WTMMM (SPEC §2), and with `link` the maxima lines (SPEC §3) whose points
+/// give [`WtmmmSet::Lines`]. Chains are not kept, so memory stays at a few
+/// numbers per WTMMM.
+///
+/// **Errors** as [`crate::skeleton::skeleton_with`]: invalid parameters, an
+/// image smaller than the wavelet, no valid pixel.
+pub fn image_wtmmm(
+    field: &Field,
+    cfg: &AnalysisConfig,
+    par: Parallelism,
+    link: bool,
+) -> Result<ImageWtmmm> {
+    cfg.validate()?;
+    let domain = cfg.domain(field)?;
+    let img = field.filled()?;
+    let scales = cfg.scale_list();
+    let (ny, nx) = field.dim();
+    let plan = CwtPlan::new(ny, nx, cfg.wavelet, &scales)?;
+    let found: Vec<ScaleMaxima> = match par {
+        Parallelism::Serial => {
+            let mut v = Vec::with_capacity(scales.len());
+            let mut scratch = DetectScratch::default();
+            plan.for_each_scale(img.view(), |j, a, t| {
+                v.push(detect(t, j, a, &domain, cfg.eps, false, &mut scratch));
+            })?;
+            v
+        }
+        Parallelism::Scales => {
+            plan.par_map_scales_init(img.view(), DetectScratch::default, |s, j, a, t| {
+                detect(t, j, a, &domain, cfg.eps, false, s)
+            })?
+        }
+    };
+    let mut out = ImageWtmmm {
+        scales: scales.clone(),
+        shape: (ny, nx),
+        all: Vec::with_capacity(scales.len()),
+        lines: vec![Vec::new(); scales.len()],
+    };
+    let mut linker = Linker::new(cfg.link);
+    for sm in &found {
+        if link {
+            linker.push(sm);
+        }
+        // chains may be traced in a guard band around the domain; only the
+        // WTMMM inside the domain count (as in the partition functions)
+        out.all.push(
+            sm.wtmmm
+                .iter()
+                .filter(|w| domain.counts(w.x, w.y))
+                .map(|w| Point {
+                    x: w.x,
+                    y: w.y,
+                    m: w.m,
+                    arg: w.arg,
+                })
+                .collect(),
+        );
+    }
+    if link {
+        // lines that never link beyond a_min carry no scale information
+        // and are left out, as in the partition functions
+        for l in linker.finish().iter().filter(|l| l.points.len() > 1) {
+            for (j, p) in l.points.iter().enumerate() {
+                if domain.counts(p.x, p.y) {
+                    out.lines[j].push(Point {
+                        x: p.x,
+                        y: p.y,
+                        m: p.m,
+                        arg: p.arg,
+                    });
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Binning of the `(ln M, A)` histograms.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PdfConfig {
+    /// Bin width in `ln M` (bins are `[k dlnm, (k+1) dlnm)`, k integer).
+    pub dlnm: f64,
+    /// Number of argument bins over `[-π, π)`; a multiple of 16 so that the
+    /// four sectors `kπ/4 ± π/8` (mod π) are unions of bins.
+    pub arg_bins: usize,
+}
+
+impl Default for PdfConfig {
+    fn default() -> Self {
+        PdfConfig {
+            dlnm: 0.05,
+            arg_bins: 64,
+        }
+    }
+}
+
+impl PdfConfig {
+    /// **Errors** naming the flag (`lnm-bin`, `arg-bins`).
+    pub fn validate(&self) -> Result<()> {
+        if !(self.dlnm > 1e-4 && self.dlnm <= 2.0) {
+            return Err(Error::param(
+                "lnm-bin",
+                format!("bin width of ln M must be in (1e-4, 2], got {}", self.dlnm),
+            ));
+        }
+        if self.arg_bins < 16 || !self.arg_bins.is_multiple_of(16) || self.arg_bins > 4096 {
+            return Err(Error::param(
+                "arg-bins",
+                format!(
+                    "must be a multiple of 16 in 16..=4096, got {}",
+                    self.arg_bins
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The `(ln M, A)` histogram of one scale: `counts[(k - lo) * arg_bins + b]`
+/// for `ln M` bin `k` and argument bin `b`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ScaleHist {
+    /// Index of the first `ln M` bin held.
+    pub lo: i64,
+    /// Number of `ln M` bins held.
+    pub rows: usize,
+    pub counts: Vec<u64>,
+    /// Number of WTMMM.
+    pub n: u64,
+}
+
+/// Mergeable `(ln M, A)` histograms of an ensemble, one per scale.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WtmmmHistograms {
+    pub version: String,
+    pub config: PdfConfig,
+    pub scales: Vec<f64>,
+    /// Number of images merged.
+    pub images: usize,
+    pub hist: Vec<ScaleHist>,
+}
+
+impl WtmmmHistograms {
+    /// Empty histograms for the given scales (no image yet).
+    ///
+    /// **Errors** on an invalid binning or an empty scale list.
+    pub fn new(scales: &[f64], config: PdfConfig) -> Result<Self> {
+        config.validate()?;
+        if scales.is_empty() {
+            return Err(Error::param("scales", "no scale given"));
+        }
+        Ok(WtmmmHistograms {
+            version: crate::VERSION.to_string(),
+            config,
+            scales: scales.to_vec(),
+            images: 0,
+            hist: vec![ScaleHist::default(); scales.len()],
+        })
+    }
+
+    /// The histograms of one image's WTMMM (`points[j]` at scale `j`).
+    ///
+    /// **Errors** if `points` does not have one list per scale.
+    pub fn from_points(scales: &[f64], config: PdfConfig, points: &[Vec<Point>]) -> Result<Self> {
+        let mut h = Self::new(scales, config)?;
+        if points.len() != scales.len() {
+            return Err(Error::param(
+                "scales",
+                format!("{} point lists for {} scales", points.len(), scales.len()),
+            ));
+        }
+        for (j, pts) in points.iter().enumerate() {
+            for p in pts {
+                h.add(j, p.m, p.arg);
+            }
+        }
+        h.images = 1;
+        Ok(h)
+    }
+
+    /// Adds one WTMMM at scale index `j`; non-positive or non-finite moduli
+    /// and non-finite arguments are ignored.
+    ///
+    /// **Panics** if `j` is out of range.
+    pub fn add(&mut self, j: usize, m: f64, arg: f64) {
+        if !(m > 0.0 && m.is_finite() && arg.is_finite()) {
+            return;
+        }
+        let nb = self.config.arg_bins;
+        let k = (m.ln() / self.config.dlnm).floor() as i64;
+        let b = arg_bin(arg, nb);
+        let h = &mut self.hist[j];
+        grow(h, k, nb);
+        h.counts[(k - h.lo) as usize * nb + b] += 1;
+        h.n += 1;
+    }
+
+    /// Adds `other`'s counts (exact, order-independent).
+    ///
+    /// **Errors** if the binning or the scales differ.
+    pub fn merge(&mut self, other: &WtmmmHistograms) -> Result<()> {
+        if self.config != other.config {
+            return Err(Error::param(
+                "lnm-bin",
+                "cannot merge histograms with different binnings",
+            ));
+        }
+        if !same_scales(&self.scales, &other.scales) {
+            return Err(Error::param(
+                "scales",
+                "cannot merge histograms over different scales",
+            ));
+        }
+        let nb = self.config.arg_bins;
+        for (h, o) in self.hist.iter_mut().zip(&other.hist) {
+            if o.rows == 0 {
+                continue;
+            }
+            grow(h, o.lo, nb);
+            grow(h, o.lo + o.rows as i64 - 1, nb);
+            let off = (o.lo - h.lo) as usize * nb;
+            for (d, s) in h.counts[off..off + o.counts.len()]
+                .iter_mut()
+                .zip(&o.counts)
+            {
+                *d += s;
+            }
+            h.n += o.n;
+        }
+        self.images += other.images;
+        Ok(())
+    }
+
+    /// Mean of `ln M` at scale `j` from the bin centres (NaN if empty).
+    pub fn mean_ln_m(&self, j: usize) -> f64 {
+        let h = &self.hist[j];
+        if h.n == 0 {
+            return f64::NAN;
+        }
+        let nb = self.config.arg_bins;
+        let mut s = 0.0;
+        for r in 0..h.rows {
+            let c: u64 = h.counts[r * nb..(r + 1) * nb].iter().sum();
+            s += c as f64 * (h.lo + r as i64) as f64;
+        }
+        (s / h.n as f64 + 0.5) * self.config.dlnm
+    }
+
+    /// The density of `ln M` at scale `j` on its bin centres: `(u, P(u))`.
+    pub fn ln_m_density(&self, j: usize) -> (Vec<f64>, Vec<f64>) {
+        let h = &self.hist[j];
+        let nb = self.config.arg_bins;
+        let d = self.config.dlnm;
+        let u = (0..h.rows)
+            .map(|r| (h.lo as f64 + r as f64 + 0.5) * d)
+            .collect();
+        let p = (0..h.rows)
+            .map(|r| {
+                let c: u64 = h.counts[r * nb..(r + 1) * nb].iter().sum();
+                c as f64 / (h.n.max(1) as f64 * d)
+            })
+            .collect();
+        (u, p)
+    }
+}
+
+fn same_scales(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(x, y)| (x - y).abs() <= 1e-9 * x.abs())
+}
+
+/// Argument bin of `A` over `[-π, π)` (π itself goes to the first bin, as -π).
+fn arg_bin(arg: f64, nb: usize) -> usize {
+    let t = (arg + PI).rem_euclid(2.0 * PI) / (2.0 * PI);
+    ((t * nb as f64).floor() as usize).min(nb - 1)
+}
+
+/// Makes room for `ln M` bin `k`.
+fn grow(h: &mut ScaleHist, k: i64, nb: usize) {
+    if h.rows == 0 {
+        h.lo = k;
+        h.rows = 1;
+        h.counts = vec![0; nb];
+        return;
+    }
+    if k < h.lo {
+        let add = (h.lo - k) as usize;
+        let mut c = vec![0; add * nb];
+        c.extend_from_slice(&h.counts);
+        h.counts = c;
+        h.lo = k;
+        h.rows += add;
+    } else if k >= h.lo + h.rows as i64 {
+        let add = (k - h.lo - h.rows as i64 + 1) as usize;
+        h.counts.extend(std::iter::repeat_n(0, add * nb));
+        h.rows += add;
+    }
+}
+
+/// What [`wtmmm_pdfs`] reports.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PdfOptions {
+    /// Scale indices to report.
+    pub show: Vec<usize>,
+    /// Exponent of the rescaling test II eq 39: `M / (a/a_min)^h0`.
+    pub h0: f64,
+    /// Cells per side of the `(T1, T2)` density grid.
+    pub joint_cells: usize,
+    /// The `(T1, T2)` grid covers `|T_i| <= ` this quantile of M.
+    pub joint_quantile: f64,
+}
+
+impl Default for PdfOptions {
+    fn default() -> Self {
+        PdfOptions {
+            show: vec![],
+            h0: 0.0,
+            joint_cells: 81,
+            joint_quantile: 0.99,
+        }
+    }
+}
+
+/// Density of M conditioned on `A mod π` in `centre ± π/8`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SectorPdf {
+    /// Sector centre (radians, mod π): 0, π/4, π/2, 3π/4.
+    pub centre: f64,
+    pub n: u64,
+    /// `P(M | sector)` on the grid `m` of the scale.
+    pub p_m: Vec<f64>,
+    /// `P(ln M | sector)` on the grid `ln_m`.
+    pub p_ln_m: Vec<f64>,
+}
+
+/// Density of `(T1, T2)` at the WTMMM on a square grid of cell centres
+/// `t[i]` (both axes), `density[iy * t.len() + ix]` at `(T1, T2) = (t[ix], t[iy])`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JointDensity {
+    pub t: Vec<f64>,
+    pub density: Vec<f64>,
+}
+
+/// The densities of one scale (II Figs 11-14, 17-20).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ScalePdf {
+    pub j: usize,
+    pub a: f64,
+    /// `log2(a / a_min)`.
+    pub octave: f64,
+    pub n: u64,
+    /// Bin centres of `ln M` and the density of `ln M`.
+    pub ln_m: Vec<f64>,
+    pub p_ln_m: Vec<f64>,
+    /// `M = exp(ln_m)` and the density of M, `P(ln M) / M`.
+    pub m: Vec<f64>,
+    pub p_m: Vec<f64>,
+    /// Argument bin centres and the density of A.
+    pub arg: Vec<f64>,
+    pub p_arg: Vec<f64>,
+    pub sectors: Vec<SectorPdf>,
+    /// II eq 39: `M / (a/a_min)^h0` and its density `s P(M)`.
+    pub rescaled_m: Vec<f64>,
+    pub p_rescaled: Vec<f64>,
+    pub joint: JointDensity,
+}
+
+/// The densities of II Figs 11-14 at the scales `opts.show`, from the
+/// ensemble histograms (see the module doc for the formulas).
+///
+/// **Errors** if a scale index is out of range or a grid option is invalid.
+pub fn wtmmm_pdfs(h: &WtmmmHistograms, opts: &PdfOptions) -> Result<Vec<ScalePdf>> {
+    if let Some(&j) = opts.show.iter().find(|&&j| j >= h.scales.len()) {
+        return Err(Error::param(
+            "show",
+            format!("scale index {j} out of range (0..{})", h.scales.len()),
+        ));
+    }
+    if opts.joint_cells < 3 || opts.joint_cells > 2001 {
+        return Err(Error::param(
+            "joint-cells",
+            format!("must be in 3..=2001, got {}", opts.joint_cells),
+        ));
+    }
+    if !(opts.joint_quantile > 0.0 && opts.joint_quantile <= 1.0) {
+        return Err(Error::param(
+            "joint-quantile",
+            format!("must be in (0, 1], got {}", opts.joint_quantile),
+        ));
+    }
+    if !opts.h0.is_finite() {
+        return Err(Error::param("h0", "must be finite"));
+    }
+    Ok(opts
+        .show
+        .par_iter()
+        .map(|&j| scale_pdf(h, j, opts))
+        .collect())
+}
+
+fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
+    let h = &hs.hist[j];
+    let nb = hs.config.arg_bins;
+    let d = hs.config.dlnm;
+    let a = hs.scales[j];
+    let a_min = hs.scales[0];
+    let n = h.n.max(1) as f64;
+    let (ln_m, p_ln_m) = hs.ln_m_density(j);
+    let m: Vec<f64> = ln_m.iter().map(|u| u.exp()).collect();
+    let p_m: Vec<f64> = p_ln_m.iter().zip(&m).map(|(p, mm)| p / mm).collect();
+    let da = 2.0 * PI / nb as f64;
+    let arg: Vec<f64> = (0..nb).map(|b| -PI + (b as f64 + 0.5) * da).collect();
+    let mut p_arg = vec![0.0; nb];
+    for row in h.counts.chunks_exact(nb) {
+        for (p, &c) in p_arg.iter_mut().zip(row) {
+            *p += c as f64;
+        }
+    }
+    p_arg.iter_mut().for_each(|v| *v /= n * da);
+    // sectors of A mod π: bin b covers A in [-π + b da, ...), so A mod π
+    // corresponds to b mod (nb/2); sector k is centred on kπ/4 = 8k (nb/64) bins
+    let half = nb / 2;
+    let per_sector = nb / 8; // π/4 wide
+    let sectors = (0..4)
+        .map(|k| {
+            let c = k * per_sector; // index (mod half) of the sector centre
+            let in_sector = |b: usize| {
+                let r = (b % half + half - c + per_sector / 2) % half;
+                r < per_sector
+            };
+            let mut rows = vec![0u64; h.rows];
+            for (r, row) in rows.iter_mut().enumerate() {
+                *row = (0..nb)
+                    .filter(|&b| in_sector(b))
+                    .map(|b| h.counts[r * nb + b])
+                    .sum();
+            }
+            let ns: u64 = rows.iter().sum();
+            let p_ln: Vec<f64> = rows
+                .iter()
+                .map(|&c| c as f64 / (ns.max(1) as f64 * d))
+                .collect();
+            SectorPdf {
+                centre: k as f64 * PI / 4.0,
+                n: ns,
+                p_m: p_ln.iter().zip(&m).map(|(p, mm)| p / mm).collect(),
+                p_ln_m: p_ln,
+            }
+        })
+        .collect();
+    // II eq 39 with a in units of a_min (the paper's σ_W units)
+    let s = (a / a_min).powf(opts.h0);
+    let rescaled_m = m.iter().map(|v| v / s).collect();
+    let p_rescaled = p_m.iter().map(|p| p * s).collect();
+    ScalePdf {
+        j,
+        a,
+        octave: (a / a_min).log2(),
+        n: h.n,
+        joint: joint_density(hs, j, opts),
+        ln_m,
+        p_ln_m,
+        m,
+        p_m,
+        arg,
+        p_arg,
+        sectors,
+        rescaled_m,
+        p_rescaled,
+    }
+}
+
+/// `p(T1, T2) = P(ln M, A) / M²` sampled at the cell centres of a square
+/// grid (polar histogram cell containing each point; 0 outside the data).
+fn joint_density(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> JointDensity {
+    let h = &hs.hist[j];
+    let nb = hs.config.arg_bins;
+    let d = hs.config.dlnm;
+    let nc = opts.joint_cells;
+    if h.n == 0 {
+        return JointDensity {
+            t: vec![0.0; nc],
+            density: vec![0.0; nc * nc],
+        };
+    }
+    // extent: the quantile of M
+    let target = (opts.joint_quantile * h.n as f64).ceil() as u64;
+    let mut acc = 0u64;
+    let mut r_q = h.rows - 1;
+    for r in 0..h.rows {
+        acc += h.counts[r * nb..(r + 1) * nb].iter().sum::<u64>();
+        if acc >= target {
+            r_q = r;
+            break;
+        }
+    }
+    let extent = ((h.lo + r_q as i64 + 1) as f64 * d).exp();
+    let t: Vec<f64> = (0..nc)
+        .map(|i| -extent + (i as f64 + 0.5) * 2.0 * extent / nc as f64)
+        .collect();
+    let da = 2.0 * PI / nb as f64;
+    let norm = h.n as f64 * d * da;
+    let mut density = vec![0.0; nc * nc];
+    for (iy, &t2) in t.iter().enumerate() {
+        for (ix, &t1) in t.iter().enumerate() {
+            let m2 = t1 * t1 + t2 * t2;
+            if m2 <= 0.0 {
+                continue;
+            }
+            let k = (0.5 * m2.ln() / d).floor() as i64;
+            if k < h.lo || k >= h.lo + h.rows as i64 {
+                continue;
+            }
+            let b = arg_bin(t2.atan2(t1), nb);
+            let c = h.counts[(k - h.lo) as usize * nb + b];
+            density[iy * nc + ix] = c as f64 / norm / m2;
+        }
+    }
+    JointDensity { t, density }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn arg_bins_and_sectors() {
+        let nb = 64;
+        assert_eq!(arg_bin(-PI, nb), 0);
+        assert_eq!(arg_bin(PI, nb), 0);
+        assert_eq!(arg_bin(0.0, nb), 32);
+        assert_eq!(arg_bin(PI - 1e-9, nb), 63);
+        // points at A = kπ/4 + π (same sector mod π) land in sector k
+        let mut h = WtmmmHistograms::new(&[1.0], PdfConfig::default()).unwrap();
+        for k in 0..4 {
+            for _ in 0..(k + 1) * 10 {
+                h.add(0, 1.0, k as f64 * PI / 4.0 - PI + 0.01);
+                h.add(0, 1.0, k as f64 * PI / 4.0 - 0.01);
+            }
+        }
+        let p = wtmmm_pdfs(
+            &h,
+            &PdfOptions {
+                show: vec![0],
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let n: Vec<u64> = p[0].sectors.iter().map(|s| s.n).collect();
+        assert_eq!(n, vec![20, 40, 60, 80]);
+    }
+
+    #[test]
+    fn merge_is_exact_and_grows_both_ways() {
+        let s = [1.0, 2.0];
+        let mut a = WtmmmHistograms::new(&s, PdfConfig::default()).unwrap();
+        let mut b = a.clone();
+        a.add(0, 1.0, 0.0);
+        a.add(0, 10.0, 1.0);
+        b.add(0, 0.01, -1.0);
+        b.add(1, 5.0, 2.0);
+        let mut ab = a.clone();
+        ab.merge(&b).unwrap();
+        let mut ba = b.clone();
+        ba.merge(&a).unwrap();
+        assert_eq!(ab.hist, ba.hist);
+        assert_eq!(ab.hist[0].n, 3);
+        let (_, p) = ab.ln_m_density(0);
+        let total: f64 = p.iter().sum::<f64>() * ab.config.dlnm;
+        assert!((total - 1.0).abs() < 1e-12);
+    }
+}
