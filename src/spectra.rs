@@ -381,16 +381,27 @@ fn cells_all_q(log2m: &[f64], q: &[f64]) -> Vec<Cell> {
     let nq = q.len();
     let (lmin, lmax) = log2m
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &l| (a.min(l), b.max(l)));
-    let dq = if nq > 1 { (q[nq - 1] - q[0]) / (nq - 1) as f64 } else { 0.0 };
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &l| {
+            (a.min(l), b.max(l))
+        });
+    let dq = if nq > 1 {
+        (q[nq - 1] - q[0]) / (nq - 1) as f64
+    } else {
+        0.0
+    };
     let uniform = nq > 2
-        && q.iter().enumerate().all(|(k, &v)| (v - (q[0] + k as f64 * dq)).abs() <= 1e-12 * (1.0 + v.abs()));
+        && q.iter()
+            .enumerate()
+            .all(|(k, &v)| (v - (q[0] + k as f64 * dq)).abs() <= 1e-12 * (1.0 + v.abs()));
     let qmax = q.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
     let lbig = lmin.abs().max(lmax.abs());
     if !uniform || !(qmax * lbig < 900.0) {
         return q.iter().map(|&v| cell(log2m, v)).collect();
     }
-    let e: Vec<f64> = q.iter().map(|&v| (v * if v >= 0.0 { lmax } else { lmin }).ceil()).collect();
+    let e: Vec<f64> = q
+        .iter()
+        .map(|&v| (v * if v >= 0.0 { lmax } else { lmin }).ceil())
+        .collect();
     let shift: Vec<f64> = e.iter().map(|&x| (-x).exp2()).collect();
     let mut z = vec![0.0; nq];
     let mut zl = vec![0.0; nq];
@@ -592,14 +603,23 @@ mod tests {
 
     #[test]
     fn recurrence_matches_direct_cells() {
-        let l: Vec<f64> = (0..500).map(|i| ((i * 37 % 101) as f64 - 50.0) / 7.0).collect();
+        let l: Vec<f64> = (0..500)
+            .map(|i| ((i * 37 % 101) as f64 - 50.0) / 7.0)
+            .collect();
         let q: Vec<f64> = (0..33).map(|k| -4.0 + 0.3125 * k as f64).collect();
         let fast = cells_all_q(&l, &q);
         for (k, &qv) in q.iter().enumerate() {
             let slow = cell(&l, qv);
             assert_eq!(fast[k].e, slow.e, "q = {qv}");
-            for (a, b) in [(fast[k].z, slow.z), (fast[k].zl, slow.zl), (fast[k].z2, slow.z2)] {
-                assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0), "q = {qv}: {a} vs {b}");
+            for (a, b) in [
+                (fast[k].z, slow.z),
+                (fast[k].zl, slow.zl),
+                (fast[k].z2, slow.z2),
+            ] {
+                assert!(
+                    (a - b).abs() <= 1e-12 * b.abs().max(1.0),
+                    "q = {qv}: {a} vs {b}"
+                );
             }
         }
         // a non-uniform grid takes the direct path

@@ -5,7 +5,7 @@ use ndarray::Array2;
 use num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
-use crate::cwt::argument;
+use crate::cwt::{argument, modulus};
 
 /// A local maximum of the modulus along a maxima chain (a WTMMM).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -123,6 +123,10 @@ pub struct DetectScratch {
     flag: Vec<u8>,
     /// WTMM test results of one row.
     row_mask: Vec<u8>,
+    /// Three rows of M (streaming pass).
+    ring: Vec<f64>,
+    /// Candidates (index, M) before the eps threshold.
+    cand: Vec<(u32, f64)>,
     /// Padded indices of this scale's WTMM pixels.
     wtmm: Vec<u32>,
     stack: Vec<u32>,
@@ -177,26 +181,9 @@ pub fn detect(
         return out;
     }
     let ts = t.as_slice().expect("CWT output is contiguous");
-    s.modulus.resize(ny * nx, 0.0);
-    modulus_into(ts, &mut s.modulus);
-    let m = &s.modulus;
     let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
-    let mut mmax: f64 = 0.0;
-    for y in domain.y0..domain.y1 {
-        for &v in &m[y * nx + domain.x0..y * nx + domain.x1] {
-            mmax = mmax.max(v);
-        }
-    }
-    if mmax <= 0.0 || !mmax.is_finite() {
-        return out;
-    }
-    let thr = eps * mmax;
     // a WTMM whose wavelet support reaches a masked pixel is dropped
     let min_dist = (domain.support * a) as f32;
-
-    // 1. non-maximum suppression along the gradient. Flags live on a grid
-    //    padded by one pixel, so neighbour lookups need no bounds test, and
-    //    only the flags set at the previous scale are cleared.
     let pw = nx + 2;
     if s.flag.len() != (ny + 2) * pw {
         s.flag.clear();
@@ -207,36 +194,88 @@ pub fn detect(
         }
     }
     s.wtmm.clear();
+    s.cand.clear();
+    s.row_mask.resize(nx, 0);
     // without wrap-around when the domain keeps two pixels from the border
     // (p ± u and the cell beyond it stay inside the image)
     let wraps = dy0 < 2 || dx0 < 2 || dy1 + 2 > ny || dx1 + 2 > nx;
-    s.row_mask.resize(nx, 0);
-    for y in dy0..dy1 {
-        if wraps {
+    let in_count = |y: usize| y >= domain.y0 && y < domain.y1;
+    let mut mmax: f64 = 0.0;
+
+    // 1. non-maximum suppression along the gradient. The eps threshold
+    //    needs max M, so candidates are kept with their modulus and
+    //    thresholded after the pass.
+    if wraps {
+        s.modulus.resize(ny * nx, 0.0);
+        modulus_into(ts, &mut s.modulus);
+        let m = &s.modulus;
+        for y in domain.y0..domain.y1 {
+            for &v in &m[y * nx + domain.x0..y * nx + domain.x1] {
+                mmax = mmax.max(v);
+            }
+        }
+        for y in dy0..dy1 {
             for x in dx0..dx1 {
                 let p = y * nx + x;
                 let mp = m[p];
-                s.row_mask[x] = (mp >= thr
-                    && mp > 0.0
-                    && nms_wrapping(m, nx, ny, x, y, ts[p].re / mp, ts[p].im / mp, mp))
-                    as u8;
+                if mp > 0.0 && nms_wrapping(m, nx, ny, x, y, ts[p].re / mp, ts[p].im / mp, mp) {
+                    s.cand.push((p as u32, mp));
+                }
             }
-        } else {
-            nms_row(m, ts, nx, y, dx0, dx1, thr, &mut s.row_mask);
         }
-        for x in dx0..dx1 {
-            if s.row_mask[x] == 0 {
-                continue;
+    } else {
+        // one streaming pass: M rows in a ring of three, the NMS one row
+        // behind, while that row of T is still in cache (the detection was
+        // memory-bound with full M arrays)
+        s.ring.resize(3 * nx, 0.0);
+        let mut fill = |ring: &mut [f64], r: usize| {
+            let dst = &mut ring[(r % 3) * nx..(r % 3 + 1) * nx];
+            modulus_into(&ts[r * nx..(r + 1) * nx], dst);
+            if in_count(r) {
+                for &v in &dst[domain.x0..domain.x1] {
+                    mmax = mmax.max(v);
+                }
             }
-            if let Some(d) = &domain.mask_distance
-                && d[[y, x]] <= min_dist
-            {
-                continue;
+        };
+        fill(&mut s.ring, dy0 - 1);
+        fill(&mut s.ring, dy0);
+        for y in dy0..dy1 {
+            fill(&mut s.ring, y + 1);
+            let row = |r: usize| &s.ring[(r % 3) * nx..(r % 3 + 1) * nx];
+            nms_row(
+                row(y - 1),
+                row(y),
+                row(y + 1),
+                &ts[y * nx..(y + 1) * nx],
+                dx0,
+                dx1,
+                &mut s.row_mask,
+            );
+            let mid = row(y);
+            for x in dx0..dx1 {
+                if s.row_mask[x] != 0 {
+                    s.cand.push(((y * nx + x) as u32, mid[x]));
+                }
             }
-            let q = (y + 1) * pw + x + 1;
-            s.flag[q] = 1;
-            s.wtmm.push(q as u32);
         }
+    }
+    if mmax <= 0.0 || !mmax.is_finite() {
+        return out;
+    }
+    let thr = eps * mmax;
+    for &(p, mp) in &s.cand {
+        let (y, x) = (p as usize / nx, p as usize % nx);
+        if mp < thr {
+            continue;
+        }
+        if let Some(d) = &domain.mask_distance
+            && d[[y, x]] <= min_dist
+        {
+            continue;
+        }
+        let q = (y + 1) * pw + x + 1;
+        s.flag[q] = 1;
+        s.wtmm.push(q as u32);
     }
     out.n_wtmm = s.wtmm.len();
 
@@ -323,7 +362,7 @@ pub fn detect(
                 s.mvals.clear();
                 s.mvals.extend(s.order.iter().map(|&q| {
                     let (x, y) = unpad(q);
-                    m[y as usize * nx + x as usize]
+                    modulus(ts[y as usize * nx + x as usize])
                 }));
                 for_each_chain_max(&s.mvals, closed, |i| {
                     let (x, y) = unpad(s.order[i]);
@@ -331,7 +370,7 @@ pub fn detect(
                     out.wtmmm.push(Wtmmm {
                         x,
                         y,
-                        m: m[p],
+                        m: modulus(ts[p]),
                         arg: argument(ts[p]),
                         chain: chain_id,
                     });
@@ -382,24 +421,23 @@ fn modulus_into(ts: &[Complex64], m: &mut [f64]) {
 /// division, and selects instead of branches let the loop vectorise.
 #[allow(clippy::too_many_arguments)]
 fn nms_row(
-    m: &[f64],
-    ts: &[Complex64],
-    nx: usize,
-    y: usize,
+    up: &[f64],
+    mid: &[f64],
+    dn: &[f64],
+    trow: &[Complex64],
     x0: usize,
     x1: usize,
-    thr: f64,
     mask: &mut [u8],
 ) {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above).
-            unsafe { nms_row_avx2(m, ts, nx, y, x0, x1, thr, mask) };
+            unsafe { nms_row_avx2(up, mid, dn, trow, x0, x1, mask) };
             return;
         }
     }
-    nms_row_impl(m, ts, nx, y, x0, x1, thr, mask)
+    nms_row_impl(up, mid, dn, trow, x0, x1, mask)
 }
 
 /// The same kernel compiled for AVX2 (4 f64 lanes). No FMA contraction
@@ -408,33 +446,28 @@ fn nms_row(
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
 unsafe fn nms_row_avx2(
-    m: &[f64],
-    ts: &[Complex64],
-    nx: usize,
-    y: usize,
+    up: &[f64],
+    mid: &[f64],
+    dn: &[f64],
+    trow: &[Complex64],
     x0: usize,
     x1: usize,
-    thr: f64,
     mask: &mut [u8],
 ) {
-    nms_row_impl(m, ts, nx, y, x0, x1, thr, mask)
+    nms_row_impl(up, mid, dn, trow, x0, x1, mask)
 }
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn nms_row_impl(
-    m: &[f64],
-    ts: &[Complex64],
-    nx: usize,
-    y: usize,
+    up: &[f64],
+    mid: &[f64],
+    dn: &[f64],
+    trow: &[Complex64],
     x0: usize,
     x1: usize,
-    thr: f64,
     mask: &mut [u8],
 ) {
-    let r = y * nx;
-    let (up, mid, dn) = (&m[r - nx..r], &m[r..r + nx], &m[r + nx..r + 2 * nx]);
-    let trow = &ts[r..r + nx];
     for x in x0..x1 {
         let mp = mid[x];
         let (t1, t2) = (trow[x].re, trow[x].im);
@@ -465,7 +498,7 @@ fn nms_row_impl(
         let fwd = base + w10 * hf + w01 * vf + w11 * d_f;
         let bwd = base + w10 * hb + w01 * vb + w11 * d_b;
         let m3 = mp * mp * mp;
-        mask[x] = ((m3 > fwd) & (m3 >= bwd) & (mp >= thr) & (mp > 0.0)) as u8;
+        mask[x] = ((m3 > fwd) & (m3 >= bwd) & (mp > 0.0)) as u8;
     }
 }
 
