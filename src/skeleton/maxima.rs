@@ -252,9 +252,9 @@ pub fn detect(
                 &mut s.row_mask,
             );
             let mid = row(y);
-            for x in dx0..dx1 {
-                if s.row_mask[x] != 0 {
-                    s.cand.push(((y * nx + x) as u32, mid[x]));
+            for (x, (&hit, &mp)) in s.row_mask.iter().zip(mid).enumerate().take(dx1).skip(dx0) {
+                if hit != 0 {
+                    s.cand.push(((y * nx + x) as u32, mp));
                 }
             }
         }
