@@ -188,6 +188,15 @@ impl ScaleGrid {
     }
 }
 
+/// True if two scale lists are the same grid (to 1e-9 relative): the
+/// condition for merging sums computed on different machines.
+pub fn same_scales(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(x, y)| (x - y).abs() <= 1e-9 * x.abs())
+}
+
 /// Default interior margin for a wavelet and largest scale (SPEC §1).
 pub fn default_margin(wavelet: Wavelet, a_max: f64) -> usize {
     (wavelet.support_radius() * a_max).ceil() as usize

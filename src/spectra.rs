@@ -144,13 +144,7 @@ impl PartitionSums {
                 "cannot merge partition sums over different q grids",
             ));
         }
-        if self.scales.len() != other.scales.len()
-            || self
-                .scales
-                .iter()
-                .zip(&other.scales)
-                .any(|(a, b)| (a - b).abs() > 1e-9 * a)
-        {
+        if !crate::cwt::same_scales(&self.scales, &other.scales) {
             return Err(Error::param(
                 "scales",
                 "cannot merge partition sums over different scales",

@@ -419,7 +419,6 @@ fn modulus_into(ts: &[Complex64], m: &mut [f64]) {
 /// `(M-A)(M-B), A(M-B), (M-A)B, AB` over `M^2`; `p - u` uses the opposite
 /// quadrant with the same weights. Multiplying through by `M^2` removes the
 /// division, and selects instead of branches let the loop vectorise.
-#[allow(clippy::too_many_arguments)]
 fn nms_row(
     up: &[f64],
     mid: &[f64],
@@ -444,7 +443,6 @@ fn nms_row(
 /// happens without `mul_add`, so both paths give identical bits.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
 unsafe fn nms_row_avx2(
     up: &[f64],
     mid: &[f64],

@@ -721,12 +721,7 @@ impl CorrelationSums {
             && self.max_dx == other.max_dx
             && self.periodic == other.periodic
             && self.magnitude == other.magnitude
-            && self.scales.len() == other.scales.len()
-            && self
-                .scales
-                .iter()
-                .zip(&other.scales)
-                .all(|(a, b)| (a - b).abs() <= 1e-9 * a);
+            && crate::cwt::same_scales(&self.scales, &other.scales);
         if !same {
             return Err(Error::param(
                 "pairs",

@@ -327,13 +327,7 @@ impl KernelSums {
                 "cannot merge kernel sums over different WTMMM sets",
             ));
         }
-        if self.scales.len() != other.scales.len()
-            || self
-                .scales
-                .iter()
-                .zip(&other.scales)
-                .any(|(a, b)| (a - b).abs() > 1e-9 * a)
-        {
+        if !crate::cwt::same_scales(&self.scales, &other.scales) {
             return Err(Error::param(
                 "scales",
                 "cannot merge kernel sums over different scales",
