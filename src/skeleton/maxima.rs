@@ -5,7 +5,7 @@ use ndarray::Array2;
 use num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
-use crate::cwt::{argument, modulus};
+use crate::cwt::argument;
 
 /// A local maximum of the modulus along a maxima chain (a WTMMM).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -118,21 +118,51 @@ impl Domain {
 #[derive(Default)]
 pub struct DetectScratch {
     modulus: Vec<f64>,
-    /// On the grid padded by one pixel: 1 = WTMM pixel not yet chained,
-    /// 3 = in the component being traced, 2 = chained.
-    flag: Vec<u8>,
+    /// One bit per pixel of the grid padded by one pixel: WTMM or not.
+    /// Small enough to stay in cache; the index of a WTMM pixel in `pos` is
+    /// the rank of its bit (`prefix` + a popcount).
+    bits: Vec<u64>,
+    /// Number of set bits before each word of `bits`.
+    prefix: Vec<u32>,
+    /// Per WTMM pixel: bit i set if `NEIGH[i]` is a WTMM pixel.
+    nmask: Vec<u8>,
     /// WTMM test results of one row.
     row_mask: Vec<u8>,
     /// Three rows of M (streaming pass).
     ring: Vec<f64>,
-    /// Candidates (index, M) before the eps threshold.
-    cand: Vec<(u32, f64)>,
-    /// Padded indices of this scale's WTMM pixels.
-    wtmm: Vec<u32>,
-    stack: Vec<u32>,
-    comp: Vec<u32>,
-    order: Vec<u32>,
+    /// Candidates before the eps threshold, in raster order.
+    cand: Vec<Px>,
+    /// This scale's WTMM pixels in raster order, as separate arrays so that
+    /// the chain tracing's working set stays in cache: positions, moduli,
+    /// transforms.
+    pos: Vec<(u32, u32)>,
+    pm: Vec<f64>,
+    pt: Vec<Complex64>,
+    /// Per WTMM pixel: 1 = not yet chained, 3 = in the component being
+    /// traced, 2 = chained.
+    state: Vec<u8>,
+    stack: Vec<Pix>,
+    comp: Vec<Pix>,
+    order: Vec<Pix>,
     mvals: Vec<f64>,
+    /// Index in `pt` of each WTMMM, and their order by that index.
+    maxk: Vec<u32>,
+    order_k: Vec<u32>,
+}
+
+/// A WTMM pixel while chains are traced: index (raster order), padded
+/// column, padded row.
+type Pix = [u32; 3];
+
+/// A WTMM pixel (candidate): position, modulus and transform, captured
+/// while its row of T is in cache (chains are traced after the whole pass,
+/// when T has left the cache).
+#[derive(Clone, Copy, Default)]
+struct Px {
+    x: u32,
+    y: u32,
+    m: f64,
+    t: Complex64,
 }
 
 /// 8 neighbours, 4-connected ones first so that tracing follows the curve
@@ -147,6 +177,9 @@ const NEIGH: [(i32, i32); 8] = [
     (-1, -1),
     (1, -1),
 ];
+/// Bits of the `NEIGH` mask in the row above and in the row below.
+const UP: u8 = 1 << 3 | 1 << 6 | 1 << 7;
+const DOWN: u8 = 1 << 1 | 1 << 4 | 1 << 5;
 
 /// Finds WTMM, chains and WTMMM at one scale from `T = T1 + i T2`.
 ///
@@ -184,16 +217,7 @@ pub fn detect(
     let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
     // a WTMM whose wavelet support reaches a masked pixel is dropped
     let min_dist = (domain.support * a) as f32;
-    let pw = nx + 2;
-    if s.flag.len() != (ny + 2) * pw {
-        s.flag.clear();
-        s.flag.resize((ny + 2) * pw, 0);
-    } else {
-        for &q in &s.wtmm {
-            s.flag[q as usize] = 0;
-        }
-    }
-    s.wtmm.clear();
+    s.state.clear();
     s.cand.clear();
     s.row_mask.resize(nx, 0);
     // without wrap-around when the domain keeps two pixels from the border
@@ -219,7 +243,12 @@ pub fn detect(
                 let p = y * nx + x;
                 let mp = m[p];
                 if mp > 0.0 && nms_wrapping(m, nx, ny, x, y, ts[p].re / mp, ts[p].im / mp, mp) {
-                    s.cand.push((p as u32, mp));
+                    s.cand.push(Px {
+                        x: x as u32,
+                        y: y as u32,
+                        m: mp,
+                        t: ts[p],
+                    });
                 }
             }
         }
@@ -242,85 +271,178 @@ pub fn detect(
         for y in dy0..dy1 {
             fill(&mut s.ring, y + 1);
             let row = |r: usize| &s.ring[(r % 3) * nx..(r % 3 + 1) * nx];
+            let trow = &ts[y * nx..(y + 1) * nx];
             nms_row(
                 row(y - 1),
                 row(y),
                 row(y + 1),
-                &ts[y * nx..(y + 1) * nx],
+                trow,
                 dx0,
                 dx1,
                 &mut s.row_mask,
             );
             let mid = row(y);
-            for (x, (&hit, &mp)) in s.row_mask.iter().zip(mid).enumerate().take(dx1).skip(dx0) {
-                if hit != 0 {
-                    s.cand.push(((y * nx + x) as u32, mp));
-                }
-            }
+            for_each_set(&s.row_mask[dx0..dx1], |i| {
+                let x = dx0 + i;
+                s.cand.push(Px {
+                    x: x as u32,
+                    y: y as u32,
+                    m: mid[x],
+                    t: trow[x],
+                });
+            });
         }
     }
     if mmax <= 0.0 || !mmax.is_finite() {
         return out;
     }
     let thr = eps * mmax;
-    for &(p, mp) in &s.cand {
-        let (y, x) = (p as usize / nx, p as usize % nx);
-        if mp < thr {
+    s.pos.clear();
+    s.pm.clear();
+    s.pt.clear();
+    for c in &s.cand {
+        if c.m < thr {
             continue;
         }
         if let Some(d) = &domain.mask_distance
-            && d[[y, x]] <= min_dist
+            && d[[c.y as usize, c.x as usize]] <= min_dist
         {
             continue;
         }
-        let q = (y + 1) * pw + x + 1;
-        s.flag[q] = 1;
-        s.wtmm.push(q as u32);
+        s.pos.push((c.x, c.y));
+        s.pm.push(c.m);
+        s.pt.push(c.t);
     }
-    out.n_wtmm = s.wtmm.len();
+    s.state.clear();
+    s.state.resize(s.pos.len(), 1);
+    out.n_wtmm = s.pos.len();
 
-    // 2. chains, 3. WTMMM (indices on the padded grid; flags outside the
-    //    domain are always 0, so neighbours need no domain test)
-    let offs: [isize; 8] = NEIGH.map(|(dx, dy)| dy as isize * pw as isize + dx as isize);
-    let unpad =
-        |q: u32| -> (u32, u32) { ((q as usize % pw - 1) as u32, (q as usize / pw - 1) as u32) };
-    for wi in 0..s.wtmm.len() {
-        let seed = s.wtmm[wi];
-        if s.flag[seed as usize] != 1 {
+    // 2. chains, 3. WTMMM. Pixels are handled by their index k in raster
+    //    order; their 8-neighbourhoods are read once from a bit grid (padded
+    //    so that every neighbour of a domain pixel is on it) and kept as a
+    //    mask plus the ranks of the rows above and below, so that tracing
+    //    touches only small per-pixel arrays.
+    let wpr = (nx + 2) / 64 + 2;
+    s.bits.clear();
+    s.bits.resize((ny + 2) * wpr, 0);
+    for &(x, y) in &s.pos {
+        let c = x as usize + 1;
+        s.bits[(y as usize + 1) * wpr + c / 64] |= 1 << (c % 64);
+    }
+    s.prefix.clear();
+    let mut acc = 0u32;
+    s.prefix.extend(s.bits.iter().map(|w| {
+        let before = acc;
+        acc += w.count_ones();
+        before
+    }));
+    s.nmask.clear();
+    {
+        let bits = &s.bits;
+        // bits c-1, c, c+1 of padded row r (bit 0 = c-1)
+        let row3 = |r: usize, c: usize| -> u32 {
+            let i = r * wpr + (c - 1) / 64;
+            let w = bits[i] as u128 | (bits[i + 1] as u128) << 64;
+            ((w >> ((c - 1) % 64)) & 7) as u32
+        };
+        s.nmask.extend(s.pos.iter().map(|&(x, y)| {
+            let (c, r) = (x as usize + 1, y as usize + 1);
+            let (u, m, d) = (row3(r - 1, c), row3(r, c), row3(r + 1, c));
+            // bit i set: NEIGH[i] is a WTMM pixel
+            ((m >> 2 & 1)
+                | (d >> 1 & 1) << 1
+                | (m & 1) << 2
+                | (u >> 1 & 1) << 3
+                | (d >> 2 & 1) << 4
+                | (d & 1) << 5
+                | (u & 1) << 6
+                | (u >> 2 & 1) << 7) as u8
+        }));
+    }
+    let (bits, prefix, nmask, state) = (&s.bits, &s.prefix, &s.nmask, &mut s.state);
+    // index of the WTMM pixel at padded (c, r): the rank of its bit
+    let rank = move |c: u32, r: u32| -> u32 {
+        let i = r as usize * wpr + c as usize / 64;
+        prefix[i] + (bits[i] & ((1u64 << (c % 64)) - 1)).count_ones()
+    };
+    // the WTMM neighbours of pixel `p` (index, padded column, padded row), in
+    // NEIGH order; the pixel's own coordinates travel with it, so tracing
+    // reads only the small per-pixel arrays
+    let neighbours = move |p: Pix| {
+        let [k, c, r] = p;
+        let mask = nmask[k as usize];
+        let (up, dn) = (
+            if mask & UP != 0 {
+                rank(c - 1, r - 1)
+            } else {
+                0
+            },
+            if mask & DOWN != 0 {
+                rank(c - 1, r + 1)
+            } else {
+                0
+            },
+        );
+        let bit = |i: u32| (mask as u32 >> i) & 1;
+        let at = [
+            k + 1,
+            dn + bit(5),
+            k.wrapping_sub(1),
+            up + bit(6),
+            dn + bit(5) + bit(1),
+            dn,
+            up,
+            up + bit(6) + bit(3),
+        ];
+        let mut rest = mask;
+        std::iter::from_fn(move || {
+            (rest != 0).then(|| {
+                let i = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
+                let (dx, dy) = NEIGH[i];
+                [at[i], c.wrapping_add_signed(dx), r.wrapping_add_signed(dy)]
+            })
+        })
+    };
+    let unpad = |p: Pix| -> (u32, u32) { (p[1] - 1, p[2] - 1) };
+    s.maxk.clear();
+    for (seed, &(x, y)) in s.pos.iter().enumerate() {
+        if state[seed] != 1 {
             continue;
         }
-        // the 8-connected component (flag 1 -> 3 while collecting)
+        // the 8-connected component (state 1 -> 3 while collecting)
         s.comp.clear();
         s.stack.clear();
-        s.stack.push(seed);
-        s.flag[seed as usize] = 3;
+        s.stack.push([seed as u32, x + 1, y + 1]);
+        state[seed] = 3;
         while let Some(p) = s.stack.pop() {
             s.comp.push(p);
-            for o in offs {
-                let q = (p as isize + o) as usize;
-                if s.flag[q] == 1 {
-                    s.flag[q] = 3;
-                    s.stack.push(q as u32);
+            for q in neighbours(p) {
+                if state[q[0] as usize] == 1 {
+                    state[q[0] as usize] = 3;
+                    s.stack.push(q);
                 }
             }
         }
         // deterministic order: walk from raster-first endpoints
-        s.comp.sort_unstable();
+        s.comp.sort_unstable_by_key(|p| p[0]);
         let comp_len = s.comp.len();
         let mut remaining = comp_len;
         let mut first_walk = true;
         while remaining > 0 {
-            // start: an unvisited pixel (flag 3) with the fewest unvisited neighbours
-            let mut start = u32::MAX;
+            // start: an unvisited pixel (state 3) with the fewest unvisited neighbours
+            let mut start = [u32::MAX; 3];
             let mut best = u32::MAX;
             for &p in &s.comp {
-                if s.flag[p as usize] != 3 {
+                if state[p[0] as usize] != 3 {
                     continue;
                 }
-                let c = offs
-                    .iter()
-                    .filter(|&&o| s.flag[(p as isize + o) as usize] == 3)
-                    .count() as u32;
+                // before the first walk every neighbour is unvisited
+                let c = if first_walk {
+                    nmask[p[0] as usize].count_ones()
+                } else {
+                    neighbours(p).filter(|q| state[q[0] as usize] == 3).count() as u32
+                };
                 if c < best {
                     best = c;
                     start = p;
@@ -333,21 +455,13 @@ pub fn detect(
             s.order.clear();
             let mut cur = start;
             loop {
-                s.flag[cur as usize] = 2;
+                state[cur[0] as usize] = 2;
                 s.order.push(cur);
                 remaining -= 1;
-                let mut next = u32::MAX;
-                for o in offs {
-                    let q = (cur as isize + o) as usize;
-                    if s.flag[q] == 3 {
-                        next = q as u32;
-                        break;
-                    }
+                match neighbours(cur).find(|q| state[q[0] as usize] == 3) {
+                    Some(j) => cur = j,
+                    None => break,
                 }
-                if next == u32::MAX {
-                    break;
-                }
-                cur = next;
             }
             let n = s.order.len();
             let closed = first_walk
@@ -360,31 +474,59 @@ pub fn detect(
             out.n_chains += 1;
             if n >= 3 {
                 s.mvals.clear();
-                s.mvals.extend(s.order.iter().map(|&q| {
-                    let (x, y) = unpad(q);
-                    modulus(ts[y as usize * nx + x as usize])
-                }));
+                s.mvals.extend(s.order.iter().map(|p| s.pm[p[0] as usize]));
                 for_each_chain_max(&s.mvals, closed, |i| {
-                    let (x, y) = unpad(s.order[i]);
-                    let p = y as usize * nx + x as usize;
+                    let p = s.order[i];
+                    let (x, y) = unpad(p);
+                    s.maxk.push(p[0]);
                     out.wtmmm.push(Wtmmm {
                         x,
                         y,
-                        m: modulus(ts[p]),
-                        arg: argument(ts[p]),
+                        m: s.pm[p[0] as usize],
+                        arg: 0.0,
                         chain: chain_id,
                     });
                 });
             }
             if keep_chains {
                 out.chains.push(Chain {
-                    pixels: s.order.iter().map(|&q| unpad(q)).collect(),
+                    pixels: s.order.iter().map(|&p| unpad(p)).collect(),
                     closed,
                 });
             }
         }
     }
+    // the arguments, read from `pt` in raster order (random reads of it
+    // missed the cache once per WTMMM)
+    s.order_k.clear();
+    s.order_k.extend(0..s.maxk.len() as u32);
+    s.order_k.sort_unstable_by_key(|&i| s.maxk[i as usize]);
+    for &i in &s.order_k {
+        out.wtmmm[i as usize].arg = argument(s.pt[s.maxk[i as usize] as usize]);
+    }
     out
+}
+
+/// Calls `f(i)` for each nonzero byte `mask[i]`, skipping zero words.
+fn for_each_set(mask: &[u8], mut f: impl FnMut(usize)) {
+    let mut chunks = mask.chunks_exact(8);
+    let mut base = 0;
+    for c in &mut chunks {
+        let w = u64::from_le_bytes(c.try_into().expect("chunk of 8"));
+        if w != 0 {
+            for (i, &b) in c.iter().enumerate() {
+                if b != 0 {
+                    f(base + i);
+                }
+            }
+        }
+        base += 8;
+    }
+    for (i, &b) in chunks.remainder().iter().enumerate() {
+        if b != 0 {
+            f(base + i);
+        }
+    }
 }
 
 /// `M = sqrt(T1^2 + T2^2)` for every pixel (AVX2 when available; same bits).
