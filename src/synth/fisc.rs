@@ -15,7 +15,9 @@
 //! Theory (II eqs 8, 11-13; see [`crate::theory::fisc`]):
 //! `τ(q) = -1 - q(1-H*) - log2(p^q + (1-p)^q)`,
 //! `β = 1 + 2H* - log2(2p² - 2p + 1)`, `h_min = H* - 1 - log2(1-p)`,
-//! `h_max = H* - 1 - log2 p`.
+//! `h_max = H* - 1 - log2 p`. β is the infinite cascade's: the exact
+//! spectrum of an image, flatter near the pixel scale, is
+//! [`FiscParams::expected_power`].
 
 use ndarray::{Array2, ArrayView2};
 use num_complex::Complex64;
