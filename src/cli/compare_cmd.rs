@@ -54,7 +54,7 @@ use crate::stats::fit::mean_std;
 use crate::stats::powspec::Window;
 use crate::theory::{Model, TheoryTable};
 use crate::tracemoments::{
-    TraceMomentAccumulator, TraceMomentConfig, TraceMomentResult, fit_universal,
+    TraceMomentAccumulator, TraceMomentConfig, TraceMomentResult, finish_ensemble, fit_universal,
 };
 
 #[derive(Args, Debug)]
@@ -313,7 +313,9 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         },
         fit,
     )?;
-    let (tm_acc, t_all) = tm_of(&|_| true)?;
+    // full ensemble with jackknife errors over images
+    let accs: Vec<TraceMomentAccumulator> = parts.iter().map(|p| p.acc.clone()).collect();
+    let (tm_acc, t_all) = finish_ensemble(&accs, &tm_fit)?;
     let mut w_groups = Vec::with_capacity(args.groups);
     let mut t_groups = Vec::with_capacity(args.groups);
     for g in 0..args.groups {
@@ -595,14 +597,21 @@ fn table(
     );
     let _ = writeln!(
         s,
-        "WTMM: {wavelet:?} wavelet, {rule:?} rule, fit {:.2}-{:.2} px; TM: {:?} flux, fit log2 lambda {}:{}, universal fit q <= {:.2} (q_s {:.2})\n",
+        "WTMM: {wavelet:?} wavelet, {rule:?} rule, fit {:.2}-{:.2} px; TM: {:?} flux after differentiation {:?} (mean order {:.3}), fit log2 lambda {}:{}, universal fit q <= {:.2} (q_s {:.2}); TM alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} ({})\n",
         w.fit_scales.0,
         w.fit_scales.1,
         t.flux,
+        t.diff,
+        t.diff_order,
         t.fit_log2_lambda.0,
         t.fit_log2_lambda.1,
         t.universal_q_max,
-        t.q_s
+        t.q_s,
+        t.alpha,
+        t.alpha_stderr,
+        t.c1,
+        t.c1_stderr,
+        t.stderr_method
     );
     let _ = writeln!(
         s,

@@ -18,25 +18,31 @@ use crate::io::read_field;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{Detrend, PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
-    FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig, TraceMomentResult,
-    universal_shape,
+    FluxDiff, FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig,
+    TraceMomentResult, finish_ensemble, finish_jackknife, universal_shape,
 };
 
 /// Trace-moment options shared by `tm` and `compare` (everything but the
 /// trace-moment q grid).
 #[derive(Args, Debug, Clone)]
 pub struct TmOpts {
-    /// How the flux is obtained from the field: modulus of the finite-difference
-    /// gradient, or of the finest Haar wavelet coefficients.
+    /// The modulus that turns the (differentiated) field into a flux: of the
+    /// finite-difference gradient, or of the finest Haar wavelet coefficients
+    /// (both a differentiation of order 1).
     #[arg(long, value_enum, default_value_t = FluxKind::Gradient)]
     pub flux: FluxKind,
+    /// Fractional differentiation of the field before the modulus (seed 000
+    /// §5.2: "of order H or greater"): `auto` = order H = xi(1) estimated per
+    /// image from its first-order structure function, so the modulus acts on
+    /// the flux itself whatever H; `none` = the modulus alone (seed 000's
+    /// estimator: alpha biased high, C1 low when H is well above 1/2); or a
+    /// number.
+    #[arg(long, default_value = "auto", allow_negative_numbers = true)]
+    pub diff_order: String,
     /// Fractional integration of this order before the flux (seed 000 §5.2: it
     /// removes the spurious zero gradients of quantised DEMs); `--frac-int`
-    /// alone means 0.1. A negative order differentiates further: the flux is
-    /// then a differentiation of order 1 - ORDER of the field, which the
-    /// modulus needs well above H (for H = 0.7 the gradient alone leaves a
-    /// derivative of order 0.3 of the flux, whose modulus fills its holes:
-    /// alpha biased high, C1 low).
+    /// alone means 0.1. Applied on top of --diff-order (one Fourier filter of
+    /// order diff - frac_int).
     #[arg(long, num_args = 0..=1, default_missing_value = "0.1", allow_negative_numbers = true)]
     pub frac_int: Option<f64>,
     /// Double trace moments: η values, `start:stop:step` or `a,b,c` [default: 16
@@ -77,8 +83,19 @@ impl TmOpts {
     /// **Errors** naming the flag on a malformed list or an invalid value.
     pub fn config(&self, q: Vec<f64>, default_window: Window) -> Result<TraceMomentConfig> {
         let d = TraceMomentConfig::default();
+        let diff = match self.diff_order.trim() {
+            "auto" => FluxDiff::Auto,
+            "none" => FluxDiff::None,
+            v => FluxDiff::Order(v.parse::<f64>().map_err(|_| {
+                Error::param(
+                    "diff-order",
+                    format!("expected auto, none or a number, got {v:?}"),
+                )
+            })?),
+        };
         let cfg = TraceMomentConfig {
             flux: self.flux,
+            diff,
             frac_int: self.frac_int,
             q,
             eta: match &self.eta {
@@ -152,8 +169,24 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_list("q", &args.q)?;
     let cfg = args.tm.config(q, Window::Hann)?;
     let fc = args.tm.fit()?;
-    let acc = accumulate_paths(&args.images, &cfg, quiet)?;
-    let res = acc.finish(&fc)?;
+    let (acc, res) = if args.images.len() == 1 {
+        // one image: block jackknife over tiles of the largest fitted box
+        let path = &args.images[0];
+        let field = read_field(path)?;
+        let (ny, nx) = field.dim();
+        let kmax = (ny.min(nx) as f64).log2().floor();
+        let lo = fc
+            .log2_lambda
+            .map_or(if kmax >= 4.0 { 1.0 } else { 0.0 }, |r| r.0);
+        let tile = (kmax - lo.max(0.0).floor()).max(0.0).exp2() as usize;
+        let (whole, tiles) = TraceMomentAccumulator::field_tiles(&cfg, &field, tile)
+            .map_err(|e| Error::format(path, e.to_string()))?;
+        let res = finish_jackknife(&whole, &tiles, &fc, &format!("tiles of {tile} px"))?;
+        (whole, res)
+    } else {
+        let parts = accumulate_paths(&args.images, &cfg, quiet)?;
+        finish_ensemble(&parts, &fc)?
+    };
     make_out_dir(&args.out.out)?;
     let params = json!({"images": args.images, "config": cfg, "fit": fc});
     write_outputs(&args.out.out, "tm", params, &res, acc.spectrum.as_ref())?;
@@ -167,13 +200,14 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     Ok(Outcome::Ok)
 }
 
-/// Reads and accumulates every image (in parallel); a bad file stops
-/// everything before any output is written. Merged in input order.
+/// Reads and accumulates every image (in parallel), one accumulator per
+/// image in input order (for the jackknife of [`finish_ensemble`]); a bad
+/// file stops everything before any output is written.
 pub fn accumulate_paths(
     paths: &[PathBuf],
     cfg: &TraceMomentConfig,
     quiet: bool,
-) -> Result<TraceMomentAccumulator> {
+) -> Result<Vec<TraceMomentAccumulator>> {
     let pb = progress(paths.len() as u64, "tm", quiet);
     let parts: Vec<TraceMomentAccumulator> = paths
         .par_iter()
@@ -187,11 +221,7 @@ pub fn accumulate_paths(
         })
         .collect::<Result<_>>()?;
     pb.finish_and_clear();
-    let mut all = TraceMomentAccumulator::new(cfg.clone())?;
-    for p in &parts {
-        all.merge(p)?;
-    }
-    Ok(all)
+    Ok(parts)
 }
 
 /// `τ(q) = qH - K(q) - 2` from the measured K(q) and the spectral H (NaN
@@ -215,13 +245,31 @@ pub fn k_universal(res: &TraceMomentResult, q: &[f64]) -> Vec<f64> {
 /// Human summary (also the first lines of the report).
 pub fn summary(r: &TraceMomentResult) -> String {
     let o = |v: Option<f64>| v.map_or("n/a".to_string(), |x| format!("{x:.4}"));
+    let pm = |v: Option<f64>, e: Option<f64>| match (v, e) {
+        (Some(v), Some(e)) => format!("{v:.4} +- {e:.4}"),
+        (v, _) => o(v),
+    };
+    let diff = match r.diff {
+        FluxDiff::None => String::new(),
+        FluxDiff::Auto if r.images > 1 => format!(
+            " after differentiation of order xi(1) = {:.3} (mean; sd {:.3} over images)",
+            r.diff_order, r.diff_order_sd
+        ),
+        FluxDiff::Auto => format!(
+            " after differentiation of order xi(1) = {:.3}",
+            r.diff_order
+        ),
+        FluxDiff::Order(d) => format!(" after differentiation of order {d}"),
+    };
     format!(
-        "trace moments: {} image(s), flux {:?}{}, fit log2 lambda {}:{}\n  \
+        "trace moments: {} image(s), flux |{:?}|{}{}, fit log2 lambda {}:{}\n  \
          alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} (universal fit over 0 < q <= {:.2}; q_s {:.2})\n  \
-         DTM (q = {}): alpha {:.3}, C1 {:.4}\n  \
-         beta {} (angle-integrated), H {} (spectrum), H_sf {} (structure functions)\n",
+         DTM (q = {}): alpha {:.3} +- {:.3}, C1 {:.4}\n  \
+         beta {} (angle-integrated), H {} (spectrum), H_sf {} (structure functions)\n  \
+         errors: {} (fit-only: alpha +- {:.3}, C1 +- {:.4})\n",
         r.images,
         r.flux,
+        diff,
         r.frac_int
             .map_or(String::new(), |h| format!(", fractional integration {h}")),
         r.fit_log2_lambda.0,
@@ -234,10 +282,14 @@ pub fn summary(r: &TraceMomentResult) -> String {
         r.q_s,
         r.dtm_q.first().copied().unwrap_or(f64::NAN),
         r.dtm_alpha,
+        r.dtm_alpha_stderr,
         r.dtm_c1,
-        o(r.beta),
-        o(r.h),
-        o(r.h_sf),
+        pm(r.beta, r.beta_stderr),
+        pm(r.h, r.h_stderr),
+        pm(r.h_sf, r.h_sf_stderr),
+        r.stderr_method,
+        r.alpha_stderr_fit,
+        r.c1_stderr_fit,
     )
 }
 
