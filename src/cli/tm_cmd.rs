@@ -106,7 +106,14 @@ impl TmOpts {
             sf_q: parse_list("sf-q", &self.sf_q)?,
             spectrum: PowerSpectrumConfig {
                 window: self.window.unwrap_or(default_window),
-                detrend: Detrend::Plane,
+                // a caller with no default taper has a periodic field, where
+                // removing a plane adds a sawtooth at the border (power at
+                // high k, a flatter spectrum): only the mean goes
+                detrend: if default_window == Window::None {
+                    Detrend::Mean
+                } else {
+                    Detrend::Plane
+                },
                 bins_per_octave: 4,
             },
         };
