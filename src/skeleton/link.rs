@@ -111,8 +111,10 @@ pub struct Endings {
 pub struct Linker {
     params: LinkParams,
     lines: Vec<MaximaLine>,
-    /// Lines alive at the last pushed scale.
+    /// Lines alive at the last pushed scale, and their last points (kept
+    /// contiguous: the search reads them for every line at every scale).
     alive: Vec<u32>,
+    last: Vec<LinePoint>,
     next_scale: usize,
     // reused buffers
     grid: Vec<u32>,
@@ -127,6 +129,7 @@ impl Linker {
             params,
             lines: Vec::new(),
             alive: Vec::new(),
+            last: Vec::new(),
             next_scale: 0,
             grid: Vec::new(),
             grid_start: Vec::new(),
@@ -149,16 +152,16 @@ impl Linker {
         self.next_scale += 1;
         if sm.j == 0 {
             for w in &sm.wtmmm {
+                let p = LinePoint {
+                    x: w.x,
+                    y: w.y,
+                    m: w.m,
+                    sup: w.m,
+                    arg: w.arg,
+                };
                 self.alive.push(self.lines.len() as u32);
-                self.lines.push(MaximaLine {
-                    points: vec![LinePoint {
-                        x: w.x,
-                        y: w.y,
-                        m: w.m,
-                        sup: w.m,
-                        arg: w.arg,
-                    }],
-                });
+                self.last.push(p);
+                self.lines.push(MaximaLine { points: vec![p] });
             }
             return ends;
         }
@@ -189,11 +192,7 @@ impl Linker {
         }
         // each alive line's nearest acceptable candidate
         self.want.clear();
-        for &l in &self.alive {
-            let last = *self.lines[l as usize]
-                .points
-                .last()
-                .expect("lines are never empty");
+        for last in &self.last {
             let (cx, cy) = (last.x / cell, last.y / cell);
             let mut best = (u32::MAX, f64::INFINITY);
             let mut in_box = false;
@@ -246,6 +245,7 @@ impl Linker {
             }
         }
         let mut next_alive = Vec::with_capacity(self.alive.len());
+        let mut next_last = Vec::with_capacity(self.alive.len());
         for (i, &(k, _)) in self.want.iter().enumerate() {
             let l = self.alive[i];
             if k == u32::MAX {
@@ -256,18 +256,19 @@ impl Linker {
                 continue;
             }
             let w = &sm.wtmmm[k as usize];
-            let line = &mut self.lines[l as usize];
-            let sup = line.points.last().expect("non-empty").sup.max(w.m);
-            line.points.push(LinePoint {
+            let p = LinePoint {
                 x: w.x,
                 y: w.y,
                 m: w.m,
-                sup,
+                sup: self.last[i].sup.max(w.m),
                 arg: w.arg,
-            });
+            };
+            self.lines[l as usize].points.push(p);
             next_alive.push(l);
+            next_last.push(p);
         }
         self.alive = next_alive;
+        self.last = next_last;
         ends
     }
 
