@@ -127,6 +127,18 @@ fn kernel_recovers_known_cumulants_lognormal_and_logpoisson() {
             se[0] < 2e-3 && se[1] < 1e-3 && se[2] < 1e-3,
             "{law}: {se:?}"
         );
+        // the pooled slope of the tables (II Figs 26, 28 as drawn), with its
+        // own jackknife errors
+        let pooled = [k.pooled.c1, k.pooled.c2, k.pooled.c3];
+        for n in 0..3 {
+            assert!(
+                (pooled[n].value - th[n]).abs() < 4.0 * pooled[n].stderr,
+                "{law}: pooled c{} = {:?} vs {}",
+                n + 1,
+                pooled[n],
+                th[n]
+            );
+        }
         // every C_n(a, a') table lies on c_n ln(a'/a)
         for t in &k.tables {
             for n in 0..2 {

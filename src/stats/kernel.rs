@@ -586,6 +586,12 @@ pub struct KernelResult {
     /// "jackknife over images" (>= 3 images) or "regression".
     pub stderr_method: String,
     pub tables: Vec<CnTable>,
+    /// The slope through the origin of all the tables' `C_n(a, a')`
+    /// points, references pooled (II Figs 26, 28 as drawn; with the default
+    /// references and `fit = (0, 3.5)` this is the paper's protocol), with
+    /// jackknife errors (NaN with < 3 images); `r2` is the uncentred
+    /// `(Σxy)² / (Σx² Σy²)`.
+    pub pooled: FittedCumulants,
     pub kernels: Vec<KernelCurve>,
     pub warnings: Vec<String>,
 }
@@ -737,6 +743,46 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             }
         })
         .collect();
+    // II Figs 26, 28 read literally: one slope through the origin of every
+    // C_n(a, a') point of the tables (all references pooled)
+    // [slope, uncentred R² = (Σxy)² / (Σx² Σy²)] per cumulant
+    let pooled_of = |kap: &[[f64; 3]]| -> [[f64; 2]; 3] {
+        let mut out = [[f64::NAN; 2]; 3];
+        let (mut sxx, mut sxy, mut syy) = (0.0, [0.0; 3], [0.0; 3]);
+        for t in &tables {
+            let r = nearest_scale(&s.scales, t.octave_ref);
+            for w in &t.rows {
+                let j = nearest_scale(&s.scales, w.octave);
+                sxx += w.ln_ratio * w.ln_ratio;
+                for n in 0..3 {
+                    let y = kap[j][n] - kap[r][n];
+                    sxy[n] += w.ln_ratio * y;
+                    syy[n] += y * y;
+                }
+            }
+        }
+        if sxx > 0.0 {
+            for n in 0..3 {
+                out[n] = [
+                    sxy[n] / sxx,
+                    sxy[n] * sxy[n] / (sxx * syy[n]).max(f64::MIN_POSITIVE),
+                ];
+            }
+        }
+        out
+    };
+    let pooled_main = pooled_of(&kappa);
+    let pooled_reps: Vec<[[f64; 2]; 3]> = reps.iter().map(|k| pooled_of(k)).collect();
+    let pooled_est = |n: usize| Estimate {
+        value: pooled_main[n][0],
+        stderr: jk(&pooled_reps.iter().map(|r| r[n][0]).collect::<Vec<_>>()),
+        r2: pooled_main[n][1],
+    };
+    let pooled = FittedCumulants {
+        c1: pooled_est(0),
+        c2: pooled_est(1),
+        c3: pooled_est(2),
+    };
     // kernel curves
     let p = s.config.grid();
     let np = p.len();
@@ -829,6 +875,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         }
         .into(),
         tables,
+        pooled,
         kernels,
         warnings,
     })
