@@ -127,6 +127,18 @@ fn kernel_recovers_known_cumulants_lognormal_and_logpoisson() {
             se[0] < 2e-3 && se[1] < 1e-3 && se[2] < 1e-3,
             "{law}: {se:?}"
         );
+        // the pooled slope of the tables (II Figs 26, 28 as drawn), with its
+        // own jackknife errors
+        let pooled = [k.pooled.c1, k.pooled.c2, k.pooled.c3];
+        for n in 0..3 {
+            assert!(
+                (pooled[n].value - th[n]).abs() < 4.0 * pooled[n].stderr,
+                "{law}: pooled c{} = {:?} vs {}",
+                n + 1,
+                pooled[n],
+                th[n]
+            );
+        }
         // every C_n(a, a') table lies on c_n ln(a'/a)
         for t in &k.tables {
             for n in 0..2 {
@@ -588,32 +600,23 @@ fn energy_magnitude_runs_and_differs_from_ln_m() {
 
 // ---------------------------------------------------------------- ensembles
 
-/// Log-normal W-cascades (the paper's parameters) on 512 x 512 tori.
-///
-/// Tolerances: 3 jackknife standard errors (the ensemble's own scatter)
-/// plus an allowance for the biases measured on 1024² images and
-/// explained in the doc of `wtmm::stats::kernel` (finite scale range): on the maxima
-/// lines c2 comes out low (about 0.007-0.017 for 0.030, the WTMMM's own
-/// spread grows over the first octaves), while the ln M of the whole CWT
-/// grid with a 3-vanishing-moment wavelet gives 0.025-0.030.
-#[test]
-fn wcascade_kernel_cumulants_near_theory() {
-    let model = Model::preset("paper-lognormal").unwrap().model;
-    let th = model.cumulants().unwrap();
+/// Kernel cumulants on the maxima lines (the paper's WTMMM set) of 8
+/// W-cascades of 512² (tori, gauss, fit 0.5:3.9 octaves), for a law `(m,
+/// σ²)` of `ln W`.
+fn lines_cumulants(m: f64, sigma2: f64) -> wtmm::stats::kernel::FittedCumulants {
+    let model = Model::WCascade(wtmm::synth::wcascade::WCascadeParams {
+        law: wtmm::synth::wcascade::Law::LogNormal { m, sigma2 },
+        isotropy: wtmm::synth::wcascade::Isotropy::Isotropic,
+        basis: wtmm::synth::dwt::Basis::Db8,
+    });
     let cfg = AnalysisConfig {
         octaves: 4,
         margin: Some(0),
         ..Default::default()
     };
-    let grid_cfg = AnalysisConfig {
-        wavelet: Wavelet::Mexican,
-        ..cfg.clone()
-    };
     let scales = cfg.scale_list();
-    let n_img = 8;
     let mut lines: Option<KernelSums> = None;
-    let mut grid: Option<KernelSums> = None;
-    for i in 0..n_img {
+    for i in 0..8 {
         let field = Field::new(model.synthesize(512, 42, i).unwrap());
         let w = image_wtmmm(&field, &cfg, Parallelism::Scales, true).unwrap();
         let l = KernelSums::from_points(
@@ -624,49 +627,56 @@ fn wcascade_kernel_cumulants_near_theory() {
             "",
         )
         .unwrap();
-        let g =
-            wtmm::stats::kernel::cwt_grid_sums(&field, &grid_cfg, KernelConfig::default(), 4, "")
-                .unwrap();
-        for (acc, s) in [(&mut lines, l), (&mut grid, g)] {
-            match acc {
-                None => *acc = Some(s),
-                Some(a) => a.merge(&s).unwrap(),
-            }
+        match &mut lines {
+            None => lines = Some(l),
+            Some(a) => a.merge(&l).unwrap(),
         }
     }
     let opts = KernelOptions {
-        fit: (0.0, 3.9),
-        refs: vec![2.0, 3.0],
+        fit: (0.5, 3.9),
+        refs: vec![2.0],
         pairs: vec![(1.0, 3.0)],
     };
-    let kl = kernel_estimates(lines.as_ref().unwrap(), &opts).unwrap();
-    let kg = kernel_estimates(grid.as_ref().unwrap(), &opts).unwrap();
-    let (l, g) = (&kl.cumulants, &kg.cumulants);
-    eprintln!("lines {l:?}\ngrid {g:?}");
+    kernel_estimates(lines.as_ref().unwrap(), &opts)
+        .unwrap()
+        .cumulants
+}
+
+/// The known-answer control of the kernel: a monofractal W-cascade
+/// (σ² = 0: c1 = m/ln2, c2 = c3 = 0, II eq 56). Tolerance: 3 jackknife
+/// standard errors over the images, nothing else (the selection of the
+/// WTMMM on lines and the linking add no bias; measured on 32 x 1024²:
+/// c1 = -0.380 ± 0.002, c2 = 0.002 ± 0.001).
+#[test]
+fn kernel_monofractal_control() {
+    let c = lines_cumulants(-0.38 * LN_2, 0.0);
+    eprintln!("monofractal {c:?}");
     assert!(
-        (l.c1.value - th[0]).abs() < 3.0 * l.c1.stderr + 0.04,
-        "lines c1 {:?}",
-        l.c1
+        (c.c1.value + 0.38).abs() < 3.0 * c.c1.stderr,
+        "c1 {:?}",
+        c.c1
     );
+    assert!(c.c2.value.abs() < 3.0 * c.c2.stderr, "c2 {:?}", c.c2);
+    assert!(c.c3.value.abs() < 3.0 * c.c3.stderr, "c3 {:?}", c.c3);
+}
+
+/// The paper's log-normal W-cascade (c1 = -0.38, c2 = 0.030, c3 = 0).
+/// c2 is asserted one-sided: detected (> 3 standard errors) and not above
+/// theory (+ 3 standard errors); with the gauss wavelet the transform
+/// itself carries about 85% of it over this range (measured and explained
+/// in the doc of `wtmm::stats::kernel`), so a two-sided check would need an
+/// allowance that is not statistical.
+#[test]
+fn kernel_lognormal_cascade() {
+    let c = lines_cumulants(-0.38 * LN_2, 0.03 * LN_2);
+    eprintln!("log-normal {c:?}");
+    assert!(c.c2.value > 3.0 * c.c2.stderr, "c2 {:?}", c.c2);
+    assert!(c.c2.value < 0.030 + 3.0 * c.c2.stderr, "c2 {:?}", c.c2);
+    assert!(c.c3.value.abs() < 3.0 * c.c3.stderr, "c3 {:?}", c.c3);
     assert!(
-        (l.c2.value - th[1]).abs() < 3.0 * l.c2.stderr + 0.03,
-        "lines c2 {:?}",
-        l.c2
-    );
-    assert!(
-        (g.c1.value - th[0]).abs() < 3.0 * g.c1.stderr + 0.02,
-        "grid c1 {:?}",
-        g.c1
-    );
-    assert!(
-        (g.c2.value - th[1]).abs() < 3.0 * g.c2.stderr + 0.01,
-        "grid c2 {:?}",
-        g.c2
-    );
-    assert!(
-        g.c3.value.abs() < 3.0 * g.c3.stderr + 0.005,
-        "grid c3 {:?}",
-        g.c3
+        (c.c1.value + 0.38).abs() < 3.0 * c.c1.stderr,
+        "c1 {:?}",
+        c.c1
     );
 }
 

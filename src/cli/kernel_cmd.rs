@@ -262,6 +262,13 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
             cu.c3.stderr
         );
     }
+    if !quiet {
+        let pc = &out.main.pooled;
+        eprintln!(
+            "pooled C_n(a, a') tables (II Figs 26, 28): c1 = {:.4} +- {:.4}, c2 = {:.4} +- {:.4}, c3 = {:.4} +- {:.4}",
+            pc.c1.value, pc.c1.stderr, pc.c2.value, pc.c2.stderr, pc.c3.value, pc.c3.stderr
+        );
+    }
     for w in &out.main.warnings {
         eprintln!("warning: {w}");
     }
@@ -299,6 +306,9 @@ pub fn write_kernel_outputs(
          (II eqs 56, 60), the same numbers as `wtmm theory`"
     );
     body["cumulants"] = cumulants_json(k);
+    body["cumulants_pooled"] = json!({"c1": k.pooled.c1, "c2": k.pooled.c2, "c3": k.pooled.c3,
+        "note": "slope through the origin of every C_n(a, a') point of cn_tables (II Figs 26, 28 as drawn); \
+         the paper's protocol with the default refs and --fit 0:3.5"});
     body["stderr_method"] = json!(k.stderr_method);
     if let Some(c) = model.and_then(|m| m.cumulants()) {
         body["theory"] = json!({"name": name, "cumulants": {"c1": c[0], "c2": c[1], "c3": c[2]}});

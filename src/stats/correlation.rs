@@ -17,8 +17,8 @@
 //!
 //! **Algorithm.** Every sum over pairs is an FFT cross-correlation:
 //! `Σ_x f(x) g(x + d) = IFFT(conj(F) G)(d)`, O(N log N), never a pair loop.
-//! Two real fields share one complex FFT (`f + i g`, separated by Hermitian
-//! symmetry) and two real correlations share one inverse FFT. Per image and
+//! Each real field gets one real-to-complex 2D FFT (half spectrum) and each
+//! correlation one complex-to-real inverse. Per image and
 //! pair of scales we bin `Σ w̃1 w̃2`, the pair count `Σ m1 m2`, and the two
 //! cross terms `Σ w̃1 m2`, `Σ m1 w̃2` (with `m` the indicator of valid
 //! points, or the WTMMM count per pixel for the skeleton), which is all the
@@ -43,17 +43,31 @@
 //! correlations are linear: zero-padded FFTs, pair counts from the mask, so
 //! no pair crosses the border.
 //!
-//! **Measured (32 x 1024², paper log-normal W-cascade, torus).** With the
-//! paper's first-order wavelet (gauss), the ensemble-centred C follows II
-//! eq 76 at large `Δx` but falls below it at intermediate `Δx`: max
-//! |C - eq 76| = 0.017 for `8.3 sup(a1, a2) < Δx < L/4` (0.14 from
-//! `Δx > sup(a1, a2)`, where the two wavelets still overlap). With the
-//! 3-vanishing-moment mexican wavelet it is 0.0024: the coarser cascade
-//! levels leak into `M(a)` like `(a/s)^(1-h)` with one vanishing moment,
-//! `(a/s)^(3-h)` with three. Per-image centring sits `σ²/3 ≈ 0.007` lower,
-//! as expected. fBm (H = 1/3): |C| <= 0.003 for `Δx > 8.3 sup(a1, a2)`;
-//! magnitudes decorrelate only beyond the wavelets' support (C ≈ 0.016 at
-//! `Δx ≈ 4.6 a`).
+//! **Measured (32 x 1024², torus; max |C - eq 76| over the four pairs of
+//! II Fig 30, `8.3 sup(a1, a2) < Δx < L/4`, i.e. the paper's
+//! `Δx > sup(a1, a2)` with `a` in `σ_W` units; ensemble / per-image
+//! centring).** Log-normal W-cascade, gauss (the paper's wavelet):
+//! 0.017 / 0.023 with `ln M`, 0.016 / 0.023 with the box energy of II
+//! eq 65: C falls below eq 76 by up to 0.02 at `Δx ≈ 10-30` px and joins it
+//! beyond 100 px (the log-slope is about 60% of σ²). Mexican: 0.0024 /
+//! 0.0064. The coarser cascade levels leak into `M(a)` like `(a/s)^(1-h)`
+//! with one vanishing moment, `(a/s)^(3-h)` with three; the leak is shared
+//! by distant points and anti-correlated with their own multipliers. A
+//! control with the same σ² and `h = 0.6` (`m = -0.6 ln 2`), whose leak
+//! decays more slowly, dips further out (-0.0075 at 90 px against -0.003;
+//! max 0.019), and again not with mexican (0.0023). The
+//! direction average itself moves eq 76 (stated along an axis) by only
+//! -0.002. Per-image centring sits `σ²/3 ≈ 0.007` lower, as expected. fBm
+//! (H = 1/3): |C| <= 0.0028 there; magnitudes decorrelate only beyond the
+//! wavelets' support (C ≈ 0.016 at `Δx ≈ 4.6 a`); from `Δx > a` px the
+//! wavelets overlap and the deviation is 0.14.
+//!
+//! **Cost.** Per image: the image FFT, one inverse FFT per scale
+//! ([`crate::cwt`]), one pass over each transform (`½ ln |T|²` and the
+//! max), a validity pass, one real 2D FFT per scale and one real inverse
+//! per pair, and binning by a precomputed table of runs of consecutive
+//! lags sharing a bin (contiguous slice sums, no per-lag lookup). Nothing
+//! is cleared or allocated on the torus after the first image.
 //!
 //! ```
 //! use ndarray::Array2;
@@ -273,6 +287,48 @@ impl RFft2 {
 /// Marker of lags beyond `max_dx` (or aliased).
 const UNUSED: u16 = u16::MAX;
 
+/// Lag indices `start .. start + len` all in bin `bin`.
+#[derive(Clone, Copy, Debug)]
+struct Run {
+    start: u32,
+    len: u32,
+    bin: u16,
+}
+
+/// Run-length encoding of a lag -> bin table, [`UNUSED`] left out.
+fn runs_of(bin: &[u16]) -> Vec<Run> {
+    let mut runs: Vec<Run> = Vec::new();
+    for (k, &b) in bin.iter().enumerate() {
+        if b == UNUSED {
+            continue;
+        }
+        match runs.last_mut() {
+            Some(r) if r.bin == b && (r.start + r.len) as usize == k => r.len += 1,
+            _ => runs.push(Run {
+                start: k as u32,
+                len: 1,
+                bin: b,
+            }),
+        }
+    }
+    runs
+}
+
+/// `Σ v` with four accumulators (vectorisable; the order differs from a
+/// sequential sum only by rounding).
+fn slice_sum(v: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 4];
+    let ch = v.chunks_exact(4);
+    let rem = ch.remainder();
+    for c in ch {
+        acc[0] += c[0];
+        acc[1] += c[1];
+        acc[2] += c[2];
+        acc[3] += c[3];
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + rem.iter().sum::<f64>()
+}
+
 /// A resolved correlation: domain, FFT plans, the lag -> bin table, and the
 /// CWT plan of the scales. Built once per image shape, shared by all images.
 pub struct CorrelationPlan {
@@ -285,9 +341,11 @@ pub struct CorrelationPlan {
     x0: usize,
     x1: usize,
     fft: RFft2,
-    /// Bin of each lag index (`0` = lag 0, `b + 1` = log bin b).
-    bin: Vec<u16>,
-    /// `log2 |d|` of each lag index (0 at lag 0).
+    /// The lag -> bin table as runs of consecutive lag indices (in memory
+    /// order) sharing a bin (`0` = lag 0, `b + 1` = log bin b); lags beyond
+    /// `max_dx` (or aliased) are in no run. Binning sums contiguous slices.
+    runs: Vec<Run>,
+    /// `log2 |d|` of each lag index (0 at lag 0), for the weighted sums.
     l2: Vec<f32>,
     n_bins: usize,
     /// Number of lags and `Σ log2|d|` per bin (the uniform-count case).
@@ -401,6 +459,7 @@ impl CorrelationPlan {
                 lag_l[b as usize] += l as f64;
             }
         }
+        let runs = runs_of(&bin);
         Ok(CorrelationPlan {
             lag_n,
             lag_l,
@@ -412,7 +471,7 @@ impl CorrelationPlan {
             x0,
             x1,
             fft: RFft2::new(fy, fx),
-            bin,
+            runs,
             l2,
             n_bins,
             max_dx,
@@ -509,19 +568,19 @@ impl CorrelationPlan {
             self.fft.inverse(x, half, r, scratch);
             let mut s = vec![0.0; self.n_bins + 1];
             let mut sl = Vec::new();
+            for run in &self.runs {
+                let (i, n) = (run.start as usize, run.len as usize);
+                s[run.bin as usize] += slice_sum(&r[i..i + n]);
+            }
             if weighted {
                 sl = vec![0.0; self.n_bins + 1];
-                for ((&v, &bin), &l2) in r.iter().zip(&self.bin).zip(&self.l2) {
-                    if bin != UNUSED {
-                        s[bin as usize] += v;
-                        sl[bin as usize] += v * l2 as f64;
-                    }
-                }
-            } else {
-                for (&v, &bin) in r.iter().zip(&self.bin) {
-                    if bin != UNUSED {
-                        s[bin as usize] += v;
-                    }
+                for run in &self.runs {
+                    let (i, n) = (run.start as usize, run.len as usize);
+                    sl[run.bin as usize] += r[i..i + n]
+                        .iter()
+                        .zip(&self.l2[i..i + n])
+                        .map(|(&v, &l)| v * l as f64)
+                        .sum::<f64>();
                 }
             }
             out.push((s, sl));
@@ -653,11 +712,19 @@ struct Workspace {
 impl Workspace {
     /// Makes `fields[..n]` exist with `len` zeros each.
     fn zero_fields(&mut self, n: usize, len: usize) {
+        self.size_fields(n, len, true);
+    }
+
+    /// Makes `fields[..n]` exist with `len` values each, zeroed only if
+    /// `zero` (otherwise the caller overwrites every value).
+    fn size_fields(&mut self, n: usize, len: usize, zero: bool) {
         while self.fields.len() < n {
             self.fields.push(Vec::new());
         }
         for f in &mut self.fields[..n] {
-            f.clear();
+            if zero {
+                f.clear();
+            }
             f.resize(len, 0.0);
         }
     }
@@ -735,7 +802,9 @@ impl CorrelationSums {
 
 /// Magnitudes on the CWT grid of one image (SPEC §6): `ln M` (or `½ ln ε²`)
 /// at each scale of the plan, centred per image over the valid points, and
-/// the binned cross-correlation sums of every pair.
+/// the binned cross-correlation sums of every pair. A point is left out at
+/// every scale where, at one scale, `M < eps max M` (compared as
+/// `½ ln M² < ½ ln(eps² max M²)`), or `M²` is 0, subnormal or not finite.
 ///
 /// **Errors** if the image shape differs from the plan's, no pixel is valid,
 /// or a scale has no valid point.
@@ -787,47 +856,75 @@ fn cwt_correlation_in(
         }
     }
     // fields 0..ns: the magnitudes on the FFT grid (domain at the origin);
-    // field ns: the mask, if needed
-    ws.zero_fields(ns + 1, fy * fx);
+    // field ns: the mask, if needed. Outside the domain the fields must be
+    // 0 (zero padding); when the domain fills the FFT grid (the torus)
+    // every value is overwritten below and nothing needs clearing.
+    let full = dy == fy && dx == fx;
+    ws.size_fields(ns + 1, fy * fx, !full);
     let mut cws = ws.cwt.take().unwrap_or_else(|| plan.cwt.workspace());
+    // per scale, one pass over the transform: w = ½ ln |T|² (or ½ ln ε²,
+    // II eqs 65, 67) into the field, -inf where the squared magnitude is 0,
+    // subnormal or not finite; and the max of the squared magnitude
+    let mut half_ln_thr = Vec::with_capacity(ns);
     for (s, &a) in cfg.scales.iter().enumerate() {
         let t = plan.cwt.scale(fi, s, &mut cws);
-        // squared magnitude: |T|² (ln M = ½ ln |T|²) or the box-averaged ε² (II eq 65)
         let energy = (cfg.magnitude == Magnitude::Energy).then(|| box_energy(t, a));
-        let tsl = t.as_slice().expect("the CWT output is contiguous");
-        let esl = energy.as_ref().map(|e| e.as_slice().expect("contiguous"));
-        let e2 = |y: usize, x: usize| -> f64 {
-            let i = y * nx + x;
-            match esl {
-                Some(e) => e[i],
-                None => {
-                    let z = tsl[i];
-                    z.re * z.re + z.im * z.im
-                }
-            }
-        };
-        let mut mx = 0.0f64;
-        for y in y0..y1 {
-            for x in x0..x1 {
-                mx = mx.max(e2(y, x));
-            }
-        }
-        // M < eps max M  <=>  M² < eps² max M²
-        let thr = cfg.eps * cfg.eps * mx;
         let w = &mut ws.fields[s];
+        let mut mx = 0.0f64;
         for y in 0..dy {
             let row = &mut w[y * fx..y * fx + dx];
-            for (x, v) in row.iter_mut().enumerate() {
-                let q = e2(y + y0, x + x0);
-                if q > thr && q > 0.0 && q.is_finite() {
-                    *v = 0.5 * q.ln();
+            let i0 = (y + y0) * nx + x0;
+            match &energy {
+                Some(e) => {
+                    let src = &e.as_slice().expect("contiguous")[i0..i0 + dx];
+                    row.copy_from_slice(src);
+                }
+                None => {
+                    let src = &t.as_slice().expect("the CWT output is contiguous")[i0..i0 + dx];
+                    for (v, z) in row.iter_mut().zip(src) {
+                        *v = z.re * z.re + z.im * z.im;
+                    }
+                }
+            }
+            mx = row
+                .iter()
+                .fold(mx, |m, &q| if q > m && q.is_finite() { q } else { m });
+            for v in row.iter_mut() {
+                let q = *v;
+                *v = if q >= f64::MIN_POSITIVE && q.is_finite() {
+                    0.5 * q.ln()
                 } else {
-                    valid[y * dx + x] = false;
+                    f64::NEG_INFINITY
+                };
+            }
+        }
+        // M < eps max M  <=>  ½ ln M² < ½ ln (eps² max M²): such points
+        // are invalid at every scale (compared in the log domain)
+        let thr = cfg.eps * cfg.eps * mx;
+        half_ln_thr.push(if thr >= f64::MIN_POSITIVE {
+            0.5 * thr.ln()
+        } else {
+            f64::NEG_INFINITY
+        });
+    }
+    ws.cwt = Some(cws);
+    // validity: one pass per scale (the min of each row against the
+    // threshold; rows with a failing point are marked pointwise)
+    for (w, &h) in ws.fields[..ns].iter().zip(&half_ln_thr) {
+        for y in 0..dy {
+            let row = &w[y * fx..y * fx + dx];
+            let lo = row
+                .iter()
+                .fold(f64::INFINITY, |m, &v| if v < m { v } else { m });
+            if !(lo > h) {
+                for (v, o) in row.iter().zip(&mut valid[y * dx..(y + 1) * dx]) {
+                    if !(*v > h) {
+                        *o = false;
+                    }
                 }
             }
         }
     }
-    ws.cwt = Some(cws);
     let n_valid = valid.iter().filter(|&&v| v).count();
     if n_valid == 0 {
         ws.valid = valid;
@@ -835,27 +932,38 @@ fn cwt_correlation_in(
             "no valid point for the correlation (flat or masked image)".into(),
         ));
     }
-    let uniform = cfg.periodic && n_valid == dy * dx;
+    let all_valid = n_valid == dy * dx;
+    let uniform = cfg.periodic && all_valid;
     // centre per image over the common valid points, zero elsewhere
     let mut means = Vec::with_capacity(ns);
     for w in ws.fields[..ns].iter_mut() {
         let mut sum = 0.0;
         for y in 0..dy {
             let row = &w[y * fx..y * fx + dx];
-            let ok = &valid[y * dx..(y + 1) * dx];
-            sum += row
-                .iter()
-                .zip(ok)
-                .filter(|(_, o)| **o)
-                .map(|(v, _)| v)
-                .sum::<f64>();
+            if all_valid {
+                sum += slice_sum(row);
+            } else {
+                let ok = &valid[y * dx..(y + 1) * dx];
+                sum += row
+                    .iter()
+                    .zip(ok)
+                    .filter(|(_, o)| **o)
+                    .map(|(v, _)| v)
+                    .sum::<f64>();
+            }
         }
         let mean = sum / n_valid as f64;
         for y in 0..dy {
             let row = &mut w[y * fx..y * fx + dx];
-            let ok = &valid[y * dx..(y + 1) * dx];
-            for (v, o) in row.iter_mut().zip(ok) {
-                *v = if *o { *v - mean } else { 0.0 };
+            if all_valid {
+                for v in row.iter_mut() {
+                    *v -= mean;
+                }
+            } else {
+                let ok = &valid[y * dx..(y + 1) * dx];
+                for (v, o) in row.iter_mut().zip(ok) {
+                    *v = if *o { *v - mean } else { 0.0 };
+                }
             }
         }
         means.push(mean);
@@ -866,9 +974,7 @@ fn cwt_correlation_in(
         let m = &mut ws.fields[ns];
         for y in 0..dy {
             for x in 0..dx {
-                if valid[y * dx + x] {
-                    m[y * fx + x] = 1.0;
-                }
+                m[y * fx + x] = if valid[y * dx + x] { 1.0 } else { 0.0 };
             }
         }
         Weights::Shared
@@ -1164,6 +1270,22 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn runs_cover_the_table() {
+        let bin = [0u16, 1, 1, UNUSED, 1, 2, 2, 2, UNUSED, UNUSED, 3];
+        let runs = runs_of(&bin);
+        let mut back = vec![UNUSED; bin.len()];
+        for r in &runs {
+            for k in r.start..r.start + r.len {
+                back[k as usize] = r.bin;
+            }
+        }
+        assert_eq!(back, bin);
+        assert_eq!(runs.len(), 5);
+        let v: Vec<f64> = (0..11).map(|i| i as f64 * 0.1).collect();
+        assert!((slice_sum(&v) - 5.5).abs() < 1e-12);
+    }
 
     #[test]
     fn smooth_sizes() {
