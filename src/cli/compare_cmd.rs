@@ -51,7 +51,6 @@ use crate::io::write_atomic;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::spectra::{PartitionSums, Rule, Spectra, image_sums};
 use crate::stats::fit::mean_std;
-use crate::stats::powspec::Window;
 use crate::theory::{Model, TheoryTable};
 use crate::tracemoments::{
     TraceMomentAccumulator, TraceMomentConfig, TraceMomentResult, finish_ensemble, fit_universal,
@@ -243,13 +242,10 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     tm_q.extend(q.iter().copied().filter(|&v| v >= 0.0));
     tm_q.sort_by(f64::total_cmp);
     tm_q.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-    // periodic models need no taper; fBm is cropped from a larger torus
-    let window = if matches!(model, Model::Fbm(_)) {
-        Window::Hann
-    } else {
-        Window::None
-    };
-    let tm_cfg = args.tm.config(tm_q.clone(), window)?;
+    // fBm is cropped from a larger torus; the other models are periodic
+    let tm_cfg = args
+        .tm
+        .config(tm_q.clone(), !matches!(model, Model::Fbm(_)))?;
     let tm_fit = args.tm.fit()?;
     let name = r.preset.unwrap_or(model.name()).to_string();
 

@@ -16,7 +16,7 @@ use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::io::read_field;
 use crate::plot::{Chart, Series, Style, save_chart};
-use crate::stats::powspec::{Detrend, PowerSpectrum, PowerSpectrumConfig, Window};
+use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
     FluxDiff, FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig,
     TraceMomentResult, finish_ensemble, finish_jackknife, universal_shape,
@@ -81,7 +81,9 @@ impl TmOpts {
     /// The accumulation settings for the trace-moment orders `q`.
     ///
     /// **Errors** naming the flag on a malformed list or an invalid value.
-    pub fn config(&self, q: Vec<f64>, default_window: Window) -> Result<TraceMomentConfig> {
+    /// `periodic` fields get the spectrum settings of
+    /// [`PowerSpectrumConfig::for_field`]; `--window` overrides the taper.
+    pub fn config(&self, q: Vec<f64>, periodic: bool) -> Result<TraceMomentConfig> {
         let d = TraceMomentConfig::default();
         let diff = match self.diff_order.trim() {
             "auto" => FluxDiff::Auto,
@@ -104,17 +106,12 @@ impl TmOpts {
             },
             dtm_q: parse_list("dtm-q", &self.dtm_q)?,
             sf_q: parse_list("sf-q", &self.sf_q)?,
-            spectrum: PowerSpectrumConfig {
-                window: self.window.unwrap_or(default_window),
-                // a caller with no default taper has a periodic field, where
-                // removing a plane adds a sawtooth at the border (power at
-                // high k, a flatter spectrum): only the mean goes
-                detrend: if default_window == Window::None {
-                    Detrend::Mean
-                } else {
-                    Detrend::Plane
-                },
-                bins_per_octave: 4,
+            spectrum: {
+                let s = PowerSpectrumConfig::for_field(periodic);
+                PowerSpectrumConfig {
+                    window: self.window.unwrap_or(s.window),
+                    ..s
+                }
             },
         };
         if let Some(h) = cfg.frac_int
@@ -174,7 +171,7 @@ pub struct TmArgs {
 
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_list("q", &args.q)?;
-    let cfg = args.tm.config(q, Window::Hann)?;
+    let cfg = args.tm.config(q, false)?;
     let fc = args.tm.fit()?;
     let (acc, res) = if args.images.len() == 1 {
         // one image: block jackknife over tiles of the largest fitted box

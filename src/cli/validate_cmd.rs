@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::io::write_atomic;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::fit::mean_std;
-use crate::stats::powspec::{Detrend, PowerSpectrumConfig, Window, default_k_range};
+use crate::stats::powspec::{PowerSpectrumConfig, default_k_range};
 use crate::theory::{Model, TheoryTable};
 
 #[derive(Args, Debug)]
@@ -103,16 +103,8 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             format!("{} needs a power of two, got {}", r.model.name(), args.size),
         ));
     }
-    // periodic models need no taper, and only their mean is removed (a
-    // plane would add a sawtooth across the border, hence power at high k:
-    // beta was 3.016 instead of 3.080 on paper-fisc); fBm is cropped from a
-    // larger torus, so it is tapered and detrended
-    let fbm = matches!(r.model, Model::Fbm(_));
-    let ps_cfg = PowerSpectrumConfig {
-        window: if fbm { Window::Hann } else { Window::None },
-        detrend: if fbm { Detrend::Plane } else { Detrend::Mean },
-        bins_per_octave: 4,
-    };
+    // fBm is cropped from a larger torus; the other models are periodic
+    let ps_cfg = PowerSpectrumConfig::for_field(!matches!(r.model, Model::Fbm(_)));
     let t0 = std::time::Instant::now();
     let pb = progress(args.count as u64, "validate", quiet);
     let model = r.model;
