@@ -224,6 +224,10 @@ pub struct FourierImage {
 pub struct CwtWorkspace {
     /// Filtered spectrum, `[kx][ky]`.
     tbuf: Vec<Complex64>,
+    /// Offset of the first used value of `tbuf`, so that its rows start on
+    /// a 64-byte cache line and a block of [`ROW_BLOCK`] values of a row
+    /// spans whole lines.
+    toff: usize,
     /// Output `T1 + i T2`, `[y][x]`.
     out: Array2<Complex64>,
     scratch: Vec<Complex64>,
@@ -232,7 +236,17 @@ pub struct CwtWorkspace {
     /// Rows of `tbuf` known to hold zeros (pruned at an earlier scale), so
     /// they are not cleared again.
     zero_rows: Vec<bool>,
+    /// Two blocks of [`ROW_BLOCK`] output rows for [`CwtPlan::scale_rows`]
+    /// (the current one and the previous one), allocated on first use.
+    blocks: [Vec<Complex64>; 2],
 }
+
+/// Output rows per block in [`CwtPlan::scale_rows`]: 8 rows read two whole
+/// cache lines from each row of the spectrum, and the two blocks of a
+/// 1024-wide image (256 KB) stay in L2. Measured on 1024² (CWT + detection,
+/// 50 scales): 4 rows 745 ms, 8 rows 717 ms, 16 rows 774 ms, 32 rows 752
+/// ms, against 863-917 ms for the full transform.
+pub const ROW_BLOCK: usize = 8;
 
 /// A resolved CWT: FFT plans and frequency tables for one image size, one
 /// wavelet and one list of scales. Cheap to share between threads.
@@ -340,13 +354,20 @@ impl CwtPlan {
 
     /// Fresh buffers for one worker.
     pub fn workspace(&self) -> CwtWorkspace {
+        let tbuf = vec![Complex64::default(); self.nx * self.ny + 3];
+        let toff = match tbuf.as_ptr().align_offset(64) {
+            o if o <= 3 => o,
+            _ => 0,
+        };
         CwtWorkspace {
-            tbuf: vec![Complex64::default(); self.nx * self.ny],
+            tbuf,
+            toff,
             out: Array2::zeros((self.ny, self.nx)),
             scratch: vec![Complex64::default(); self.scratch_len],
             gx: vec![0.0; self.nx],
             gy: vec![0.0; self.ny],
             zero_rows: vec![false; self.nx],
+            blocks: [Vec::new(), Vec::new()],
         }
     }
 
@@ -405,6 +426,92 @@ impl CwtPlan {
         ws: &'w mut CwtWorkspace,
     ) -> &'w Array2<Complex64> {
         let (ny, nx) = (self.ny, self.nx);
+        self.filter_columns(fi, j, ws);
+        let out = ws
+            .out
+            .as_slice_mut()
+            .expect("workspace output is contiguous");
+        transpose::transpose(&ws.tbuf[ws.toff..ws.toff + nx * ny], out, ny, nx);
+        self.inv_x.process_with_scratch(out, &mut ws.scratch);
+        &ws.out
+    }
+
+    /// Streams the rows `rows` of `T1 + i T2` at scale index `j` in blocks of
+    /// [`ROW_BLOCK`] rows (the last one may be shorter), in order:
+    /// `f(y0, prev, cur)` where `cur` holds rows `y0..` row-major and `prev`
+    /// the block delivered just before (`None` for the first). The values
+    /// are bit-identical to [`scale`](Self::scale)'s.
+    ///
+    /// Why: the full transform is 16 MB at 1024², written by the transpose,
+    /// read and written by the last FFT pass, then read again by its
+    /// consumer, each time from main memory. Gathering a block of columns
+    /// of the filtered spectrum and finishing its FFTs in cache lets a
+    /// consumer that needs only neighbouring rows (the WTMM detection) work
+    /// while the rows are hot, and rows outside `rows` cost no FFT at all.
+    pub fn scale_rows<F>(
+        &self,
+        fi: &FourierImage,
+        j: usize,
+        ws: &mut CwtWorkspace,
+        rows: std::ops::Range<usize>,
+        mut f: F,
+    ) where
+        F: FnMut(usize, Option<&[Complex64]>, &[Complex64]),
+    {
+        let (ny, nx) = (self.ny, self.nx);
+        let rows = rows.start.min(ny)..rows.end.min(ny);
+        if rows.is_empty() {
+            return;
+        }
+        self.filter_columns(fi, j, ws);
+        for b in &mut ws.blocks {
+            b.resize(ROW_BLOCK * nx, Complex64::default());
+        }
+        let mut prev_len = 0;
+        let mut cur = 0;
+        let mut y0 = rows.start;
+        while y0 < rows.end {
+            // blocks on multiples of ROW_BLOCK (the first may be shorter),
+            // so each reads whole cache lines of the aligned rows
+            let h = (ROW_BLOCK - y0 % ROW_BLOCK).min(rows.end - y0);
+            let [b0, b1] = &mut ws.blocks;
+            let (blk, prev) = if cur == 0 { (b0, b1) } else { (b1, b0) };
+            let blk = &mut blk[..h * nx];
+            // gather columns y0..y0+h of the [kx][y] spectrum: h contiguous
+            // values from every kx row (zeros where the row was pruned)
+            let next = y0 + h;
+            let tb = &ws.tbuf[ws.toff..ws.toff + nx * ny];
+            for (kx, row) in tb.chunks_exact(ny).enumerate() {
+                if ws.zero_rows[kx] {
+                    for yy in 0..h {
+                        blk[yy * nx + kx] = Complex64::default();
+                    }
+                    continue;
+                }
+                // the next block's two cache lines of this row: rows 16 KB
+                // apart defeat the hardware prefetcher
+                if next < rows.end {
+                    prefetch(&row[next]);
+                    prefetch(&row[(next + ROW_BLOCK / 2).min(ny - 1)]);
+                }
+                for (yy, &v) in row[y0..y0 + h].iter().enumerate() {
+                    blk[yy * nx + kx] = v;
+                }
+            }
+            self.inv_x.process_with_scratch(blk, &mut ws.scratch);
+            let prev = (prev_len > 0).then(|| &prev[..prev_len * nx]);
+            f(y0, prev, blk);
+            prev_len = h;
+            cur ^= 1;
+            y0 += h;
+        }
+    }
+
+    /// The first half of a scale: the filtered spectrum `[kx][ky]` with its
+    /// FFTs along `ky` done, in `ws.tbuf` (pruned rows zero, flagged in
+    /// `ws.zero_rows`).
+    fn filter_columns(&self, fi: &FourierImage, j: usize, ws: &mut CwtWorkspace) {
+        let (ny, nx) = (self.ny, self.nx);
         let a = self.scales[j];
         // separable Gaussian factors: nx + ny exponentials per scale
         for (g, k) in ws.gx.iter_mut().zip(&self.kx) {
@@ -418,7 +525,7 @@ impl CwtPlan {
         let a2 = a * a;
         let mexican = self.wavelet == Wavelet::Mexican;
         for kx in 0..nx {
-            let row = &mut ws.tbuf[kx * ny..(kx + 1) * ny];
+            let row = &mut ws.tbuf[ws.toff + kx * ny..ws.toff + (kx + 1) * ny];
             let gx = ws.gx[kx];
             if gx < PRUNE {
                 if !ws.zero_rows[kx] {
@@ -443,13 +550,6 @@ impl CwtPlan {
             }
             self.inv_y.process_with_scratch(row, &mut ws.scratch);
         }
-        let out = ws
-            .out
-            .as_slice_mut()
-            .expect("workspace output is contiguous");
-        transpose::transpose(&ws.tbuf, out, ny, nx);
-        self.inv_x.process_with_scratch(out, &mut ws.scratch);
-        &ws.out
     }
 
     /// The smoothed image `φ_a * f` at scale `a` (the background of II
@@ -518,18 +618,49 @@ impl CwtPlan {
         I: Fn() -> S + Sync + Send,
         F: Fn(&mut S, usize, f64, &Array2<Complex64>) -> R + Sync + Send,
     {
+        self.par_map_scales_with(img, init, |st, fi, j, ws| {
+            let t = self.scale(fi, j, ws);
+            f(st, j, self.scales[j], t)
+        })
+    }
+
+    /// The most general form: `f(state, spectrum, j, workspace)` computes
+    /// what it needs of scale `j` itself (e.g. with
+    /// [`scale_rows`](Self::scale_rows)). Results in scale order.
+    pub fn par_map_scales_with<S, R, I, F>(
+        &self,
+        img: ArrayView2<f64>,
+        init: I,
+        f: F,
+    ) -> Result<Vec<R>>
+    where
+        R: Send,
+        I: Fn() -> S + Sync + Send,
+        F: Fn(&mut S, &FourierImage, usize, &mut CwtWorkspace) -> R + Sync + Send,
+    {
         let fi = self.forward(img)?;
         Ok((0..self.scales.len())
             .into_par_iter()
             .map_init(
                 || (self.workspace(), init()),
-                |(ws, st), j| {
-                    let t = self.scale(&fi, j, ws);
-                    f(st, j, self.scales[j], t)
-                },
+                |(ws, st), j| f(st, &fi, j, ws),
             )
             .collect())
     }
+}
+
+/// Hints the CPU to bring `v`'s cache line into L1 (no-op elsewhere).
+#[inline(always)]
+fn prefetch<T>(v: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetching is a hint; any address is allowed, and SSE is part
+    // of the x86_64 baseline.
+    unsafe {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        _mm_prefetch::<_MM_HINT_T0>(v as *const T as *const i8);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = v;
 }
 
 /// Modulus `M = sqrt(T1² + T2²)` (not `Complex::norm`, which calls hypot and

@@ -5,7 +5,7 @@ use ndarray::Array2;
 use num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
-use crate::cwt::argument;
+use crate::cwt::{CwtPlan, CwtWorkspace, FourierImage, argument};
 
 /// A local maximum of the modulus along a maxima chain (a WTMMM).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -205,7 +205,7 @@ pub fn detect(
         (domain.ny, domain.nx),
         "domain and transform shapes differ"
     );
-    let mut out = ScaleMaxima {
+    let out = ScaleMaxima {
         j,
         a,
         ..Default::default()
@@ -215,15 +215,10 @@ pub fn detect(
     }
     let ts = t.as_slice().expect("CWT output is contiguous");
     let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
-    // a WTMM whose wavelet support reaches a masked pixel is dropped
-    let min_dist = (domain.support * a) as f32;
-    s.state.clear();
     s.cand.clear();
-    s.row_mask.resize(nx, 0);
     // without wrap-around when the domain keeps two pixels from the border
     // (p ± u and the cell beyond it stay inside the image)
     let wraps = dy0 < 2 || dx0 < 2 || dy1 + 2 > ny || dx1 + 2 > nx;
-    let in_count = |y: usize| y >= domain.y0 && y < domain.y1;
     let mut mmax: f64 = 0.0;
 
     // 1. non-maximum suppression along the gradient. The eps threshold
@@ -234,9 +229,7 @@ pub fn detect(
         modulus_into(ts, &mut s.modulus);
         let m = &s.modulus;
         for y in domain.y0..domain.y1 {
-            for &v in &m[y * nx + domain.x0..y * nx + domain.x1] {
-                mmax = mmax.max(v);
-            }
+            mmax = mmax.max(max_nonneg(&m[y * nx + domain.x0..y * nx + domain.x1]));
         }
         for y in dy0..dy1 {
             for x in dx0..dx1 {
@@ -256,43 +249,150 @@ pub fn detect(
         // one streaming pass: M rows in a ring of three, the NMS one row
         // behind, while that row of T is still in cache (the detection was
         // memory-bound with full M arrays)
-        s.ring.resize(3 * nx, 0.0);
-        let mut fill = |ring: &mut [f64], r: usize| {
-            let dst = &mut ring[(r % 3) * nx..(r % 3 + 1) * nx];
-            modulus_into(&ts[r * nx..(r + 1) * nx], dst);
-            if in_count(r) {
-                for &v in &dst[domain.x0..domain.x1] {
-                    mmax = mmax.max(v);
-                }
-            }
-        };
-        fill(&mut s.ring, dy0 - 1);
-        fill(&mut s.ring, dy0);
-        for y in dy0..dy1 {
-            fill(&mut s.ring, y + 1);
-            let row = |r: usize| &s.ring[(r % 3) * nx..(r % 3 + 1) * nx];
-            let trow = &ts[y * nx..(y + 1) * nx];
-            nms_row(
-                row(y - 1),
-                row(y),
-                row(y + 1),
-                trow,
-                dx0,
-                dx1,
-                &mut s.row_mask,
-            );
-            let mid = row(y);
-            for_each_set(&s.row_mask[dx0..dx1], |i| {
-                let x = dx0 + i;
-                s.cand.push(Px {
-                    x: x as u32,
-                    y: y as u32,
-                    m: mid[x],
-                    t: trow[x],
-                });
-            });
+        let mut nms = NmsStream::new(domain, a, nx);
+        for r in dy0 - 1..=dy1 {
+            nms.feed(s, r, &ts[r * nx..(r + 1) * nx], &ts[(r - 1) * nx..r * nx]);
+        }
+        mmax = nms.mmax;
+    }
+    finish(out, mmax, domain, eps, a, keep_chains, s)
+}
+
+/// As [`detect`], computing the transform itself: when the domain keeps
+/// two pixels from every border the rows of `T` stream from the CWT in
+/// blocks ([`CwtPlan::scale_rows`]) and the full transform is never
+/// stored. Same result as `detect(plan.scale(fi, j, ws), ...)`, bit for bit.
+#[allow(clippy::too_many_arguments)]
+pub fn detect_scale(
+    plan: &CwtPlan,
+    fi: &FourierImage,
+    j: usize,
+    ws: &mut CwtWorkspace,
+    domain: &Domain,
+    eps: f64,
+    keep_chains: bool,
+    s: &mut DetectScratch,
+) -> ScaleMaxima {
+    let (ny, nx) = plan.dim();
+    let a = plan.scales()[j];
+    let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
+    let wraps = dy0 < 2 || dx0 < 2 || dy1 + 2 > ny || dx1 + 2 > nx;
+    if wraps || domain.is_empty() || (ny, nx) != (domain.ny, domain.nx) {
+        let t = plan.scale(fi, j, ws);
+        return detect(t, j, a, domain, eps, keep_chains, s);
+    }
+    let out = ScaleMaxima {
+        j,
+        a,
+        ..Default::default()
+    };
+    s.cand.clear();
+    let mut nms = NmsStream::new(domain, a, nx);
+    plan.scale_rows(fi, j, ws, dy0 - 1..dy1 + 1, |y0, prev, cur| {
+        for (i, t_r) in cur.chunks_exact(nx).enumerate() {
+            let t_prev = if i > 0 {
+                &cur[(i - 1) * nx..i * nx]
+            } else {
+                // the first block starts at dy0 - 1, whose NMS is not needed
+                prev.map_or(&[][..], |p| &p[p.len() - nx..])
+            };
+            nms.feed(s, y0 + i, t_r, t_prev);
+        }
+    });
+    let mmax = nms.mmax;
+    finish(out, mmax, domain, eps, a, keep_chains, s)
+}
+
+/// The streaming non-maximum suppression over the detection rectangle
+/// (at least two pixels from every border): fed the rows `dy0 - 1 ..= dy1`
+/// of `T` in order, it keeps three rows of M and tests row `r - 1` when row
+/// `r` arrives, pushing candidates into `s.cand` and tracking max M over
+/// the counting rectangle.
+struct NmsStream {
+    dy0: usize,
+    dy1: usize,
+    dx0: usize,
+    dx1: usize,
+    cy0: usize,
+    cy1: usize,
+    cx0: usize,
+    cx1: usize,
+    nx: usize,
+    mmax: f64,
+}
+
+impl NmsStream {
+    fn new(domain: &Domain, a: f64, nx: usize) -> Self {
+        let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
+        NmsStream {
+            dy0,
+            dy1,
+            dx0,
+            dx1,
+            cy0: domain.y0,
+            cy1: domain.y1,
+            cx0: domain.x0,
+            cx1: domain.x1,
+            nx,
+            mmax: 0.0,
         }
     }
+
+    /// Row `r` of `T`; `t_prev` is row `r - 1` (read only when that row is
+    /// tested, i.e. for `r > dy0`).
+    fn feed(&mut self, s: &mut DetectScratch, r: usize, t_r: &[Complex64], t_prev: &[Complex64]) {
+        let nx = self.nx;
+        if r + 1 < self.dy0 || r > self.dy1 {
+            return;
+        }
+        s.ring.resize(3 * nx, 0.0);
+        s.row_mask.resize(nx, 0);
+        let dst = &mut s.ring[(r % 3) * nx..(r % 3 + 1) * nx];
+        modulus_into(t_r, dst);
+        if r >= self.cy0 && r < self.cy1 {
+            self.mmax = self.mmax.max(max_nonneg(&dst[self.cx0..self.cx1]));
+        }
+        if r <= self.dy0 {
+            return;
+        }
+        let y = r - 1;
+        let (dx0, dx1) = (self.dx0, self.dx1);
+        let row = |q: usize| &s.ring[(q % 3) * nx..(q % 3 + 1) * nx];
+        nms_row(
+            row(y - 1),
+            row(y),
+            row(r),
+            t_prev,
+            dx0,
+            dx1,
+            &mut s.row_mask,
+        );
+        let mid = row(y);
+        for_each_set(&s.row_mask[dx0..dx1], |i| {
+            let x = dx0 + i;
+            s.cand.push(Px {
+                x: x as u32,
+                y: y as u32,
+                m: mid[x],
+                t: t_prev[x],
+            });
+        });
+    }
+}
+
+/// Threshold, chains and WTMMM from the candidates in `s.cand`.
+fn finish(
+    mut out: ScaleMaxima,
+    mmax: f64,
+    domain: &Domain,
+    eps: f64,
+    a: f64,
+    keep_chains: bool,
+    s: &mut DetectScratch,
+) -> ScaleMaxima {
+    let (ny, nx) = (domain.ny, domain.nx);
+    // a WTMM whose wavelet support reaches a masked pixel is dropped
+    let min_dist = (domain.support * a) as f32;
     if mmax <= 0.0 || !mmax.is_finite() {
         return out;
     }
@@ -505,6 +605,24 @@ pub fn detect(
         out.wtmmm[i as usize].arg = argument(s.pt[s.maxk[i as usize] as usize]);
     }
     out
+}
+
+/// The largest of `v` (>= 0, no NaN), with eight independent lanes: a plain
+/// fold of `f64::max` is a serial dependency chain and cost ~4 % of a
+/// skeleton. Max is exact in any order, so the result is the same.
+fn max_nonneg(v: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 8];
+    let mut chunks = v.chunks_exact(8);
+    for c in &mut chunks {
+        for (a, &x) in acc.iter_mut().zip(c) {
+            *a = if x > *a { x } else { *a };
+        }
+    }
+    let mut m = acc.iter().fold(0.0, |m, &x| if x > m { x } else { m });
+    for &x in chunks.remainder() {
+        m = if x > m { x } else { m };
+    }
+    m
 }
 
 /// Calls `f(i)` for each nonzero byte `mask[i]`, skipping zero words.

@@ -30,7 +30,7 @@ use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
 pub use link::{Endings, LinePoint, LinkParams, Linker, MaximaLine, SearchRadius};
-pub use maxima::{Chain, DetectScratch, Domain, ScaleMaxima, Wtmmm, detect};
+pub use maxima::{Chain, DetectScratch, Domain, ScaleMaxima, Wtmmm, detect, detect_scale};
 
 use crate::cwt::{CwtPlan, ScaleGrid, Wavelet, default_margin};
 use crate::error::{Error, Result};
@@ -253,23 +253,28 @@ pub fn skeleton_with(
     match par {
         Parallelism::Serial => {
             // streaming: each scale is detected and linked before the next
+            let fi = plan.forward(img.view())?;
+            let mut ws = plan.workspace();
             let mut scratch = DetectScratch::default();
-            plan.for_each_scale(img.view(), |j, a, t| {
-                asm.push(detect(
-                    t,
+            for j in 0..scales.len() {
+                let keep_j = keep.contains(&j);
+                let sm = detect_scale(
+                    &plan,
+                    &fi,
                     j,
-                    a,
+                    &mut ws,
                     &domain,
                     cfg.eps,
-                    keep.contains(&j),
+                    keep_j,
                     &mut scratch,
-                ));
-            })?;
+                );
+                asm.push(sm);
+            }
         }
         Parallelism::Scales => {
             let found =
-                plan.par_map_scales_init(img.view(), DetectScratch::default, |s, j, a, t| {
-                    detect(t, j, a, &domain, cfg.eps, keep.contains(&j), s)
+                plan.par_map_scales_with(img.view(), DetectScratch::default, |s, fi, j, ws| {
+                    detect_scale(&plan, fi, j, ws, &domain, cfg.eps, keep.contains(&j), s)
                 })?;
             for sm in found {
                 asm.push(sm);

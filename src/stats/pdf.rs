@@ -44,7 +44,9 @@ use serde::{Deserialize, Serialize};
 use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
 use crate::field::Field;
-use crate::skeleton::{AnalysisConfig, DetectScratch, Linker, Parallelism, ScaleMaxima, detect};
+use crate::skeleton::{
+    AnalysisConfig, DetectScratch, Linker, Parallelism, ScaleMaxima, detect_scale,
+};
 
 /// Which WTMMM a statistic is taken over.
 #[derive(
@@ -128,16 +130,27 @@ pub fn image_wtmmm(
     let plan = CwtPlan::new(ny, nx, cfg.wavelet, &scales)?;
     let found: Vec<ScaleMaxima> = match par {
         Parallelism::Serial => {
-            let mut v = Vec::with_capacity(scales.len());
+            let fi = plan.forward(img.view())?;
+            let mut ws = plan.workspace();
             let mut scratch = DetectScratch::default();
-            plan.for_each_scale(img.view(), |j, a, t| {
-                v.push(detect(t, j, a, &domain, cfg.eps, false, &mut scratch));
-            })?;
-            v
+            (0..scales.len())
+                .map(|j| {
+                    detect_scale(
+                        &plan,
+                        &fi,
+                        j,
+                        &mut ws,
+                        &domain,
+                        cfg.eps,
+                        false,
+                        &mut scratch,
+                    )
+                })
+                .collect()
         }
         Parallelism::Scales => {
-            plan.par_map_scales_init(img.view(), DetectScratch::default, |s, j, a, t| {
-                detect(t, j, a, &domain, cfg.eps, false, s)
+            plan.par_map_scales_with(img.view(), DetectScratch::default, |s, fi, j, ws| {
+                detect_scale(&plan, fi, j, ws, &domain, cfg.eps, false, s)
             })?
         }
     };
