@@ -855,3 +855,131 @@ fn experiment_kappa_cwt_grid() {
         );
     }
 }
+
+/// Diagnostic behind the README's explanation of the low gauss c2 (not a
+/// check): how much of each ancestor's multiplier reaches `ln M(x, a)` on
+/// the CWT grid. Per scale, `ln M` over every pixel is regressed on the
+/// `ln W` of the pixel's ancestors at levels 1 .. N-1 (plus an intercept);
+/// the coefficient `b_i` is 1 for a multiplier fully transmitted. The
+/// variance explained by the cascade, `σ² Σ b_i²`, grows by `σ²` per octave
+/// only if the top multiplier's `b` is 1. Environment: WAVELET
+/// (gauss|mexican), LAW (lognormal|logpoisson), SIZE, N.
+#[test]
+#[ignore]
+#[allow(clippy::needless_range_loop)]
+fn experiment_ancestor_transmission() {
+    use wtmm::synth::wcascade::{WCascadeParams, wcascade, wcascade_moduli};
+    let wavelet = match std::env::var("WAVELET").as_deref() {
+        Ok("mexican") => Wavelet::Mexican,
+        _ => Wavelet::Gauss,
+    };
+    let preset = match std::env::var("LAW").as_deref() {
+        Ok("logpoisson") => "paper-logpoisson",
+        _ => "paper-lognormal",
+    };
+    let model = Model::preset(preset).unwrap().model;
+    let Model::WCascade(params) = model else {
+        panic!("a W-cascade preset")
+    };
+    let params: WCascadeParams = params;
+    // σ² = Var(ln W) = c2 ln 2
+    let sigma2 = model.cumulants().unwrap()[1] * LN_2;
+    let size: usize = std::env::var("SIZE")
+        .map(|s| s.parse().unwrap())
+        .unwrap_or(1024);
+    let n: u64 = std::env::var("N").map(|s| s.parse().unwrap()).unwrap_or(8);
+    let steps = size.trailing_zeros() as usize;
+    let p = steps; // intercept + steps - 1 multipliers
+    let scales: Vec<f64> = (0..=10).map(|k| 1.5 * 2f64.powf(k as f64 / 2.0)).collect();
+    let plan = CwtPlan::new(size, size, wavelet, &scales).unwrap();
+    let mut xtx = vec![vec![0.0; p * p]; scales.len()];
+    let mut xty = vec![vec![0.0; p]; scales.len()];
+    let mut yty = vec![0.0; scales.len()];
+    for i in 0..n {
+        let lv = wcascade_moduli(&params, size, 1, i).unwrap();
+        let img = wcascade(&params, size, 1, i).unwrap();
+        // regressors per pixel: 1, then ln(d_s / d_parent) of the pixel's cell, s = 1..N-1
+        let mut xs = vec![0.0; size * size * p];
+        for y in 0..size {
+            for x in 0..size {
+                let r = &mut xs[(y * size + x) * p..(y * size + x + 1) * p];
+                r[0] = 1.0;
+                for s in 1..steps {
+                    let sh = steps - s;
+                    r[s] = (lv[s][[y >> sh, x >> sh]] / lv[s - 1][[y >> (sh + 1), x >> (sh + 1)]])
+                        .ln();
+                }
+            }
+        }
+        plan.for_each_scale(img.view(), |j, _, t| {
+            for y in 0..size {
+                for x in 0..size {
+                    let r = &xs[(y * size + x) * p..(y * size + x + 1) * p];
+                    let v = modulus(t[[y, x]]).ln();
+                    for u in 0..p {
+                        xty[j][u] += r[u] * v;
+                        for w in 0..p {
+                            xtx[j][u * p + w] += r[u] * r[w];
+                        }
+                    }
+                    yty[j] += v * v;
+                }
+            }
+        })
+        .unwrap();
+    }
+    let mut explained = Vec::new();
+    let mut total = Vec::new();
+    for j in 0..scales.len() {
+        // normal equations by Gaussian elimination with partial pivoting
+        let mut a: Vec<Vec<f64>> = (0..p)
+            .map(|r| {
+                let mut row = xtx[j][r * p..(r + 1) * p].to_vec();
+                row.push(xty[j][r]);
+                row
+            })
+            .collect();
+        for c in 0..p {
+            let piv = (c..p)
+                .max_by(|&u, &v| a[u][c].abs().total_cmp(&a[v][c].abs()))
+                .unwrap();
+            a.swap(c, piv);
+            for r in 0..p {
+                if r != c {
+                    let f = a[r][c] / a[c][c];
+                    for k in c..=p {
+                        a[r][k] -= f * a[c][k];
+                    }
+                }
+            }
+        }
+        let b: Vec<f64> = (0..p).map(|r| a[r][p] / a[r][r]).collect();
+        let cnt = xtx[j][0];
+        let mean = xty[j][0] / cnt;
+        total.push(yty[j] / cnt - mean * mean);
+        explained.push(sigma2 * b[1..].iter().map(|v| v * v).sum::<f64>());
+        println!(
+            "a {:6.2}  var {:.4}  cascade part {:.4}  b(level 1..{}) {}",
+            scales[j],
+            total[j],
+            explained[j],
+            steps - 1,
+            b[1..]
+                .iter()
+                .map(|v| format!("{v:5.2}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+    }
+    // slopes over octaves 0.5..4 (scale indices 1..=8)
+    let fit = |v: &[f64]| {
+        let x: Vec<f64> = scales[1..=8].iter().map(|a| a.ln()).collect();
+        -wtmm::stats::fit::line_fit(&x, &v[1..=8]).unwrap().slope
+    };
+    println!(
+        "-d/d ln a over octaves 0.5-4: var(ln M) {:.4}, cascade part {:.4} (sigma^2/ln2 = {:.4})",
+        fit(&total),
+        fit(&explained),
+        sigma2 / LN_2
+    );
+}
