@@ -212,11 +212,28 @@ fn freq(m: usize, n: usize) -> f64 {
     2.0 * std::f64::consts::PI * mm / n as f64
 }
 
-/// The Fourier transform of one image, full spectrum in `[kx][ky]` layout,
-/// ready to be filtered at any scale.
+/// The Fourier transform of one image in `[kx][ky]` layout, ready to be
+/// filtered at any scale. Only `kx <= nx/2` is stored: the image is real, so
+/// `f̂(kx, ky) = conj f̂(nx - kx, -ky)` gives the rest exactly (half the
+/// memory, and half the spectrum traffic per scale).
 pub struct FourierImage {
-    /// `nx * ny` values, row `kx` holds `f̂(kx, ·)`.
-    spec: Vec<Complex64>,
+    /// `(nx/2 + 1) * ny` values, row `kx` holds `f̂(kx, ·)`.
+    half: Vec<Complex64>,
+    nx: usize,
+    ny: usize,
+}
+
+impl FourierImage {
+    /// `f̂(kx, ky)` for any `kx < nx`.
+    #[inline]
+    fn at(&self, kx: usize, ky: usize) -> Complex64 {
+        let (nx, ny) = (self.nx, self.ny);
+        if kx <= nx / 2 {
+            self.half[kx * ny + ky]
+        } else {
+            self.half[(nx - kx) * ny + (ny - ky) % ny].conj()
+        }
+    }
 }
 
 /// Per-worker buffers for [`CwtPlan::scale`]: allocate once, reuse for every
@@ -405,16 +422,11 @@ impl CwtPlan {
         let mut halft = vec![Complex64::default(); ny * nh];
         transpose::transpose(&half, &mut halft, nh, ny);
         self.fwd_y.process_with_scratch(&mut halft, &mut scratch);
-        // Hermitian completion: f̂(kx, ky) = conj f̂(-kx, -ky)
-        let mut spec = vec![Complex64::default(); nx * ny];
-        spec[..nh * ny].copy_from_slice(&halft);
-        for kx in nh..nx {
-            let src = nx - kx;
-            for ky in 0..ny {
-                spec[kx * ny + ky] = halft[src * ny + (ny - ky) % ny].conj();
-            }
-        }
-        Ok(FourierImage { spec })
+        Ok(FourierImage {
+            half: halft,
+            nx,
+            ny,
+        })
     }
 
     /// `T1 + i T2` at scale index `j`, in `ws`'s output buffer (`[y][x]`).
@@ -535,18 +547,30 @@ impl CwtPlan {
                 continue;
             }
             ws.zero_rows[kx] = false;
-            let src = &fi.spec[kx * ny..(kx + 1) * ny];
             let dkx = self.dkx[kx];
             let kx2 = self.kx[kx] * self.kx[kx];
-            for ky in 0..ny {
-                let mut g = c * gx * ws.gy[ky];
+            let gy = &ws.gy;
+            let body = |ky: usize, f: Complex64| {
+                let mut g = c * gx * gy[ky];
                 if mexican {
                     g *= a2 * (kx2 + self.ky[ky] * self.ky[ky]);
                 }
                 // (i dkx - dky) * g * f̂
-                let f = src[ky];
                 let (re, im) = (-self.dky[ky] * g, dkx * g);
-                row[ky] = Complex64::new(re * f.re - im * f.im, re * f.im + im * f.re);
+                Complex64::new(re * f.re - im * f.im, re * f.im + im * f.re)
+            };
+            if kx <= nx / 2 {
+                let src = &fi.half[kx * ny..(kx + 1) * ny];
+                for (ky, (r, &f)) in row.iter_mut().zip(src).enumerate() {
+                    *r = body(ky, f);
+                }
+            } else {
+                // f̂(kx, ky) = conj f̂(nx - kx, ny - ky), read backwards
+                let src = &fi.half[(nx - kx) * ny..(nx - kx + 1) * ny];
+                row[0] = body(0, src[0].conj());
+                for (i, (r, &f)) in row[1..].iter_mut().zip(src[1..].iter().rev()).enumerate() {
+                    *r = body(i + 1, f.conj());
+                }
             }
             self.inv_y.process_with_scratch(row, &mut ws.scratch);
         }
@@ -565,7 +589,7 @@ impl CwtPlan {
                 if self.wavelet == Wavelet::Mexican {
                     g *= a * a * (self.kx[kx] * self.kx[kx] + self.ky[ky] * self.ky[ky]);
                 }
-                buf[kx * ny + ky] = fi.spec[kx * ny + ky] * g;
+                buf[kx * ny + ky] = fi.at(kx, ky) * g;
             }
         }
         let mut scratch = vec![Complex64::default(); self.scratch_len];
