@@ -123,6 +123,10 @@ fn synth_fif_then_tm() {
         }
         assert_eq!(tm["command"], "tm");
         assert_eq!(tm["images"], n);
+        // an ensemble of >= 5 images: GLS universal fit; the OLS one is kept
+        let uf = tm["universal_fit"].as_str().unwrap();
+        assert!(uf.starts_with("gls"), "{uf}");
+        assert!(num(&tm, "alpha_ols").is_finite() && num(&tm, "universal_shrinkage") >= 0.0);
         for key in ["alpha", "C1", "H", "q_s", "dtm_alpha", "dtm_C1", "beta"] {
             assert!(num(&tm, key).is_finite(), "{key}: {}", tm[key]);
         }
@@ -148,7 +152,10 @@ fn synth_fif_then_tm() {
             a.extend_from_slice(extra);
             a.extend_from_slice(&["--eta", "1", "--out", o.to_str().unwrap()]);
             assert_eq!(run(&a), 0);
-            per.push(num(&json(&o.join("tm.json")), "C1"));
+            let one = json(&o.join("tm.json"));
+            // one image: OLS by default (its tiles are not independent)
+            assert!(one["universal_fit"].as_str().unwrap().starts_with("ols"));
+            per.push(num(&one, "C1"));
         }
         let sigma = mean_std(&per).1 / (n as f64).sqrt();
         let est = num(&tm, "C1");

@@ -497,12 +497,17 @@ fn auto_flux_tracks_the_true_flux() {
 
 /// Jackknife errors: the exact two-part formula, zero for identical parts,
 /// and on 16 log-normal cascades of 128² (exact K) an error of α of the
-/// size of the per-image scatter, not of the regression residuals.
+/// size of the per-image scatter, not of the regression residuals (OLS
+/// universal fit, the estimator of the per-image α; the GLS errors are
+/// checked against the scatter between ensembles below).
 #[test]
 fn jackknife_errors_reflect_the_ensemble_scatter() {
     let c1 = 0.1;
     let s = (c1 * 2.0 * std::f64::consts::LN_2).sqrt();
-    let fc = TraceMomentFitConfig::default();
+    let fc = TraceMomentFitConfig {
+        universal: UniversalWeighting::Ols,
+        ..Default::default()
+    };
     let one = |i: u64| {
         let mut a = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
         a.add_flux(cascade(7, s, 5, i).view(), None).unwrap();
@@ -570,8 +575,86 @@ fn tiles_reproduce_the_whole_field() {
     for (a, b) in rm.xi.iter().zip(&rw.xi) {
         assert!((a - b).abs() < 1e-10, "xi {a} vs {b}");
     }
-    let r = finish_jackknife(&whole, &tiles, &fc, "tiles").unwrap();
+    // OLS: the jackknife only adds errors; GLS (default, 12 tiles >= 5)
+    // refits α from the same K(q)
+    let ols = TraceMomentFitConfig {
+        universal: UniversalWeighting::Ols,
+        ..Default::default()
+    };
+    let r = finish_jackknife(&whole, &tiles, &ols, "tiles").unwrap();
     assert_eq!(r.alpha, rw.alpha);
     assert!(r.alpha_stderr.is_finite() && r.alpha_stderr > 0.0);
     assert!(r.stderr_method.contains("12 tiles"));
+    let r = finish_jackknife(&whole, &tiles, &fc, "tiles").unwrap();
+    assert_eq!(r.k, rw.k);
+    assert_eq!(r.alpha_ols, rw.alpha);
+    assert!(r.universal_fit.starts_with("gls"), "{}", r.universal_fit);
+    assert!(r.alpha.is_finite() && r.alpha_stderr.is_finite() && r.alpha_stderr > 0.0);
+}
+
+/// The GLS universal fit (default) against the OLS one on independent
+/// ensembles of log-normal cascades (exact K: α = 2, C1 = 0.1): both
+/// unbiased within 4σ/√m + b (b = 0.08 as for one ensemble above), the GLS
+/// nested-jackknife error of the size of the scatter between ensembles
+/// (within a factor e), and a scatter no larger than that of OLS.
+#[test]
+fn gls_universal_fit_on_cascade_ensembles() {
+    let c1 = 0.1;
+    let s = (c1 * 2.0 * std::f64::consts::LN_2).sqrt();
+    let (m, n_img) = (8u64, 16u64);
+    let gls = TraceMomentFitConfig::default();
+    assert_eq!(gls.universal, UniversalWeighting::Gls);
+    let ols = TraceMomentFitConfig {
+        universal: UniversalWeighting::Ols,
+        ..Default::default()
+    };
+    let (mut ag, mut ao, mut jg, mut cg) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for e in 0..m {
+        let parts: Vec<TraceMomentAccumulator> = (0..n_img)
+            .map(|i| {
+                let mut a = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+                a.add_flux(cascade(7, s, 100 + e, i).view(), None).unwrap();
+                a
+            })
+            .collect();
+        let (_, rg) = finish_ensemble(&parts, &gls).unwrap();
+        let (_, ro) = finish_ensemble(&parts, &ols).unwrap();
+        assert!(rg.universal_fit.starts_with("gls"), "{}", rg.universal_fit);
+        assert!(
+            rg.universal_shrinkage
+                .is_some_and(|l| (0.0..=1.0).contains(&l))
+        );
+        assert!(ro.universal_fit.starts_with("ols"));
+        assert_eq!(rg.alpha_ols, ro.alpha);
+        assert_eq!(rg.k, ro.k);
+        ag.push(rg.alpha);
+        ao.push(ro.alpha);
+        jg.push(rg.alpha_stderr);
+        cg.push(rg.c1);
+    }
+    let (mg, sg) = mean_std(&ag);
+    let (mo, so) = mean_std(&ao);
+    let (mc, sc) = mean_std(&cg);
+    let mj = jg.iter().sum::<f64>() / m as f64;
+    println!(
+        "cascades 16 x 128², {m} ensembles: GLS alpha {mg:.3} sd {sg:.3} (mean jackknife {mj:.3}); OLS alpha {mo:.3} sd {so:.3}; GLS C1 {mc:.4} sd {sc:.4}"
+    );
+    let rm = (m as f64).sqrt();
+    assert!(
+        (mg - 2.0).abs() < 4.0 * sg / rm + 0.08,
+        "GLS alpha {mg} sd {sg}"
+    );
+    assert!(
+        (mo - 2.0).abs() < 4.0 * so / rm + 0.08,
+        "OLS alpha {mo} sd {so}"
+    );
+    assert!(
+        (mc - c1).abs() < 4.0 * sc / rm + 0.01,
+        "GLS C1 {mc} sd {sc}"
+    );
+    assert!(
+        mj / sg > (-1.0f64).exp() && mj / sg < 1.0f64.exp(),
+        "jackknife {mj} vs sd {sg}"
+    );
+    assert!(sg <= so, "GLS sd {sg} vs OLS sd {so}");
 }

@@ -19,7 +19,7 @@ use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
     FluxDiff, FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig,
-    TraceMomentResult, finish_ensemble, finish_jackknife, universal_shape,
+    TraceMomentResult, UniversalWeighting, finish_ensemble, finish_jackknife, universal_shape,
 };
 
 /// Trace-moment options shared by `tm` and `compare` (everything but the
@@ -71,6 +71,14 @@ pub struct TmOpts {
     /// Upper bound on q in the universal fit (on top of the automatic q_s/2).
     #[arg(long)]
     pub q_fit_max: Option<f64>,
+    /// Universal fit of (alpha, C1): `gls` = generalised least squares with
+    /// the jackknife covariance of K(q) across q (correlations shrunk by the
+    /// Schäfer-Strimmer intensity; needs >= 5 images or tiles), `ols` =
+    /// unweighted least squares in K (the estimator before GLS) [default:
+    /// gls for an ensemble of images, ols for one image, whose tiles are
+    /// not independent samples for the covariance].
+    #[arg(long, value_enum)]
+    pub universal_fit: Option<UniversalWeighting>,
     /// Taper before the FFT of the spectrum [default: hann for `tm`; none for
     /// the periodic models of `compare`, hann for fbm].
     #[arg(long, value_enum)]
@@ -151,6 +159,7 @@ impl TmOpts {
             log2_lag: opt("lag-fit", &self.lag_fit)?,
             k_range,
             q_fit_max: self.q_fit_max,
+            universal: self.universal_fit.unwrap_or_default(),
         })
     }
 }
@@ -172,7 +181,11 @@ pub struct TmArgs {
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_list("q", &args.q)?;
     let cfg = args.tm.config(q, false)?;
-    let fc = args.tm.fit()?;
+    let mut fc = args.tm.fit()?;
+    if args.images.len() == 1 {
+        // one image: its tiles are not independent samples for the covariance
+        fc.universal = args.tm.universal_fit.unwrap_or(UniversalWeighting::Ols);
+    }
     let (acc, res) = if args.images.len() == 1 {
         // one image: block jackknife over tiles of the largest fitted box
         let path = &args.images[0];
@@ -267,7 +280,7 @@ pub fn summary(r: &TraceMomentResult) -> String {
     };
     format!(
         "trace moments: {} image(s), flux |{:?}|{}{}, fit log2 lambda {}:{}\n  \
-         alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} (universal fit over 0 < q <= {:.2}; q_s {:.2})\n  \
+         alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} ({} universal fit over 0 < q <= {:.2}; q_s {:.2})\n  \
          DTM (q = {}): alpha {:.3} +- {:.3}, C1 {:.4}\n  \
          beta {} (angle-integrated), H {} (spectrum), H_sf {} (structure functions)\n  \
          errors: {} (fit-only: alpha +- {:.3}, C1 +- {:.4})\n",
@@ -282,6 +295,7 @@ pub fn summary(r: &TraceMomentResult) -> String {
         r.alpha_stderr,
         r.c1,
         r.c1_stderr,
+        r.universal_fit.split_whitespace().next().unwrap_or("ols"),
         r.universal_q_max,
         r.q_s,
         r.dtm_q.first().copied().unwrap_or(f64::NAN),

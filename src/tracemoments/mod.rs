@@ -65,7 +65,7 @@
 //!
 //! # Universal fit and q_s
 //! `K(q) = C1/(α-1) (q^α - q)` (`C1 q ln q` at α = 1, seed 000 eq 8) is fitted
-//! by least squares over `0 < q <= q_s/2`. Rule for `q_s` (seed 000 eq 15 and
+//! by least squares over `0 < q <= q_s/2` (weighting: next section). Rule for `q_s` (seed 000 eq 15 and
 //! its sampling interpretation): start from the fit over `0 < q <= 2` (as in
 //! seed 000 §6.2.4), then iterate (3 times)
 //! `q_s = min(((D + D_s)/C1)^(1/α), q_D)` with the sampling dimension
@@ -79,6 +79,26 @@
 //! of the linear regime is reported separately (`q_s_empirical`: the first
 //! `q > 1` from which on the measured `K''` stays below a quarter of the
 //! fitted universal `K''`).
+//!
+//! # Weighting of the universal fit (GLS)
+//! The K(q) of one ensemble are far from independent: they all come from
+//! the same few extreme boxes, their sampling errors grow fast with q and
+//! are strongly correlated between neighbouring q. Unweighted least
+//! squares in K ([`UniversalWeighting::Ols`]) lets the noisiest, largest
+//! K(q) near `q_s/2` decide α. With jackknife parts ([`finish_ensemble`],
+//! [`finish_jackknife`]) the default ([`UniversalWeighting::Gls`]) fits by
+//! generalised least squares with the jackknife covariance of K(q) across
+//! the fitted q. With n parts that matrix has rank n - 1 (less than the
+//! ~25 fitted q), so its correlations are shrunk toward 0 by the analytic
+//! Schäfer-Strimmer intensity ([`jackknife_covariance_shrunk`]; about 0.2-0.5
+//! on 16 topo-fif images) — no tuned constant. The q range and `q_s` are
+//! those of the OLS iteration. The jackknife error of the GLS α is nested
+//! (weights re-estimated inside every leave-one-out sample). Measured
+//! (truth α = 1.8, C1 = 0.12): on 11 ensembles of 16 x 1024² topo-fif
+//! (seeds 2-12) OLS α 1.829 ± 0.081 (sd over ensembles), GLS 1.832 ±
+//! 0.043, mean nested-jackknife error 0.047; on 8 ensembles of 16
+//! log-normal cascades of 128² (α = 2) OLS 1.965 ± 0.103, GLS 1.993 ±
+//! 0.018. [`TraceMomentAccumulator::finish`] alone has no parts and is OLS.
 //!
 //! # Outer scale
 //! If the cascade starts at an effective outer scale `L_eff`, every moment
@@ -104,10 +124,14 @@
 mod fit;
 mod flux;
 
-pub use fit::{LogSum, UniversalFit, fit_universal, universal_shape};
+pub use fit::{
+    LogSum, ShrunkCovariance, UniversalFit, UniversalWeighting, fit_universal, fit_universal_gls,
+    jackknife_covariance_shrunk, spd_inverse, universal_shape,
+};
 pub use flux::{FluxDiff, FluxKind};
 
 use ndarray::{Array2, ArrayView2};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -246,6 +270,10 @@ pub struct TraceMomentFitConfig {
     pub k_range: Option<(f64, f64)>,
     /// Upper bound on the q of the universal fit (on top of `q < q_s`).
     pub q_fit_max: Option<f64>,
+    /// Weighting of the universal fit (GLS needs jackknife parts:
+    /// [`finish_jackknife`]; [`TraceMomentAccumulator::finish`] alone is OLS).
+    #[serde(default)]
+    pub universal: UniversalWeighting,
 }
 
 impl Default for TraceMomentFitConfig {
@@ -256,6 +284,7 @@ impl Default for TraceMomentFitConfig {
             log2_lag: None,
             k_range: None,
             q_fit_max: None,
+            universal: UniversalWeighting::default(),
         }
     }
 }
@@ -865,6 +894,10 @@ impl TraceMomentAccumulator {
             c1_stderr: uni.map_or(nan, |u| u.c1_stderr),
             c1_stderr_fit: uni.map_or(nan, |u| u.c1_stderr),
             stderr_method: "regression residuals only (no ensemble scatter)".into(),
+            universal_fit: "ols (unweighted least squares in K)".into(),
+            universal_shrinkage: None,
+            alpha_ols: uni.map_or(nan, |u| u.alpha),
+            c1_ols: uni.map_or(nan, |u| u.c1),
             jackknife_groups: 0,
             universal_n: uni.map_or(0, |u| u.n),
             q_s,
@@ -997,6 +1030,18 @@ pub struct TraceMomentResult {
     pub c1_stderr_fit: f64,
     /// How `*_stderr` were obtained.
     pub stderr_method: String,
+    /// How α and C1 were fitted: `ols`, or `gls` with the jackknife
+    /// covariance of K(q) and its shrinkage intensity.
+    #[serde(default)]
+    pub universal_fit: String,
+    /// The Schäfer-Strimmer shrinkage λ of the GLS covariance (None: OLS).
+    #[serde(default)]
+    pub universal_shrinkage: Option<f64>,
+    /// The unweighted (OLS) universal fit over the same q, for comparison.
+    #[serde(default)]
+    pub alpha_ols: f64,
+    #[serde(default, rename = "C1_ols")]
+    pub c1_ols: f64,
     /// Number of jackknife groups (0: none).
     pub jackknife_groups: usize,
     /// Number of q values in the universal fit.
@@ -1115,6 +1160,10 @@ pub fn finish_jackknife(
         res.stderr_method = "regression residuals only (one part: no ensemble scatter; \
                              understates the error)"
             .into();
+        if fc.universal == UniversalWeighting::Gls {
+            res.universal_fit =
+                "ols (unweighted least squares in K; gls not possible: one part)".into();
+        }
         return Ok(res);
     }
     let pin = Some((res.universal_q_max, res.q_s));
@@ -1127,6 +1176,9 @@ pub fn finish_jackknife(
             }
         }
         loo.push(a.finish_inner(fc, pin)?);
+    }
+    if fc.universal == UniversalWeighting::Gls {
+        gls_refit(&mut res, &mut loo, whole, parts, fc, pin, what)?;
     }
     let jk = |f: &dyn Fn(&TraceMomentResult) -> f64| -> f64 {
         let v: Vec<f64> = loo.iter().map(f).collect();
@@ -1156,6 +1208,132 @@ pub fn finish_jackknife(
     res.stderr_method = format!("jackknife over {n} {what} (leave one out)");
     res.jackknife_groups = n;
     Ok(res)
+}
+
+/// The q indices of the universal fit: `0 < q <= q_hi` (and `q_fit_max`),
+/// as in [`TraceMomentAccumulator::finish`].
+fn universal_indices(q: &[f64], q_hi: f64, fc: &TraceMomentFitConfig) -> Vec<usize> {
+    let qcap = fc.q_fit_max.unwrap_or(f64::INFINITY);
+    q.iter()
+        .enumerate()
+        .filter(|(_, a)| **a > 0.0 && **a < q_hi + 1e-12 && **a <= qcap + 1e-12)
+        .map(|(i, _)| i)
+        .collect()
+}
+
+/// Sets α and C1 of `r` (and what follows from them: the spectral H, q_D,
+/// the empirical q_s) from the universal fit `u`.
+fn apply_universal(r: &mut TraceMomentResult, u: &UniversalFit) {
+    r.alpha = u.alpha;
+    r.c1 = u.c1;
+    r.alpha_stderr_fit = u.alpha_stderr;
+    r.c1_stderr_fit = u.c1_stderr;
+    r.universal_n = u.n;
+    r.q_d = UniversalK::new(u.alpha.min(2.0), u.c1.max(0.0)).q_divergence(D);
+    r.q_s_empirical = linear_onset(&r.q, &r.k, u);
+    let k2 = u.c1 * universal_shape(u.alpha, 2.0);
+    r.h = r.beta.map(|b| (b - 1.0 + k2) / 2.0);
+}
+
+/// Inverse of the shrunk jackknife covariance of K over `idx`, from the
+/// leave-one-out results `reps` (`(W, λ)`; `Err` says why not).
+fn gls_weights(
+    reps: &[TraceMomentResult],
+    idx: &[usize],
+) -> std::result::Result<(Vec<Vec<f64>>, f64), &'static str> {
+    let v: Vec<Vec<f64>> = reps
+        .iter()
+        .map(|r| idx.iter().map(|&i| r.k[i]).collect())
+        .collect();
+    let sc = jackknife_covariance_shrunk(&v).ok_or("K(q) without jackknife scatter")?;
+    let w = spd_inverse(&sc.cov).ok_or("covariance not positive definite")?;
+    Ok((w, sc.lambda))
+}
+
+/// The generalised-least-squares universal fit (module docs, "Universal
+/// fit"). The weight matrix is the inverse of the jackknife covariance of
+/// K(q) over the fitted q, correlations shrunk by the Schäfer-Strimmer
+/// intensity; the whole ensemble is fitted with the one from the
+/// leave-one-out results `loo`. For honest errors the weights are
+/// re-estimated inside every leave-one-out sample from its own n - 1
+/// leave-one-out samples (a nested jackknife, n(n-1) finishes): held fixed,
+/// they would be tuned to the very fluctuations the jackknife should see
+/// (on 11 topo-fif ensembles the fixed-weight error was 0.027 against a
+/// scatter of 0.043; nested 0.047). Keeps the OLS fit (and says why in
+/// `universal_fit`) with fewer than 5 parts, fewer than 3 q values, or a
+/// covariance that cannot be inverted.
+fn gls_refit(
+    res: &mut TraceMomentResult,
+    loo: &mut [TraceMomentResult],
+    whole: &TraceMomentAccumulator,
+    parts: &[TraceMomentAccumulator],
+    fc: &TraceMomentFitConfig,
+    pin: Option<(f64, f64)>,
+    what: &str,
+) -> Result<()> {
+    let n = parts.len();
+    let idx: Vec<usize> = universal_indices(&res.q, res.universal_q_max, fc)
+        .into_iter()
+        .filter(|&i| res.k[i].is_finite() && loo.iter().all(|r| r.k[i].is_finite()))
+        .collect();
+    let fallback = |res: &mut TraceMomentResult, why: &str| {
+        res.universal_fit = format!("ols (unweighted least squares in K; gls not possible: {why})");
+        Ok(())
+    };
+    if n < 5 {
+        return fallback(res, "fewer than 5 jackknife parts");
+    }
+    if idx.len() < 3 {
+        return fallback(res, "fewer than 3 q values");
+    }
+    let q: Vec<f64> = idx.iter().map(|&i| res.q[i]).collect();
+    let fit = |r: &TraceMomentResult, w: &[Vec<f64>]| {
+        let k: Vec<f64> = idx.iter().map(|&i| r.k[i]).collect();
+        fit_universal_gls(&q, &k, w)
+    };
+    let (w, lambda) = match gls_weights(loo, &idx) {
+        Ok(x) => x,
+        Err(why) => return fallback(res, why),
+    };
+    let Some(u) = fit(res, &w) else {
+        return fallback(res, "fit failed");
+    };
+    // nested: the weights of leave-one-out sample i from its own jackknife
+    let inner: Vec<Result<Vec<TraceMomentResult>>> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut out = Vec::with_capacity(n - 1);
+            for j in (0..n).filter(|&j| j != i) {
+                let mut a = TraceMomentAccumulator::new(whole.config.clone())?;
+                for (m, p) in parts.iter().enumerate() {
+                    if m != i && m != j {
+                        a.merge(p)?;
+                    }
+                }
+                out.push(a.finish_inner(fc, pin)?);
+            }
+            Ok(out)
+        })
+        .collect();
+    let mut lu = Vec::with_capacity(n);
+    for (r, inn) in loo.iter().zip(inner) {
+        let inn = inn?;
+        let x = gls_weights(&inn, &idx).ok().and_then(|(wi, _)| fit(r, &wi));
+        match x {
+            Some(x) => lu.push(x),
+            None => return fallback(res, "no fit on a jackknife sample"),
+        }
+    }
+    apply_universal(res, &u);
+    for (r, x) in loo.iter_mut().zip(&lu) {
+        apply_universal(r, x);
+    }
+    res.universal_fit = format!(
+        "gls (jackknife covariance of K(q) over {n} {what}, {} q values, correlations shrunk by lambda = {lambda:.3}; errors by a nested jackknife)",
+        idx.len(),
+    );
+    res.universal_shrinkage = Some(lambda);
+    Ok(())
 }
 
 /// Trace-moment analysis of one field with the default settings.
