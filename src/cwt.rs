@@ -547,32 +547,21 @@ impl CwtPlan {
                 continue;
             }
             ws.zero_rows[kx] = false;
-            let dkx = self.dkx[kx];
-            let kx2 = self.kx[kx] * self.kx[kx];
-            let gy = &ws.gy;
-            let body = |ky: usize, f: Complex64| {
-                let mut g = c * gx * gy[ky];
-                if mexican {
-                    g *= a2 * (kx2 + self.ky[ky] * self.ky[ky]);
-                }
-                // (i dkx - dky) * g * f̂
-                let (re, im) = (-self.dky[ky] * g, dkx * g);
-                Complex64::new(re * f.re - im * f.im, re * f.im + im * f.re)
-            };
-            if kx <= nx / 2 {
-                let src = &fi.half[kx * ny..(kx + 1) * ny];
-                for (ky, (r, &f)) in row.iter_mut().zip(src).enumerate() {
-                    *r = body(ky, f);
-                }
+            let (src, mirrored) = if kx <= nx / 2 {
+                (&fi.half[kx * ny..(kx + 1) * ny], false)
             } else {
-                // f̂(kx, ky) = conj f̂(nx - kx, ny - ky), read backwards
-                let src = &fi.half[(nx - kx) * ny..(nx - kx + 1) * ny];
-                row[0] = body(0, src[0].conj());
-                for (i, (r, &f)) in row[1..].iter_mut().zip(src[1..].iter().rev()).enumerate() {
-                    *r = body(i + 1, f.conj());
-                }
-            }
-            self.inv_y.process_with_scratch(row, &mut ws.scratch);
+                (&fi.half[(nx - kx) * ny..(nx - kx + 1) * ny], true)
+            };
+            let rf = RowFilter {
+                c: c * gx,
+                dkx: self.dkx[kx],
+                kx2: self.kx[kx] * self.kx[kx],
+                a2: if mexican { a2 } else { 0.0 },
+                gy: &ws.gy,
+                ky: &self.ky,
+                dky: &self.dky,
+            };
+            rf.apply(row, src, mirrored);            self.inv_y.process_with_scratch(row, &mut ws.scratch);
         }
     }
 
@@ -670,6 +659,67 @@ impl CwtPlan {
                 |(ws, st), j| f(st, &fi, j, ws),
             )
             .collect())
+    }
+}
+
+/// One row `kx` of the filter `(i dkx - dky) g(kx, ky)` applied to the
+/// spectrum, `g = c gx gy[ky]` (times `a² |k|²` for mexican, when `a2 > 0`).
+struct RowFilter<'a> {
+    /// `c gx`: normalisation times the Gaussian factor of the row.
+    c: f64,
+    dkx: f64,
+    kx2: f64,
+    a2: f64,
+    gy: &'a [f64],
+    ky: &'a [f64],
+    dky: &'a [f64],
+}
+
+impl RowFilter<'_> {
+    /// `row[ky] = filter * f̂(kx, ky)` from the stored half spectrum: `src`
+    /// is row `kx`, or row `nx - kx` read backwards and conjugated
+    /// (`mirrored`). AVX2 when available: no FMA contraction happens
+    /// without `mul_add`, so both paths give the same bits.
+    fn apply(&self, row: &mut [Complex64], src: &[Complex64], mirrored: bool) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            #[target_feature(enable = "avx2")]
+            unsafe fn avx2(rf: &RowFilter, row: &mut [Complex64], src: &[Complex64], m: bool) {
+                rf.apply_impl(row, src, m)
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                unsafe { avx2(self, row, src, mirrored) };
+                return;
+            }
+        }
+        self.apply_impl(row, src, mirrored)
+    }
+
+    #[inline(always)]
+    fn apply_impl(&self, row: &mut [Complex64], src: &[Complex64], mirrored: bool) {
+        let n = row.len();
+        let (gy, ky, dky) = (&self.gy[..n], &self.ky[..n], &self.dky[..n]);
+        let body = |i: usize, f: Complex64| {
+            let mut g = self.c * gy[i];
+            if self.a2 > 0.0 {
+                g *= self.a2 * (self.kx2 + ky[i] * ky[i]);
+            }
+            // (i dkx - dky) * g * f̂
+            let (re, im) = (-dky[i] * g, self.dkx * g);
+            Complex64::new(re * f.re - im * f.im, re * f.im + im * f.re)
+        };
+        if !mirrored {
+            for (i, (r, &f)) in row.iter_mut().zip(&src[..n]).enumerate() {
+                *r = body(i, f);
+            }
+        } else {
+            // f̂(kx, ky) = conj f̂(nx - kx, ny - ky)
+            row[0] = body(0, src[0].conj());
+            for (i, (r, &f)) in row[1..].iter_mut().zip(src[1..n].iter().rev()).enumerate() {
+                *r = body(i + 1, f.conj());
+            }
+        }
     }
 }
 
