@@ -255,12 +255,12 @@ pub fn skeleton_with(
             // streaming: each scale is detected and linked before the next
             let mut scratch = DetectScratch::default();
             plan.for_each_scale(img.view(), |j, a, t| {
-                asm.push(detect(
+                asm.push(detect_linkable(
                     t,
                     j,
                     a,
                     &domain,
-                    cfg.eps,
+                    cfg,
                     keep.contains(&j),
                     &mut scratch,
                 ));
@@ -269,7 +269,7 @@ pub fn skeleton_with(
         Parallelism::Scales => {
             let found =
                 plan.par_map_scales_init(img.view(), DetectScratch::default, |s, j, a, t| {
-                    detect(t, j, a, &domain, cfg.eps, keep.contains(&j), s)
+                    detect_linkable(t, j, a, &domain, cfg, keep.contains(&j), s)
                 })?;
             for sm in found {
                 asm.push(sm);
@@ -281,6 +281,33 @@ pub fn skeleton_with(
     Ok(sk)
 }
 
+/// [`detect`], plus the chains and the moduli along them when the linking
+/// rules need them (`LinkParams::climb`).
+pub fn detect_linkable(
+    t: &Array2<num_complex::Complex64>,
+    j: usize,
+    a: f64,
+    domain: &Domain,
+    cfg: &AnalysisConfig,
+    keep_chains: bool,
+    scratch: &mut DetectScratch,
+) -> (ScaleMaxima, Option<Vec<Vec<f64>>>) {
+    let need = cfg.link.climb;
+    let sm = detect(t, j, a, domain, cfg.eps, keep_chains || need, scratch);
+    let cm = need.then(|| {
+        sm.chains
+            .iter()
+            .map(|c| {
+                c.pixels
+                    .iter()
+                    .map(|&(x, y)| crate::cwt::modulus(t[[y as usize, x as usize]]))
+                    .collect()
+            })
+            .collect()
+    });
+    (sm, cm)
+}
+
 /// Links scales as they arrive and keeps the per-scale counts.
 struct Assembler<'k> {
     linker: Linker,
@@ -289,8 +316,11 @@ struct Assembler<'k> {
 }
 
 impl Assembler<'_> {
-    fn push(&mut self, sm: ScaleMaxima) {
-        let ended = self.linker.push(&sm);
+    fn push(&mut self, (mut sm, chain_m): (ScaleMaxima, Option<Vec<Vec<f64>>>)) {
+        let ended = self.linker.push_with(&sm, chain_m.as_deref());
+        if chain_m.is_some() && !self.keep.contains(&sm.j) {
+            sm.chains = Vec::new();
+        }
         self.sk.per_scale.push(ScaleCounts {
             ended,
             a: sm.a,
