@@ -561,7 +561,8 @@ impl CwtPlan {
                 ky: &self.ky,
                 dky: &self.dky,
             };
-            rf.apply(row, src, mirrored);            self.inv_y.process_with_scratch(row, &mut ws.scratch);
+            rf.apply(row, src, mirrored);
+            self.inv_y.process_with_scratch(row, &mut ws.scratch);
         }
     }
 

@@ -3,7 +3,10 @@
 use ndarray::Array2;
 use wtmm::Field;
 use wtmm::cwt::Wavelet;
-use wtmm::skeleton::{AnalysisConfig, MaximaLine, Parallelism, Skeleton, skeleton, skeleton_with};
+use wtmm::skeleton::{
+    AnalysisConfig, Chain, LinkParams, Linker, MaximaLine, Parallelism, ScaleMaxima, Skeleton,
+    Wtmmm, skeleton, skeleton_with,
+};
 use wtmm::stats::line_fit;
 
 fn cfg(wavelet: Wavelet, octaves: usize, margin: usize) -> AnalysisConfig {
@@ -307,4 +310,163 @@ fn streamed_detection_equals_full_detection() {
         }
         assert!(total > 100, "a rough image has maxima ({total})");
     }
+}
+
+/// One scale of WTMMM on one open chain along the row y = 50, with the
+/// modulus `m(x)` at every chain pixel; WTMMM where `m` has a strict local
+/// maximum along the chain (chain ends carry none, as in `detect`).
+fn one_chain_scale(
+    j: usize,
+    a: f64,
+    xs: std::ops::Range<u32>,
+    m: impl Fn(u32) -> f64,
+) -> (ScaleMaxima, Vec<Vec<f64>>) {
+    let pixels: Vec<(u32, u32)> = xs.clone().map(|x| (x, 50)).collect();
+    let mv: Vec<f64> = xs.clone().map(&m).collect();
+    let wtmmm = (1..mv.len() - 1)
+        .filter(|&i| mv[i] > mv[i - 1] && mv[i] >= mv[i + 1])
+        .map(|i| Wtmmm {
+            x: pixels[i].0,
+            y: 50,
+            m: mv[i],
+            arg: 0.0,
+            chain: 0,
+        })
+        .collect();
+    let sm = ScaleMaxima {
+        j,
+        a,
+        n_wtmm: pixels.len(),
+        n_chains: 1,
+        wtmmm,
+        chains: vec![Chain {
+            pixels,
+            closed: false,
+        }],
+    };
+    (sm, vec![mv])
+}
+
+fn point_scale(j: usize, a: f64, pts: &[(u32, f64)]) -> ScaleMaxima {
+    ScaleMaxima {
+        j,
+        a,
+        n_wtmm: pts.len(),
+        n_chains: pts.len(),
+        wtmmm: pts
+            .iter()
+            .enumerate()
+            .map(|(c, &(x, m))| Wtmmm {
+                x,
+                y: 50,
+                m,
+                arg: 0.0,
+                chain: c as u32,
+            })
+            .collect(),
+        chains: Vec::new(),
+    }
+}
+
+/// The maximum of a chain slides along it, 40 px between two voices (far
+/// outside the 12 px box), while the modulus at the line's own position
+/// barely changes: the box rule ends the line for want of a candidate, the
+/// climb follows the chain to its new maximum (a modulus ratio of 1.05).
+#[test]
+fn climbing_follows_a_chain_maximum_that_slides_beyond_the_box() {
+    let s0 = point_scale(0, 10.0, &[(20, 1.0)]);
+    // M rises gently from x = 10 to its maximum at x = 60, then falls
+    let (s1, m1) = one_chain_scale(1, 10.7, 10..80, |x| {
+        if x <= 60 {
+            0.99 + 0.06 * (x - 10) as f64 / 50.0
+        } else {
+            1.05 - 0.01 * (x - 60) as f64
+        }
+    });
+    for climb in [false, true] {
+        let mut lk = Linker::new(LinkParams {
+            climb,
+            ..Default::default()
+        });
+        lk.push(&s0);
+        let e = lk.push_with(&s1, Some(&m1));
+        let lines = lk.finish();
+        if climb {
+            assert_eq!(e.climb, 1);
+            assert_eq!(lines[0].points.len(), 2);
+            assert_eq!((lines[0].points[1].x, lines[0].points[1].y), (60, 50));
+        } else {
+            assert_eq!((e.no_candidate, e.climb), (1, 0));
+            assert_eq!(lines[0].points.len(), 1);
+        }
+    }
+}
+
+/// The climb keeps the linking one-to-one and inside the ratio window: a
+/// chain maximum already taken by a line that reached it through the box
+/// is not taken twice, and one outside the window is not taken at all.
+#[test]
+fn climbing_respects_links_and_the_ratio_window() {
+    let params = LinkParams {
+        climb: true,
+        ..Default::default()
+    };
+    // line 0 at x = 20 (lands on the chain), line 1 at x = 58 (its maximum in the box)
+    let s0 = point_scale(0, 10.0, &[(20, 1.0), (58, 1.0)]);
+    let (s1, m1) = one_chain_scale(1, 10.7, 10..80, |x| {
+        if x <= 60 {
+            0.99 + 0.06 * (x - 10) as f64 / 50.0
+        } else {
+            1.05 - 0.01 * (x - 60) as f64
+        }
+    });
+    let mut lk = Linker::new(params);
+    lk.push(&s0);
+    let e = lk.push_with(&s1, Some(&m1));
+    assert_eq!((e.no_candidate, e.climb), (1, 0));
+    let lines = lk.finish();
+    assert_eq!(lines[0].points.len(), 1);
+    assert_eq!((lines[1].points[1].x, lines[1].points.len()), (60, 2));
+    // the chain's maximum doubles the modulus: outside (0.9, 1.11)
+    let s0 = point_scale(0, 10.0, &[(20, 1.0)]);
+    let (s1, m1) = one_chain_scale(1, 10.7, 10..80, |x| {
+        if x <= 60 {
+            1.0 + (x - 10) as f64 / 50.0
+        } else {
+            2.0 - 0.01 * (x - 60) as f64
+        }
+    });
+    let mut lk = Linker::new(params);
+    lk.push(&s0);
+    let e = lk.push_with(&s1, Some(&m1));
+    assert_eq!(e.climb, 0);
+    assert_eq!(lk.finish()[0].points.len(), 1);
+}
+
+/// Climbing along the chains leaves the exact local behaviour alone: the
+/// lines converging to a cusp |x - x0|^h still give h over 3 octaves.
+#[test]
+fn climbing_keeps_the_cusp_exponent() {
+    let n = 512;
+    let (x0, y0) = (256.3, 255.6);
+    let h = 0.5;
+    let img = Array2::from_shape_fn((n, n), |(y, x)| {
+        let (dx, dy) = (x as f64 - x0, y as f64 - y0);
+        let r = (dx * dx + dy * dy).sqrt();
+        r.powf(h) * taper(r, 180.0, 240.0)
+    });
+    let mut c = cfg(Wavelet::Gauss, 4, 40);
+    c.link.climb = true;
+    let sk = skeleton(&Field::new(img), &c).unwrap();
+    let (j0, j1) = (3, 33);
+    let mut n_near = 0;
+    for l in sk.lines.iter().filter(|l| {
+        let p = l.points[0];
+        ((p.x as f64 - x0).powi(2) + (p.y as f64 - y0).powi(2)).sqrt() < 5.0 && l.points.len() > j1
+    }) {
+        n_near += 1;
+        let s = slope(&sk, l, j0, j1);
+        assert!((s - h).abs() < 0.03, "slope {s}");
+    }
+    assert!(n_near > 0, "no line converging to x0 survives 3 octaves");
 }

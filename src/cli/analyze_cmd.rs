@@ -42,6 +42,11 @@ pub struct SpectraOpts {
     /// Linking: cap (px) of the search box half-width min(cap, 2 log2(6.98 a)).
     #[arg(long, default_value_t = 12.0)]
     pub radius_cap: f64,
+    /// Linking: a line left without a WTMMM climbs the maxima chain it lands
+    /// on to its maximum and takes it when free and inside the ratio window
+    /// (see the README, "Why mexican lines die").
+    #[arg(long)]
+    pub link_climb: bool,
     /// Cut chains at the analysis domain, as the reference implementation
     /// does, instead of tracing them in the guard band outside it.
     #[arg(long)]
@@ -73,6 +78,7 @@ impl SpectraOpts {
                     cap: self.radius_cap,
                 },
                 ratio,
+                climb: self.link_climb,
             },
             guard: !self.no_guard,
         };

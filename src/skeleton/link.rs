@@ -6,6 +6,10 @@
 //! the nearer wins (ties: the lower line id) and the other line ends. Lines
 //! are born only at `a_min`. Only the previous scale's line ends and the
 //! current scale's WTMMM are needed, so linking streams with the CWT.
+//!
+//! Optionally (`LinkParams::climb`, off by default) a line left without a
+//! WTMMM follows the maxima chain it lands on to that chain's local maximum,
+//! wherever along the chain it has moved (README, "Why mexican lines die").
 
 use serde::{Deserialize, Serialize};
 
@@ -82,6 +86,15 @@ pub struct LinkParams {
     /// rough surfaces; smooth regions seen by the mexican wavelet grow as
     /// a^3 and need a wider window).
     pub ratio: (f64, f64),
+    /// Second chance along the chain (off by default; README, "Why mexican
+    /// lines die"): a line left without a WTMMM lands on the nearest
+    /// maxima-chain pixel of the next scale (inside the box), climbs the
+    /// modulus along that chain to its local maximum, and takes that WTMMM
+    /// when no line takes it and its modulus ratio lies in `ratio`, however
+    /// far along the chain it is. Needs the chains and their moduli
+    /// ([`Linker::push_with`]).
+    #[serde(default)]
+    pub climb: bool,
 }
 
 impl Default for LinkParams {
@@ -92,6 +105,7 @@ impl Default for LinkParams {
         LinkParams {
             radius: SearchRadius::default(),
             ratio: (0.9, 1.11),
+            climb: false,
         }
     }
 }
@@ -105,6 +119,239 @@ pub struct Endings {
     pub ratio: usize,
     /// The nearest acceptable candidate went to a nearer line.
     pub contested: usize,
+    /// Of the lines counted above, those linked by climbing their chain
+    /// (`LinkParams::climb`).
+    #[serde(default)]
+    pub climb: usize,
+}
+
+/// The WTMMM of one scale bucketed on a square grid.
+#[derive(Default)]
+struct Buckets {
+    cell: u32,
+    gx: u32,
+    gy: u32,
+    start: Vec<u32>,
+    idx: Vec<u32>,
+}
+
+impl Buckets {
+    fn fill(&mut self, sm: &ScaleMaxima, cell: u32) {
+        self.cell = cell;
+        self.gx = sm.wtmmm.iter().map(|w| w.x / cell).max().unwrap_or(0) + 1;
+        self.gy = sm.wtmmm.iter().map(|w| w.y / cell).max().unwrap_or(0) + 1;
+        let ncell = (self.gx * self.gy) as usize;
+        self.start.clear();
+        self.start.resize(ncell + 1, 0);
+        for w in &sm.wtmmm {
+            self.start[((w.y / cell) * self.gx + w.x / cell) as usize + 1] += 1;
+        }
+        for i in 0..ncell {
+            self.start[i + 1] += self.start[i];
+        }
+        self.idx.clear();
+        self.idx.resize(sm.wtmmm.len(), 0);
+        let mut fill = self.start.clone();
+        for (k, w) in sm.wtmmm.iter().enumerate() {
+            let c = ((w.y / cell) * self.gx + w.x / cell) as usize;
+            self.idx[fill[c] as usize] = k as u32;
+            fill[c] += 1;
+        }
+    }
+
+    /// The nearest WTMMM to `last` within the box of half-width `ri` (and
+    /// `d^2 <= max_d2`) whose modulus ratio lies in `(lo, hi)` and that is
+    /// not `taken`: `(index, d^2)` (`u32::MAX` if none), and whether the box
+    /// held any WTMMM at all. `ri` must not exceed the cell size.
+    #[allow(clippy::too_many_arguments)]
+    fn nearest(
+        &self,
+        sm: &ScaleMaxima,
+        last: &LinePoint,
+        ri: i64,
+        max_d2: f64,
+        (lo, hi): (f64, f64),
+        taken: Option<&[bool]>,
+    ) -> ((u32, f64), bool) {
+        let (cx, cy) = (last.x / self.cell, last.y / self.cell);
+        let mut best = (u32::MAX, f64::INFINITY);
+        let mut in_box = false;
+        for yy in cy.saturating_sub(1)..=(cy + 1).min(self.gy - 1) {
+            for xx in cx.saturating_sub(1)..=(cx + 1).min(self.gx - 1) {
+                let c = (yy * self.gx + xx) as usize;
+                for &k in &self.idx[self.start[c] as usize..self.start[c + 1] as usize] {
+                    let w = &sm.wtmmm[k as usize];
+                    let (dx, dy) = (w.x as i64 - last.x as i64, w.y as i64 - last.y as i64);
+                    if dx.abs() > ri || dy.abs() > ri {
+                        continue;
+                    }
+                    let d2 = (dx * dx + dy * dy) as f64;
+                    if d2 > max_d2 {
+                        continue;
+                    }
+                    in_box = true;
+                    if taken.is_some_and(|t| t[k as usize]) {
+                        continue;
+                    }
+                    let ratio = w.m / last.m;
+                    if !(ratio > lo && ratio < hi) {
+                        continue;
+                    }
+                    if d2 < best.1 || (d2 == best.1 && k < best.0) {
+                        best = (k, d2);
+                    }
+                }
+            }
+        }
+        (best, in_box)
+    }
+}
+
+/// One-to-one resolution: `want[i] = (candidate, d^2)` for line `ids[i]`;
+/// the nearer line wins, ties to the lower id. Returns, per entry, whether
+/// it won.
+fn resolve(want: &[(u32, f64)], ids: &[u32], n: usize, owner: &mut Vec<(u32, f64)>) -> Vec<bool> {
+    owner.clear();
+    owner.resize(n, (u32::MAX, f64::INFINITY));
+    for (i, &(k, d2)) in want.iter().enumerate() {
+        if k == u32::MAX {
+            continue;
+        }
+        let o = &mut owner[k as usize];
+        let l = ids[i];
+        if d2 < o.1 || (d2 == o.1 && l < o.0) {
+            *o = (l, d2);
+        }
+    }
+    want.iter()
+        .enumerate()
+        .map(|(i, &(k, _))| k != u32::MAX && owner[k as usize].0 == ids[i])
+        .collect()
+}
+
+/// For each line end in `lasts`: the nearest chain pixel inside the box,
+/// then the local maximum of the modulus reached by climbing along that
+/// chain; `(WTMMM index, d^2 from the line end)` when that maximum is a WTMMM
+/// not `taken` with its ratio in `(lo, hi)`, else `(u32::MAX, inf)`.
+fn climb_targets(
+    sm: &ScaleMaxima,
+    cm: &[Vec<f64>],
+    lasts: &[LinePoint],
+    ri: i64,
+    max_d2: f64,
+    (lo, hi): (f64, f64),
+    taken: &[bool],
+) -> Vec<(u32, f64)> {
+    let none = (u32::MAX, f64::INFINITY);
+    let w = sm
+        .chains
+        .iter()
+        .flat_map(|c| c.pixels.iter().map(|p| p.0))
+        .max()
+        .unwrap_or(0) as usize
+        + 1;
+    let h = sm
+        .chains
+        .iter()
+        .flat_map(|c| c.pixels.iter().map(|p| p.1))
+        .max()
+        .unwrap_or(0) as usize
+        + 1;
+    // chain pixel -> (chain, position along it)
+    let mut label = vec![(u32::MAX, 0u32); w * h];
+    for (ci, c) in sm.chains.iter().enumerate() {
+        for (k, &(x, y)) in c.pixels.iter().enumerate() {
+            label[y as usize * w + x as usize] = (ci as u32, k as u32);
+        }
+    }
+    // WTMMM by chain (they come in chain order)
+    let mut first = vec![0u32; sm.chains.len() + 1];
+    for m in &sm.wtmmm {
+        first[m.chain as usize + 1] += 1;
+    }
+    for i in 0..sm.chains.len() {
+        first[i + 1] += first[i];
+    }
+    lasts
+        .iter()
+        .map(|last| {
+            let mut best = (i64::MAX, (u32::MAX, 0u32));
+            for dy in -ri..=ri {
+                let y = last.y as i64 + dy;
+                if y < 0 || y >= h as i64 {
+                    continue;
+                }
+                for dx in -ri..=ri {
+                    let x = last.x as i64 + dx;
+                    if x < 0 || x >= w as i64 {
+                        continue;
+                    }
+                    let d2 = dx * dx + dy * dy;
+                    if d2 as f64 > max_d2 || d2 >= best.0 {
+                        continue;
+                    }
+                    let lb = label[y as usize * w + x as usize];
+                    if lb.0 != u32::MAX {
+                        best = (d2, lb);
+                    }
+                }
+            }
+            if best.0 == i64::MAX {
+                return none;
+            }
+            let (ci, k0) = best.1;
+            let c = &sm.chains[ci as usize];
+            let mv = &cm[ci as usize];
+            let n = mv.len();
+            let step = |k: usize, fwd: bool| -> Option<usize> {
+                if fwd {
+                    if k + 1 < n {
+                        Some(k + 1)
+                    } else if c.closed {
+                        Some(0)
+                    } else {
+                        None
+                    }
+                } else if k > 0 {
+                    Some(k - 1)
+                } else if c.closed {
+                    Some(n - 1)
+                } else {
+                    None
+                }
+            };
+            let mut k = k0 as usize;
+            for _ in 0..n {
+                let up = step(k, true).filter(|&u| mv[u] > mv[k]);
+                let dn = step(k, false).filter(|&d| mv[d] > mv[k]);
+                k = match (up, dn) {
+                    (Some(u), Some(d)) => {
+                        if mv[u] >= mv[d] {
+                            u
+                        } else {
+                            d
+                        }
+                    }
+                    (Some(u), None) => u,
+                    (None, Some(d)) => d,
+                    (None, None) => break,
+                };
+            }
+            let (px, py) = c.pixels[k];
+            for m in first[ci as usize]..first[ci as usize + 1] {
+                let cand = &sm.wtmmm[m as usize];
+                if cand.x == px && cand.y == py {
+                    let ratio = cand.m / last.m;
+                    if taken[m as usize] || !(ratio > lo && ratio < hi) {
+                        return none;
+                    }
+                    let (dx, dy) = (px as f64 - last.x as f64, py as f64 - last.y as f64);
+                    return (m, dx * dx + dy * dy);
+                }
+            }
+            none
+        })
+        .collect()
 }
 
 /// Streaming linker: feed scales in order with [`Linker::push`].
@@ -117,8 +364,7 @@ pub struct Linker {
     last: Vec<LinePoint>,
     next_scale: usize,
     // reused buffers
-    grid: Vec<u32>,
-    grid_start: Vec<u32>,
+    buckets: Buckets,
     want: Vec<(u32, f64)>,
     owner: Vec<(u32, f64)>,
 }
@@ -131,8 +377,7 @@ impl Linker {
             alive: Vec::new(),
             last: Vec::new(),
             next_scale: 0,
-            grid: Vec::new(),
-            grid_start: Vec::new(),
+            buckets: Buckets::default(),
             want: Vec::new(),
             owner: Vec::new(),
         }
@@ -147,6 +392,13 @@ impl Linker {
     ///
     /// **Panics** if scales are pushed out of order.
     pub fn push(&mut self, sm: &ScaleMaxima) -> Endings {
+        self.push_with(sm, None)
+    }
+
+    /// [`Linker::push`] with the moduli along `sm.chains` (one vector per
+    /// chain, in pixel order), used by the `climb` rule (which is skipped
+    /// without them).
+    pub fn push_with(&mut self, sm: &ScaleMaxima, chain_m: Option<&[Vec<f64>]>) -> Endings {
         assert_eq!(sm.j, self.next_scale, "scales must be pushed in order");
         let mut ends = Endings::default();
         self.next_scale += 1;
@@ -169,59 +421,12 @@ impl Linker {
         let max_d2 = self.params.radius.max_d2();
         let (lo, hi) = self.params.ratio;
         let ri = r.floor() as i64;
-        // bucket the candidates on a grid of cell size `cell`
         let cell = (ri.max(1) + 1) as u32;
-        let gx = sm.wtmmm.iter().map(|w| w.x / cell).max().unwrap_or(0) + 1;
-        let gy = sm.wtmmm.iter().map(|w| w.y / cell).max().unwrap_or(0) + 1;
-        let ncell = (gx * gy) as usize;
-        self.grid_start.clear();
-        self.grid_start.resize(ncell + 1, 0);
-        for w in &sm.wtmmm {
-            self.grid_start[((w.y / cell) * gx + w.x / cell) as usize + 1] += 1;
-        }
-        for i in 0..ncell {
-            self.grid_start[i + 1] += self.grid_start[i];
-        }
-        self.grid.clear();
-        self.grid.resize(sm.wtmmm.len(), 0);
-        let mut fill = self.grid_start.clone();
-        for (k, w) in sm.wtmmm.iter().enumerate() {
-            let c = ((w.y / cell) * gx + w.x / cell) as usize;
-            self.grid[fill[c] as usize] = k as u32;
-            fill[c] += 1;
-        }
+        self.buckets.fill(sm, cell);
         // each alive line's nearest acceptable candidate
         self.want.clear();
         for last in &self.last {
-            let (cx, cy) = (last.x / cell, last.y / cell);
-            let mut best = (u32::MAX, f64::INFINITY);
-            let mut in_box = false;
-            for yy in cy.saturating_sub(1)..=(cy + 1).min(gy - 1) {
-                for xx in cx.saturating_sub(1)..=(cx + 1).min(gx - 1) {
-                    let c = (yy * gx + xx) as usize;
-                    for &k in
-                        &self.grid[self.grid_start[c] as usize..self.grid_start[c + 1] as usize]
-                    {
-                        let w = &sm.wtmmm[k as usize];
-                        let (dx, dy) = (w.x as i64 - last.x as i64, w.y as i64 - last.y as i64);
-                        if dx.abs() > ri || dy.abs() > ri {
-                            continue;
-                        }
-                        let d2 = (dx * dx + dy * dy) as f64;
-                        if d2 > max_d2 {
-                            continue;
-                        }
-                        in_box = true;
-                        let ratio = w.m / last.m;
-                        if !(ratio > lo && ratio < hi) {
-                            continue;
-                        }
-                        if d2 < best.1 || (d2 == best.1 && k < best.0) {
-                            best = (k, d2);
-                        }
-                    }
-                }
-            }
+            let (best, in_box) = self.buckets.nearest(sm, last, ri, max_d2, (lo, hi), None);
             if best.0 == u32::MAX {
                 if in_box {
                     ends.ratio += 1;
@@ -232,28 +437,31 @@ impl Linker {
             self.want.push(best);
         }
         // resolve contested candidates: the nearer line wins, ties to the lower id
-        self.owner.clear();
-        self.owner.resize(sm.wtmmm.len(), (u32::MAX, f64::INFINITY));
-        for (i, &(k, d2)) in self.want.iter().enumerate() {
-            if k == u32::MAX {
-                continue;
-            }
-            let o = &mut self.owner[k as usize];
-            let l = self.alive[i];
-            if d2 < o.1 || (d2 == o.1 && l < o.0) {
-                *o = (l, d2);
-            }
-        }
+        let won = resolve(&self.want, &self.alive, sm.wtmmm.len(), &mut self.owner);
+        // the lines left without a WTMMM get a second chance along their chain
+        let climb = match chain_m {
+            Some(cm) if self.params.climb && !sm.chains.is_empty() => Some(cm),
+            _ => None,
+        };
+        let mut taken = vec![false; if climb.is_some() { sm.wtmmm.len() } else { 0 }];
         let mut next_alive = Vec::with_capacity(self.alive.len());
         let mut next_last = Vec::with_capacity(self.alive.len());
+        let mut failed = Vec::new();
+        let mut failed_last = Vec::new();
         for (i, &(k, _)) in self.want.iter().enumerate() {
             let l = self.alive[i];
-            if k == u32::MAX {
-                continue; // the line ends here (counted above)
-            }
-            if self.owner[k as usize].0 != l {
-                ends.contested += 1;
+            if !won[i] {
+                if k != u32::MAX {
+                    ends.contested += 1;
+                }
+                if climb.is_some() {
+                    failed.push(l);
+                    failed_last.push(self.last[i]);
+                }
                 continue;
+            }
+            if climb.is_some() {
+                taken[k as usize] = true;
             }
             let w = &sm.wtmmm[k as usize];
             let p = LinePoint {
@@ -266,6 +474,31 @@ impl Linker {
             self.lines[l as usize].points.push(p);
             next_alive.push(l);
             next_last.push(p);
+        }
+        // climb the chain the line lands on to its maximum
+        if let Some(cm) = climb
+            && !failed.is_empty()
+        {
+            let want = climb_targets(sm, cm, &failed_last, ri, max_d2, (lo, hi), &taken);
+            let won = resolve(&want, &failed, sm.wtmmm.len(), &mut self.owner);
+            for (i, &(k, _)) in want.iter().enumerate() {
+                if !won[i] {
+                    continue; // the line ends here
+                }
+                let l = failed[i];
+                let w = &sm.wtmmm[k as usize];
+                let p = LinePoint {
+                    x: w.x,
+                    y: w.y,
+                    m: w.m,
+                    sup: failed_last[i].sup.max(w.m),
+                    arg: w.arg,
+                };
+                self.lines[l as usize].points.push(p);
+                next_alive.push(l);
+                next_last.push(p);
+                ends.climb += 1;
+            }
         }
         self.alive = next_alive;
         self.last = next_last;

@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 pub use link::{Endings, LinePoint, LinkParams, Linker, MaximaLine, SearchRadius};
 pub use maxima::{Chain, DetectScratch, Domain, ScaleMaxima, Wtmmm, detect, detect_scale};
 
-use crate::cwt::{CwtPlan, ScaleGrid, Wavelet, default_margin};
+use crate::cwt::{CwtPlan, CwtWorkspace, FourierImage, ScaleGrid, Wavelet, default_margin};
 use crate::error::{Error, Result};
 use crate::field::Field;
 
@@ -258,23 +258,15 @@ pub fn skeleton_with(
             let mut scratch = DetectScratch::default();
             for j in 0..scales.len() {
                 let keep_j = keep.contains(&j);
-                let sm = detect_scale(
-                    &plan,
-                    &fi,
-                    j,
-                    &mut ws,
-                    &domain,
-                    cfg.eps,
-                    keep_j,
-                    &mut scratch,
-                );
+                let sm =
+                    detect_linkable(&plan, &fi, j, &mut ws, &domain, cfg, keep_j, &mut scratch);
                 asm.push(sm);
             }
         }
         Parallelism::Scales => {
             let found =
                 plan.par_map_scales_with(img.view(), DetectScratch::default, |s, fi, j, ws| {
-                    detect_scale(&plan, fi, j, ws, &domain, cfg.eps, keep.contains(&j), s)
+                    detect_linkable(&plan, fi, j, ws, &domain, cfg, keep.contains(&j), s)
                 })?;
             for sm in found {
                 asm.push(sm);
@@ -286,6 +278,40 @@ pub fn skeleton_with(
     Ok(sk)
 }
 
+/// [`detect`], plus the chains and the moduli along them when the linking
+/// rules need them (`LinkParams::climb`).
+#[allow(clippy::too_many_arguments)]
+pub fn detect_linkable(
+    plan: &CwtPlan,
+    fi: &FourierImage,
+    j: usize,
+    ws: &mut CwtWorkspace,
+    domain: &Domain,
+    cfg: &AnalysisConfig,
+    keep_chains: bool,
+    scratch: &mut DetectScratch,
+) -> (ScaleMaxima, Option<Vec<Vec<f64>>>) {
+    if !cfg.link.climb {
+        // rows streamed from the CWT; the full transform is never stored
+        let sm = detect_scale(plan, fi, j, ws, domain, cfg.eps, keep_chains, scratch);
+        return (sm, None);
+    }
+    let a = plan.scales()[j];
+    let t = plan.scale(fi, j, ws);
+    let sm = detect(t, j, a, domain, cfg.eps, true, scratch);
+    let cm = sm
+        .chains
+        .iter()
+        .map(|c| {
+            c.pixels
+                .iter()
+                .map(|&(x, y)| crate::cwt::modulus(t[[y as usize, x as usize]]))
+                .collect()
+        })
+        .collect();
+    (sm, Some(cm))
+}
+
 /// Links scales as they arrive and keeps the per-scale counts.
 struct Assembler<'k> {
     linker: Linker,
@@ -294,8 +320,11 @@ struct Assembler<'k> {
 }
 
 impl Assembler<'_> {
-    fn push(&mut self, sm: ScaleMaxima) {
-        let ended = self.linker.push(&sm);
+    fn push(&mut self, (mut sm, chain_m): (ScaleMaxima, Option<Vec<Vec<f64>>>)) {
+        let ended = self.linker.push_with(&sm, chain_m.as_deref());
+        if chain_m.is_some() && !self.keep.contains(&sm.j) {
+            sm.chains = Vec::new();
+        }
         self.sk.per_scale.push(ScaleCounts {
             ended,
             a: sm.a,

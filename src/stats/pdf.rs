@@ -44,9 +44,7 @@ use serde::{Deserialize, Serialize};
 use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
 use crate::field::Field;
-use crate::skeleton::{
-    AnalysisConfig, DetectScratch, Linker, Parallelism, ScaleMaxima, detect_scale,
-};
+use crate::skeleton::{AnalysisConfig, DetectScratch, Linker, Parallelism, detect_linkable};
 
 /// Which WTMMM a statistic is taken over.
 #[derive(
@@ -128,29 +126,19 @@ pub fn image_wtmmm(
     let scales = cfg.scale_list();
     let (ny, nx) = field.dim();
     let plan = CwtPlan::new(ny, nx, cfg.wavelet, &scales)?;
-    let found: Vec<ScaleMaxima> = match par {
+    // (the chains and their moduli come along only when a linking rule needs them)
+    let found = match par {
         Parallelism::Serial => {
             let fi = plan.forward(img.view())?;
             let mut ws = plan.workspace();
             let mut scratch = DetectScratch::default();
             (0..scales.len())
-                .map(|j| {
-                    detect_scale(
-                        &plan,
-                        &fi,
-                        j,
-                        &mut ws,
-                        &domain,
-                        cfg.eps,
-                        false,
-                        &mut scratch,
-                    )
-                })
-                .collect()
+                .map(|j| detect_linkable(&plan, &fi, j, &mut ws, &domain, cfg, false, &mut scratch))
+                .collect::<Vec<_>>()
         }
         Parallelism::Scales => {
             plan.par_map_scales_with(img.view(), DetectScratch::default, |s, fi, j, ws| {
-                detect_scale(&plan, fi, j, ws, &domain, cfg.eps, false, s)
+                detect_linkable(&plan, fi, j, ws, &domain, cfg, false, s)
             })?
         }
     };
@@ -161,9 +149,9 @@ pub fn image_wtmmm(
         lines: vec![Vec::new(); scales.len()],
     };
     let mut linker = Linker::new(cfg.link);
-    for sm in &found {
+    for (sm, chain_m) in &found {
         if link {
-            linker.push(sm);
+            linker.push_with(sm, chain_m.as_deref());
         }
         // chains may be traced in a guard band around the domain; only the
         // WTMMM inside the domain count (as in the partition functions)
