@@ -493,13 +493,21 @@ impl CwtPlan {
             // values from every kx row (zeros where the row was pruned)
             let next = y0 + h;
             let tb = &ws.tbuf[ws.toff..ws.toff + nx * ny];
-            for (kx, row) in tb.chunks_exact(ny).enumerate() {
+            let mut kx = 0;
+            while kx < nx {
                 if ws.zero_rows[kx] {
+                    // pruned rows come in runs (|kx| large): contiguous zeros
+                    let end = ws.zero_rows[kx..]
+                        .iter()
+                        .position(|z| !z)
+                        .map_or(nx, |p| kx + p);
                     for yy in 0..h {
-                        blk[yy * nx + kx] = Complex64::default();
+                        blk[yy * nx + kx..yy * nx + end].fill(Complex64::default());
                     }
+                    kx = end;
                     continue;
                 }
+                let row = &tb[kx * ny..(kx + 1) * ny];
                 // the next block's two cache lines of this row: rows 16 KB
                 // apart defeat the hardware prefetcher
                 if next < rows.end {
@@ -509,6 +517,7 @@ impl CwtPlan {
                 for (yy, &v) in row[y0..y0 + h].iter().enumerate() {
                     blk[yy * nx + kx] = v;
                 }
+                kx += 1;
             }
             self.inv_x.process_with_scratch(blk, &mut ws.scratch);
             let prev = (prev_len > 0).then(|| &prev[..prev_len * nx]);
