@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::{FftFloor, median_secs, one_thread_pool};
+use common::{FftFloor, median_secs, one_thread_pool, paired};
 use wtmm::Field;
 use wtmm::cwt::CwtPlan;
 use wtmm::skeleton::{AnalysisConfig, Parallelism, skeleton_with};
@@ -26,7 +26,7 @@ fn main() {
         cfg.margin_px()
     );
     let pool = one_thread_pool();
-    let (t_cwt, t_rows, t_sk, t_fft, lines) = pool.install(|| {
+    let (t_cwt, t_rows, t_sk, t_fft, ratio, lines) = pool.install(|| {
         let c = median_secs(reps, || {
             plan.for_each_scale(field.data.view(), |_, _, t| {
                 std::hint::black_box(t);
@@ -44,14 +44,17 @@ fn main() {
             }
         });
         let mut lines = 0;
-        let s = median_secs(reps, || {
-            lines = skeleton_with(&field, &cfg, Parallelism::Serial, &[])
-                .unwrap()
-                .lines
-                .len();
-        });
-        let f = median_secs(reps, || floor.run_serial(ns));
-        (c, r, s, f, lines)
+        let (s, f, ratio) = paired(
+            7,
+            || {
+                lines = skeleton_with(&field, &cfg, Parallelism::Serial, &[])
+                    .unwrap()
+                    .lines
+                    .len();
+            },
+            || floor.run_serial(ns),
+        );
+        (c, r, s, f, ratio, lines)
     });
     let t_skn = median_secs(reps, || {
         std::hint::black_box(skeleton_with(&field, &cfg, Parallelism::Scales, &[]).unwrap());
@@ -59,14 +62,14 @@ fn main() {
     let t_fftn = median_secs(reps, || floor.run_parallel(ns));
     println!("lines born at a_min: {lines}");
     println!(
-        "1 thread : FFT floor {:7.1} ms | CWT {:7.1} ms ({:.3}x), in row blocks {:7.1} ms ({:.3}x) | skeleton {:7.1} ms ({:.3}x)",
+        "1 thread : FFT floor {:7.1} ms | CWT {:7.1} ms ({:.3}x), in row blocks {:7.1} ms ({:.3}x) | skeleton {:7.1} ms (median ratio of 7 interleaved pairs {:.3}x)",
         1e3 * t_fft,
         1e3 * t_cwt,
         t_cwt / t_fft,
         1e3 * t_rows,
         t_rows / t_fft,
         1e3 * t_sk,
-        t_sk / t_fft
+        ratio
     );
     println!(
         "{} threads: FFT floor {:7.1} ms | skeleton {:7.1} ms ({:.3}x)",

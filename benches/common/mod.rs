@@ -24,6 +24,34 @@ pub fn median_secs<F: FnMut()>(reps: usize, mut f: F) -> f64 {
     t[t.len() / 2]
 }
 
+/// Interleaved runs of `a` and `b` (`reps` pairs after one warm-up pair):
+/// the median times of each and the median of the per-pair ratios `a/b`.
+/// On a shared machine whose load drifts, pairing cancels most of the drift
+/// that separate medians would put into the ratio.
+pub fn paired<A: FnMut(), B: FnMut()>(reps: usize, mut a: A, mut b: B) -> (f64, f64, f64) {
+    a();
+    b();
+    let mut ta = Vec::with_capacity(reps);
+    let mut tb = Vec::with_capacity(reps);
+    let mut r = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        let s = Instant::now();
+        a();
+        let x = s.elapsed().as_secs_f64();
+        let s = Instant::now();
+        b();
+        let y = s.elapsed().as_secs_f64();
+        ta.push(x);
+        tb.push(y);
+        r.push(x / y);
+    }
+    let med = |v: &mut Vec<f64>| {
+        v.sort_by(|p, q| p.partial_cmp(q).unwrap());
+        v[v.len() / 2]
+    };
+    (med(&mut ta), med(&mut tb), med(&mut r))
+}
+
 /// `count` bare inverse 2D complex FFTs of `ny x nx`: batch FFTs along one
 /// axis, a blocked transpose, batch FFTs along the other. The cheapest 2D
 /// FFT rustfft allows; the CWT cannot do less per scale.
