@@ -116,30 +116,7 @@ pub fn fit_universal(q: &[f64], k: &[f64]) -> Option<UniversalFit> {
             .sum();
         (c1, sse)
     };
-    // coarse grid then golden-section refinement
-    let (lo, hi) = (0.02, 3.0);
-    let steps = 149;
-    let mut best = (lo, f64::INFINITY);
-    for i in 0..=steps {
-        let a = lo + (hi - lo) * i as f64 / steps as f64;
-        let (_, sse) = c1_of(a);
-        if sse < best.1 {
-            best = (a, sse);
-        }
-    }
-    let h = (hi - lo) / steps as f64;
-    let (mut a, mut b) = ((best.0 - h).max(lo), (best.0 + h).min(hi));
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    for _ in 0..80 {
-        let x1 = b - g * (b - a);
-        let x2 = a + g * (b - a);
-        if c1_of(x1).1 < c1_of(x2).1 {
-            b = x2;
-        } else {
-            a = x1;
-        }
-    }
-    let alpha = 0.5 * (a + b);
+    let alpha = minimise_alpha(|a| c1_of(a).1);
     let (c1, sse) = c1_of(alpha);
     let n = pts.len();
     // Jacobian of K = C1 f(α, q)
@@ -343,29 +320,7 @@ pub fn fit_universal_gls(q: &[f64], k: &[f64], w: &[Vec<f64>]) -> Option<Univers
         let r: Vec<f64> = (0..n).map(|i| k[i] - c1 * f[i]).collect();
         (c1, quad(&r, &r))
     };
-    let (lo, hi) = (0.02, 3.0);
-    let steps = 149;
-    let mut best = (lo, f64::INFINITY);
-    for i in 0..=steps {
-        let a = lo + (hi - lo) * i as f64 / steps as f64;
-        let (_, chi) = eval(a);
-        if chi < best.1 {
-            best = (a, chi);
-        }
-    }
-    let h = (hi - lo) / steps as f64;
-    let (mut a, mut b) = ((best.0 - h).max(lo), (best.0 + h).min(hi));
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    for _ in 0..80 {
-        let x1 = b - g * (b - a);
-        let x2 = a + g * (b - a);
-        if eval(x1).1 < eval(x2).1 {
-            b = x2;
-        } else {
-            a = x1;
-        }
-    }
-    let alpha = 0.5 * (a + b);
+    let alpha = minimise_alpha(|a| eval(a).1);
     let (c1, _) = eval(alpha);
     let e = 1e-5;
     let da: Vec<f64> = q
@@ -393,6 +348,35 @@ pub fn fit_universal_gls(q: &[f64], k: &[f64], w: &[Vec<f64>]) -> Option<Univers
         rms: (sse / n as f64).sqrt(),
         n,
     })
+}
+
+/// The alpha in [0.02, 3] minimising `obj`: a grid of 150 points, then
+/// golden-section refinement around the best one (`obj` need not be
+/// unimodal over the whole range, only near its minimum).
+fn minimise_alpha(obj: impl Fn(f64) -> f64) -> f64 {
+    let (lo, hi) = (0.02, 3.0);
+    let steps = 149;
+    let mut best = (lo, f64::INFINITY);
+    for i in 0..=steps {
+        let a = lo + (hi - lo) * i as f64 / steps as f64;
+        let v = obj(a);
+        if v < best.1 {
+            best = (a, v);
+        }
+    }
+    let h = (hi - lo) / steps as f64;
+    let (mut a, mut b) = ((best.0 - h).max(lo), (best.0 + h).min(hi));
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    for _ in 0..80 {
+        let x1 = b - g * (b - a);
+        let x2 = a + g * (b - a);
+        if obj(x1) < obj(x2) {
+            b = x2;
+        } else {
+            a = x1;
+        }
+    }
+    0.5 * (a + b)
 }
 
 #[cfg(test)]
