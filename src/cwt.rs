@@ -245,7 +245,7 @@ pub struct CwtWorkspace {
     /// a 64-byte cache line and a block of [`ROW_BLOCK`] values of a row
     /// spans whole lines.
     toff: usize,
-    /// Output `T1 + i T2`, `[y][x]`.
+    /// Output `T1 + i T2`, `[y][x]` (of [`CwtPlan::scale`]; allocated on first use).
     out: Array2<Complex64>,
     scratch: Vec<Complex64>,
     gx: Vec<f64>,
@@ -379,7 +379,7 @@ impl CwtPlan {
         CwtWorkspace {
             tbuf,
             toff,
-            out: Array2::zeros((self.ny, self.nx)),
+            out: Array2::zeros((0, 0)),
             scratch: vec![Complex64::default(); self.scratch_len],
             gx: vec![0.0; self.nx],
             gy: vec![0.0; self.ny],
@@ -439,6 +439,10 @@ impl CwtPlan {
     ) -> &'w Array2<Complex64> {
         let (ny, nx) = (self.ny, self.nx);
         self.filter_columns(fi, j, ws);
+        // allocated on first use: consumers of `scale_rows` never need it
+        if ws.out.dim() != (ny, nx) {
+            ws.out = Array2::zeros((ny, nx));
+        }
         let out = ws
             .out
             .as_slice_mut()

@@ -97,6 +97,14 @@ impl Domain {
         )
     }
 
+    /// True if the NMS at scale `a` needs periodic indexing: the detection
+    /// rectangle comes within two pixels of the border (`p ± u` and the cell
+    /// beyond it must stay inside the image otherwise).
+    pub fn wraps(&self, a: f64) -> bool {
+        let (y0, y1, x0, x1) = self.detection_rect(a);
+        y0 < 2 || x0 < 2 || y1 + 2 > self.ny || x1 + 2 > self.nx
+    }
+
     /// True if pixel `(x, y)` is inside the counting rectangle.
     pub fn counts(&self, x: u32, y: u32) -> bool {
         let (x, y) = (x as usize, y as usize);
@@ -216,9 +224,7 @@ pub fn detect(
     let ts = t.as_slice().expect("CWT output is contiguous");
     let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
     s.cand.clear();
-    // without wrap-around when the domain keeps two pixels from the border
-    // (p ± u and the cell beyond it stay inside the image)
-    let wraps = dy0 < 2 || dx0 < 2 || dy1 + 2 > ny || dx1 + 2 > nx;
+    let wraps = domain.wraps(a);
     let mut mmax: f64 = 0.0;
 
     // 1. non-maximum suppression along the gradient. The eps threshold
@@ -249,7 +255,7 @@ pub fn detect(
         // one streaming pass: M rows in a ring of three, the NMS one row
         // behind, while that row of T is still in cache (the detection was
         // memory-bound with full M arrays)
-        let mut nms = NmsStream::new(domain, a, nx);
+        let mut nms = NmsStream::new(domain, a, nx, s);
         for r in dy0 - 1..=dy1 {
             nms.feed(s, r, &ts[r * nx..(r + 1) * nx], &ts[(r - 1) * nx..r * nx]);
         }
@@ -275,9 +281,8 @@ pub fn detect_scale(
 ) -> ScaleMaxima {
     let (ny, nx) = plan.dim();
     let a = plan.scales()[j];
-    let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
-    let wraps = dy0 < 2 || dx0 < 2 || dy1 + 2 > ny || dx1 + 2 > nx;
-    if wraps || domain.is_empty() || (ny, nx) != (domain.ny, domain.nx) {
+    let (dy0, dy1, _, _) = domain.detection_rect(a);
+    if domain.wraps(a) || domain.is_empty() || (ny, nx) != (domain.ny, domain.nx) {
         let t = plan.scale(fi, j, ws);
         return detect(t, j, a, domain, eps, keep_chains, s);
     }
@@ -287,7 +292,7 @@ pub fn detect_scale(
         ..Default::default()
     };
     s.cand.clear();
-    let mut nms = NmsStream::new(domain, a, nx);
+    let mut nms = NmsStream::new(domain, a, nx, s);
     plan.scale_rows(fi, j, ws, dy0 - 1..dy1 + 1, |y0, prev, cur| {
         for (i, t_r) in cur.chunks_exact(nx).enumerate() {
             let t_prev = if i > 0 {
@@ -322,8 +327,10 @@ struct NmsStream {
 }
 
 impl NmsStream {
-    fn new(domain: &Domain, a: f64, nx: usize) -> Self {
+    fn new(domain: &Domain, a: f64, nx: usize, s: &mut DetectScratch) -> Self {
         let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
+        s.ring.resize(3 * nx, 0.0);
+        s.row_mask.resize(nx, 0);
         NmsStream {
             dy0,
             dy1,
@@ -345,8 +352,6 @@ impl NmsStream {
         if r + 1 < self.dy0 || r > self.dy1 {
             return;
         }
-        s.ring.resize(3 * nx, 0.0);
-        s.row_mask.resize(nx, 0);
         let dst = &mut s.ring[(r % 3) * nx..(r % 3 + 1) * nx];
         modulus_into(t_r, dst);
         if r >= self.cy0 && r < self.cy1 {
