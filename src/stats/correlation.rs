@@ -1045,7 +1045,7 @@ fn half_ln_in_place(v: &mut [f64]) -> f64 {
 
 #[inline(always)]
 fn half_ln_impl(v: &mut [f64]) -> f64 {
-    let ok = |x: f64| x >= f64::MIN_POSITIVE && x <= f64::MAX;
+    let ok = |x: f64| (f64::MIN_POSITIVE..=f64::MAX).contains(&x);
     // two simple loops: the max in four lanes, then a pure map (a loop
     // doing both did not vectorise)
     let mut mx = [0.0f64; 4];
@@ -1078,8 +1078,10 @@ fn half_ln_impl(v: &mut [f64]) -> f64 {
 /// below 1e-17. Accurate to a few ulp (test `ln_normal_matches_libm`).
 #[inline(always)]
 fn ln_normal(x: f64) -> f64 {
-    const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-1; // 32 significant bits
-    const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10;
+    // ln 2 = LN2_HI + LN2_LO, the high part with 32 significant bits so
+    // that e * LN2_HI is exact (fdlibm's split)
+    const LN2_HI: f64 = f64::from_bits(0x3fe6_2e42_fee0_0000);
+    const LN2_LO: f64 = f64::from_bits(0x3dea_39ef_3579_3c76);
     let bits = x.to_bits();
     // the biased exponent as a float, exactly (2^52 + e - 2^52)
     let eb = f64::from_bits((bits >> 52) | 0x4330_0000_0000_0000) - 4_503_599_627_370_496.0;
