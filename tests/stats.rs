@@ -353,29 +353,41 @@ fn brute_pairs(
     }
 }
 
-/// `ln M` of a field at the given scales over a rectangle, centred.
-fn centred_ln_m(
+/// `ln M` of a field at the given scales over a rectangle, at the points
+/// where `M >= eps max M` at every scale (max over the rectangle), not
+/// centred.
+fn ln_m_points(
     img: &Array2<f64>,
     scales: &[f64],
     dom: (usize, usize, usize, usize),
+    eps: f64,
 ) -> Vec<Vec<(usize, usize, f64)>> {
     let (ny, nx) = img.dim();
     let plan = CwtPlan::new(ny, nx, Wavelet::Gauss, scales).unwrap();
     let fi = plan.forward(img.view()).unwrap();
     let mut ws = plan.workspace();
-    (0..scales.len())
-        .map(|s| {
-            let t = plan.scale(&fi, s, &mut ws);
-            let mut v = Vec::new();
-            for y in dom.0..dom.1 {
-                for x in dom.2..dom.3 {
-                    v.push((y, x, modulus(t[[y, x]]).ln()));
-                }
-            }
-            let m = v.iter().map(|p| p.2).sum::<f64>() / v.len() as f64;
-            v.into_iter().map(|(y, x, w)| (y, x, w - m)).collect()
+    let mods: Vec<Array2<f64>> = (0..scales.len())
+        .map(|s| plan.scale(&fi, s, &mut ws).map(|&z| modulus(z)))
+        .collect();
+    let pts = || (dom.0..dom.1).flat_map(|y| (dom.2..dom.3).map(move |x| (y, x)));
+    let mx: Vec<f64> = mods
+        .iter()
+        .map(|m| pts().map(|(y, x)| m[[y, x]]).fold(0.0, f64::max))
+        .collect();
+    let ok = |y: usize, x: usize| (0..scales.len()).all(|s| mods[s][[y, x]] >= eps * mx[s]);
+    mods.iter()
+        .map(|m| {
+            pts()
+                .filter(|&(y, x)| ok(y, x))
+                .map(|(y, x)| (y, x, m[[y, x]].ln()))
+                .collect()
         })
         .collect()
+}
+
+/// Mean of the values of a point list.
+fn mean_of(v: &[(usize, usize, f64)]) -> f64 {
+    v.iter().map(|p| p.2).sum::<f64>() / v.len() as f64
 }
 
 fn noise_field(ny: usize, nx: usize, seed: u64) -> Array2<f64> {
@@ -391,7 +403,14 @@ fn fft_correlation_equals_brute_force_pairs() {
     let scales = vec![1.3, 2.1];
     let pairs = vec![(0, 0), (0, 1), (1, 0), (1, 1)];
     let bpo = 3;
-    for (periodic, margin, max_dx) in [(true, 0, 11.0), (false, 4, 9.5)] {
+    // eps = 0.3 leaves out a share of the points (the masked paths); with
+    // the default eps every point is valid (torus and rectangle paths)
+    for (periodic, margin, max_dx, eps) in [
+        (true, 0, 11.0, 1e-7),
+        (false, 4, 9.5, 1e-7),
+        (true, 0, 11.0, 0.3),
+        (false, 4, 9.5, 0.3),
+    ] {
         let cfg = CorrelationConfig {
             scales: scales.clone(),
             pairs: pairs.clone(),
@@ -399,6 +418,7 @@ fn fft_correlation_equals_brute_force_pairs() {
             margin: Some(margin),
             bins_per_octave: bpo,
             max_dx: Some(max_dx),
+            eps,
             ..Default::default()
         };
         let plan = CorrelationPlan::new(ny, nx, &cfg).unwrap();
@@ -415,29 +435,29 @@ fn fft_correlation_equals_brute_force_pairs() {
         let r = correlation_estimates(&sums.unwrap()).unwrap();
         let nbins = bin_of(max_dx, bpo) + 1;
         // brute force: per-image centring, and ensemble centring
-        let w: Vec<Vec<Vec<(usize, usize, f64)>>> = imgs
+        let raw: Vec<Vec<Vec<(usize, usize, f64)>>> = imgs
             .iter()
-            .map(|im| centred_ln_m(im, &scales, dom))
+            .map(|im| ln_m_points(im, &scales, dom, eps))
             .collect();
-        let raw_mean = |s: usize| -> Vec<f64> {
-            imgs.iter()
-                .map(|im| {
-                    let (ny, nx) = im.dim();
-                    let plan = CwtPlan::new(ny, nx, Wavelet::Gauss, &scales).unwrap();
-                    let fi = plan.forward(im.view()).unwrap();
-                    let mut ws = plan.workspace();
-                    let t = plan.scale(&fi, s, &mut ws);
-                    let mut acc = 0.0;
-                    for y in dom.0..dom.1 {
-                        for x in dom.2..dom.3 {
-                            acc += modulus(t[[y, x]]).ln();
-                        }
-                    }
-                    acc / ((dom.1 - dom.0) * (dom.3 - dom.2)) as f64
-                })
-                .collect()
-        };
-        let means: Vec<Vec<f64>> = (0..scales.len()).map(raw_mean).collect();
+        let n_pts = raw[0][0].len();
+        assert!(
+            n_pts > 0 && (eps < 1e-3) == (n_pts == (ny - 2 * margin) * (nx - 2 * margin)),
+            "eps = {eps}: {n_pts} valid points"
+        );
+        // means[s][i]: image i's mean at scale s
+        let means: Vec<Vec<f64>> = (0..scales.len())
+            .map(|s| raw.iter().map(|im| mean_of(&im[s])).collect())
+            .collect();
+        let w: Vec<Vec<Vec<(usize, usize, f64)>>> = raw
+            .iter()
+            .enumerate()
+            .map(|(i, im)| {
+                im.iter()
+                    .enumerate()
+                    .map(|(s, v)| v.iter().map(|&(y, x, u)| (y, x, u - means[s][i])).collect())
+                    .collect()
+            })
+            .collect();
         for (p, &(s1, s2)) in pairs.iter().enumerate() {
             let mut b = Brute {
                 num: vec![0.0; nbins],
@@ -449,8 +469,12 @@ fn fft_correlation_equals_brute_force_pairs() {
                 cnt: vec![0.0; nbins],
                 lc: vec![0.0; nbins],
             };
-            let mu1 = (means[s1][0] + means[s1][1]) / 2.0;
-            let mu2 = (means[s2][0] + means[s2][1]) / 2.0;
+            // pooled over points (the images may keep different numbers)
+            let pooled = |s: usize| {
+                let n: Vec<f64> = raw.iter().map(|im| im[s].len() as f64).collect();
+                (means[s][0] * n[0] + means[s][1] * n[1]) / (n[0] + n[1])
+            };
+            let (mu1, mu2) = (pooled(s1), pooled(s2));
             for i in 0..2 {
                 brute_pairs(
                     &w[i][s1],
@@ -474,9 +498,13 @@ fn fft_correlation_equals_brute_force_pairs() {
             }
             let pc = &r.pairs[p];
             let keep: Vec<usize> = (0..nbins).filter(|&k| b.cnt[k] > 0.0).collect();
-            assert_eq!(pc.c.len(), keep.len(), "periodic={periodic} pair {p}");
+            assert_eq!(
+                pc.c.len(),
+                keep.len(),
+                "periodic={periodic} eps={eps} pair {p}"
+            );
             for (o, &k) in keep.iter().enumerate() {
-                let ctx = format!("periodic={periodic} pair {p} bin {k}");
+                let ctx = format!("periodic={periodic} eps={eps} pair {p} bin {k}");
                 assert!((pc.pairs[o] - b.cnt[k]).abs() < 1e-6, "{ctx}: count");
                 assert!(
                     (pc.log2_dx[o] - b.lc[k] / b.cnt[k]).abs() < 1e-6,

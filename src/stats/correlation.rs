@@ -364,6 +364,37 @@ fn slice_sum(v: &[f64]) -> f64 {
     (acc[0] + acc[1]) + (acc[2] + acc[3]) + rem.iter().sum::<f64>()
 }
 
+/// Calls `f(k, sy, sx, bin)` for every lag index `k` of the runs, with its
+/// signed lag (linear correlation: indices above `maxlag` are negative
+/// lags; only used lags are in runs).
+fn for_each_lag(
+    runs: &[Run],
+    fy: usize,
+    fx: usize,
+    maxlag: usize,
+    mut f: impl FnMut(usize, i64, i64, usize),
+) {
+    let signed = |i: usize, n: usize| {
+        if i <= maxlag {
+            i as i64
+        } else {
+            i as i64 - n as i64
+        }
+    };
+    for run in runs {
+        let k0 = run.start as usize;
+        let (mut iy, mut ix) = (k0 / fx, k0 % fx);
+        for k in k0..k0 + run.len as usize {
+            f(k, signed(iy, fy), signed(ix, fx), run.bin as usize);
+            ix += 1;
+            if ix == fx {
+                ix = 0;
+                iy += 1;
+            }
+        }
+    }
+}
+
 /// A resolved correlation: domain, FFT plans, the lag -> bin table, and the
 /// CWT plan of the scales. Built once per image shape, shared by all images.
 pub struct CorrelationPlan {
@@ -386,6 +417,13 @@ pub struct CorrelationPlan {
     /// Number of lags and `Σ log2|d|` per bin (the uniform-count case).
     lag_n: Vec<f64>,
     lag_l: Vec<f64>,
+    /// Pair counts and `Σ log2|d|`-weighted counts per bin when every point
+    /// of the (non-periodic) domain is valid: `(dy - |sy|)(dx - |sx|)` pairs
+    /// at lag `(sy, sx)`, exact, no FFT.
+    rect_n: Vec<f64>,
+    rect_l: Vec<f64>,
+    /// Largest lag index of the linear correlation.
+    maxlag: usize,
     max_dx: f64,
     cwt: CwtPlan,
     /// Workspaces of finished calls (one per thread at most).
@@ -495,9 +533,23 @@ impl CorrelationPlan {
             }
         }
         let runs = runs_of(&bin);
+        let (mut rect_n, mut rect_l) = (vec![0.0; n_bins + 1], vec![0.0; n_bins + 1]);
+        if !cfg.periodic {
+            for_each_lag(&runs, fy, fx, maxlag, |k, sy, sx, b| {
+                let (ay, ax) = (sy.unsigned_abs() as usize, sx.unsigned_abs() as usize);
+                if ay < dy && ax < dx {
+                    let c = ((dy - ay) * (dx - ax)) as f64;
+                    rect_n[b] += c;
+                    rect_l[b] += c * l2[k] as f64;
+                }
+            });
+        }
         Ok(CorrelationPlan {
             lag_n,
             lag_l,
+            rect_n,
+            rect_l,
+            maxlag,
             cfg: cfg.clone(),
             ny,
             nx,
@@ -559,6 +611,41 @@ impl CorrelationPlan {
             .lock()
             .expect("no panic while holding the pool")
             .push(ws);
+    }
+
+    /// Per bin, `Σ_d Σ_{x ∈ R ∩ (R - d)} v(x)` for a field `v` on the domain
+    /// rectangle `R` (at the origin of the FFT grid), from its summed-area
+    /// table: O(1) per lag instead of an FFT correlation with the mask.
+    fn rect_sums(&self, v: &[f64], sat: &mut Vec<f64>) -> Vec<f64> {
+        let (dy, dx, fx) = (self.y1 - self.y0, self.x1 - self.x0, self.fft.fx);
+        let w = dx + 1;
+        sat.clear();
+        sat.resize((dy + 1) * w, 0.0);
+        for y in 0..dy {
+            let mut run = 0.0;
+            for x in 0..dx {
+                run += v[y * fx + x];
+                sat[(y + 1) * w + x + 1] = sat[y * w + x + 1] + run;
+            }
+        }
+        let mut out = vec![0.0; self.n_bins + 1];
+        let (fy, ml) = (self.fft.fy, self.maxlag);
+        for_each_lag(&self.runs, fy, fx, ml, |_, sy, sx, b| {
+            let (ay, ax) = (sy.unsigned_abs() as usize, sx.unsigned_abs() as usize);
+            if ay < dy && ax < dx {
+                // rows [max(0, -sy), dy - max(0, sy)), same for columns
+                let (ya, yb) = (
+                    if sy < 0 { ay } else { 0 },
+                    if sy > 0 { dy - ay } else { dy },
+                );
+                let (xa, xb) = (
+                    if sx < 0 { ax } else { 0 },
+                    if sx > 0 { dx - ax } else { dx },
+                );
+                out[b] += sat[yb * w + xb] - sat[ya * w + xb] - sat[yb * w + xa] + sat[ya * w + xa];
+            }
+        });
+        out
     }
 
     /// Cross-correlations of the real fields `ws.fields[..n]` (each
@@ -636,14 +723,24 @@ impl CorrelationPlan {
         let mut wm_req = vec![usize::MAX; np];
         let mut mw_req = vec![usize::MAX; np];
         let wbase = ns;
-        let uniform = matches!(f.weights, Weights::Uniform);
         let n_fields = match f.weights {
-            Weights::Uniform => ns,
+            Weights::Uniform | Weights::Rect => ns,
             Weights::Shared => ns + 1,
             Weights::PerScale => 2 * ns,
         };
+        // the rectangle's cross terms, before the FFTs destroy the fields:
+        // Σ_x w̃(x) m(x + d) is the sum of w̃ over the sub-rectangle
+        // R ∩ (R - d) (and Σ m(x) w̃(x + d) has the same bins)
+        let mut rect_wm: Vec<Option<Vec<f64>>> = vec![None; ns];
+        if matches!(f.weights, Weights::Rect) {
+            for (s, slot) in rect_wm.iter_mut().enumerate() {
+                if self.cfg.pairs.iter().any(|p| p.0 == s || p.1 == s) {
+                    *slot = Some(self.rect_sums(&ws.fields[s], &mut ws.sat));
+                }
+            }
+        }
         match f.weights {
-            Weights::Uniform => {}
+            Weights::Uniform | Weights::Rect => {}
             Weights::Shared => {
                 // one weight field for every scale (the CWT's common mask)
                 let c = requests.len();
@@ -678,23 +775,29 @@ impl CorrelationPlan {
         let nb = self.n_bins + 1;
         let pairs = (0..np)
             .map(|p| {
-                let (count, lcount, wm, mw) = if uniform {
+                let (count, lcount, wm, mw) = match f.weights {
                     // every point valid on the torus: count = N per lag, and
                     // Σ_x w̃(x) = 0 kills the cross terms
-                    let n = f.totals[0];
-                    (
-                        lag_n.iter().map(|c| c * n).collect(),
-                        lag_l.iter().map(|l| l * n).collect(),
-                        vec![0.0; nb],
-                        vec![0.0; nb],
-                    )
-                } else {
-                    (
+                    Weights::Uniform => {
+                        let n = f.totals[0];
+                        (
+                            lag_n.iter().map(|c| c * n).collect(),
+                            lag_l.iter().map(|l| l * n).collect(),
+                            vec![0.0; nb],
+                            vec![0.0; nb],
+                        )
+                    }
+                    Weights::Rect => {
+                        let (s1, s2) = self.cfg.pairs[p];
+                        let get = |s: usize| rect_wm[s].clone().expect("computed for pair scales");
+                        (self.rect_n.clone(), self.rect_l.clone(), get(s1), get(s2))
+                    }
+                    Weights::Shared | Weights::PerScale => (
                         res[count_req[p]].0.clone(),
                         res[count_req[p]].1.clone(),
                         res[wm_req[p]].0.clone(),
                         res[mw_req[p]].0.clone(),
-                    )
+                    ),
                 };
                 PairSums {
                     ww: res[p].0.clone(),
@@ -720,6 +823,9 @@ impl CorrelationPlan {
 enum Weights {
     /// Every point of the torus, for every scale.
     Uniform,
+    /// Every point of the (non-periodic) domain rectangle, for every scale:
+    /// pair counts from the plan, cross terms from summed-area tables.
+    Rect,
     /// One mask for all scales, in `ws.fields[n_vals]`.
     Shared,
     /// One weight field per scale (WTMMM counts), `ws.fields[n_vals + s]`.
@@ -736,6 +842,8 @@ struct Workspace {
     r: Vec<f64>,
     scratch: Vec<Complex64>,
     valid: Vec<bool>,
+    /// Summed-area table of one field (the rectangle's cross terms).
+    sat: Vec<f64>,
     cwt: Option<crate::cwt::CwtWorkspace>,
 }
 
@@ -991,6 +1099,8 @@ fn cwt_correlation_in(
     }
     let weights = if uniform {
         Weights::Uniform
+    } else if all_valid && !cfg.periodic {
+        Weights::Rect
     } else {
         let m = &mut ws.fields[ns];
         for y in 0..dy {
