@@ -136,8 +136,10 @@ pub struct DetectScratch {
     nmask: Vec<u8>,
     /// WTMM test results of one row.
     row_mask: Vec<u8>,
-    /// Three rows of M (streaming pass).
+    /// Three rows of M (streaming pass; padded rows on a torus).
     ring: Vec<f64>,
+    /// One row of T padded by a wrapped pixel on each side (torus).
+    tpad: Vec<Complex64>,
     /// Candidates before the eps threshold, in raster order.
     cand: Vec<Px>,
     /// This scale's WTMM pixels in raster order, as separate arrays so that
@@ -237,19 +239,32 @@ pub fn detect(
         for y in domain.y0..domain.y1 {
             mmax = mmax.max(max_nonneg(&m[y * nx + domain.x0..y * nx + domain.x1]));
         }
+        // rows padded by one wrapped pixel on each side, so the vectorised
+        // row test of the interior applies (a per-pixel test with periodic
+        // index arithmetic was a third of a torus skeleton)
+        let w = nx + 2;
+        s.ring.resize(3 * w, 0.0);
+        s.tpad.resize(w, Complex64::default());
+        s.row_mask.resize(w, 0);
         for y in dy0..dy1 {
-            for x in dx0..dx1 {
-                let p = y * nx + x;
-                let mp = m[p];
-                if mp > 0.0 && nms_wrapping(m, nx, ny, x, y, ts[p].re / mp, ts[p].im / mp, mp) {
-                    s.cand.push(Px {
-                        x: x as u32,
-                        y: y as u32,
-                        m: mp,
-                        t: ts[p],
-                    });
-                }
+            let (yu, yd) = ((y + ny - 1) % ny, (y + 1) % ny);
+            for (k, yy) in [yu, y, yd].into_iter().enumerate() {
+                pad_wrapped(&m[yy * nx..(yy + 1) * nx], &mut s.ring[k * w..(k + 1) * w]);
             }
+            pad_wrapped(&ts[y * nx..(y + 1) * nx], &mut s.tpad);
+            let (up, rest) = s.ring.split_at(w);
+            let (mid, dn) = rest.split_at(w);
+            nms_row(up, mid, dn, &s.tpad, dx0 + 1, dx1 + 1, &mut s.row_mask);
+            for_each_set(&s.row_mask[dx0 + 1..dx1 + 1], |i| {
+                let x = dx0 + i;
+                let p = y * nx + x;
+                s.cand.push(Px {
+                    x: x as u32,
+                    y: y as u32,
+                    m: m[p],
+                    t: ts[p],
+                });
+            });
         }
     } else {
         // one streaming pass: M rows in a ring of three, the NMS one row
@@ -765,31 +780,13 @@ fn nms_row_impl(
     }
 }
 
-/// The WTMM test at `(x, y)` with periodic indexing (domains that reach the
-/// image border: periodic fields analysed with no margin).
-#[allow(clippy::too_many_arguments)]
-fn nms_wrapping(
-    m: &[f64],
-    nx: usize,
-    ny: usize,
-    x: usize,
-    y: usize,
-    u1: f64,
-    u2: f64,
-    mp: f64,
-) -> bool {
-    let at = |px: f64, py: f64| {
-        let (x0, y0) = (px.floor(), py.floor());
-        let (fx, fy) = (px - x0, py - y0);
-        let wx = |v: f64| (v as isize).rem_euclid(nx as isize) as usize;
-        let wy = |v: f64| (v as isize).rem_euclid(ny as isize) as usize;
-        let (xa, xb, ya, yb) = (wx(x0), wx(x0 + 1.0), wy(y0), wy(y0 + 1.0));
-        let a = m[ya * nx + xa] + fx * (m[ya * nx + xb] - m[ya * nx + xa]);
-        let b = m[yb * nx + xa] + fx * (m[yb * nx + xb] - m[yb * nx + xa]);
-        a + fy * (b - a)
-    };
-    let (xf, yf) = (x as f64, y as f64);
-    mp > at(xf + u1, yf + u2) && mp >= at(xf - u1, yf - u2)
+/// `dst = [src[n-1], src[0..n], src[0]]`: a row with one wrapped pixel on
+/// each side (periodic domains).
+fn pad_wrapped<T: Copy>(src: &[T], dst: &mut [T]) {
+    let n = src.len();
+    dst[0] = src[n - 1];
+    dst[1..=n].copy_from_slice(src);
+    dst[n + 1] = src[0];
 }
 
 fn adjacent(p: (u32, u32), q: (u32, u32)) -> bool {
