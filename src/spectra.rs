@@ -265,13 +265,7 @@ impl PartitionSums {
                 .map(|i| Estimates::fit(&self.ensemble(rule, Some(i)), &log2_a, &in_fit, &self.q))
                 .collect();
             let jk = |get: &dyn Fn(&Estimates) -> f64| -> f64 {
-                let v: Vec<f64> = reps.iter().map(get).collect();
-                if v.iter().any(|x| !x.is_finite()) {
-                    return f64::NAN;
-                }
-                let n = v.len() as f64;
-                let m = v.iter().sum::<f64>() / n;
-                ((n - 1.0) / n * v.iter().map(|x| (x - m) * (x - m)).sum::<f64>()).sqrt()
+                crate::stats::jackknife_se(&reps.iter().map(get).collect::<Vec<_>>())
             };
             for qi in 0..nq {
                 jk_tau[qi] = jk(&|e: &Estimates| e.tau[qi]);

@@ -1428,12 +1428,10 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
     };
     let n_img = s.images.len();
     let jk = |vals: &[f64]| -> f64 {
-        if vals.len() < 3 || vals.iter().any(|v| !v.is_finite()) {
+        if vals.len() < 3 {
             return f64::NAN;
         }
-        let n = vals.len() as f64;
-        let m = vals.iter().sum::<f64>() / n;
-        ((n - 1.0) / n * vals.iter().map(|v| (v - m) * (v - m)).sum::<f64>()).sqrt()
+        crate::stats::jackknife_se(vals)
     };
     let pairs = (0..s.pairs.len())
         .map(|p| {

@@ -16,6 +16,19 @@ pub struct LineFit {
     pub n: usize,
 }
 
+/// Delete-one jackknife standard error from the leave-one-out replicates
+/// `v` of an estimate: `sqrt((n-1)/n Σ (v_i - mean)²)`. NaN when a
+/// replicate is not finite or there is none (callers set their own minimum
+/// number of parts).
+pub fn jackknife_se(v: &[f64]) -> f64 {
+    if v.is_empty() || v.iter().any(|x| !x.is_finite()) {
+        return f64::NAN;
+    }
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    ((n - 1.0) / n * v.iter().map(|x| (x - m) * (x - m)).sum::<f64>()).sqrt()
+}
+
 /// Least-squares fit over the points where both `x` and `y` are finite.
 /// Returns `None` with fewer than 2 usable points or when all `x` coincide.
 pub fn line_fit(x: &[f64], y: &[f64]) -> Option<LineFit> {

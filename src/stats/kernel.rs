@@ -686,12 +686,10 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         }
     }
     let jk = |vals: &[f64]| -> f64 {
-        if vals.len() < 3 || vals.iter().any(|v| !v.is_finite()) {
+        if vals.len() < 3 {
             return f64::NAN;
         }
-        let n = vals.len() as f64;
-        let m = vals.iter().sum::<f64>() / n;
-        ((n - 1.0) / n * vals.iter().map(|v| (v - m) * (v - m)).sum::<f64>()).sqrt()
+        crate::stats::jackknife_se(vals)
     };
     let rep_fits: Vec<[(f64, f64, f64); 3]> = reps.iter().map(|k| fit_c(k)).collect();
     let est = |n: usize| -> Estimate {

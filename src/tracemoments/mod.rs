@@ -1181,12 +1181,7 @@ pub fn finish_jackknife(
         gls_refit(&mut res, &mut loo, whole, parts, fc, pin, what)?;
     }
     let jk = |f: &dyn Fn(&TraceMomentResult) -> f64| -> f64 {
-        let v: Vec<f64> = loo.iter().map(f).collect();
-        if v.iter().any(|x| !x.is_finite()) {
-            return f64::NAN;
-        }
-        let m = v.iter().sum::<f64>() / n as f64;
-        ((n as f64 - 1.0) / n as f64 * v.iter().map(|x| (x - m).powi(2)).sum::<f64>()).sqrt()
+        crate::stats::jackknife_se(&loo.iter().map(f).collect::<Vec<_>>())
     };
     res.alpha_stderr = jk(&|r| r.alpha);
     res.c1_stderr = jk(&|r| r.c1);
