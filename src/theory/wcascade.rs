@@ -46,8 +46,15 @@
 
 use std::f64::consts::LN_2;
 
+use ndarray::Array2;
+use num_complex::Complex64;
+use rustfft::FftPlanner;
+
 use super::Multifractal;
-use crate::synth::wcascade::{Law, WCascadeParams};
+use crate::error::Result;
+use crate::synth::dwt::dwt1_inverse;
+use crate::synth::fisc::steps_for_size;
+use crate::synth::wcascade::{Isotropy, Law, WCascadeParams};
 
 impl Law {
     /// `K(q) = ln <M^q>`.
@@ -187,6 +194,89 @@ fn bisect_zero(f: &impl Fn(f64) -> f64, mut a: f64, mut b: f64) -> f64 {
 /// `σ² = Var(ln M)`; the caller keeps `Δx >= sup(a1, a2)`.
 pub fn magnitude_correlation(ln_variance: f64, dx: f64, l: f64) -> Option<f64> {
     (dx > 0.0 && dx < l).then(|| ln_variance * ((l / dx).log2() - 2.0 + 2.0 * dx / l))
+}
+
+/// The exact expected power spectrum of an `n x n` W-cascade image of the
+/// generator ([`crate::synth::wcascade::wcascade`]), as a density on the
+/// FFT grid in standard order, normalised like
+/// [`crate::stats::powspec::power_spectrum`] without a window (`k = 0` is
+/// 0: the mean is removed).
+///
+/// Derivation. The image is `f = Σ c B` over the periodic orthonormal basis
+/// images `B`, separable: `B = φ_j(x) ψ_j(y)`, `ψ_j(x) φ_j(y)`,
+/// `ψ_j(x) ψ_j(y)` for the three detail types at scale `2^j`, tree level
+/// `s = N - j` (`N = log2 n`), `4^s` positions, coefficient `2^j w d` with
+/// `w` = (cos φ cos θ, cos φ sin θ, sin φ). Below the root the angles are
+/// independent and symmetric (θ uniform, φ uniform on `[-φ*, φ*]`, or the
+/// fixed choices of the anisotropic variants with a random sign), so
+/// distinct coefficients are uncorrelated and
+///
+/// ```text
+/// E|f̂(k)|² = |f̂_0(k)|² + Σ_{s>=1} 4^s 4^j E[d_s²] Σ_t E[w_t²] |B̂_{s,t}(k)|²,
+/// E[d_s²] = d_0² E[M²]^s,   E[M²] = 2^(-τ(2)-2)
+/// ```
+///
+/// with `f̂_0` the deterministic root term and `|B̂|² = |û(kx)|² |v̂(ky)|²`
+/// from the 1D periodic functions (inverse DWT of a unit coefficient). The
+/// infinite cascade has `|k|^-β`, `β = τ(2) + 4`, up to a dyadic modulation;
+/// the finite one bends near the root and the pixel (tests/generators.rs).
+///
+/// **Errors** unless `n` is a power of two >= 2.
+pub fn expected_power(params: &WCascadeParams, n: usize) -> Result<Array2<f64>> {
+    let steps = steps_for_size(n)?;
+    let fft = FftPlanner::<f64>::new().plan_fft_forward(n);
+    // the 1D periodic scaling function and wavelet of scale 2^j, position 0,
+    // and their DFTs
+    let basis_dft = |j: usize, wavelet: bool| -> Result<Vec<Complex64>> {
+        let mut u = vec![0.0; n];
+        u[if wavelet { n >> j } else { 0 }] = 1.0;
+        dwt1_inverse(&mut u, params.basis, j)?;
+        let mut z: Vec<Complex64> = u.iter().map(|&v| Complex64::new(v, 0.0)).collect();
+        fft.process(&mut z);
+        Ok(z)
+    };
+    let c0 = params.start_coefficients();
+    let d0_2 = c0.iter().map(|c| c * c).sum::<f64>();
+    let m2 = 2f64.powf(-params.law.tau(2.0) - 2.0);
+    // E[w_t²] below the root
+    let ew = match params.isotropy {
+        Isotropy::Isotropic => {
+            let p = params.phi_star();
+            let c2 = 0.5 + (2.0 * p).sin() / (4.0 * p);
+            [c2 / 2.0, c2 / 2.0, 1.0 - c2]
+        }
+        Isotropy::Psi12 => [0.5, 0.5, 0.0],
+        Isotropy::Psi3 => [0.0, 0.0, 1.0],
+    };
+    let mut out = Array2::<f64>::zeros((n, n));
+    for s in 0..steps {
+        let j = steps - s;
+        let phi = basis_dft(j, false)?;
+        let psi = basis_dft(j, true)?;
+        let l2 = (1u64 << j) as f64;
+        if s == 0 {
+            // one deterministic coefficient per type: amplitudes add
+            for ((ky, kx), v) in out.indexed_iter_mut() {
+                let z = (phi[kx] * psi[ky]) * c0[0]
+                    + (psi[kx] * phi[ky]) * c0[1]
+                    + (psi[kx] * psi[ky]) * c0[2];
+                *v += l2 * l2 * z.norm_sqr();
+            }
+        } else {
+            let w = 4f64.powi(s as i32) * l2 * l2 * d0_2 * m2.powi(s as i32);
+            let p_phi: Vec<f64> = phi.iter().map(|z| z.norm_sqr()).collect();
+            let p_psi: Vec<f64> = psi.iter().map(|z| z.norm_sqr()).collect();
+            for ((ky, kx), v) in out.indexed_iter_mut() {
+                *v += w
+                    * (ew[0] * p_phi[kx] * p_psi[ky]
+                        + ew[1] * p_psi[kx] * p_phi[ky]
+                        + ew[2] * p_psi[kx] * p_psi[ky]);
+            }
+        }
+    }
+    out.mapv_inplace(|v| v / (n * n) as f64);
+    out[[0, 0]] = 0.0;
+    Ok(out)
 }
 
 impl Multifractal for WCascadeParams {
