@@ -296,8 +296,12 @@ pub fn detect_scale(
 ) -> ScaleMaxima {
     let (ny, nx) = plan.dim();
     let a = plan.scales()[j];
-    let (dy0, dy1, _, _) = domain.detection_rect(a);
-    if domain.wraps(a) || domain.is_empty() || (ny, nx) != (domain.ny, domain.nx) {
+    let (dy0, dy1, dx0, dx1) = domain.detection_rect(a);
+    let same_shape = (ny, nx) == (domain.ny, domain.nx);
+    if same_shape && !domain.is_empty() && (dy0, dy1, dx0, dx1) == (0, ny, 0, nx) && ny >= 3 {
+        return detect_torus_streamed(plan, fi, j, ws, domain, eps, keep_chains, s);
+    }
+    if domain.wraps(a) || domain.is_empty() || !same_shape {
         let t = plan.scale(fi, j, ws);
         return detect(t, j, a, domain, eps, keep_chains, s);
     }
@@ -320,6 +324,126 @@ pub fn detect_scale(
         }
     });
     let mmax = nms.mmax;
+    finish(out, mmax, domain, eps, a, keep_chains, s)
+}
+
+/// [`detect_scale`] on the whole torus (detection rectangle = the image):
+/// rows stream from the CWT once, in order; each is tested when the next
+/// arrives, on rows padded by one wrapped pixel, as [`detect`] does. Row 0
+/// needs row `ny - 1` above it, so its M rows 0 and 1 and its T row are kept
+/// and it is tested last, its candidates put first (raster order).
+#[allow(clippy::too_many_arguments)]
+fn detect_torus_streamed(
+    plan: &CwtPlan,
+    fi: &FourierImage,
+    j: usize,
+    ws: &mut CwtWorkspace,
+    domain: &Domain,
+    eps: f64,
+    keep_chains: bool,
+    s: &mut DetectScratch,
+) -> ScaleMaxima {
+    let (ny, nx) = plan.dim();
+    let a = plan.scales()[j];
+    let out = ScaleMaxima {
+        j,
+        a,
+        ..Default::default()
+    };
+    let w = nx + 2;
+    s.cand.clear();
+    s.ring.resize(3 * w, 0.0);
+    s.tpad.resize(w, Complex64::default());
+    s.row_mask.resize(w, 0);
+    // padded M rows 0 and 1, and padded T row 0, for the wrap at the end
+    let mut first = vec![0.0; 2 * w];
+    let mut t0 = vec![Complex64::default(); w];
+    let mut mrow = vec![0.0; nx];
+    let (cy0, cy1, cx0, cx1) = (domain.y0, domain.y1, domain.x0, domain.x1);
+    let mut mmax: f64 = 0.0;
+    // tests row y with padded M rows up/mid/dn and padded T row `tp`
+    let test = |up: &[f64],
+                mid: &[f64],
+                dn: &[f64],
+                tp: &[Complex64],
+                y: usize,
+                mask: &mut [u8],
+                cand: &mut Vec<Px>| {
+        nms_row(up, mid, dn, tp, 1, nx + 1, mask);
+        for_each_set(&mask[1..nx + 1], |i| {
+            cand.push(Px {
+                x: i as u32,
+                y: y as u32,
+                m: mid[i + 1],
+                t: tp[i + 1],
+            });
+        });
+    };
+    plan.scale_rows(fi, j, ws, 0..ny, |y0, prev, cur| {
+        for (i, t_r) in cur.chunks_exact(nx).enumerate() {
+            let r = y0 + i;
+            modulus_into(t_r, &mut mrow);
+            if r >= cy0 && r < cy1 {
+                mmax = mmax.max(max_nonneg(&mrow[cx0..cx1]));
+            }
+            pad_wrapped(&mrow, &mut s.ring[(r % 3) * w..(r % 3 + 1) * w]);
+            if r < 2 {
+                pad_wrapped(&mrow, &mut first[r * w..(r + 1) * w]);
+            }
+            if r == 0 {
+                pad_wrapped(t_r, &mut t0);
+                continue;
+            }
+            // test row r - 1 (rows 1 .. ny - 2 here; row 0 last)
+            if r >= 2 {
+                let t_prev = if i > 0 {
+                    &cur[(i - 1) * nx..i * nx]
+                } else {
+                    prev.map(|p| &p[p.len() - nx..])
+                        .expect("row r - 1 came in the previous block")
+                };
+                pad_wrapped(t_prev, &mut s.tpad);
+                let y = r - 1;
+                let row = |q: usize| &s.ring[(q % 3) * w..(q % 3 + 1) * w];
+                test(
+                    row(y - 1),
+                    row(y),
+                    row(r),
+                    &s.tpad,
+                    y,
+                    &mut s.row_mask,
+                    &mut s.cand,
+                );
+            }
+            if r == ny - 1 {
+                // row ny - 1: row 0 below it
+                pad_wrapped(t_r, &mut s.tpad);
+                let row = |q: usize| &s.ring[(q % 3) * w..(q % 3 + 1) * w];
+                test(
+                    row(r - 1),
+                    row(r),
+                    &first[..w],
+                    &s.tpad,
+                    r,
+                    &mut s.row_mask,
+                    &mut s.cand,
+                );
+            }
+        }
+    });
+    // row 0: row ny - 1 above it, its candidates first
+    let mut c0 = Vec::new();
+    let up = &s.ring[((ny - 1) % 3) * w..((ny - 1) % 3 + 1) * w];
+    test(
+        up,
+        &first[..w],
+        &first[w..],
+        &t0,
+        0,
+        &mut s.row_mask,
+        &mut c0,
+    );
+    s.cand.splice(0..0, c0);
     finish(out, mmax, domain, eps, a, keep_chains, s)
 }
 
