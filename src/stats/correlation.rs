@@ -202,8 +202,11 @@ impl CorrelationConfig {
     }
 }
 
-/// Columns gathered per block in the column FFTs: 4 complex f64 are one
-/// 64-byte cache line of a spectrum row.
+/// Columns gathered per block in the column FFTs: a block of 1024-point
+/// columns (512 KB at 32) stays in L2 while it is transformed. Measured on
+/// 1024^2 (torus, one thread): 4, 8, 16 or 32 columns, and gathering four
+/// rows at a time so that stores fill whole lines, all within the noise of
+/// each other (77-97 ms).
 const COLS: usize = 32;
 
 /// A 2D real-to-complex FFT of size `fy x fx`: realfft along x (half
