@@ -254,17 +254,15 @@ pub fn detect(
             pad_wrapped(&ts[y * nx..(y + 1) * nx], &mut s.tpad);
             let (up, rest) = s.ring.split_at(w);
             let (mid, dn) = rest.split_at(w);
-            nms_row(up, mid, dn, &s.tpad, dx0 + 1, dx1 + 1, &mut s.row_mask);
-            for_each_set(&s.row_mask[dx0 + 1..dx1 + 1], |i| {
-                let x = dx0 + i;
-                let p = y * nx + x;
-                s.cand.push(Px {
-                    x: x as u32,
-                    y: y as u32,
-                    m: m[p],
-                    t: ts[p],
-                });
-            });
+            let (x0, x1) = (dx0, dx1);
+            nms_padded_row(
+                [up, mid, dn],
+                &s.tpad,
+                (x0, x1),
+                y,
+                &mut s.row_mask,
+                &mut s.cand,
+            );
         }
     } else {
         // one streaming pass: M rows in a ring of three, the NMS one row
@@ -362,23 +360,6 @@ fn detect_torus_streamed(
     let (cy0, cy1, cx0, cx1) = (domain.y0, domain.y1, domain.x0, domain.x1);
     let mut mmax: f64 = 0.0;
     // tests row y with padded M rows up/mid/dn and padded T row `tp`
-    let test = |up: &[f64],
-                mid: &[f64],
-                dn: &[f64],
-                tp: &[Complex64],
-                y: usize,
-                mask: &mut [u8],
-                cand: &mut Vec<Px>| {
-        nms_row(up, mid, dn, tp, 1, nx + 1, mask);
-        for_each_set(&mask[1..nx + 1], |i| {
-            cand.push(Px {
-                x: i as u32,
-                y: y as u32,
-                m: mid[i + 1],
-                t: tp[i + 1],
-            });
-        });
-    };
     plan.scale_rows(fi, j, ws, 0..ny, |y0, prev, cur| {
         for (i, t_r) in cur.chunks_exact(nx).enumerate() {
             let r = y0 + i;
@@ -405,44 +386,23 @@ fn detect_torus_streamed(
                 pad_wrapped(t_prev, &mut s.tpad);
                 let y = r - 1;
                 let row = |q: usize| &s.ring[(q % 3) * w..(q % 3 + 1) * w];
-                test(
-                    row(y - 1),
-                    row(y),
-                    row(r),
-                    &s.tpad,
-                    y,
-                    &mut s.row_mask,
-                    &mut s.cand,
-                );
+                let rows = [row(y - 1), row(y), row(r)];
+                nms_padded_row(rows, &s.tpad, (0, nx), y, &mut s.row_mask, &mut s.cand);
             }
             if r == ny - 1 {
                 // row ny - 1: row 0 below it
                 pad_wrapped(t_r, &mut s.tpad);
                 let row = |q: usize| &s.ring[(q % 3) * w..(q % 3 + 1) * w];
-                test(
-                    row(r - 1),
-                    row(r),
-                    &first[..w],
-                    &s.tpad,
-                    r,
-                    &mut s.row_mask,
-                    &mut s.cand,
-                );
+                let rows = [row(r - 1), row(r), &first[..w]];
+                nms_padded_row(rows, &s.tpad, (0, nx), r, &mut s.row_mask, &mut s.cand);
             }
         }
     });
     // row 0: row ny - 1 above it, its candidates first
     let mut c0 = Vec::new();
     let up = &s.ring[((ny - 1) % 3) * w..((ny - 1) % 3 + 1) * w];
-    test(
-        up,
-        &first[..w],
-        &first[w..],
-        &t0,
-        0,
-        &mut s.row_mask,
-        &mut c0,
-    );
+    let rows = [up, &first[..w], &first[w..]];
+    nms_padded_row(rows, &t0, (0, nx), 0, &mut s.row_mask, &mut c0);
     s.cand.splice(0..0, c0);
     finish(out, mmax, domain, eps, a, keep_chains, s)
 }
@@ -902,6 +862,30 @@ fn nms_row_impl(
         let m3 = mp * mp * mp;
         mask[x] = ((m3 > fwd) & (m3 >= bwd) & (mp > 0.0)) as u8;
     }
+}
+
+/// The WTMM test of row `y`, pixels `x0..x1`, on rows padded by one wrapped
+/// pixel on each side (`rows` = M above, at and below `y`; `tp` = T of row
+/// `y`, padded likewise), pushing the candidates in raster order.
+fn nms_padded_row(
+    rows: [&[f64]; 3],
+    tp: &[Complex64],
+    (x0, x1): (usize, usize),
+    y: usize,
+    mask: &mut [u8],
+    cand: &mut Vec<Px>,
+) {
+    let [up, mid, dn] = rows;
+    nms_row(up, mid, dn, tp, x0 + 1, x1 + 1, mask);
+    for_each_set(&mask[x0 + 1..x1 + 1], |i| {
+        let x = x0 + i;
+        cand.push(Px {
+            x: x as u32,
+            y: y as u32,
+            m: mid[x + 1],
+            t: tp[x + 1],
+        });
+    });
 }
 
 /// `dst = [src[n-1], src[0..n], src[0]]`: a row with one wrapped pixel on
