@@ -138,8 +138,10 @@ pub struct DetectScratch {
     row_mask: Vec<u8>,
     /// Three rows of M (streaming pass; padded rows on a torus).
     ring: Vec<f64>,
-    /// One row of T padded by a wrapped pixel on each side (torus).
+    /// One row of T padded by a wrapped pixel on each side (torus), and
+    /// row 0 kept so padded for the end of a streamed torus pass.
     tpad: Vec<Complex64>,
+    t0: Vec<Complex64>,
     /// Candidates before the eps threshold, in raster order.
     cand: Vec<Px>,
     /// This scale's WTMM pixels in raster order, as separate arrays so that
@@ -254,11 +256,10 @@ pub fn detect(
             pad_wrapped(&ts[y * nx..(y + 1) * nx], &mut s.tpad);
             let (up, rest) = s.ring.split_at(w);
             let (mid, dn) = rest.split_at(w);
-            let (x0, x1) = (dx0, dx1);
             nms_padded_row(
                 [up, mid, dn],
                 &s.tpad,
-                (x0, x1),
+                (dx0, dx1),
                 y,
                 &mut s.row_mask,
                 &mut s.cand,
@@ -353,26 +354,26 @@ fn detect_torus_streamed(
     s.ring.resize(3 * w, 0.0);
     s.tpad.resize(w, Complex64::default());
     s.row_mask.resize(w, 0);
-    // padded M rows 0 and 1, and padded T row 0, for the wrap at the end
-    let mut first = vec![0.0; 2 * w];
-    let mut t0 = vec![Complex64::default(); w];
-    let mut mrow = vec![0.0; nx];
+    // the current M row, then padded M rows 0 and 1; padded T row 0 (kept
+    // for the wrap at the end)
+    s.modulus.resize(nx + 2 * w, 0.0);
+    let (mrow, first) = s.modulus.split_at_mut(nx);
+    s.t0.resize(w, Complex64::default());
     let (cy0, cy1, cx0, cx1) = (domain.y0, domain.y1, domain.x0, domain.x1);
     let mut mmax: f64 = 0.0;
-    // tests row y with padded M rows up/mid/dn and padded T row `tp`
     plan.scale_rows(fi, j, ws, 0..ny, |y0, prev, cur| {
         for (i, t_r) in cur.chunks_exact(nx).enumerate() {
             let r = y0 + i;
-            modulus_into(t_r, &mut mrow);
+            modulus_into(t_r, mrow);
             if r >= cy0 && r < cy1 {
                 mmax = mmax.max(max_nonneg(&mrow[cx0..cx1]));
             }
-            pad_wrapped(&mrow, &mut s.ring[(r % 3) * w..(r % 3 + 1) * w]);
+            pad_wrapped(mrow, &mut s.ring[(r % 3) * w..(r % 3 + 1) * w]);
             if r < 2 {
-                pad_wrapped(&mrow, &mut first[r * w..(r + 1) * w]);
+                pad_wrapped(mrow, &mut first[r * w..(r + 1) * w]);
             }
             if r == 0 {
-                pad_wrapped(t_r, &mut t0);
+                pad_wrapped(t_r, &mut s.t0);
                 continue;
             }
             // test row r - 1 (rows 1 .. ny - 2 here; row 0 last)
@@ -398,12 +399,13 @@ fn detect_torus_streamed(
             }
         }
     });
-    // row 0: row ny - 1 above it, its candidates first
-    let mut c0 = Vec::new();
+    // row 0: row ny - 1 above it; its candidates go first (raster order)
+    let n_rest = s.cand.len();
     let up = &s.ring[((ny - 1) % 3) * w..((ny - 1) % 3 + 1) * w];
     let rows = [up, &first[..w], &first[w..]];
-    nms_padded_row(rows, &t0, (0, nx), 0, &mut s.row_mask, &mut c0);
-    s.cand.splice(0..0, c0);
+    nms_padded_row(rows, &s.t0, (0, nx), 0, &mut s.row_mask, &mut s.cand);
+    let n0 = s.cand.len() - n_rest;
+    s.cand.rotate_right(n0);
     finish(out, mmax, domain, eps, a, keep_chains, s)
 }
 
