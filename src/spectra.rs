@@ -133,6 +133,57 @@ impl PartitionSums {
         }
     }
 
+    /// The partition sums of values given directly: `log2_values[j]` are the
+    /// `log2` moduli counted at `scales[j]` (ascending), one image. Both rules
+    /// get the same cells. For the generators' own cascades
+    /// ([`crate::theory::Model::sample_sums`]).
+    ///
+    /// **Errors** if the lengths differ, the scales are not ascending or a
+    /// value is not finite.
+    pub fn from_log2_values(
+        scales: &[f64],
+        log2_values: &[Vec<f64>],
+        q: &[f64],
+        label: impl Into<String>,
+    ) -> Result<Self> {
+        let ns = scales.len();
+        if log2_values.len() != ns || ns == 0 {
+            return Err(Error::param(
+                "scales",
+                format!("{ns} scales for {} value sets", log2_values.len()),
+            ));
+        }
+        if scales.windows(2).any(|w| w[1] <= w[0]) || !scales.iter().all(|a| *a > 0.0) {
+            return Err(Error::param("scales", "must be positive and ascending"));
+        }
+        if log2_values.iter().flatten().any(|l| !l.is_finite()) {
+            return Err(Error::Input(
+                "a value is zero, negative or not finite".into(),
+            ));
+        }
+        let nq = q.len();
+        let mut cells = vec![Cell::EMPTY; nq * ns];
+        for (j, logs) in log2_values.iter().enumerate() {
+            if logs.is_empty() {
+                continue;
+            }
+            for (qi, c) in cells_all_q(logs, q).into_iter().enumerate() {
+                cells[qi * ns + j] = c;
+            }
+        }
+        Ok(PartitionSums {
+            version: crate::VERSION.to_string(),
+            q: q.to_vec(),
+            scales: scales.to_vec(),
+            images: vec![ImagePartial {
+                label: label.into(),
+                lines: log2_values.iter().map(|v| v.len() as u64).collect(),
+                sup: cells.clone(),
+                plain: cells,
+            }],
+        })
+    }
+
     /// Adds `other`'s images. The result does not depend on the order of
     /// merges (sums are taken in a canonical order when finalised).
     ///

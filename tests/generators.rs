@@ -721,3 +721,68 @@ fn wcascade_spectrum_is_the_exact_expectation() {
         check_against_expectation(label, &spectra, &wcascade_expected_spectrum(&p, n), n);
     }
 }
+
+// ------------------------------------------------------- own cascades
+
+/// The images' own cascades (`Model::sample_sums`, the "sample" column of
+/// `validate`) are the generators' amplitudes: the W-cascade's equal
+/// `wcascade_moduli`, the FISC's finest level is `fisc_measure` shifted by
+/// `(2 - H*) n`; and their annealed partition function has the theory's
+/// tau(q) (`<Σ d^q> = 4^s <W^q>^s` exactly): over q in [-3, 5], 16 images of
+/// 256^2 on the dyadic scales 2-64 px lie within 4 jackknife standard errors
+/// (tau(0) = -2 exactly: every level has 4^s amplitudes). The FISC's sums
+/// are deterministic (every split gives two p/2 and two (1-p)/2), so its
+/// errors are zero and it must hold the theory to rounding.
+#[test]
+fn own_cascades_have_the_theoretical_tau() {
+    use wtmm::spectra::{PartitionSums, Rule};
+    use wtmm::synth::fisc::fisc_log2_amplitudes;
+    use wtmm::synth::wcascade::wcascade_log2_amplitudes;
+    let n = 256;
+    // the values are the generators' own amplitudes
+    let p = wc(preset("paper-logpoisson"));
+    let lv = wcascade_moduli(&p, n, 9, 2).unwrap();
+    let own = wcascade_log2_amplitudes(&p, n, 9, 2, 3..6).unwrap();
+    for (k, s) in (3..6).enumerate() {
+        let want: Vec<f64> = lv[s].iter().map(|d| d.abs().log2()).collect();
+        assert_eq!(own[k], want, "W-cascade level {s}");
+    }
+    let f = paper_fisc();
+    let mu = fisc_measure(f, n, 9, 2).unwrap();
+    let own = fisc_log2_amplitudes(f, n, 9, 2, 8..9).unwrap();
+    let shift = (2.0 - f.hstar) * 8.0;
+    let area = (n * n) as f64;
+    for (v, m) in own[0].iter().zip(mu.iter()) {
+        assert!(
+            (v - shift - (m / area).log2()).abs() < 1e-9,
+            "FISC pixel masses"
+        );
+    }
+
+    let q: Vec<f64> = (-3..=5).map(|k| k as f64).collect();
+    for name in ["paper-lognormal", "paper-logpoisson", "paper-fisc"] {
+        let m = preset(name);
+        let parts: Vec<PartitionSums> = (0..16u64)
+            .into_par_iter()
+            .map(|i| m.sample_sums(n, 3, i, &q, (2.0, 64.0)).unwrap().unwrap())
+            .collect();
+        let sums = PartitionSums::merge_all(parts).unwrap().unwrap();
+        assert_eq!(sums.scales, vec![2.0, 4.0, 8.0, 16.0, 32.0, 64.0], "{name}");
+        let s = sums.spectra(Rule::Plain, (0.0, 5.0)).unwrap();
+        for (i, &qi) in q.iter().enumerate() {
+            let th = m.tau(qi);
+            let (est, se) = (s.tau[i], s.tau_stderr[i]);
+            assert!(
+                (est - th).abs() <= 4.0 * se + 1e-9,
+                "{name}: q = {qi}: own-cascade tau {est:.4} +- {se:.4}, theory {th:.4}"
+            );
+        }
+    }
+    // no discrete cascade: no sample
+    assert!(
+        Model::Fbm(FbmParams { hurst: 0.3 })
+            .sample_sums(n, 1, 0, &q, (2.0, 64.0))
+            .unwrap()
+            .is_none()
+    );
+}

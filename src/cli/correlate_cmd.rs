@@ -746,6 +746,11 @@ pub fn validation_criteria(
             chk["max_abs_dev_C"].as_f64().unwrap_or(f64::NAN),
         );
         let tol = if fbm { 0.005 } else { 0.01 };
+        // II Fig 30 tests eq 76 on the log-normal W-cascade (and C ~ 0 on
+        // fBm); for the other cascades eq 76 holds with their own ln W
+        // variance, and the comparison is shown, not judged
+        let published = fbm
+            || matches!(model, Model::WCascade(p) if matches!(p.law, crate::synth::wcascade::Law::LogNormal { .. }));
         crit.push(Criterion {
             name: format!(
                 "max |C(dx) - II eq 76|, {:.1} max(a1,a2) < dx < L/4",
@@ -755,7 +760,7 @@ pub fn validation_criteria(
             target: 0.0,
             tolerance: tol,
             pass: v.is_finite() && v <= tol && chk["bins"].as_u64().unwrap_or(0) > 0,
-            informational: false,
+            informational: !published,
             note: format!(
                 "4 pairs of II Fig 30, ensemble centring; per-image centring {v_img:.4}; from dx > max(a1,a2): {:.4}",
                 lit["max_abs_dev_C_ensemble"].as_f64().unwrap_or(f64::NAN)

@@ -155,6 +155,37 @@ pub fn fisc_measure(params: FiscParams, size: usize, seed: u64, index: u64) -> R
     Ok(mu)
 }
 
+/// `log2` of the p-model box masses of image `index` of the FISC ensemble
+/// `seed` at the cascade steps `levels` (step `s` has `4^s` boxes of side
+/// `size / 2^s` px), shifted by `(2 - H*) s`: the fractionally integrated
+/// field's amplitude at scale `a` is `μ(box) a^(H* - 2)` (SPEC §9), so the
+/// partition function of these values has the field's τ(q) in expectation
+/// ([`crate::theory::Model::sample_sums`]). Steps beyond `log2 size` are
+/// empty.
+///
+/// **Errors** on invalid parameters or a size that is not a power of two.
+pub fn fisc_log2_amplitudes(
+    params: FiscParams,
+    size: usize,
+    seed: u64,
+    index: u64,
+    levels: std::ops::Range<usize>,
+) -> Result<Vec<Vec<f64>>> {
+    params.validate()?;
+    let steps = steps_for_size(size)?;
+    let mut out: Vec<Vec<f64>> = levels.clone().map(|_| Vec::new()).collect();
+    let shift = 2.0 - params.hstar;
+    let mut rng = rng_for(seed, index);
+    // the same draws as [`fisc_measure`]: the same boxes
+    pmodel_cascade(params.p, steps, &mut rng, |s, m| {
+        if levels.contains(&s) {
+            let off = shift * s as f64;
+            out[s - levels.start].extend(m.iter().map(|&v| v.log2() + off));
+        }
+    });
+    Ok(out)
+}
+
 /// Image `index` of the FISC ensemble `seed`, `size x size` (a power of two).
 ///
 /// **Errors** on invalid parameters or a size that is not a power of two.

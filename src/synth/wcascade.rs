@@ -436,6 +436,42 @@ pub fn wcascade_moduli(
     Ok(levels)
 }
 
+/// `log2` of the amplitudes `d` of image `index` of the ensemble `seed` at
+/// the levels `levels` (level `s` has `4^s` amplitudes and scale `size / 2^s`
+/// px), row-major as in [`wcascade_moduli`]: the generator's own cascade, whose
+/// partition function has the theoretical τ(q) in expectation at every level
+/// ([`crate::theory::Model::sample_sums`]). Levels at or beyond
+/// `log2 size` are empty.
+///
+/// **Errors** on invalid parameters or a size that is not a power of two.
+pub fn wcascade_log2_amplitudes(
+    params: &WCascadeParams,
+    size: usize,
+    seed: u64,
+    index: u64,
+    levels: std::ops::Range<usize>,
+) -> Result<Vec<Vec<f64>>> {
+    params.validate()?;
+    let steps = steps_for_size(size)?;
+    let mut out: Vec<Vec<f64>> = levels
+        .clone()
+        .map(|s| {
+            if s < steps {
+                vec![0.0; 1 << (2 * s)]
+            } else {
+                Vec::new()
+            }
+        })
+        .collect();
+    let mut rng = rng_for(seed, index);
+    run_cascade(params, steps, &mut rng, |s, ty, tx, d, _| {
+        if levels.contains(&s) {
+            out[s - levels.start][(ty << s) + tx] = d.abs().log2();
+        }
+    });
+    Ok(out)
+}
+
 /// Image `index` of the W-cascade ensemble `seed`, `size x size` (a power of
 /// two), periodic.
 ///

@@ -286,6 +286,72 @@ impl Model {
         }
     }
 
+    /// The partition sums of image `index`'s own multiplicative cascade, on
+    /// the dyadic scales `size / 2^s` px that lie in `[a_lo, a_hi]`: a
+    /// W-cascade's wavelet amplitudes, a FISC's p-model box masses times
+    /// `a^(H* - 2)`. In expectation their τ(q) is the theory's at every scale
+    /// (`<Σ d^q> = 4^s <W^q>^s`), so fitting an ensemble of them shows how
+    /// far the finite sample itself lies from the theory, and the rest of a
+    /// WTMM estimate's distance belongs to the estimator. `None` for the
+    /// models without a discrete cascade (fBm, FIF) or fewer than 3 scales.
+    ///
+    /// **Errors** on invalid parameters, a size that is not a power of two
+    /// or an empty scale range.
+    pub fn sample_sums(
+        &self,
+        size: usize,
+        seed: u64,
+        index: u64,
+        q: &[f64],
+        (a_lo, a_hi): (f64, f64),
+    ) -> Result<Option<crate::spectra::PartitionSums>> {
+        if !(a_lo > 0.0 && a_hi >= a_lo) {
+            return Err(Error::param(
+                "scales",
+                format!("need 0 < a_lo <= a_hi, got {a_lo}, {a_hi}"),
+            ));
+        }
+        // the finest level: W-cascade amplitudes stop one level above the
+        // pixel (level n - 1, 2 px); the p-model reaches the pixel (step n)
+        let below_pixel = match self {
+            Model::WCascade(_) => 1,
+            Model::Fisc(_) => 0,
+            Model::Fbm(_) | Model::Fif(_) => return Ok(None),
+        };
+        let n = crate::synth::fisc::steps_for_size(size)? as i64;
+        let finest = n - below_pixel;
+        // a_s = 2^(n - s) in [a_lo, a_hi]
+        let s_lo = (n as f64 - a_hi.log2() - 1e-9).ceil().max(1.0) as i64;
+        let s_hi = ((n as f64 - a_lo.log2() + 1e-9).floor() as i64).min(finest);
+        if s_hi - s_lo < 2 {
+            return Ok(None);
+        }
+        let levels = s_lo as usize..(s_hi + 1) as usize;
+        let mut vals = match *self {
+            Model::WCascade(p) => crate::synth::wcascade::wcascade_log2_amplitudes(
+                &p,
+                size,
+                seed,
+                index,
+                levels.clone(),
+            )?,
+            Model::Fisc(p) => {
+                crate::synth::fisc::fisc_log2_amplitudes(p, size, seed, index, levels.clone())?
+            }
+            Model::Fbm(_) | Model::Fif(_) => return Ok(None),
+        };
+        // ascending scales: finest level first
+        vals.reverse();
+        let scales: Vec<f64> = levels.rev().map(|s| (size >> s) as f64).collect();
+        crate::spectra::PartitionSums::from_log2_values(
+            &scales,
+            &vals,
+            q,
+            format!("image {index} (own cascade)"),
+        )
+        .map(Some)
+    }
+
     /// The published parameter sets (SPEC §11): `paper-fbm` (H = 1/3),
     /// `paper-lognormal` (m = -0.38 ln2, σ² = 0.03 ln2), `paper-logpoisson`
     /// (γ = -ln2/9, β = (2/3)^(1/3), λ = 2 ln2), both isotropic on db8 (the
