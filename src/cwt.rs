@@ -202,15 +202,7 @@ pub fn default_margin(wavelet: Wavelet, a_max: f64) -> usize {
     (wavelet.support_radius() * a_max).ceil() as usize
 }
 
-/// Angular frequency of DFT bin `m` of `n` (radians per pixel), in [-π, π].
-fn freq(m: usize, n: usize) -> f64 {
-    let mm = if m <= n / 2 {
-        m as f64
-    } else {
-        m as f64 - n as f64
-    };
-    2.0 * std::f64::consts::PI * mm / n as f64
-}
+use crate::fourier::angular_freq as freq;
 
 /// The Fourier transform of one image in `[kx][ky]` layout, ready to be
 /// filtered at any scale. Only `kx <= nx/2` is stored: the image is real, so

@@ -16,6 +16,7 @@ pub mod cli;
 pub mod cwt;
 pub mod error;
 pub mod field;
+pub mod fourier;
 pub mod io;
 pub mod plot;
 pub mod skeleton;

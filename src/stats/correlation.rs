@@ -496,11 +496,7 @@ impl CorrelationPlan {
         let n_bins = (bpo * max_dx.log2() + 0.5).floor() as usize + 1;
         let signed = |i: usize, n: usize| -> Option<i64> {
             if cfg.periodic {
-                Some(if i <= n / 2 {
-                    i as i64
-                } else {
-                    i as i64 - n as i64
-                })
+                Some(crate::fourier::signed_bin(i, n))
             } else if i <= maxlag {
                 Some(i as i64)
             } else if i >= n - maxlag {

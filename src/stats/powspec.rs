@@ -16,6 +16,7 @@ use rustfft::FftPlanner;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::fourier::angular_freq;
 use crate::stats::fit::{LineFit, line_fit};
 
 /// The convention of β printed by this module.
@@ -177,15 +178,7 @@ pub struct SpectrumFit {
 /// |k| (rad/px) of the DFT mode `(kx, ky)` of an `ny x nx` image (FFT
 /// order: indices above n/2 are negative frequencies).
 fn mode_k(kx: usize, nx: usize, ky: usize, ny: usize) -> f64 {
-    let f = |m: usize, n: usize| {
-        let m = if m <= n / 2 {
-            m as f64
-        } else {
-            m as f64 - n as f64
-        };
-        2.0 * std::f64::consts::PI * m / n as f64
-    };
-    let (fx, fy) = (f(kx, nx), f(ky, ny));
+    let (fx, fy) = (angular_freq(kx, nx), angular_freq(ky, ny));
     (fx * fx + fy * fy).sqrt()
 }
 

@@ -337,13 +337,7 @@ impl FifKernel {
     fn build(alpha: f64, ny: usize, nx: usize, spectrum: bool) -> (Vec<f64>, (f64, f64, f64)) {
         let r = ny.min(nx) as f64 / 2.0;
         let p = -2.0 / alpha;
-        let mi = |i: usize, n: usize| -> f64 {
-            if i <= n / 2 {
-                i as f64
-            } else {
-                i as f64 - n as f64
-            }
-        };
+        let mi = |i: usize, n: usize| crate::fourier::signed_bin(i, n) as f64;
         let mut g = vec![0.0; ny * nx];
         // self term g(0) = G^(1/α) (module docs)
         let g0 = SELF_WEIGHT.powf(1.0 / alpha);

@@ -218,22 +218,14 @@ fn fractional_integration(mu: &Array2<f64>, order: f64, amp: f64) -> Array2<f64>
     let mut t = vec![Complex64::default(); ny * nh];
     transpose::transpose(&half, &mut t, nh, ny);
     fy.process(&mut t);
-    let two_pi = 2.0 * std::f64::consts::PI;
     let expo = -order / 2.0;
     // 1/(nx ny) undoes the unnormalised forward + inverse FFT pair
     let norm = amp / (nx * ny) as f64;
     let ky2: Vec<f64> = (0..ny)
-        .map(|ky| {
-            let m = if ky <= ny / 2 {
-                ky as f64
-            } else {
-                ky as f64 - ny as f64
-            };
-            (two_pi * m / ny as f64).powi(2)
-        })
+        .map(|ky| crate::fourier::angular_freq(ky, ny).powi(2))
         .collect();
     for kx in 0..nh {
-        let fx2 = (two_pi * kx as f64 / nx as f64).powi(2);
+        let fx2 = crate::fourier::angular_freq(kx, nx).powi(2);
         for (ky, &fy2) in ky2.iter().enumerate() {
             let k2 = fx2 + fy2;
             let g = if k2 > 0.0 { norm * k2.powf(expo) } else { 0.0 };

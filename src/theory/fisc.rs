@@ -103,17 +103,7 @@ impl FiscParams {
                 a * 4f64.powi(j as i32)
             })
             .collect();
-        let two_pi = 2.0 * std::f64::consts::PI;
-        let k1: Vec<f64> = (0..n)
-            .map(|m| {
-                let m = if m <= n / 2 {
-                    m as f64
-                } else {
-                    m as f64 - n as f64
-                };
-                two_pi * m / n as f64
-            })
-            .collect();
+        let k1: Vec<f64> = (0..n).map(|m| crate::fourier::angular_freq(m, n)).collect();
         let d: Vec<Vec<f64>> = (0..=steps)
             .map(|j| {
                 let s = (n >> j) as f64;
