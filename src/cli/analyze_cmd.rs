@@ -131,6 +131,9 @@ pub struct TheoryCurves {
     pub tau: Box<dyn Fn(f64) -> f64>,
     /// (h, D(h)) samples.
     pub dh: Vec<(f64, f64)>,
+    /// (q, tau) of the images' own cascades, where the generator has one
+    /// (`validate`; [`Model::sample_sums`]).
+    pub sample: Option<Vec<(f64, f64)>>,
 }
 
 /// The closed-form curves of a resolved model.
@@ -141,6 +144,7 @@ pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> TheoryCurves {
         name: name.to_string(),
         tau: Box::new(move |qq| m.tau(qq)),
         dh: t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(),
+        sample: None,
     }
 }
 
@@ -452,6 +456,14 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
             style,
             1,
         ));
+        if let Some(pts) = &t.sample {
+            tc.series.push(Series::new(
+                "images' own cascades",
+                pts.clone(),
+                Style::Markers,
+                2,
+            ));
+        }
     }
     save_chart(&tc, &dir.join("tau.png"))?;
     save_chart(&dc, &dir.join("dh.png"))

@@ -40,7 +40,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use serde_json::json;
 
-use super::analyze_cmd::{SpectraOpts, TheoryCurves};
+use super::analyze_cmd::{SpectraOpts, theory_curves};
 use super::common::{f, header, make_out_dir, parse_range, progress, write_csv, write_json};
 use super::model_args::{ModelName, ModelOpts};
 use super::tm_cmd::{TmOpts, plot_k, tau_from_tm};
@@ -519,16 +519,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     // the full-ensemble outputs of each method, as `analyze` and `tm` write them
     let wdir = dir.join("wtmm");
     make_out_dir(&wdir)?;
-    let curves = TheoryCurves {
-        name: name.clone(),
-        tau: Box::new(move |v| model.tau(v)),
-        dh: th
-            .dh_h
-            .iter()
-            .copied()
-            .zip(th.dh_d.iter().copied())
-            .collect(),
-    };
+    let curves = theory_curves(&model, &name, &q);
     super::analyze_cmd::write_outputs(
         &wdir,
         "compare",

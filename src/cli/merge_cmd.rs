@@ -8,13 +8,12 @@ use std::path::PathBuf;
 use clap::Args;
 use serde_json::json;
 
-use super::analyze_cmd::{TheoryCurves, write_outputs};
+use super::analyze_cmd::{theory_curves, write_outputs};
 use super::common::{make_out_dir, parse_range};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::spectra::{PartitionSums, Rule};
-use crate::theory::TheoryTable;
 
 #[derive(Args, Debug)]
 pub struct MergeArgs {
@@ -63,14 +62,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     let s = sums.spectra(rule, fit)?;
     let o = sums.spectra(other, fit)?;
     make_out_dir(&args.out.out)?;
-    let curves = theory.map(|m| {
-        let t = TheoryTable::new(&m, &s.q);
-        TheoryCurves {
-            name: m.name().to_string(),
-            tau: Box::new(move |q| m.tau(q)),
-            dh: t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(),
-        }
-    });
+    let curves = theory.map(|m| theory_curves(&m, m.name(), &s.q));
     let params = json!({"sums": args.sums, "fit_octaves": fit, "rule": rule, "theory": theory});
     write_outputs(
         &args.out.out,

@@ -8,7 +8,7 @@ use clap::Args;
 use serde::Serialize;
 use serde_json::json;
 
-use super::analyze_cmd::{SpectraOpts, TheoryCurves, write_outputs};
+use super::analyze_cmd::{SpectraOpts, theory_curves, write_outputs};
 use super::common::{make_out_dir, progress, write_json};
 use super::ensemble::analyse_generated;
 use super::model_args::{ModelName, ModelOpts};
@@ -305,16 +305,10 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
 
     make_out_dir(&args.out.out)?;
     let name = r.preset.unwrap_or(model.name()).to_string();
-    let theory_curves = TheoryCurves {
-        name: name.clone(),
-        tau: Box::new(move |qq| model.tau(qq)),
-        dh: th
-            .dh_h
-            .iter()
-            .cloned()
-            .zip(th.dh_d.iter().cloned())
-            .collect(),
-    };
+    let mut theory_curves = theory_curves(&model, &name, &q);
+    theory_curves.sample = sample
+        .as_ref()
+        .map(|ss| ss.q.iter().copied().zip(ss.tau.iter().copied()).collect());
     let params = json!({
         "model": model, "preset": r.preset, "count": args.count, "size": args.size, "seed": args.seed,
         "analysis": cfg, "q": q, "fit_octaves": fit, "rule": rule,
