@@ -243,20 +243,12 @@ fn climb_targets(
     taken: &[bool],
 ) -> Vec<(u32, f64)> {
     let none = (u32::MAX, f64::INFINITY);
-    let w = sm
+    let (w, h) = sm
         .chains
         .iter()
-        .flat_map(|c| c.pixels.iter().map(|p| p.0))
-        .max()
-        .unwrap_or(0) as usize
-        + 1;
-    let h = sm
-        .chains
-        .iter()
-        .flat_map(|c| c.pixels.iter().map(|p| p.1))
-        .max()
-        .unwrap_or(0) as usize
-        + 1;
+        .flat_map(|c| c.pixels.iter())
+        .fold((0u32, 0u32), |(x, y), p| (x.max(p.0), y.max(p.1)));
+    let (w, h) = (w as usize + 1, h as usize + 1);
     // chain pixel -> (chain, position along it)
     let mut label = vec![(u32::MAX, 0u32); w * h];
     for (ci, c) in sm.chains.iter().enumerate() {
