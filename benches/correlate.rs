@@ -63,7 +63,7 @@ fn main() {
                 || {
                     std::hint::black_box(cwt_correlation(&field, &plan, "b").unwrap());
                 },
-                || floor.run_serial(1),
+                floor.runner(),
             )
         });
         let (fy, fx) = plan.fft_shape();

@@ -95,6 +95,16 @@ impl FftFloor {
         )
     }
 
+    /// One transform per call on buffers allocated once (a fresh 16 MB
+    /// buffer per call would time the page faults too).
+    pub fn runner(&self) -> impl FnMut() + '_ {
+        let (mut a, mut b, mut s) = self.buffers();
+        move || {
+            self.one(&mut a, &mut b, &mut s);
+            std::hint::black_box(&b);
+        }
+    }
+
     /// `count` transforms on the calling thread.
     pub fn run_serial(&self, count: usize) {
         let (mut a, mut b, mut s) = self.buffers();

@@ -65,12 +65,15 @@
 //! **Cost.** Per image: the image FFT, one streamed inverse FFT per scale
 //! ([`crate::cwt::CwtPlan::scale_rows`]: `½ ln |T|²` is taken from each row
 //! block while it is in cache, with a vectorised `ln`), one real 2D FFT per
-//! scale and one real inverse per pair (column FFTs on gathered blocks, the
-//! cross-spectrum formed in the block), and binning by a precomputed table
-//! of runs of consecutive lags sharing a bin. On a rectangle whose every
-//! point is valid the pair counts are closed forms and the cross terms come
-//! from summed-area tables (no mask FFTs). 1024² torus: about 7.5 CWT
-//! scales, 4 bare 2D FFTs (`cargo bench --bench correlate`).
+//! scale and one real inverse per pair, both in f32 (column FFTs on
+//! gathered blocks, the cross-spectrum formed in the block; the padding
+//! rows of a linear correlation and the rows of unbinned lags cost no row
+//! FFT), and binning by a precomputed table of runs of consecutive lags
+//! sharing a bin, in f64. On a rectangle whose every point is valid the
+//! pair counts are closed forms and the cross terms come from summed-area
+//! tables (no mask FFTs). 1024², one thread: 6.3-6.6 CWT scales on the
+//! torus, 12.6-12.9 on a non-periodic interior (`cargo bench --bench
+//! correlate`).
 //!
 //! ```
 //! use ndarray::Array2;
@@ -93,7 +96,7 @@
 use std::sync::{Arc, Mutex};
 
 use ndarray::Array2;
-use num_complex::Complex64;
+use num_complex::{Complex32, Complex64};
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
@@ -209,7 +212,7 @@ impl CorrelationConfig {
 /// each other (77-97 ms).
 const COLS: usize = 32;
 
-/// A 2D real-to-complex FFT of size `fy x fx`: realfft along x (half
+/// A 2D real-to-complex FFT of size `fy x fx` in f32: realfft along x (half
 /// spectrum, `nh = fx/2 + 1` columns), complex FFT along y. The spectrum is
 /// kept transposed (`[kx][ky]`, `nh x fy`), as in [`crate::cwt`]; only
 /// element-wise products are taken of it, so the layout is free. The column
@@ -218,22 +221,39 @@ const COLS: usize = 32;
 /// neither a transposed copy nor the product array is stored. (Whole-array
 /// transposes were a fifth of the profile on 1024²; the strided gather and
 /// scatter that replace them cost nearly as much: 101 -> 97 ms.)
+///
+/// **Why f32.** The fields are centred magnitudes (|w| of order 1) and the
+/// binned sums add 10^4-10^6 lags: the FFT's relative error (about
+/// `6e-8 log2 N` of the fields' norms) moves `C` by about 1e-7, four
+/// orders below the statistical error of an ensemble, while an f32 FFT
+/// costs half as much time and memory traffic (SPEC §1 allows f32 where a
+/// test shows agreement; `tests/stats.rs` checks these sums against a
+/// brute-force f64 pair loop). The fields stay f64, converted row by row,
+/// and every bin is accumulated in f64.
+///
+/// Rows known to be zero on input (the zero padding of a linear
+/// correlation) cost no row FFT, and output rows whose lags are never
+/// binned are not inverted.
 struct RFft2 {
     fy: usize,
     fx: usize,
     nh: usize,
-    r2c: Arc<dyn RealToComplex<f64>>,
-    c2r: Arc<dyn ComplexToReal<f64>>,
-    fwd_y: Arc<dyn Fft<f64>>,
-    inv_y: Arc<dyn Fft<f64>>,
+    /// Rows `>= rows_in` of every input field are zero.
+    rows_in: usize,
+    /// Output rows needed: `y <= lag_rows` or `y >= fy - lag_rows`.
+    lag_rows: usize,
+    r2c: Arc<dyn RealToComplex<f32>>,
+    c2r: Arc<dyn ComplexToReal<f32>>,
+    fwd_y: Arc<dyn Fft<f32>>,
+    inv_y: Arc<dyn Fft<f32>>,
     scratch_len: usize,
 }
 
 impl RFft2 {
-    fn new(fy: usize, fx: usize) -> Self {
-        let mut rp = RealFftPlanner::<f64>::new();
+    fn new(fy: usize, fx: usize, rows_in: usize, lag_rows: usize) -> Self {
+        let mut rp = RealFftPlanner::<f32>::new();
         let (r2c, c2r) = (rp.plan_fft_forward(fx), rp.plan_fft_inverse(fx));
-        let mut p = FftPlanner::<f64>::new();
+        let mut p = FftPlanner::<f32>::new();
         let (fwd_y, inv_y) = (p.plan_fft_forward(fy), p.plan_fft_inverse(fy));
         let scratch_len = [
             r2c.get_scratch_len(),
@@ -248,6 +268,8 @@ impl RFft2 {
             fy,
             fx,
             nh: fx / 2 + 1,
+            rows_in: rows_in.min(fy),
+            lag_rows,
             r2c,
             c2r,
             fwd_y,
@@ -256,17 +278,29 @@ impl RFft2 {
         }
     }
 
-    /// `field` (`[y][x]`, destroyed) -> `out` (`[kx][ky]`, unnormalised);
-    /// `half` is `fy x nh` scratch.
+    /// `field` (`[y][x]`) -> `out` (`[kx][ky]`, unnormalised); `half` is
+    /// `fy x nh` scratch, `row` an `fx` row buffer.
     fn forward(
         &self,
-        field: &mut [f64],
-        half: &mut [Complex64],
-        out: &mut [Complex64],
-        scratch: &mut [Complex64],
+        field: &[f64],
+        half: &mut [Complex32],
+        out: &mut [Complex32],
+        row: &mut [f32],
+        scratch: &mut [Complex32],
     ) {
         let (fx, fy, nh) = (self.fx, self.fy, self.nh);
-        for (row, h) in field.chunks_exact_mut(fx).zip(half.chunks_exact_mut(nh)) {
+        for (y, (src, h)) in field
+            .chunks_exact(fx)
+            .zip(half.chunks_exact_mut(nh))
+            .enumerate()
+        {
+            if y >= self.rows_in {
+                h.fill(Complex32::default());
+                continue;
+            }
+            for (d, &v) in row.iter_mut().zip(src) {
+                *d = v as f32;
+            }
             self.r2c
                 .process_with_scratch(row, h, scratch)
                 .expect("realfft lengths come from the plan");
@@ -285,20 +319,21 @@ impl RFft2 {
 
     /// The circular cross-correlation `r(d) = Σ_x f(x) g(x + d)` of two
     /// real fields from their spectra `fa`, `fb` (`[kx][ky]`, from
-    /// [`RFft2::forward`]) into `out` (`[y][x]`): the inverse transform of
-    /// `conj(F) G / (fy fx)`, formed one block of columns at a time (`blk`
-    /// holds [`COLS`] columns) and scattered into `half` (`fy x nh`).
+    /// [`RFft2::forward`]) into `out` (`[y][x]`; rows of unbinned lags are
+    /// left as they were): the inverse transform of `conj(F) G / (fy fx)`,
+    /// formed one block of columns at a time (`blk` holds [`COLS`] columns)
+    /// and scattered into `half` (`fy x nh`).
     fn correlate(
         &self,
-        fa: &[Complex64],
-        fb: &[Complex64],
-        blk: &mut [Complex64],
-        half: &mut [Complex64],
-        out: &mut [f64],
-        scratch: &mut [Complex64],
+        fa: &[Complex32],
+        fb: &[Complex32],
+        blk: &mut [Complex32],
+        half: &mut [Complex32],
+        out: &mut [f32],
+        scratch: &mut [Complex32],
     ) {
         let (fx, fy, nh) = (self.fx, self.fy, self.nh);
-        let norm = 1.0 / (fy * fx) as f64;
+        let norm = 1.0 / (fy * fx) as f32;
         for k0 in (0..nh).step_by(COLS) {
             let c = COLS.min(nh - k0);
             let b = &mut blk[..c * fy];
@@ -313,14 +348,21 @@ impl RFft2 {
                 }
             }
         }
-        for (h, row) in half.chunks_exact_mut(nh).zip(out.chunks_exact_mut(fx)) {
+        for (y, (h, dst)) in half
+            .chunks_exact_mut(nh)
+            .zip(out.chunks_exact_mut(fx))
+            .enumerate()
+        {
+            if y > self.lag_rows && y + self.lag_rows < fy {
+                continue;
+            }
             // real by symmetry: drop the rounding noise where realfft wants 0
             h[0].im = 0.0;
             if fx.is_multiple_of(2) {
                 h[nh - 1].im = 0.0;
             }
             self.c2r
-                .process_with_scratch(h, row, scratch)
+                .process_with_scratch(h, dst, scratch)
                 .expect("lengths from the plan, zeroed imaginary parts");
         }
     }
@@ -356,19 +398,19 @@ fn runs_of(bin: &[u16]) -> Vec<Run> {
     runs
 }
 
-/// `Σ v` with four accumulators (vectorisable; the order differs from a
-/// sequential sum only by rounding).
-fn slice_sum(v: &[f64]) -> f64 {
+/// `Σ v` in f64 with four accumulators (vectorisable; the order differs
+/// from a sequential sum only by rounding).
+fn slice_sum<T: Copy + Into<f64>>(v: &[T]) -> f64 {
     let mut acc = [0.0f64; 4];
     let ch = v.chunks_exact(4);
     let rem = ch.remainder();
     for c in ch {
-        acc[0] += c[0];
-        acc[1] += c[1];
-        acc[2] += c[2];
-        acc[3] += c[3];
+        acc[0] += c[0].into();
+        acc[1] += c[1].into();
+        acc[2] += c[2].into();
+        acc[3] += c[3].into();
     }
-    (acc[0] + acc[1]) + (acc[2] + acc[3]) + rem.iter().sum::<f64>()
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + rem.iter().map(|&x| x.into()).sum::<f64>()
 }
 
 /// Calls `f(k, sy, sx, bin)` for every lag index `k` of the runs, with its
@@ -560,7 +602,7 @@ impl CorrelationPlan {
             y1,
             x0,
             x1,
-            fft: RFft2::new(fy, fx),
+            fft: RFft2::new(fy, fx, dy, maxlag),
             runs,
             l2,
             n_bins,
@@ -653,8 +695,15 @@ impl CorrelationPlan {
 
     /// Cross-correlations of the real fields `ws.fields[..n]` (each
     /// `fy x fx`, `[y][x]`, destroyed), binned: for each request
-    /// `(a, b, weighted)`, per bin, `Σ_d Σ_x f_a(x) f_b(x + d)` and, if
-    /// `weighted`, the same weighted by `log2 |d|` (else empty).
+    /// `(a, b, counts)`, per bin, `Σ_d Σ_x f_a(x) f_b(x + d)` and, if
+    /// `counts`, the same weighted by `log2 |d|` (else empty). `counts`
+    /// marks fields of integer weights (masks, WTMMM per pixel): their
+    /// correlation is an integer at every lag, so it is rounded there,
+    /// which makes the pair counts exact despite the f32 FFT: its error
+    /// per lag is about `ε log2(N) ||m1|| ||m2|| / √N <= ε log2(N) √N`
+    /// (0.003 on 1024², 0.012 on 4096²), far below ½, and f32 holds every
+    /// integer below 2^24 pairs per lag (images up to 4096²; beyond, the
+    /// counts carry a relative error of 1e-7).
     fn binned(
         &self,
         ws: &mut Workspace,
@@ -669,37 +718,45 @@ impl CorrelationPlan {
             half,
             x,
             r,
+            row,
             scratch,
             ..
         } = ws;
-        scratch.resize(self.fft.scratch_len, Complex64::default());
-        half.resize(ns, Complex64::default());
-        x.resize(COLS * fy, Complex64::default());
+        scratch.resize(self.fft.scratch_len, Complex32::default());
+        half.resize(ns, Complex32::default());
+        x.resize(COLS * fy, Complex32::default());
         r.resize(fy * fx, 0.0);
+        row.resize(fx, 0.0);
         while spec.len() < n {
             spec.push(Vec::new());
         }
         for (f, sp) in fields[..n].iter_mut().zip(spec.iter_mut()) {
-            sp.resize(ns, Complex64::default());
-            self.fft.forward(f, half, sp, scratch);
+            sp.resize(ns, Complex32::default());
+            self.fft.forward(f, half, sp, row, scratch);
         }
         let mut out = Vec::with_capacity(requests.len());
-        for &(a, b, weighted) in requests {
+        for &(a, b, counts) in requests {
             self.fft.correlate(&spec[a], &spec[b], x, half, r, scratch);
+            if counts {
+                for run in &self.runs {
+                    let (i, n) = (run.start as usize, run.len as usize);
+                    r[i..i + n].iter_mut().for_each(|v| *v = v.round());
+                }
+            }
             let mut s = vec![0.0; self.n_bins + 1];
             let mut sl = Vec::new();
             for run in &self.runs {
                 let (i, n) = (run.start as usize, run.len as usize);
                 s[run.bin as usize] += slice_sum(&r[i..i + n]);
             }
-            if weighted {
+            if counts {
                 sl = vec![0.0; self.n_bins + 1];
                 for run in &self.runs {
                     let (i, n) = (run.start as usize, run.len as usize);
                     sl[run.bin as usize] += r[i..i + n]
                         .iter()
                         .zip(&self.l2[i..i + n])
-                        .map(|(&v, &l)| v * l as f64)
+                        .map(|(&v, &l)| v as f64 * l as f64)
                         .sum::<f64>();
                 }
             }
@@ -839,11 +896,12 @@ enum Weights {
 #[derive(Default)]
 struct Workspace {
     fields: Vec<Vec<f64>>,
-    spec: Vec<Vec<Complex64>>,
-    half: Vec<Complex64>,
-    x: Vec<Complex64>,
-    r: Vec<f64>,
-    scratch: Vec<Complex64>,
+    spec: Vec<Vec<Complex32>>,
+    half: Vec<Complex32>,
+    x: Vec<Complex32>,
+    r: Vec<f32>,
+    row: Vec<f32>,
+    scratch: Vec<Complex32>,
     valid: Vec<bool>,
     /// Summed-area table of one field (the rectangle's cross terms).
     sat: Vec<f64>,
