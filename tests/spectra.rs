@@ -192,7 +192,7 @@ fn extreme_q_is_finite_or_flagged() {
 /// cascade level whose cell side is rho a, rho = 4/3, 8/3, 16/3 (the gauss
 /// wavelet at scale a peaks at wavelength 2 pi a / 0.81 ~ 7.8 a, inside the
 /// band of cells of side 5.3 a; mexican at ~3.9 a). Printed: tau minus the
-/// theory.
+/// theory, and the kernel's c2 (`-d Var(ln v) / d ln a`) of each set.
 #[test]
 #[ignore]
 fn experiment_wtmmm_amplitudes() {
@@ -285,6 +285,32 @@ fn experiment_wtmmm_amplitudes() {
     println!(
         "{preset}, {n} x 1024^2 (seed 1), {:?}, scales 3 6 12 24 px; tau - theory",
         cfg.wavelet
+    );
+    // the kernel's c2 on the same sets: -d Var(ln v) / d ln a
+    let c2 = |c: usize| {
+        let var: Vec<f64> = (0..js.len())
+            .map(|k| {
+                let v = &cols[c * js.len() + k];
+                let m = v.iter().sum::<f64>() / v.len() as f64;
+                let l2 = std::f64::consts::LN_2.powi(2);
+                v.iter().map(|l| (l - m) * (l - m)).sum::<f64>() / v.len() as f64 * l2
+            })
+            .collect();
+        -slope(&var) / std::f64::consts::LN_2
+    };
+    let c2_row = |t: usize| {
+        (0..nr)
+            .map(|r| format!("{:.4}", c2(1 + t * nr + r)))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    println!(
+        "c2 (theory {:.4}): WTMM M {:.4} | d at WTMMM {} | max 3x3 d {} | all cells {}",
+        model.cumulants().unwrap()[1],
+        c2(0),
+        c2_row(0),
+        c2_row(1),
+        c2_row(2)
     );
     println!("    q | WTMM M | d at WTMMM, rho 4/3 8/3 16/3 | max 3x3 d | all cells");
     for q in (-6..=6).map(f64::from) {
