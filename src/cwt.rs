@@ -6,9 +6,13 @@
 //! so one inverse complex FFT per scale returns `T1 + i T2` packed:
 //! `Ĝ = T̂1 + i T̂2 = a (i k_x - k_y) φ̂(a k) f̂(k)`.
 //!
-//! Layout: the full spectrum of the image is stored *transposed* (`[kx][ky]`),
-//! so a scale costs one batch of FFTs along `ky` (contiguous), one blocked
-//! transpose and one batch along `kx`. Rows `kx` where the Gaussian factor
+//! Layout: the image is real, so only the half spectrum `kx <= nx/2` is
+//! stored, transposed (`[kx][ky]`); the other half is read as conjugates. A
+//! scale costs one batch of FFTs along `ky` (contiguous), then the `kx`
+//! FFTs: [`CwtPlan::scale`] transposes the whole array between the two,
+//! [`CwtPlan::scale_rows`] (what the skeleton and the correlations use)
+//! gathers blocks of output rows and hands each block on while it is in
+//! cache, so the transform is never stored whole. Rows `kx` where the Gaussian factor
 //! `exp(-a² kx²/2)` has fallen below [`PRUNE`] hold only zeros and their FFT
 //! is skipped (their contribution is below 1e-24 of the largest filter value).
 //!
@@ -106,7 +110,7 @@ impl Wavelet {
     }
 
     /// Radius (in units of a) outside which the wavelet keeps the same L1
-    /// fraction as gauss keeps outside 3.2: 3.2 for gauss, about 4.3 for
+    /// fraction as gauss keeps outside 3.2: 3.2 for gauss, about 3.73 for
     /// mexican. The interior margin is `ceil(support_radius * a_max)`.
     pub fn support_radius(self) -> f64 {
         if self == Wavelet::Gauss {

@@ -27,7 +27,7 @@ pub struct SpectraOpts {
     #[arg(long, default_value = "-4:6:0.5", allow_hyphen_values = true)]
     pub q: String,
     /// Fit range in octaves above a_min, `LO:HI` (the first half octave is
-    /// left out: see the README's validation section).
+    /// left out: see the README, "How the defaults were chosen").
     #[arg(long, default_value = "0.5:4")]
     pub fit: String,
     /// Modulus along a maxima line: plain (M at a) or sup (max of M over scales <= a).

@@ -1,5 +1,6 @@
 //! `MODEL [model options]` and `--preset NAME` (SPEC §13), shared by
-//! `synth`, `theory`, `validate`, `compare` and `analyze --theory`.
+//! `synth`, `theory`, `validate`, `compare`, `pdf`, `kernel`, `correlate`,
+//! `analyze --theory` and `merge --theory`.
 
 use clap::{Args, ValueEnum};
 
