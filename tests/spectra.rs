@@ -298,12 +298,14 @@ fn experiment_wtmmm_amplitudes() {
             .collect();
         -slope(&var) / std::f64::consts::LN_2
     };
-    let c2_row = |t: usize| {
+    // one value per rho of the value set t (0: d at WTMMM, 1: max 3x3, 2: all)
+    let per_rho = |t: usize, f: &dyn Fn(usize) -> String| {
         (0..nr)
-            .map(|r| format!("{:.4}", c2(1 + t * nr + r)))
+            .map(|r| f(1 + t * nr + r))
             .collect::<Vec<_>>()
             .join(" ")
     };
+    let c2_row = |t: usize| per_rho(t, &|c| format!("{:.4}", c2(c)));
     println!(
         "c2 (theory {:.4}): WTMM M {:.4} | d at WTMMM {} | max 3x3 d {} | all cells {}",
         model.cumulants().unwrap()[1],
@@ -320,12 +322,7 @@ fn experiment_wtmmm_amplitudes() {
                 .collect();
             slope(&z) - model.tau(q)
         };
-        let row = |t: usize| {
-            (0..nr)
-                .map(|r| format!("{:+.3}", tau(1 + t * nr + r)))
-                .collect::<Vec<_>>()
-                .join(" ")
-        };
+        let row = |t: usize| per_rho(t, &|c| format!("{:+.3}", tau(c)));
         println!(
             "{q:5.0} | {:+.3} | {} | {} | {}",
             tau(0),
