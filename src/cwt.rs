@@ -13,8 +13,9 @@
 //! [`CwtPlan::scale_rows`] (what the skeleton and the correlations use)
 //! gathers blocks of output rows and hands each block on while it is in
 //! cache, so the transform is never stored whole. Rows `kx` where the
-//! Gaussian factor `exp(-a² kx²/2)` has fallen below [`PRUNE`] hold only zeros and their FFT
-//! is skipped (their contribution is below 1e-24 of the largest filter value).
+//! Gaussian factor `exp(-a² kx²/2)` has fallen below [`PRUNE`] hold only
+//! zeros and their FFT is skipped (their contribution is below 1e-24 of the
+//! largest filter value).
 //!
 //! ```
 //! use ndarray::Array2;
