@@ -472,3 +472,96 @@ fn climbing_keeps_the_cusp_exponent() {
     }
     assert!(n_near > 0, "no line converging to x0 survives 3 octaves");
 }
+
+/// On the whole torus (margin 0) the chains and lines wrap across the
+/// image's edges, as the periodic transform does: a disc centred on the
+/// corner of the image is one closed chain per scale, the same as the
+/// disc in the middle, not four arcs cut by the edges.
+#[test]
+fn disc_across_the_edges_of_the_torus_is_one_closed_chain() {
+    let n = 256;
+    let r = 40.0;
+    let disc = |cx: f64, cy: f64| {
+        Array2::from_shape_fn((n, n), |(y, x)| {
+            // torus distance to the centre
+            let d = |a: f64, c: f64| {
+                let d = (a - c).abs();
+                d.min(n as f64 - d)
+            };
+            let (dx, dy) = (d(x as f64, cx), d(y as f64, cy));
+            if dx * dx + dy * dy < r * r { 1.0 } else { 0.0 }
+        })
+    };
+    let c = AnalysisConfig {
+        a_min: 2.0,
+        ..cfg(Wavelet::Gauss, 3, 0)
+    };
+    let keep: Vec<usize> = (0..30).collect();
+    let corner =
+        skeleton_with(&Field::new(disc(0.0, 0.0)), &c, Parallelism::Serial, &keep).unwrap();
+    let middle = skeleton_with(
+        &Field::new(disc(128.0, 128.0)),
+        &c,
+        Parallelism::Serial,
+        &keep,
+    )
+    .unwrap();
+    for (sm, sm_mid) in corner.kept.iter().zip(&middle.kept) {
+        assert_eq!(
+            sm.chains.len(),
+            1,
+            "a={:.2}: {} chains",
+            sm.a,
+            sm.chains.len()
+        );
+        let ch = &sm.chains[0];
+        assert!(ch.closed, "a={:.2}: chain not closed", sm.a);
+        assert_eq!(
+            ch.pixels.len(),
+            sm_mid.chains[0].pixels.len(),
+            "a={:.2}",
+            sm.a
+        );
+        // every pixel of the chain is at the disc's edge, the short way round
+        for &(x, y) in &ch.pixels {
+            let d = |a: u32| (a as f64).min(n as f64 - a as f64);
+            let rad = d(x).hypot(d(y));
+            assert!(
+                (rad - r).abs() < 2.0 + 0.2 * sm.a,
+                "a={:.2}: pixel ({x},{y})",
+                sm.a
+            );
+        }
+        assert!(!sm.wtmmm.is_empty(), "a={:.2}: no WTMMM", sm.a);
+    }
+    // the lines born on the edge survive to the largest scale in both
+    let last = corner.per_scale.len() - 1;
+    assert!(corner.per_scale[last].lines > 0);
+    assert_eq!(corner.per_scale[last].lines, middle.per_scale[last].lines);
+}
+
+/// The linker on a torus measures distances the short way round: a line
+/// at the right edge links to a WTMMM at the left edge (and prefers it to
+/// a farther one inside the image); on the plane it cannot.
+#[test]
+fn lines_link_across_the_edge_of_a_torus() {
+    let s0 = point_scale(0, 3.0, &[(99, 1.0)]);
+    // x = 1 is 2 px away round the edge of a 100 px torus, x = 94 is 5 px away
+    let s1 = point_scale(1, 3.2, &[(1, 1.0), (94, 1.0)]);
+    let mut torus = Linker::new(LinkParams::default()).periodic(Some((100, 100)));
+    torus.push(&s0);
+    torus.push(&s1);
+    let lines = torus.finish();
+    assert_eq!(lines[0].points.len(), 2);
+    assert_eq!(lines[0].points[1].x, 1);
+    let mut plane = Linker::new(LinkParams::default());
+    plane.push(&s0);
+    plane.push(&s1);
+    assert_eq!(plane.finish()[0].points[1].x, 94);
+    // beyond the box both ways round: no link
+    let s1 = point_scale(1, 3.2, &[(40, 1.0)]);
+    let mut torus = Linker::new(LinkParams::default()).periodic(Some((100, 100)));
+    torus.push(&s0);
+    let e = torus.push(&s1);
+    assert_eq!(e.no_candidate, 1);
+}

@@ -70,7 +70,8 @@ pub struct LinePoint {
 }
 
 /// A maxima line born at `a_min`: `points[j]` is its WTMMM at scale `j`;
-/// it dies after `points.len()` scales.
+/// it dies after `points.len()` scales. On a torus ([`Linker::periodic`])
+/// consecutive points may lie on opposite edges of the image.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct MaximaLine {
     pub points: Vec<LinePoint>,
@@ -125,26 +126,67 @@ pub struct Endings {
     pub climb: usize,
 }
 
-/// The WTMMM of one scale bucketed on a square grid.
+/// `(x - last.x, y - last.y)`, the shortest way round on a torus of
+/// `period = (nx, ny)`.
+fn offset(last: &LinePoint, x: u32, y: u32, period: Option<(u32, u32)>) -> (i64, i64) {
+    let d = |a: u32, b: u32, n: Option<u32>| {
+        let d = a as i64 - b as i64;
+        match n {
+            Some(n) => {
+                let n = n as i64;
+                let d = d.rem_euclid(n);
+                if 2 * d > n { d - n } else { d }
+            }
+            None => d,
+        }
+    };
+    (
+        d(x, last.x, period.map(|p| p.0)),
+        d(y, last.y, period.map(|p| p.1)),
+    )
+}
+
+/// The WTMMM of one scale bucketed on a grid of cells at least `cell`
+/// pixels wide.
 #[derive(Default)]
 struct Buckets {
     cell: u32,
     gx: u32,
     gy: u32,
+    /// `(nx, ny)` on a torus: `gx x gy` cells tile it exactly (widths
+    /// `nx / gx >= cell`), neighbouring cells and distances wrap.
+    period: Option<(u32, u32)>,
     start: Vec<u32>,
     idx: Vec<u32>,
 }
 
 impl Buckets {
-    fn fill(&mut self, sm: &ScaleMaxima, cell: u32) {
+    fn cell_of(&self, x: u32, y: u32) -> (u32, u32) {
+        match self.period {
+            Some((nx, ny)) => (
+                (x as u64 * self.gx as u64 / nx as u64) as u32,
+                (y as u64 * self.gy as u64 / ny as u64) as u32,
+            ),
+            None => (x / self.cell, y / self.cell),
+        }
+    }
+
+    fn fill(&mut self, sm: &ScaleMaxima, cell: u32, period: Option<(u32, u32)>) {
         self.cell = cell;
-        self.gx = sm.wtmmm.iter().map(|w| w.x / cell).max().unwrap_or(0) + 1;
-        self.gy = sm.wtmmm.iter().map(|w| w.y / cell).max().unwrap_or(0) + 1;
+        self.period = period;
+        (self.gx, self.gy) = match period {
+            Some((nx, ny)) => ((nx / cell).max(1), (ny / cell).max(1)),
+            None => (
+                sm.wtmmm.iter().map(|w| w.x / cell).max().unwrap_or(0) + 1,
+                sm.wtmmm.iter().map(|w| w.y / cell).max().unwrap_or(0) + 1,
+            ),
+        };
         let ncell = (self.gx * self.gy) as usize;
         self.start.clear();
         self.start.resize(ncell + 1, 0);
         for w in &sm.wtmmm {
-            self.start[((w.y / cell) * self.gx + w.x / cell) as usize + 1] += 1;
+            let (cx, cy) = self.cell_of(w.x, w.y);
+            self.start[(cy * self.gx + cx) as usize + 1] += 1;
         }
         for i in 0..ncell {
             self.start[i + 1] += self.start[i];
@@ -153,10 +195,28 @@ impl Buckets {
         self.idx.resize(sm.wtmmm.len(), 0);
         let mut fill = self.start.clone();
         for (k, w) in sm.wtmmm.iter().enumerate() {
-            let c = ((w.y / cell) * self.gx + w.x / cell) as usize;
+            let (cx, cy) = self.cell_of(w.x, w.y);
+            let c = (cy * self.gx + cx) as usize;
             self.idx[fill[c] as usize] = k as u32;
             fill[c] += 1;
         }
+    }
+
+    /// The cells `c - 1 ..= c + 1` along an axis of `g` cells (wrapped on a
+    /// torus, each once).
+    fn around(c: u32, g: u32, wrap: bool) -> impl Iterator<Item = u32> {
+        let cells: [Option<u32>; 3] = if wrap {
+            let (prev, next) = ((c + g - 1) % g, (c + 1) % g);
+            [
+                Some(prev),
+                (c != prev).then_some(c),
+                (next != prev && next != c).then_some(next),
+            ]
+        } else {
+            // a line end may lie beyond the last occupied cell
+            [c.checked_sub(1), Some(c), Some(c + 1)].map(|c| c.filter(|&c| c < g))
+        };
+        cells.into_iter().flatten()
     }
 
     /// The nearest WTMMM to `last` within the box of half-width `ri` (and
@@ -173,15 +233,16 @@ impl Buckets {
         (lo, hi): (f64, f64),
         taken: Option<&[bool]>,
     ) -> ((u32, f64), bool) {
-        let (cx, cy) = (last.x / self.cell, last.y / self.cell);
+        let (cx, cy) = self.cell_of(last.x, last.y);
         let mut best = (u32::MAX, f64::INFINITY);
         let mut in_box = false;
-        for yy in cy.saturating_sub(1)..=(cy + 1).min(self.gy - 1) {
-            for xx in cx.saturating_sub(1)..=(cx + 1).min(self.gx - 1) {
+        let wrap = self.period.is_some();
+        for yy in Self::around(cy, self.gy, wrap) {
+            for xx in Self::around(cx, self.gx, wrap) {
                 let c = (yy * self.gx + xx) as usize;
                 for &k in &self.idx[self.start[c] as usize..self.start[c + 1] as usize] {
                     let w = &sm.wtmmm[k as usize];
-                    let (dx, dy) = (w.x as i64 - last.x as i64, w.y as i64 - last.y as i64);
+                    let (dx, dy) = offset(last, w.x, w.y, self.period);
                     if dx.abs() > ri || dy.abs() > ri {
                         continue;
                     }
@@ -233,6 +294,7 @@ fn resolve(want: &[(u32, f64)], ids: &[u32], n: usize, owner: &mut Vec<(u32, f64
 /// then the local maximum of the modulus reached by climbing along that
 /// chain; `(WTMMM index, d^2 from the line end)` when that maximum is a WTMMM
 /// not `taken` with its ratio in `(lo, hi)`, else `(u32::MAX, inf)`.
+#[allow(clippy::too_many_arguments)]
 fn climb_targets(
     sm: &ScaleMaxima,
     cm: &[Vec<f64>],
@@ -241,14 +303,20 @@ fn climb_targets(
     max_d2: f64,
     (lo, hi): (f64, f64),
     taken: &[bool],
+    period: Option<(u32, u32)>,
 ) -> Vec<(u32, f64)> {
     let none = (u32::MAX, f64::INFINITY);
-    let (w, h) = sm
-        .chains
-        .iter()
-        .flat_map(|c| c.pixels.iter())
-        .fold((0u32, 0u32), |(x, y), p| (x.max(p.0), y.max(p.1)));
-    let (w, h) = (w as usize + 1, h as usize + 1);
+    let (w, h) = match period {
+        Some((nx, ny)) => (nx as usize, ny as usize),
+        None => {
+            let (w, h) = sm
+                .chains
+                .iter()
+                .flat_map(|c| c.pixels.iter())
+                .fold((0u32, 0u32), |(x, y), p| (x.max(p.0), y.max(p.1)));
+            (w as usize + 1, h as usize + 1)
+        }
+    };
     // chain pixel -> (chain, position along it)
     let mut label = vec![(u32::MAX, 0u32); w * h];
     for (ci, c) in sm.chains.iter().enumerate() {
@@ -269,13 +337,17 @@ fn climb_targets(
         .map(|last| {
             let mut best = (i64::MAX, (u32::MAX, 0u32));
             for dy in -ri..=ri {
-                let y = last.y as i64 + dy;
-                if y < 0 || y >= h as i64 {
+                let mut y = last.y as i64 + dy;
+                if period.is_some() {
+                    y = y.rem_euclid(h as i64);
+                } else if y < 0 || y >= h as i64 {
                     continue;
                 }
                 for dx in -ri..=ri {
-                    let x = last.x as i64 + dx;
-                    if x < 0 || x >= w as i64 {
+                    let mut x = last.x as i64 + dx;
+                    if period.is_some() {
+                        x = x.rem_euclid(w as i64);
+                    } else if x < 0 || x >= w as i64 {
                         continue;
                     }
                     let d2 = dx * dx + dy * dy;
@@ -337,8 +409,8 @@ fn climb_targets(
                     if taken[m as usize] || !(ratio > lo && ratio < hi) {
                         return none;
                     }
-                    let (dx, dy) = (px as f64 - last.x as f64, py as f64 - last.y as f64);
-                    return (m, dx * dx + dy * dy);
+                    let (dx, dy) = offset(last, px, py, period);
+                    return (m, (dx * dx + dy * dy) as f64);
                 }
             }
             none
@@ -355,6 +427,8 @@ pub struct Linker {
     alive: Vec<u32>,
     last: Vec<LinePoint>,
     next_scale: usize,
+    /// `(nx, ny)` when the image is a torus ([`Linker::periodic`]).
+    period: Option<(u32, u32)>,
     // reused buffers
     buckets: Buckets,
     want: Vec<(u32, f64)>,
@@ -369,10 +443,19 @@ impl Linker {
             alive: Vec::new(),
             last: Vec::new(),
             next_scale: 0,
+            period: None,
             buckets: Buckets::default(),
             want: Vec::new(),
             owner: Vec::new(),
         }
+    }
+
+    /// Links across the edges of an `nx x ny` torus (distances the shortest
+    /// way round), as the chains of a whole periodic domain are traced
+    /// ([`super::Domain::is_torus`]); `None` keeps the plane.
+    pub fn periodic(mut self, period: Option<(usize, usize)>) -> Self {
+        self.period = period.map(|(nx, ny)| (nx as u32, ny as u32));
+        self
     }
 
     /// Lines alive after the last push.
@@ -414,7 +497,7 @@ impl Linker {
         let (lo, hi) = self.params.ratio;
         let ri = r.floor() as i64;
         let cell = (ri.max(1) + 1) as u32;
-        self.buckets.fill(sm, cell);
+        self.buckets.fill(sm, cell, self.period);
         // each alive line's nearest acceptable candidate
         self.want.clear();
         for last in &self.last {
@@ -471,7 +554,16 @@ impl Linker {
         if let Some(cm) = climb
             && !failed.is_empty()
         {
-            let want = climb_targets(sm, cm, &failed_last, ri, max_d2, (lo, hi), &taken);
+            let want = climb_targets(
+                sm,
+                cm,
+                &failed_last,
+                ri,
+                max_d2,
+                (lo, hi),
+                &taken,
+                self.period,
+            );
             let won = resolve(&want, &failed, sm.wtmmm.len(), &mut self.owner);
             for (i, &(k, _)) in want.iter().enumerate() {
                 if !won[i] {

@@ -21,7 +21,8 @@ pub struct Wtmmm {
     pub chain: u32,
 }
 
-/// An 8-connected maxima chain, as an ordered list of pixels `(x, y)`.
+/// An 8-connected maxima chain, as an ordered list of pixels `(x, y)`; on
+/// a torus ([`Domain::is_torus`]) it may cross the image's edges.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Chain {
     pub pixels: Vec<(u32, u32)>,
@@ -109,6 +110,16 @@ impl Domain {
     pub fn counts(&self, x: u32, y: u32) -> bool {
         let (x, y) = (x as usize, y as usize);
         x >= self.x0 && x < self.x1 && y >= self.y0 && y < self.y1
+    }
+
+    /// True if the counting rectangle is the whole image: the domain is the
+    /// torus of the periodic transform, so chains are traced and lines
+    /// linked across the image's edges (they would otherwise end there, a
+    /// loss that steepens τ(0); README, "Conventions").
+    pub fn is_torus(&self) -> bool {
+        (self.y0, self.y1, self.x0, self.x1) == (0, self.ny, 0, self.nx)
+            && self.ny >= 3
+            && self.nx >= 3
     }
 
     /// True if the interior has no pixel.
@@ -543,6 +554,24 @@ fn finish(
         before
     }));
     s.nmask.clear();
+    // on the torus the neighbours of edge pixels wrap around (the bit grid
+    // keeps its zero padding, so ranks count real pixels only)
+    let torus = domain.is_torus();
+    let bit_at = {
+        let bits = &s.bits;
+        move |x: usize, y: usize| -> bool {
+            let c = x + 1;
+            bits[(y + 1) * wpr + c / 64] >> (c % 64) & 1 == 1
+        }
+    };
+    // padded (column, row) of the neighbour `(dx, dy)` of the padded (c, r), wrapped
+    let wrap = move |c: u32, r: u32, (dx, dy): (i32, i32)| -> (u32, u32) {
+        let x = (c as i64 - 1 + dx as i64).rem_euclid(nx as i64) as u32;
+        let y = (r as i64 - 1 + dy as i64).rem_euclid(ny as i64) as u32;
+        (x + 1, y + 1)
+    };
+    let on_edge =
+        move |c: u32, r: u32| torus && (c == 1 || c == nx as u32 || r == 1 || r == ny as u32);
     {
         let bits = &s.bits;
         // bits c-1, c, c+1 of padded row r (bit 0 = c-1)
@@ -552,6 +581,12 @@ fn finish(
             ((w >> ((c - 1) % 64)) & 7) as u32
         };
         s.nmask.extend(s.pos.iter().map(|&(x, y)| {
+            if on_edge(x + 1, y + 1) {
+                return NEIGH.iter().enumerate().fold(0u8, |m, (i, &d)| {
+                    let (c, r) = wrap(x + 1, y + 1, d);
+                    m | (bit_at(c as usize - 1, r as usize - 1) as u8) << i
+                });
+            }
             let (c, r) = (x as usize + 1, y as usize + 1);
             let (u, m, d) = (row3(r - 1, c), row3(r, c), row3(r + 1, c));
             // bit i set: NEIGH[i] is a WTMM pixel
@@ -577,18 +612,23 @@ fn finish(
     let neighbours = move |p: Pix| {
         let [k, c, r] = p;
         let mask = nmask[k as usize];
-        let (up, dn) = (
-            if mask & UP != 0 {
-                rank(c - 1, r - 1)
-            } else {
-                0
-            },
-            if mask & DOWN != 0 {
-                rank(c - 1, r + 1)
-            } else {
-                0
-            },
-        );
+        let edge = on_edge(c, r);
+        let (up, dn) = if edge {
+            (0, 0)
+        } else {
+            (
+                if mask & UP != 0 {
+                    rank(c - 1, r - 1)
+                } else {
+                    0
+                },
+                if mask & DOWN != 0 {
+                    rank(c - 1, r + 1)
+                } else {
+                    0
+                },
+            )
+        };
         let bit = |i: u32| (mask as u32 >> i) & 1;
         let at = [
             k + 1,
@@ -606,6 +646,10 @@ fn finish(
                 let i = rest.trailing_zeros() as usize;
                 rest &= rest - 1;
                 let (dx, dy) = NEIGH[i];
+                if edge {
+                    let (cw, rw) = wrap(c, r, NEIGH[i]);
+                    return [rank(cw, rw), cw, rw];
+                }
                 [at[i], c.wrapping_add_signed(dx), r.wrapping_add_signed(dy)]
             })
         })
@@ -674,7 +718,11 @@ fn finish(
                 && !had_end
                 && n == comp_len
                 && n >= 3
-                && adjacent(unpad(s.order[0]), unpad(s.order[n - 1]));
+                && adjacent(
+                    unpad(s.order[0]),
+                    unpad(s.order[n - 1]),
+                    torus.then_some((nx as u32, ny as u32)),
+                );
             first_walk = false;
             let chain_id = out.n_chains as u32;
             out.n_chains += 1;
@@ -899,8 +947,12 @@ fn pad_wrapped<T: Copy>(src: &[T], dst: &mut [T]) {
     dst[n + 1] = src[0];
 }
 
-fn adjacent(p: (u32, u32), q: (u32, u32)) -> bool {
-    (p.0 as i64 - q.0 as i64).abs() <= 1 && (p.1 as i64 - q.1 as i64).abs() <= 1
+fn adjacent(p: (u32, u32), q: (u32, u32), period: Option<(u32, u32)>) -> bool {
+    let near = |a: u32, b: u32, n: Option<u32>| {
+        let d = (a as i64 - b as i64).abs();
+        d <= 1 || n.is_some_and(|n| d == n as i64 - 1)
+    };
+    near(p.0, q.0, period.map(|p| p.0)) && near(p.1, q.1, period.map(|p| p.1))
 }
 
 /// Calls `f(i)` for each local maximum of `v` along a chain: one call per

@@ -246,7 +246,7 @@ pub fn skeleton_with(
         ..Default::default()
     };
     let mut asm = Assembler {
-        linker: Linker::new(cfg.link),
+        linker: Linker::new(cfg.link).periodic(domain.is_torus().then_some((nx, ny))),
         sk,
         keep,
     };

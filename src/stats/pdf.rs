@@ -148,7 +148,7 @@ pub fn image_wtmmm(
         all: Vec::with_capacity(scales.len()),
         lines: vec![Vec::new(); scales.len()],
     };
-    let mut linker = Linker::new(cfg.link);
+    let mut linker = Linker::new(cfg.link).periodic(domain.is_torus().then_some((nx, ny)));
     for (sm, chain_m) in &found {
         if link {
             linker.push_with(sm, chain_m.as_deref());
