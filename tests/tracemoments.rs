@@ -592,6 +592,21 @@ fn tiles_reproduce_the_whole_field() {
     assert!(r.alpha.is_finite() && r.alpha_stderr.is_finite() && r.alpha_stderr > 0.0);
 }
 
+/// The tiles of one image share its spectrum, so beta keeps its fit error
+/// (no scatter), and H = (beta - 1 + K(2)) / 2 carries half of it on top of
+/// the tiles' K(2) scatter.
+#[test]
+fn one_image_h_error_includes_the_spectrum_fit() {
+    let f = Field::new(fif(&FifParams::TOPO, 256, 256, 3, 1).unwrap());
+    let cfg = TraceMomentConfig::default();
+    let (whole, tiles) = TraceMomentAccumulator::field_tiles(&cfg, &f, 64).unwrap();
+    let r = finish_jackknife(&whole, &tiles, &TraceMomentFitConfig::default(), "tiles").unwrap();
+    let b = r.beta_stderr.expect("beta of a 256^2 field");
+    let h = r.h_stderr.expect("H of a 256^2 field");
+    // the fit error of beta (a 1e-15 rounding scatter was reported before)
+    assert!(b > 1e-4 && h >= b / 2.0, "beta +- {b}, H +- {h}");
+}
+
 /// The GLS universal fit (default) against the OLS one on independent
 /// ensembles of log-normal cascades (exact K: α = 2, C1 = 0.1): both
 /// unbiased within 4σ/√m + b (b = 0.08 as for one ensemble above), the GLS

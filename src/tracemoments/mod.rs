@@ -1196,9 +1196,19 @@ pub fn finish_jackknife(
         let s = jk(&|r| f(r).unwrap_or(f64::NAN));
         s.is_finite().then_some(s)
     };
-    // tiles of one image share its spectrum: a zero scatter, keep the fit error
-    res.beta_stderr = opt(&|r| r.beta).filter(|s| *s > 0.0).or(res.beta_stderr);
-    res.h_stderr = opt(&|r| r.h);
+    // the tiles of one image share its spectrum: beta has no scatter over
+    // them (only rounding), so it keeps its fit error, and H = (beta - 1 +
+    // K(2)) / 2 gets half of it on top of its scatter, which is K(2)'s alone
+    let shared = parts.iter().all(|p| p.spectrum == parts[0].spectrum);
+    if shared {
+        res.h_stderr = match res.beta_stderr {
+            Some(b) => opt(&|r| r.h).map(|h| h.hypot(b / 2.0)),
+            None => opt(&|r| r.h),
+        };
+    } else {
+        res.beta_stderr = opt(&|r| r.beta);
+        res.h_stderr = opt(&|r| r.h);
+    }
     res.h_sf_stderr = opt(&|r| r.h_sf);
     res.stderr_method = format!("jackknife over {n} {what} (leave one out)");
     res.jackknife_groups = n;
