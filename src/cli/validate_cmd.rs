@@ -278,6 +278,10 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             ),
         ),
     ];
+    // fBm: the published range is the core range, judged once
+    if (pq_lo, pq_hi) == (core_lo, core_hi) {
+        crit.remove(1);
+    }
     // τ(2) + 4 is the WTMM's own estimate of beta
     let i2 = s.q_index(2.0).filter(|&i| s.q[i] == 2.0);
     if let Some(i2) = i2 {
