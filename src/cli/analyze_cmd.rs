@@ -12,7 +12,6 @@ use super::model_args::{ModelName, ModelOpts};
 use super::{CwtOpts, OutDir, Outcome};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
-use crate::io::read_field;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::skeleton::{AnalysisConfig, LinkParams, SearchRadius};
 use crate::spectra::{PartitionSums, Rule, Spectra, image_sums};
@@ -27,14 +26,15 @@ pub struct SpectraOpts {
     #[arg(long, default_value = "-4:6:0.5", allow_hyphen_values = true)]
     pub q: String,
     /// Fit range in octaves above a_min, `LO:HI` (the first half octave is
-    /// left out: see the README, "How the defaults were chosen").
-    #[arg(long, default_value = "0.5:4")]
-    pub fit: String,
+    /// left out: see the README, "How the defaults were chosen"). Default
+    /// 0.5:4, or 0.5:OCTAVES with fewer than 4 octaves.
+    #[arg(long)]
+    pub fit: Option<String>,
     /// Modulus along a maxima line: plain (M at a) or sup (max of M over scales <= a).
     #[arg(long, value_enum, default_value_t = Rule::Plain)]
     pub rule: Rule,
     /// Same as `--rule plain` (kept for scripts).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "rule")]
     pub plain: bool,
     /// Linking: modulus-ratio window `LO:HI` between successive scales.
     #[arg(long, default_value = "0.9:1.11")]
@@ -91,7 +91,10 @@ impl SpectraOpts {
     }
 
     pub fn fit(&self) -> Result<(f64, f64)> {
-        let r = parse_range("fit", &self.fit)?;
+        let r = match &self.fit {
+            Some(f) => parse_range("fit", f)?,
+            None => (0.5, (self.cwt.octaves as f64).min(4.0)),
+        };
         if r.0 < 0.0 || r.1 > self.cwt.octaves as f64 + 1e-9 {
             return Err(Error::param(
                 "fit",
@@ -152,15 +155,15 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     let cfg = args.opts.analysis()?;
     let q = args.opts.q()?;
     let fit = args.opts.fit()?;
-    let theory = if args.theory.is_some() || args.model_opts.preset.is_some() {
+    let (theory, theory_model) = if args.theory.is_some() || args.model_opts.preset.is_some() {
         let r = args.model_opts.resolve(args.theory)?;
-        Some(theory_curves(
-            &r.model,
-            r.preset.unwrap_or(r.model.name()),
-            &q,
-        ))
+        let name = r.preset.unwrap_or(r.model.name());
+        (
+            Some(theory_curves(&r.model, name, &q)),
+            Some(json!({"name": name, "model": r.model})),
+        )
     } else {
-        None
+        (None, None)
     };
     let sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
     let spectra = sums.spectra(args.opts.rule(), fit)?;
@@ -172,7 +175,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     make_out_dir(&args.out.out)?;
     let params = json!({
         "images": args.images, "analysis": cfg, "q": q, "fit_octaves": fit,
-        "rule": args.opts.rule(), "theory": theory.as_ref().map(|t| t.name.clone()),
+        "rule": args.opts.rule(), "theory": theory_model,
     });
     write_outputs(
         &args.out.out,
@@ -204,7 +207,7 @@ pub fn analyze_paths(
     let parts: Vec<PartitionSums> = paths
         .par_iter()
         .map(|p| {
-            let field = read_field(p)?;
+            let field = super::common::read_image(p)?;
             let s = image_sums(&field, cfg, q, p.display().to_string())
                 .map_err(|e| Error::format(p, e.to_string()))?;
             if s.images[0].lines[0] == 0 {

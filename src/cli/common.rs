@@ -57,7 +57,21 @@ pub fn read_all(paths: &[PathBuf]) -> Result<Vec<Field>> {
     if paths.is_empty() {
         return Err(Error::param("IMAGE", "no image given"));
     }
-    paths.iter().map(|p| read_field(p)).collect()
+    paths.iter().map(|p| read_image(p)).collect()
+}
+
+/// An image for analysis: [`read_field`], and an error naming the file when
+/// every pixel is missing (the library accepts such a field; no command
+/// can use it).
+pub fn read_image(path: &Path) -> Result<Field> {
+    let field = read_field(path)?;
+    if field.valid_count() == 0 {
+        return Err(Error::format(
+            path,
+            "every pixel is missing (NaN or nodata)",
+        ));
+    }
+    Ok(field)
 }
 
 /// Creates the output directory (and parents).

@@ -227,11 +227,27 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         sk_plans: Default::default(),
     };
     let t0 = std::time::Instant::now();
+    // lags are binned on one grid and centred per ensemble: one image size
+    let first_shape = std::sync::Mutex::new(None::<((usize, usize), String)>);
     let sums = input.fold(
         quiet,
         "correlate",
         Sums::default,
         |acc, field, label, par| {
+            {
+                let mut first = first_shape.lock().expect("no panic while held");
+                let dim = field.dim();
+                match &*first {
+                    None => *first = Some((dim, label.to_string())),
+                    Some((d, l)) if *d != dim => {
+                        return Err(Error::Input(format!(
+                            "image {}x{}, but {l} is {}x{}: a correlation ensemble needs one image size",
+                            dim.0, dim.1, d.0, d.1
+                        )));
+                    }
+                    _ => {}
+                }
+            }
             let s = runner.image(field, label, par, do_cwt)?;
             merge_c(&mut acc.cwt, s.cwt)?;
             merge_c(&mut acc.wtmmm, s.wtmmm)

@@ -9,7 +9,7 @@ use super::common::{header, make_out_dir, parse_list, progress, write_json};
 use super::{OutDir, Outcome};
 use crate::cwt::{CwtPlan, Wavelet, modulus_argument};
 use crate::error::{Error, Result};
-use crate::io::{read_field, write_npy};
+use crate::io::write_npy;
 use crate::plot::save_grey;
 
 #[derive(Args, Debug)]
@@ -26,7 +26,7 @@ pub struct CwtArgs {
 }
 
 pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
-    let field = read_field(&args.image)?;
+    let field = super::common::read_image(&args.image)?;
     let scales = parse_list("scales", &args.scales)?;
     let (ny, nx) = field.dim();
     let plan = CwtPlan::new(ny, nx, args.wavelet, &scales)?;
@@ -39,6 +39,10 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
         )));
     }
     let img = field.filled()?;
+    // the transform is not trusted where the wavelet's support (radius R a)
+    // reaches a missing pixel: NaN there, as the analysis drops such maxima
+    let mask_distance = field.mask.as_ref().map(crate::skeleton::distance_to_mask);
+    let support = args.wavelet.support_radius();
     make_out_dir(&args.out.out)?;
     let pb = progress(scales.len() as u64, "cwt", quiet);
     let mut files = Vec::new();
@@ -47,7 +51,15 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
         if err.is_some() {
             return;
         }
-        let (m, arg) = modulus_argument(t);
+        let (mut m, mut arg) = modulus_argument(t);
+        if let Some(d) = &mask_distance {
+            let r = (support * a) as f32;
+            for ((mv, av), &dv) in m.iter_mut().zip(arg.iter_mut()).zip(d.iter()) {
+                if dv <= r {
+                    (*mv, *av) = (f64::NAN, f64::NAN);
+                }
+            }
+        }
         let stem = format!("{j:02}");
         let r = (|| {
             write_npy(&args.out.out.join(format!("modulus_{stem}.npy")), &m)?;
@@ -69,6 +81,15 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
         json!({"image": args.image, "wavelet": args.wavelet, "scales": scales}),
     );
     body["margin"] = json!(margin);
+    body["missing_pixels"] = json!(
+        field
+            .mask
+            .as_ref()
+            .map_or(0, |m| m.iter().filter(|&&v| v).count())
+    );
+    body["missing_rule"] = json!(format!(
+        "modulus and argument are NaN where the wavelet support (radius {support:.2} a) reaches a missing pixel"
+    ));
     body["shape"] = json!([ny, nx]);
     body["convention"] = json!(
         "T = a grad(phi_a * f), L1 normalisation (SPEC §1); argument = atan2(T2, T1), y down"

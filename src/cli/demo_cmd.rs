@@ -22,7 +22,7 @@ pub struct DemoArgs {
     /// Number of images.
     #[arg(long, default_value_t = 8)]
     pub count: usize,
-    /// Image side (a power of two).
+    /// Image side (a power of two; more than 288 px for the default 5 octaves).
     #[arg(long, default_value_t = 1024)]
     pub size: usize,
     #[arg(long, default_value_t = 2026)]

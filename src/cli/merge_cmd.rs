@@ -37,7 +37,7 @@ pub struct MergeArgs {
 
 pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     let fit = parse_range("fit", &args.fit)?;
-    let mut parts = Vec::new();
+    let mut sums: Option<PartitionSums> = None;
     for p in &args.sums {
         let text = std::fs::read_to_string(p).map_err(|source| Error::Read {
             path: p.clone(),
@@ -45,9 +45,32 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         })?;
         let s: PartitionSums = serde_json::from_str(&text)
             .map_err(|e| Error::format(p, format!("not a partition-sums file: {e}")))?;
-        parts.push(s);
+        match &mut sums {
+            None => sums = Some(s),
+            Some(acc) => acc.merge(&s).map_err(|e| {
+                Error::format(p, format!("does not match {}: {e}", args.sums[0].display()))
+            })?,
+        }
     }
-    let sums = PartitionSums::merge_all(parts)?.expect("at least one file");
+    let sums = sums.expect("at least one file");
+    // the grid's octaves (its last scale is one voice short of them), as
+    // `analyze --fit` is checked
+    let n = sums.scales.len();
+    let step = if n > 1 {
+        (sums.scales[1] / sums.scales[0]).log2()
+    } else {
+        0.0
+    };
+    let span = (sums.scales[n - 1] / sums.scales[0]).log2() + step;
+    if fit.0 < 0.0 || fit.1 > span + 1e-6 {
+        return Err(Error::param(
+            "fit",
+            format!(
+                "{}:{} must lie within 0:{span:.2} octaves, the scales of these sums",
+                fit.0, fit.1
+            ),
+        ));
+    }
     let theory = if args.theory.is_some() || args.model_opts.preset.is_some() {
         Some(args.model_opts.resolve(args.theory)?.model)
     } else {

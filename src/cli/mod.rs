@@ -21,12 +21,12 @@ mod theory_cmd;
 mod tm_cmd;
 mod validate_cmd;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::{Args, Parser, Subcommand};
 
 use crate::cwt::{ScaleGrid, Wavelet};
-use crate::error::Result;
+use crate::error::{Error, Result};
 
 /// Multifractal analysis of images: 2D WTMM, trace moments, generators.
 #[derive(Parser, Debug)]
@@ -109,7 +109,95 @@ pub enum Outcome {
     CheckFailed,
 }
 
+/// The files a command reads (images, or `merge`'s sums) and the directory
+/// it writes, checked before any computing starts.
+fn io_of(cmd: &Command) -> (Vec<&Path>, bool, Option<&Path>) {
+    fn v(p: &[PathBuf]) -> Vec<&Path> {
+        p.iter().map(|p| p.as_path()).collect()
+    }
+    match cmd {
+        Command::Synth(a) => (vec![], true, Some(&a.common.out.out)),
+        Command::Cwt(a) => (vec![&a.image], true, Some(&a.out.out)),
+        Command::Spectrum(a) => (v(&a.images), true, Some(&a.out.out)),
+        Command::Analyze(a) => (v(&a.images), true, Some(&a.out.out)),
+        Command::Skeleton(a) => (vec![&a.image], true, Some(&a.out.out)),
+        Command::Demo(a) => (vec![], true, Some(&a.out)),
+        Command::Merge(a) => (v(&a.sums), false, Some(&a.out.out)),
+        Command::Theory(a) => (vec![], true, a.out.as_deref()),
+        Command::Validate(a) => (vec![], true, Some(&a.out.out)),
+        Command::Tm(a) => (v(&a.images), true, Some(&a.out.out)),
+        Command::Compare(a) => (vec![], true, Some(&a.out.out)),
+        Command::Pdf(a) => (v(&a.input.images), true, Some(&a.out.out)),
+        Command::Kernel(a) => (v(&a.input.images), true, Some(&a.out.out)),
+        Command::Correlate(a) => (v(&a.input.images), true, Some(&a.out.out)),
+    }
+}
+
+/// Checks every input before computing (a missing file at the end of a
+/// 32-image ensemble used to surface after the whole analysis): it must be a
+/// readable regular file, and an image must have a known extension.
+fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
+    for &p in paths {
+        let meta = std::fs::metadata(p).map_err(|source| Error::Read {
+            path: p.into(),
+            source,
+        })?;
+        if !meta.is_file() {
+            return Err(Error::format(p, "not a regular file"));
+        }
+        std::fs::File::open(p).map_err(|source| Error::Read {
+            path: p.into(),
+            source,
+        })?;
+        if images && crate::io::ImageFormat::from_path(p).is_none() {
+            // read_field names the supported formats
+            crate::io::read_field(p)?;
+        }
+    }
+    Ok(())
+}
+
+/// Creates the output directory before computing, so that an unwritable
+/// one fails at once; returns the directories created (deepest first), to
+/// be removed again, if still empty, when the command fails.
+fn prepare_out(dir: &Path) -> Result<Vec<PathBuf>> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(Error::Input(format!(
+            "{}: exists and is not a directory",
+            dir.display()
+        )));
+    }
+    let created: Vec<PathBuf> = dir
+        .ancestors()
+        .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
+        .map(Path::to_path_buf)
+        .collect();
+    common::make_out_dir(dir)?;
+    // writable? (an existing directory may not be)
+    let probe = dir.join(format!(".wtmm-probe-{}", std::process::id()));
+    std::fs::write(&probe, b"").map_err(|source| Error::Write {
+        path: dir.into(),
+        source,
+    })?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(created)
+}
+
 fn dispatch(cli: Cli) -> Result<Outcome> {
+    let (inputs, images, out) = io_of(&cli.command);
+    check_inputs(&inputs, images)?;
+    let created = out.map(prepare_out).transpose()?.unwrap_or_default();
+    let r = run_command(cli);
+    if r.is_err() {
+        // nothing half-made: directories this run created go if still empty
+        for d in &created {
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+    r
+}
+
+fn run_command(cli: Cli) -> Result<Outcome> {
     let quiet = cli.quiet;
     match cli.command {
         Command::Synth(a) => synth_cmd::run(a, quiet),

@@ -27,7 +27,6 @@ use super::{OutDir, Outcome};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::field::Field;
-use crate::io::read_field;
 use crate::plot::{Chart, Raster, Series, Style, ramp, save_chart};
 use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::fit::line_fit;
@@ -186,7 +185,7 @@ impl Input {
             Ok((Field::new(img), format!("{} image {i}", self.name)))
         } else {
             let p = &self.images[i];
-            Ok((read_field(p)?, p.display().to_string()))
+            Ok((super::common::read_image(p)?, p.display().to_string()))
         }
     }
 

@@ -12,7 +12,6 @@ use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
 use super::{OutDir, Outcome};
 use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
-use crate::io::read_field;
 use crate::plot::Raster;
 use crate::skeleton::{Parallelism, skeleton_with};
 
@@ -31,7 +30,7 @@ pub struct SkeletonArgs {
 
 pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     let cfg = args.opts.analysis()?;
-    let field = read_field(&args.image)?;
+    let field = super::common::read_image(&args.image)?;
     let grid = cfg.scale_list();
     let want: Vec<f64> = match &args.scales {
         Some(s) => parse_list("scales", s)?,

@@ -42,7 +42,25 @@ pub struct SpectrumArgs {
 }
 
 pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
+    if args.bins_per_octave == 0 {
+        return Err(crate::Error::param("bins-per-octave", "must be >= 1"));
+    }
+    let k_range = args
+        .k_range
+        .as_deref()
+        .map(|s| parse_range("k-range", s))
+        .transpose()?;
     let fields = read_all(&args.images)?;
+    for (fl, p) in fields.iter().zip(&args.images) {
+        if let Some((lo, hi)) = fl.range()
+            && lo == hi
+        {
+            return Err(crate::Error::format(
+                p,
+                "constant image: its spectrum is zero",
+            ));
+        }
+    }
     let cfg = PowerSpectrumConfig {
         window: args.window,
         detrend: args.detrend,
@@ -53,9 +71,18 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         .map(|f| f.dim().0.min(f.dim().1))
         .min()
         .unwrap_or(0);
-    let (k_lo, k_hi) = match &args.k_range {
-        Some(s) => parse_range("k-range", s)?,
-        None => default_k_range(nmin),
+    let (k_lo, k_hi) = match k_range {
+        Some(r) => r,
+        None => {
+            let r = default_k_range(nmin);
+            if r.0 >= r.1 {
+                return Err(crate::Error::Input(format!(
+                    "images of {nmin} px are too small for the default fit range \
+                     (8 cycles per image up to pi/4 rad/px needs more than 64 px); give --k-range"
+                )));
+            }
+            r
+        }
     };
     let spectra: Vec<PowerSpectrum> = fields
         .par_iter()

@@ -14,7 +14,6 @@ use super::common::{
 };
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
-use crate::io::read_field;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
@@ -189,7 +188,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let (acc, res) = if args.images.len() == 1 {
         // one image: block jackknife over tiles of the largest fitted box
         let path = &args.images[0];
-        let field = read_field(path)?;
+        let field = super::common::read_image(path)?;
         let (ny, nx) = field.dim();
         let kmax = (ny.min(nx) as f64).log2().floor();
         let lo = fc
@@ -229,7 +228,7 @@ pub fn accumulate_paths(
     let parts: Vec<TraceMomentAccumulator> = paths
         .par_iter()
         .map(|p| {
-            let field = read_field(p)?;
+            let field = super::common::read_image(p)?;
             let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
             acc.add_field(&field)
                 .map_err(|e| Error::format(p, e.to_string()))?;

@@ -138,6 +138,20 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     if args.count == 0 {
         return Err(Error::param("count", "must be >= 1"));
     }
+    let margin = cfg.margin_px();
+    if 2 * margin >= args.size {
+        let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
+        return Err(Error::param(
+            "size",
+            format!(
+                "{} px is too small for the analysis: the interior margin is {margin} px on each \
+                 side at the largest scale {a_max:.1} px, so the images need more than {} px \
+                 (or fewer --octaves where the command has them)",
+                args.size,
+                2 * margin
+            ),
+        ));
+    }
     if !matches!(r.model, Model::Fbm(_)) && !args.size.is_power_of_two() {
         return Err(Error::param(
             "size",

@@ -121,7 +121,10 @@ impl AnalysisConfig {
         }
         match self.link.radius {
             SearchRadius::Reference { cap } if !(cap >= 1.0) => {
-                return Err(Error::param("radius", "cap must be >= 1 px"));
+                return Err(Error::param(
+                    "radius-cap",
+                    "the search-box cap must be >= 1 px",
+                ));
             }
             SearchRadius::Proportional { factor, min } if !(factor > 0.0 && min >= 1.0) => {
                 return Err(Error::param("radius", "need factor > 0 and min >= 1 px"));

@@ -144,10 +144,15 @@ impl FifParams {
                 ),
             ));
         }
-        if !self.hurst.is_finite() {
+        // H = 0 is the flux itself; beyond 3 the Hölder exponents exceed the
+        // vanishing moments of every analysing wavelet here (mexican: 3)
+        if !(self.hurst >= 0.0 && self.hurst < 3.0) {
             return Err(Error::param(
                 "hurst",
-                format!("H must be finite, got {}", self.hurst),
+                format!(
+                    "the order H of the fractional integration must be in [0, 3), got {}",
+                    self.hurst
+                ),
             ));
         }
         Ok(())
@@ -462,6 +467,8 @@ mod tests {
             (FifParams { alpha: 0.0, ..ok }, "alpha"),
             (FifParams { c1: -0.1, ..ok }, "c1"),
             (FifParams { c1: 2.0, ..ok }, "c1"),
+            (FifParams { hurst: -0.5, ..ok }, "hurst"),
+            (FifParams { hurst: 5.0, ..ok }, "hurst"),
             (
                 FifParams {
                     hurst: f64::NAN,

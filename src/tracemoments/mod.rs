@@ -372,9 +372,14 @@ impl TraceMomentAccumulator {
             FluxDiff::None => 0.0,
             FluxDiff::Order(d) => d,
             FluxDiff::Auto => flux::hurst_sf(field).ok_or_else(|| {
-                Error::Input(
-                    "cannot estimate H = xi(1) for --diff-order auto (constant field?)".into(),
-                )
+                Error::Input(match field.range() {
+                    Some((lo, hi)) if lo == hi => "constant image: no fluctuations".into(),
+                    _ => format!(
+                        "cannot estimate H = xi(1) for --diff-order auto from the structure \
+                         function of this {ny}x{nx} image (too few lags, or none with a \
+                         nonzero increment); give --diff-order"
+                    ),
+                })
             })?,
         };
         // one Fourier filter |k|^(diff - frac_int) (mirror-extended)
