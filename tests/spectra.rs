@@ -129,6 +129,14 @@ fn fbm_ensembles_match_theory() {
                 "H={h}, q={qi}: h = {}",
                 s.h[i]
             );
+            // canonical D(q) = 2 for fBm (II eq 66): D - 2 = q (h - H) - (tau -
+            // theory), so the two bounds above bound it
+            let tol_d = qi.abs() * (0.05 + 3.0 * s.h_stderr[i]) + tol;
+            assert!(
+                (s.d[i] - 2.0).abs() < tol_d,
+                "H={h}, q={qi}: D = {} (tol {tol_d:.3})",
+                s.d[i]
+            );
         }
         let spread = s.h.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
             - s.h.iter().cloned().fold(f64::INFINITY, f64::min);

@@ -304,5 +304,14 @@ mod tests {
         // A(1/2) = √(2/π) cos(π/4) Γ(1/2) = √(2/π) (1/√2) √π = 1
         let a = FiscParams { p: 0.3, hstar: 0.5 }.amplitude();
         assert!((a - 1.0).abs() < 1e-12, "{a}");
+        // at H* = 1/2 cos = sin and Γ(H) = Γ(1 - H): also H* = 1/3, with
+        // Γ(1/3) = 2.678938534707747 (tabulated), cos(π/6) = √3/2
+        let a = FiscParams {
+            p: 0.3,
+            hstar: 1.0 / 3.0,
+        }
+        .amplitude();
+        let want = (2.0 / std::f64::consts::PI).sqrt() * 3f64.sqrt() / 2.0 * 2.678938534707747;
+        assert!((a - want).abs() < 1e-12, "{a} vs {want}");
     }
 }
