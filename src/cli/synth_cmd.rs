@@ -135,6 +135,38 @@ where
     let mut body = header("synth", p);
     body["theory"] = theory;
     body["files"] = json!(names);
+    // older images of the same name beyond --count (an earlier, larger run
+    // into the same directory) would join a `DIR/*.npy` ensemble unnoticed
+    let stale = stale_files(&c.out.out, stem, c.count);
+    if !stale.is_empty() {
+        eprintln!(
+            "warning: {} holds {} older file(s) `{stem}_NNNN` beyond --count {} (e.g. {}): \
+             they are not part of this ensemble (see synth.json)",
+            c.out.out.display(),
+            stale.len(),
+            c.count,
+            stale[0]
+        );
+        body["stale_files"] = json!(stale);
+    }
     write_json(&c.out.out.join("synth.json"), &body)?;
     Ok(Outcome::Ok)
+}
+
+/// Files `{stem}_NNNN.*` in `dir` with `NNNN >= count`, sorted.
+fn stale_files(dir: &std::path::Path, stem: &str, count: usize) -> Vec<String> {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let prefix = format!("{stem}_");
+    let mut v: Vec<String> = rd
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| {
+            n.strip_prefix(&prefix)
+                .and_then(|r| r.split('.').next())
+                .is_some_and(|d| d.len() == 4 && d.parse::<usize>().is_ok_and(|i| i >= count))
+        })
+        .collect();
+    v.sort();
+    v
 }

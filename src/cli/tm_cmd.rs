@@ -207,8 +207,8 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let params = json!({"images": args.images, "config": cfg, "fit": fc});
     write_outputs(&args.out.out, "tm", params, &res, acc.spectrum.as_ref())?;
     print!("{}", summary(&res));
-    if !res.alpha.is_finite() {
-        eprintln!("warning: the universal fit failed (fewer than 3 q values below q_s/2?)");
+    for w in tm_warnings(&res) {
+        eprintln!("warning: {w}");
     }
     if !quiet {
         eprintln!("wrote {}", args.out.out.join("tm.json").display());
@@ -312,6 +312,34 @@ pub fn summary(r: &TraceMomentResult) -> String {
 
 /// The `tm.json` body: the header, every key of [`TraceMomentResult`], and
 /// the derived `tau` and `K_universal`.
+/// Estimates outside the universal model's range (TM §6: 0 <= alpha <= 2,
+/// C1 >= 0), usually a sign of too few scales or too few images.
+fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
+    let mut w = Vec::new();
+    if !res.alpha.is_finite() {
+        w.push("the universal fit failed (fewer than 3 q values below q_s/2?)".to_string());
+    } else if !(res.alpha >= 0.0 && res.alpha <= 2.0) {
+        w.push(format!(
+            "alpha = {:.3} lies outside [0, 2], the range of universal multifractals: \
+             too few scales or images for the fit",
+            res.alpha
+        ));
+    }
+    if res.c1.is_finite() && res.c1 < 0.0 {
+        w.push(format!(
+            "C1 = {:.4} < 0: no intermittency is resolved",
+            res.c1
+        ));
+    }
+    if res.dtm_alpha.is_finite() && !(res.dtm_alpha >= 0.0 && res.dtm_alpha <= 2.0) {
+        w.push(format!(
+            "DTM alpha = {:.3} lies outside [0, 2]: too few scales or images",
+            res.dtm_alpha
+        ));
+    }
+    w
+}
+
 pub fn result_json(
     command: &str,
     params: serde_json::Value,
@@ -324,6 +352,7 @@ pub fn result_json(
             obj.insert(k, v);
         }
     }
+    body["warnings"] = json!(tm_warnings(res));
     body["K_universal"] = json!(k_universal(res, &res.q));
     body["tau"] = json!(tau_from_tm(res));
     body["tau_definition"] =
