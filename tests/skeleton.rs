@@ -158,6 +158,20 @@ fn smooth_bump_gives_the_wavelet_order() {
     }
 }
 
+/// The only chain of a scale, which must be closed.
+fn one_closed_chain(sm: &ScaleMaxima) -> &Chain {
+    assert_eq!(
+        sm.chains.len(),
+        1,
+        "a={:.2}: {} chains",
+        sm.a,
+        sm.chains.len()
+    );
+    let ch = &sm.chains[0];
+    assert!(ch.closed, "a={:.2}: chain not closed", sm.a);
+    ch
+}
+
 /// A disc: one closed chain per scale, concentric with the disc.
 /// From a = 2 up: at a = 1.5 the Gaussian filter is still 1.5e-5 at the
 /// Nyquist frequency, so the transform of a binary disc rings (Gibbs) above
@@ -178,15 +192,7 @@ fn disc_gives_one_closed_concentric_chain() {
     let keep: Vec<usize> = (0..30).collect();
     let sk = skeleton_with(&Field::new(img), &c, Parallelism::Serial, &keep).unwrap();
     for sm in &sk.kept {
-        assert_eq!(
-            sm.chains.len(),
-            1,
-            "a={:.2}: {} chains",
-            sm.a,
-            sm.chains.len()
-        );
-        let ch = &sm.chains[0];
-        assert!(ch.closed, "a={:.2}: chain not closed", sm.a);
+        let ch = one_closed_chain(sm);
         let k = ch.pixels.len() as f64;
         let mx = ch.pixels.iter().map(|p| p.0 as f64).sum::<f64>() / k;
         let my = ch.pixels.iter().map(|p| p.1 as f64).sum::<f64>() / k;
@@ -507,15 +513,7 @@ fn disc_across_the_edges_of_the_torus_is_one_closed_chain() {
     )
     .unwrap();
     for (sm, sm_mid) in corner.kept.iter().zip(&middle.kept) {
-        assert_eq!(
-            sm.chains.len(),
-            1,
-            "a={:.2}: {} chains",
-            sm.a,
-            sm.chains.len()
-        );
-        let ch = &sm.chains[0];
-        assert!(ch.closed, "a={:.2}: chain not closed", sm.a);
+        let ch = one_closed_chain(sm);
         assert_eq!(
             ch.pixels.len(),
             sm_mid.chains[0].pixels.len(),
