@@ -582,3 +582,69 @@ fn validate_judges_the_fbm_range_once() {
         .count();
     assert_eq!(n, 1);
 }
+
+/// Options that would be dropped without a word are refused (exit 2,
+/// nothing written): generator options with image files, model options
+/// without a model or foreign to it, spectra options on commands that
+/// build no spectra. Defaults that name octaves follow a shorter grid.
+#[test]
+fn ignored_options_are_refused_and_defaults_follow_the_grid() {
+    let dir = scratch("ignored");
+    let a = fbm_npy(&dir, "a.npy", 192, 1);
+    let b = fbm_npy(&dir, "b.npy", 192, 2);
+    let out = dir.join("out");
+    let o = out.display().to_string();
+    let refused: [&[&str]; 9] = [
+        &["pdf", &a, "--count", "3"],
+        &["kernel", &a, "--size", "256"],
+        &["correlate", &a, "--seed", "5"],
+        &["analyze", &a, "--hurst", "0.5"],
+        &[
+            "synth", "fbm", "--hurst", "0.3", "--p", "0.2", "--size", "64",
+        ],
+        &[
+            "theory",
+            "wcascade",
+            "--law",
+            "lognormal",
+            "--m",
+            "-0.26",
+            "--sigma2",
+            "0.02",
+            "--gamma",
+            "1",
+        ],
+        &["pdf", &a, "--q", "0:4:1"],
+        &["skeleton", &a, "--rule", "sup"],
+        &["correlate", &a, "--fit", "0:2"],
+    ];
+    for args in refused {
+        let mut v = args.to_vec();
+        v.extend_from_slice(&["--out", &o]);
+        assert_eq!(run(&v), 2, "accepted: {args:?}");
+        assert!(!out.exists(), "{args:?} left {o}");
+    }
+    // 3 octaves (grid 0..2.9): the paper's pdf scales 0,1,2 stay, the
+    // kernel's pairs end at the top scale, a given octave off the grid fails
+    let common = ["--octaves", "3", "--margin", "20", "--out"];
+    let mut v = vec!["pdf", &a, &b];
+    v.extend_from_slice(&common);
+    v.push(&o);
+    assert_eq!(run(&v), 0);
+    let mut v = vec!["kernel", &a, &b];
+    v.extend_from_slice(&common);
+    v.push(&o);
+    assert_eq!(run(&v), 0);
+    let k = json(&out.join("kernel.json"));
+    let pairs: Vec<(f64, f64)> = k["params"]["options"]["pairs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| (p[0].as_f64().unwrap(), p[1].as_f64().unwrap()))
+        .collect();
+    assert_eq!(pairs, vec![(0.5, 2.9), (1.0, 2.9), (1.5, 2.9)]);
+    let mut v = vec!["kernel", &a, &b, "--refs", "3.5"];
+    v.extend_from_slice(&common);
+    v.push(&o);
+    assert_eq!(run(&v), 2);
+}

@@ -17,25 +17,12 @@ use crate::skeleton::{AnalysisConfig, LinkParams, SearchRadius};
 use crate::spectra::{PartitionSums, Rule, Spectra, image_sums};
 use crate::theory::{Model, TheoryTable};
 
-/// Options shared by every command that builds spectra.
+/// Options of every command that builds maxima lines: the scale grid and
+/// the linking (`skeleton`, `pdf`, `kernel`, `correlate`, and the spectra).
 #[derive(Args, Debug, Clone)]
-pub struct SpectraOpts {
+pub struct LineOpts {
     #[command(flatten)]
     pub cwt: CwtOpts,
-    /// q values: `start:stop:step` or `a,b,c`.
-    #[arg(long, default_value = "-4:6:0.5", allow_hyphen_values = true)]
-    pub q: String,
-    /// Fit range in octaves above a_min, `LO:HI` (the first half octave is
-    /// left out: see the README, "How the defaults were chosen"). Default
-    /// 0.5:4, or 0.5:OCTAVES with fewer than 4 octaves.
-    #[arg(long)]
-    pub fit: Option<String>,
-    /// Modulus along a maxima line: plain (M at a) or sup (max of M over scales <= a).
-    #[arg(long, value_enum, default_value_t = Rule::Plain)]
-    pub rule: Rule,
-    /// Same as `--rule plain` (kept for scripts).
-    #[arg(long, conflicts_with = "rule")]
-    pub plain: bool,
     /// Linking: modulus-ratio window `LO:HI` between successive scales.
     #[arg(long, default_value = "0.9:1.11")]
     pub ratio: String,
@@ -53,15 +40,7 @@ pub struct SpectraOpts {
     pub no_guard: bool,
 }
 
-impl SpectraOpts {
-    /// The options as the command line leaves them by default (taken from
-    /// the clap definitions, so the defaults live in one place).
-    pub fn defaults() -> Self {
-        use clap::{Args as _, FromArgMatches as _};
-        let cmd = SpectraOpts::augment_args(clap::Command::new("defaults"));
-        SpectraOpts::from_arg_matches(&cmd.get_matches_from(["defaults"])).expect("defaults parse")
-    }
-
+impl LineOpts {
     pub fn analysis(&self) -> Result<AnalysisConfig> {
         let g = self.cwt.grid()?;
         let ratio = parse_range("ratio", &self.ratio)?;
@@ -85,26 +64,64 @@ impl SpectraOpts {
         cfg.validate()?;
         Ok(cfg)
     }
+}
+
+/// `--fit LO:HI` (octaves above a_min), or the default 0.5:min(4, octaves),
+/// checked against the grid.
+pub fn fit_range(fit: Option<&str>, octaves: usize) -> Result<(f64, f64)> {
+    let r = match fit {
+        Some(f) => parse_range("fit", f)?,
+        None => (0.5, (octaves as f64).min(4.0)),
+    };
+    if r.0 < 0.0 || r.1 > octaves as f64 + 1e-9 {
+        return Err(Error::param(
+            "fit",
+            format!("{}:{} must lie within 0:{} octaves", r.0, r.1, octaves),
+        ));
+    }
+    Ok(r)
+}
+
+/// Options shared by every command that builds spectra.
+#[derive(Args, Debug, Clone)]
+pub struct SpectraOpts {
+    #[command(flatten)]
+    pub line: LineOpts,
+    /// q values: `start:stop:step` or `a,b,c`.
+    #[arg(long, default_value = "-4:6:0.5", allow_hyphen_values = true)]
+    pub q: String,
+    /// Fit range in octaves above a_min, `LO:HI` (the first half octave is
+    /// left out: see the README, "How the defaults were chosen"). Default
+    /// 0.5:4, or 0.5:OCTAVES with fewer than 4 octaves.
+    #[arg(long)]
+    pub fit: Option<String>,
+    /// Modulus along a maxima line: plain (M at a) or sup (max of M over scales <= a).
+    #[arg(long, value_enum, default_value_t = Rule::Plain)]
+    pub rule: Rule,
+    /// Same as `--rule plain` (kept for scripts).
+    #[arg(long, conflicts_with = "rule")]
+    pub plain: bool,
+}
+
+impl SpectraOpts {
+    /// The options as the command line leaves them by default (taken from
+    /// the clap definitions, so the defaults live in one place).
+    pub fn defaults() -> Self {
+        use clap::{Args as _, FromArgMatches as _};
+        let cmd = SpectraOpts::augment_args(clap::Command::new("defaults"));
+        SpectraOpts::from_arg_matches(&cmd.get_matches_from(["defaults"])).expect("defaults parse")
+    }
+
+    pub fn analysis(&self) -> Result<AnalysisConfig> {
+        self.line.analysis()
+    }
 
     pub fn q(&self) -> Result<Vec<f64>> {
         parse_list("q", &self.q)
     }
 
     pub fn fit(&self) -> Result<(f64, f64)> {
-        let r = match &self.fit {
-            Some(f) => parse_range("fit", f)?,
-            None => (0.5, (self.cwt.octaves as f64).min(4.0)),
-        };
-        if r.0 < 0.0 || r.1 > self.cwt.octaves as f64 + 1e-9 {
-            return Err(Error::param(
-                "fit",
-                format!(
-                    "{}:{} must lie within 0:{} octaves",
-                    r.0, r.1, self.cwt.octaves
-                ),
-            ));
-        }
-        Ok(r)
+        fit_range(self.fit.as_deref(), self.line.cwt.octaves)
     }
 
     pub fn rule(&self) -> Rule {
@@ -155,15 +172,15 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     let cfg = args.opts.analysis()?;
     let q = args.opts.q()?;
     let fit = args.opts.fit()?;
-    let (theory, theory_model) = if args.theory.is_some() || args.model_opts.preset.is_some() {
-        let r = args.model_opts.resolve(args.theory)?;
-        let name = r.preset.unwrap_or(r.model.name());
-        (
-            Some(theory_curves(&r.model, name, &q)),
-            Some(json!({"name": name, "model": r.model})),
-        )
-    } else {
-        (None, None)
+    let (theory, theory_model) = match args.model_opts.resolve_optional(args.theory)? {
+        Some(r) => {
+            let name = r.preset.unwrap_or(r.model.name());
+            (
+                Some(theory_curves(&r.model, name, &q)),
+                Some(json!({"name": name, "model": r.model})),
+            )
+        }
+        None => (None, None),
     };
     let sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
     let spectra = sums.spectra(args.opts.rule(), fit)?;

@@ -205,8 +205,8 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     let r = args.model_opts.resolve(args.model)?;
     let model = r.model;
     let mut opts = args.opts.clone();
-    if opts.cwt.wavelet.is_none() {
-        opts.cwt.wavelet = Some(r.wavelet);
+    if opts.line.cwt.wavelet.is_none() {
+        opts.line.cwt.wavelet = Some(r.wavelet);
     }
     let cfg = opts.analysis()?;
     let fit = opts.fit()?;

@@ -22,10 +22,10 @@ use std::sync::Arc;
 use clap::{Args, ValueEnum};
 use serde_json::json;
 
-use super::analyze_cmd::SpectraOpts;
+use super::analyze_cmd::LineOpts;
 use super::common::{f, header, make_out_dir, progress, write_csv, write_json};
-use super::kernel_cmd::{KernelOutputs, parse_pairs, write_kernel_outputs};
-use super::pdf_cmd::{Input, ShapeCache, check_octaves};
+use super::kernel_cmd::{KernelOutputs, pairs_or_default, write_kernel_outputs};
+use super::pdf_cmd::{Input, ShapeCache};
 use super::validate_cmd::Criterion;
 use super::{OutDir, Outcome};
 use crate::cwt::CwtPlan;
@@ -63,10 +63,11 @@ pub struct CorrelateArgs {
     #[command(flatten)]
     pub input: super::pdf_cmd::StatsInput,
     #[command(flatten)]
-    pub opts: SpectraOpts,
-    /// Scale pairs a1:a2 in octaves above a_min (II Fig 30: 1:1,0:1,0:2,1:2).
-    #[arg(long, default_value = "1:1,0:1,0:2,1:2")]
-    pub pairs: String,
+    pub opts: LineOpts,
+    /// Scale pairs a1:a2 in octaves above a_min (II Fig 30) [default:
+    /// 1:1,0:1,0:2,1:2, those within --octaves].
+    #[arg(long)]
+    pub pairs: Option<String>,
     /// Magnitudes from the CWT grid, the skeleton's WTMMM, or both.
     #[arg(long, value_enum, default_value = "cwt")]
     pub source: Source,
@@ -171,10 +172,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve()?;
     let cfg = input.analysis(&args.opts)?;
     let grid = cfg.scale_list();
-    let pairs_oct = parse_pairs("pairs", &args.pairs)?;
-    for &(a, b) in &pairs_oct {
-        check_octaves("pairs", &[a, b], &grid)?;
-    }
+    let pairs_oct = pairs_or_default("pairs", args.pairs.as_deref(), "1:1,0:1,0:2,1:2", &grid)?;
     let (scales, pairs) = pair_scales(cfg.a_min, &pairs_oct);
     if let Some(l) = args.integral_scale
         && !(l > 0.0 && l.is_finite())

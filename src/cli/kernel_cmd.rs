@@ -16,9 +16,9 @@ use clap::Args;
 use num_complex::Complex64;
 use serde_json::json;
 
-use super::analyze_cmd::SpectraOpts;
-use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
-use super::pdf_cmd::{StatsInput, check_octaves, scales_at};
+use super::analyze_cmd::{LineOpts, fit_range};
+use super::common::{f, header, make_out_dir, write_csv, write_json};
+use super::pdf_cmd::{StatsInput, check_octaves, octaves_or_default, scales_at};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
@@ -36,25 +36,32 @@ pub struct KernelArgs {
     #[command(flatten)]
     pub input: StatsInput,
     #[command(flatten)]
-    pub opts: SpectraOpts,
+    pub opts: LineOpts,
+    /// Scales whose cumulants enter the fits of c_n, octaves above a_min
+    /// `LO:HI` (default 0.5:min(4, OCTAVES)).
+    #[arg(long)]
+    pub fit: Option<String>,
     /// WTMMM set reported as `cumulants` (the other is `alternate_set`).
     #[arg(long, value_enum, default_value = "lines")]
     pub set: WtmmmSet,
-    /// Reference scales a' of the C_n(a, a') tables, octaves above a_min (II Fig 26).
-    #[arg(long, default_value = "0.5,1,1.5,2,2.5,3,3.5")]
-    pub refs: String,
-    /// Pairs a:a' of the kernel curves, octaves above a_min, comma-separated (II Fig 25).
-    #[arg(long, default_value = "0.5:3.5,1:3.5,1:3,1.5:3")]
-    pub pairs: String,
+    /// Reference scales a' of the C_n(a, a') tables, octaves above a_min (II
+    /// Fig 26) [default: 0.5,1,1.5,2,2.5,3,3.5, those within --octaves].
+    #[arg(long)]
+    pub refs: Option<String>,
+    /// Pairs a:a' of the kernel curves, octaves above a_min, comma-separated
+    /// (II Fig 25) [default: 0.5:3.5,1:3.5,1:3,1.5:3, those within --octaves].
+    #[arg(long)]
+    pub pairs: Option<String>,
     /// Largest p of the characteristic functions.
     #[arg(long, default_value_t = 8.0)]
     pub p_max: f64,
     /// Step of p.
     #[arg(long, default_value_t = 0.05)]
     pub dp: f64,
-    /// Fig 29: target scale then source scales, octaves above a_min.
-    #[arg(long, default_value = "0,1,2,3")]
-    pub reconstruct: String,
+    /// Fig 29: target scale then source scales, octaves above a_min
+    /// [default: 0,1,2,3, those within --octaves].
+    #[arg(long)]
+    pub reconstruct: Option<String>,
     /// Also the cumulants of ln M over every CWT pixel (a diagnostic; one more CWT pass).
     #[arg(long)]
     pub cwt_grid: bool,
@@ -77,6 +84,43 @@ pub fn parse_pairs(flag: &str, s: &str) -> Result<Vec<(f64, f64)>> {
             Ok((num(a)?, num(b)?))
         })
         .collect()
+}
+
+/// An octave rounded to 1e-9 (a grid's top is `log2` of a ratio: 2.9 is
+/// printed 2.9000000000000004 otherwise).
+fn round_octave(o: f64) -> f64 {
+    (o * 1e9).round() / 1e9
+}
+
+/// A pairs option (`a:b,...`, octaves above a_min): the given pairs, each
+/// checked against the grid, or without one the pairs of `default` with
+/// octaves beyond the grid lowered to its top scale (so a shorter
+/// `--octaves` keeps the paper's pairs that fit, and shortens the others),
+/// duplicates dropped.
+///
+/// **Errors** when a given octave is off the grid.
+pub fn pairs_or_default(
+    flag: &str,
+    given: Option<&str>,
+    default: &str,
+    scales: &[f64],
+) -> Result<Vec<(f64, f64)>> {
+    if let Some(s) = given {
+        let v = parse_pairs(flag, s)?;
+        for &(a, b) in &v {
+            check_octaves(flag, &[a, b], scales)?;
+        }
+        return Ok(v);
+    }
+    let top = round_octave((scales[scales.len() - 1] / scales[0]).log2());
+    let mut v: Vec<(f64, f64)> = Vec::new();
+    for (a, b) in parse_pairs(flag, default)? {
+        let p = (a.min(top), b.min(top));
+        if !v.contains(&p) {
+            v.push(p);
+        }
+    }
+    Ok(v)
 }
 
 /// Everything accumulated over the images.
@@ -188,19 +232,41 @@ pub struct KernelOutputs {
 pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve()?;
     let cfg = input.analysis(&args.opts)?;
-    let fit = args.opts.fit()?;
+    let fit = fit_range(args.fit.as_deref(), args.opts.cwt.octaves)?;
     let scales = cfg.scale_list();
-    let refs = parse_list("refs", &args.refs)?;
-    check_octaves("refs", &refs, &scales)?;
-    let pairs = parse_pairs("pairs", &args.pairs)?;
+    let refs = octaves_or_default(
+        "refs",
+        args.refs.as_deref(),
+        "0.5,1,1.5,2,2.5,3,3.5",
+        &scales,
+    )?;
+    let pairs = pairs_or_default(
+        "pairs",
+        args.pairs.as_deref(),
+        "0.5:3.5,1:3.5,1:3,1.5:3",
+        &scales,
+    )?;
+    let mut pairs = pairs;
+    if args.pairs.is_none() {
+        // a default pair lowered onto the top of a short grid may collapse
+        pairs.retain(|&(a, b)| a < b);
+    }
     for &(a, b) in &pairs {
-        check_octaves("pairs", &[a, b], &scales)?;
         if !(a < b) {
             return Err(Error::param("pairs", format!("{a}:{b}: need a < a'")));
         }
     }
-    let rec = parse_list("reconstruct", &args.reconstruct)?;
-    check_octaves("reconstruct", &rec, &scales)?;
+    let mut rec = octaves_or_default(
+        "reconstruct",
+        args.reconstruct.as_deref(),
+        "0,1,2,3",
+        &scales,
+    )?;
+    let top = round_octave((scales[scales.len() - 1] / scales[0]).log2());
+    if args.reconstruct.is_none() && rec.len() < 2 && top > 0.0 {
+        // a grid shorter than an octave: from its top scale to its first
+        rec = vec![0.0, top];
+    }
     if rec.len() < 2 || rec[1..].iter().any(|&o| o <= rec[0]) {
         return Err(Error::param(
             "reconstruct",

@@ -71,11 +71,10 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
             ),
         ));
     }
-    let theory = if args.theory.is_some() || args.model_opts.preset.is_some() {
-        Some(args.model_opts.resolve(args.theory)?.model)
-    } else {
-        None
-    };
+    let theory = args
+        .model_opts
+        .resolve_optional(args.theory)?
+        .map(|r| r.model);
     let rule = args.rule;
     let other = if rule == Rule::Plain {
         Rule::Sup

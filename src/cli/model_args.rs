@@ -88,20 +88,81 @@ fn need(v: Option<f64>, flag: &str, model: &str) -> Result<f64> {
 }
 
 impl ModelOpts {
+    /// The model options given on the command line, by flag name.
+    fn given(&self) -> Vec<&'static str> {
+        let mut v = Vec::new();
+        let mut add = |set: bool, flag: &'static str| {
+            if set {
+                v.push(flag);
+            }
+        };
+        add(self.hurst.is_some(), "hurst");
+        add(self.alpha.is_some(), "alpha");
+        add(self.c1.is_some(), "c1");
+        add(self.law.is_some(), "law");
+        add(self.m.is_some(), "m");
+        add(self.sigma2.is_some(), "sigma2");
+        add(self.gamma.is_some(), "gamma");
+        add(self.beta.is_some(), "beta");
+        add(self.lambda.is_some(), "lambda");
+        add(self.basis.is_some(), "basis");
+        add(self.isotropy.is_some(), "isotropy");
+        add(self.p.is_some(), "p");
+        add(self.hstar.is_some(), "hstar");
+        v
+    }
+
     fn any_param(&self) -> bool {
-        self.hurst.is_some()
-            || self.alpha.is_some()
-            || self.c1.is_some()
-            || self.law.is_some()
-            || self.m.is_some()
-            || self.sigma2.is_some()
-            || self.gamma.is_some()
-            || self.beta.is_some()
-            || self.lambda.is_some()
-            || self.basis.is_some()
-            || self.isotropy.is_some()
-            || self.p.is_some()
-            || self.hstar.is_some()
+        !self.given().is_empty()
+    }
+
+    /// Refuses options that the model ignores (a `--p` given to fbm would
+    /// otherwise be dropped without a word).
+    fn check_applicable(&self, name: ModelName) -> Result<()> {
+        let (model, allowed): (&str, &[&str]) = match (name, self.law) {
+            (ModelName::Fbm, _) => ("fbm", &["hurst"]),
+            (ModelName::Fisc, _) => ("fisc", &["p", "hstar"]),
+            (ModelName::Fif, _) => ("fif", &["alpha", "c1", "hurst"]),
+            (ModelName::Wcascade, Some(LawName::Logpoisson)) => (
+                "logpoisson W-cascade",
+                &["law", "gamma", "beta", "lambda", "basis", "isotropy"],
+            ),
+            (ModelName::Wcascade, _) => (
+                "lognormal W-cascade",
+                &["law", "m", "sigma2", "basis", "isotropy"],
+            ),
+        };
+        match self.given().into_iter().find(|f| !allowed.contains(f)) {
+            Some(f) => Err(Error::param(
+                f,
+                format!(
+                    "does not apply to the {model} model (its options: {})",
+                    allowed
+                        .iter()
+                        .map(|a| format!("--{a}"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            )),
+            None => Ok(()),
+        }
+    }
+
+    /// As [`ModelOpts::resolve`] where the model is optional (a theory drawn
+    /// over estimates): `None` when neither MODEL nor `--preset` is given.
+    ///
+    /// **Errors** as `resolve`, and when model options come without a model.
+    pub fn resolve_optional(&self, name: Option<ModelName>) -> Result<Option<Resolved>> {
+        if name.is_some() || self.preset.is_some() {
+            return self.resolve(name).map(Some);
+        }
+        if let Some(f) = self.given().first() {
+            return Err(Error::param(
+                *f,
+                "model options need a model: --theory MODEL (or use --preset NAME)",
+            ));
+        }
+        Ok(None)
     }
 
     /// The model named by `name` with these options, or the preset.
@@ -132,6 +193,7 @@ impl ModelOpts {
                 ),
             ));
         };
+        self.check_applicable(name)?;
         let model = match name {
             ModelName::Fbm => Model::Fbm(FbmParams {
                 hurst: need(self.hurst, "hurst", "fbm")?,

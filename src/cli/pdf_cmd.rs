@@ -20,7 +20,7 @@ use clap::{Args, ValueEnum};
 use rayon::prelude::*;
 use serde_json::json;
 
-use super::analyze_cmd::SpectraOpts;
+use super::analyze_cmd::{LineOpts, fit_range};
 use super::common::{f, header, make_out_dir, parse_list, progress, write_csv, write_json};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
@@ -30,7 +30,7 @@ use crate::field::Field;
 use crate::plot::{Chart, Raster, Series, Style, ramp, save_chart};
 use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::fit::line_fit;
-use crate::stats::kernel::nearest_scale;
+use crate::stats::kernel::{nearest_scale, octave_on_grid};
 use crate::stats::pdf::{
     PdfConfig, PdfOptions, ScalePdf, WtmmmHistograms, WtmmmSet, image_wtmmm, wtmmm_pdfs,
 };
@@ -60,15 +60,16 @@ pub struct StatsInput {
     pub theory: Option<ModelName>,
     #[command(flatten)]
     pub model: ModelOpts,
-    /// Generated ensemble: number of images.
-    #[arg(long, default_value_t = 32)]
-    pub count: usize,
-    /// Generated ensemble: image side (a power of two for the cascades).
-    #[arg(long, default_value_t = 1024)]
-    pub size: usize,
-    /// Generated ensemble: seed (image i is the same as `synth --seed S` image i).
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
+    /// Generated ensemble: number of images [default: 32].
+    #[arg(long)]
+    pub count: Option<usize>,
+    /// Generated ensemble: image side (a power of two for the cascades) [default: 1024].
+    #[arg(long)]
+    pub size: Option<usize>,
+    /// Generated ensemble: seed (image i is the same as `synth --seed S` image
+    /// i) [default: 1].
+    #[arg(long)]
+    pub seed: Option<u64>,
     /// Analysis domain: torus (periodic images) or interior (SPEC §1 margin).
     #[arg(long, value_enum, default_value = "auto")]
     pub domain: DomainChoice,
@@ -95,26 +96,34 @@ impl StatsInput {
     /// **Errors** naming the flag: neither images nor a model, a model option
     /// without a model, `--count 0`.
     pub fn resolve(&self) -> Result<Input> {
-        let named = self.theory.is_some() || self.model.preset.is_some();
-        let resolved = if named {
-            Some(self.model.resolve(self.theory)?)
-        } else {
-            // model options without a model name
-            if format!("{:?}", self.model) != format!("{:?}", ModelOpts::default()) {
-                return Err(Error::param(
-                    "theory",
-                    "model options need a model: --theory MODEL (or use --preset NAME)",
-                ));
-            }
-            None
-        };
+        let resolved = self.model.resolve_optional(self.theory)?;
         if self.images.is_empty() && resolved.is_none() {
             return Err(Error::param(
                 "IMAGE",
                 "give image files, or a model to generate (--preset NAME, or --theory MODEL with its options)",
             ));
         }
-        if self.images.is_empty() && self.count == 0 {
+        if !self.images.is_empty() {
+            // generator options with files would be dropped without a word
+            for (set, flag) in [
+                (self.count.is_some(), "count"),
+                (self.size.is_some(), "size"),
+                (self.seed.is_some(), "seed"),
+            ] {
+                if set {
+                    return Err(Error::param(
+                        flag,
+                        "applies to a generated ensemble, not to image files",
+                    ));
+                }
+            }
+        }
+        let (count, size, seed) = (
+            self.count.unwrap_or(32),
+            self.size.unwrap_or(1024),
+            self.seed.unwrap_or(1),
+        );
+        if self.images.is_empty() && count == 0 {
             return Err(Error::param("count", "must be >= 1"));
         }
         let generated = self.images.is_empty();
@@ -136,9 +145,9 @@ impl StatsInput {
                 .unwrap_or_default(),
             model: resolved.as_ref().map(|r| r.model),
             wavelet: resolved.as_ref().map_or(Wavelet::Gauss, |r| r.wavelet),
-            count: self.count,
-            size: self.size,
-            seed: self.seed,
+            count,
+            size,
+            seed,
             periodic,
         })
     }
@@ -166,7 +175,7 @@ impl Input {
 
     /// The analysis configuration: the preset's wavelet unless `--wavelet`,
     /// margin 0 on the torus unless `--margin`.
-    pub fn analysis(&self, opts: &SpectraOpts) -> Result<AnalysisConfig> {
+    pub fn analysis(&self, opts: &LineOpts) -> Result<AnalysisConfig> {
         let mut o = opts.clone();
         if o.cwt.wavelet.is_none() {
             o.cwt.wavelet = Some(self.wavelet);
@@ -243,10 +252,15 @@ pub fn scales_at(scales: &[f64], octaves: &[f64]) -> Vec<usize> {
     v
 }
 
+/// Octaves spanned by the grid above its smallest scale.
+fn grid_top(scales: &[f64]) -> f64 {
+    (scales[scales.len() - 1] / scales[0]).log2()
+}
+
 /// Checks that octaves lie on the scale grid.
 pub fn check_octaves(flag: &str, octaves: &[f64], scales: &[f64]) -> Result<()> {
-    let top = (scales[scales.len() - 1] / scales[0]).log2();
-    if let Some(o) = octaves.iter().find(|&&o| !(o >= -1e-9 && o <= top + 1e-9)) {
+    let top = grid_top(scales);
+    if let Some(o) = octaves.iter().find(|&&o| !octave_on_grid(scales, o)) {
         return Err(Error::param(
             flag,
             format!("octave {o} is outside the scales (0..{top:.2} octaves above a_min)"),
@@ -255,21 +269,59 @@ pub fn check_octaves(flag: &str, octaves: &[f64], scales: &[f64]) -> Result<()> 
     Ok(())
 }
 
+/// An option listing octaves above a_min: the given values, each checked
+/// against the grid, or without one the values of `default` that lie on the
+/// grid (so the paper's defaults follow a shorter `--octaves`).
+///
+/// **Errors** when a given octave is off the grid, or no default one is on it.
+pub fn octaves_or_default(
+    flag: &str,
+    given: Option<&str>,
+    default: &str,
+    scales: &[f64],
+) -> Result<Vec<f64>> {
+    if let Some(s) = given {
+        let v = parse_list(flag, s)?;
+        check_octaves(flag, &v, scales)?;
+        return Ok(v);
+    }
+    let top = grid_top(scales);
+    let v: Vec<f64> = parse_list(flag, default)?
+        .into_iter()
+        .filter(|&o| octave_on_grid(scales, o))
+        .collect();
+    if v.is_empty() {
+        return Err(Error::param(
+            flag,
+            format!(
+                "none of the default octaves {default} lies on the scales (0..{top:.2} octaves above a_min): give --{flag}"
+            ),
+        ));
+    }
+    Ok(v)
+}
+
 #[derive(Args, Debug)]
 pub struct PdfArgs {
     #[command(flatten)]
     pub input: StatsInput,
     #[command(flatten)]
-    pub opts: SpectraOpts,
+    pub opts: LineOpts,
+    /// Fit range of the h(q=0) estimate for the rescaling test, octaves above
+    /// a_min `LO:HI` (default 0.5:min(4, OCTAVES)).
+    #[arg(long)]
+    pub fit: Option<String>,
     /// Which WTMMM: those on maxima lines (the skeleton) or all WTMMM of each scale.
     #[arg(long, value_enum, default_value = "lines")]
     pub set: WtmmmSet,
-    /// Scales shown, in octaves above a_min (II Figs 17, 20: a = 1, 2, 4, 8).
-    #[arg(long, default_value = "0,1,2,3")]
-    pub show: String,
-    /// Scales of the pdfs conditioned on A (II Fig 18: a = 2^0.1, 2^1.1), in octaves.
-    #[arg(long, default_value = "0.1,1.1")]
-    pub sectors_at: String,
+    /// Scales shown, in octaves above a_min (II Figs 17, 20: a = 1, 2, 4, 8)
+    /// [default: 0,1,2,3, those within --octaves].
+    #[arg(long)]
+    pub show: Option<String>,
+    /// Scales of the pdfs conditioned on A (II Fig 18: a = 2^0.1, 2^1.1), in
+    /// octaves [default: 0.1,1.1, those within --octaves].
+    #[arg(long)]
+    pub sectors_at: Option<String>,
     /// Exponent of the rescaling test II eq 39 (default: the theory's h(q=0), else
     /// the slope of <ln M> against ln a over the fit range).
     #[arg(long, allow_negative_numbers = true)]
@@ -327,12 +379,10 @@ pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64)) -> f64 {
 pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve()?;
     let cfg = input.analysis(&args.opts)?;
-    let fit = args.opts.fit()?;
+    let fit = fit_range(args.fit.as_deref(), args.opts.cwt.octaves)?;
     let scales = cfg.scale_list();
-    let show_oct = parse_list("show", &args.show)?;
-    check_octaves("show", &show_oct, &scales)?;
-    let sec_oct = parse_list("sectors-at", &args.sectors_at)?;
-    check_octaves("sectors-at", &sec_oct, &scales)?;
+    let show_oct = octaves_or_default("show", args.show.as_deref(), "0,1,2,3", &scales)?;
+    let sec_oct = octaves_or_default("sectors-at", args.sectors_at.as_deref(), "0.1,1.1", &scales)?;
     let pcfg = PdfConfig {
         dlnm: args.lnm_bin,
         arg_bins: args.arg_bins,

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use clap::Args;
 use serde_json::json;
 
-use super::analyze_cmd::SpectraOpts;
+use super::analyze_cmd::LineOpts;
 use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
 use super::{OutDir, Outcome};
 use crate::cwt::CwtPlan;
@@ -20,7 +20,7 @@ pub struct SkeletonArgs {
     /// Input image.
     pub image: PathBuf,
     #[command(flatten)]
-    pub opts: SpectraOpts,
+    pub opts: LineOpts,
     /// Scales (px) to draw, nearest grid scale each: `a,b,c` (default: 1, 2 and 3 octaves above a_min).
     #[arg(long)]
     pub scales: Option<String>,

@@ -120,8 +120,8 @@ fn sample_spectra(
 pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     let r = args.model_opts.resolve(args.model)?;
     let mut opts = args.opts.clone();
-    if opts.cwt.wavelet.is_none() {
-        opts.cwt.wavelet = Some(r.wavelet);
+    if opts.line.cwt.wavelet.is_none() {
+        opts.line.cwt.wavelet = Some(r.wavelet);
     }
     let cfg = opts.analysis()?;
     let fit = opts.fit()?;

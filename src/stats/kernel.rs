@@ -617,6 +617,19 @@ pub fn nearest_scale(scales: &[f64], o: f64) -> usize {
         .expect("non-empty scales")
 }
 
+/// True when octave `o` (above the smallest scale) lies on the grid: within
+/// half a step of a grid scale (so octave 3 is the top scale 2.9 of a
+/// 3-octave grid with 10 voices).
+pub fn octave_on_grid(scales: &[f64], o: f64) -> bool {
+    let half = if scales.len() > 1 {
+        0.5 * (scales[1] / scales[0]).log2()
+    } else {
+        0.0
+    };
+    let top = (scales[scales.len() - 1] / scales[0]).log2();
+    o.is_finite() && o >= -half - 1e-9 && o <= top + half + 1e-9
+}
+
 /// Cumulants of `ln M` per scale, `C_n(a, a')` tables, fitted `c_n` with
 /// jackknife errors, and the kernel curves `Ĝ_aa'(p)` (II eqs 45-49,
 /// 57-58; Figs 25-28). See the module doc for the conventions.
@@ -630,7 +643,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     }
     let oct: Vec<f64> = s.scales.iter().map(|a| (a / s.scales[0]).log2()).collect();
     let top = oct[ns - 1];
-    let in_range = |o: f64| o >= -1e-9 && o <= top + 1e-9;
+    let in_range = |o: f64| octave_on_grid(&s.scales, o);
     let in_fit: Vec<usize> = (0..ns)
         .filter(|&j| oct[j] >= opts.fit.0 - 1e-9 && oct[j] <= opts.fit.1 + 1e-9)
         .collect();
