@@ -648,3 +648,29 @@ fn ignored_options_are_refused_and_defaults_follow_the_grid() {
     v.push(&o);
     assert_eq!(run(&v), 2);
 }
+
+/// A command that fails after computing leaves an existing output
+/// directory as it was: no new file, the old ones unchanged, no temporary
+/// file (the outputs appear together or not at all).
+#[test]
+fn failed_command_leaves_an_existing_directory_as_it_was() {
+    let dir = scratch("batch");
+    let a = fbm_npy(&dir, "a.npy", 160, 1);
+    let out = dir.join("out");
+    std::fs::create_dir_all(out.join("tau.png")).unwrap(); // in the way
+    std::fs::write(out.join("spectra.json"), b"old").unwrap();
+    let o = out.display().to_string();
+    assert_eq!(run(&["analyze", &a, "--octaves", "2", "--out", &o]), 2);
+    let mut names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(names, vec!["spectra.json", "tau.png"]);
+    assert_eq!(std::fs::read(out.join("spectra.json")).unwrap(), b"old");
+    // and with the obstacle gone, everything is written
+    std::fs::remove_dir(out.join("tau.png")).unwrap();
+    assert_eq!(run(&["analyze", &a, "--octaves", "2", "--out", &o]), 0);
+    assert!(json(&out.join("spectra.json"))["tau"].is_array());
+    assert!(out.join("tau.png").is_file());
+}

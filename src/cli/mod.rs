@@ -187,9 +187,15 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
     let (inputs, images, out) = io_of(&cli.command);
     check_inputs(&inputs, images)?;
     let created = out.map(prepare_out).transpose()?.unwrap_or_default();
-    let r = run_command(cli);
+    // nothing half-written: the files appear together when the command
+    // succeeds (an existing directory keeps its older files otherwise)
+    let batch = out.map(crate::io::OutputBatch::begin).transpose()?;
+    let r = run_command(cli).and_then(|o| {
+        batch.map(|b| b.commit()).transpose()?;
+        Ok(o)
+    });
     if r.is_err() {
-        // nothing half-made: directories this run created go if still empty
+        // directories this run created go if still empty
         for d in &created {
             let _ = std::fs::remove_dir(d);
         }

@@ -1,11 +1,33 @@
 //! Atomic file writes: a crash or an error never leaves a half-written file.
+//!
+//! One file is atomic by itself (temporary name, then rename). A command
+//! writes several, so an [`OutputBatch`] makes the set atomic too: while it
+//! is open, files under its directory stay under their temporary names, and
+//! are renamed together when it commits; dropped without a commit, they are
+//! removed. A command that fails half-way leaves the directory as it was.
 
+use std::collections::HashMap;
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 use crate::error::{Error, Result};
 
-/// Writes `bytes` to a temporary file beside `path`, then renames it over `path`.
+/// Open batches: directory -> (temporary, final) paths written under it.
+/// Keyed by directory (not global, not per thread): writes may come from
+/// worker threads, and concurrent commands (tests) write to different
+/// directories.
+static BATCHES: Mutex<Option<Batches>> = Mutex::new(None);
+
+type Batches = HashMap<PathBuf, Vec<(PathBuf, PathBuf)>>;
+
+fn batches() -> std::sync::MutexGuard<'static, Option<Batches>> {
+    // a panic while holding the lock leaves the map consistent (plain pushes)
+    BATCHES.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Writes `bytes` to a temporary file beside `path`, then renames it over
+/// `path` (or, under an open [`OutputBatch`], leaves the rename to its commit).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let err = |source| Error::Write {
         path: path.into(),
@@ -23,10 +45,169 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all().ok();
+        if defer(&tmp, path) {
+            return Ok(());
+        }
         std::fs::rename(&tmp, path)
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
     result.map_err(err)
+}
+
+/// Records `tmp -> path` in the batch whose directory holds `path`, if any.
+fn defer(tmp: &Path, path: &Path) -> bool {
+    let mut g = batches();
+    let Some(map) = g.as_mut() else {
+        return false;
+    };
+    let Some(list) = map
+        .iter_mut()
+        .filter(|(dir, _)| path.starts_with(dir))
+        .max_by_key(|(dir, _)| dir.components().count())
+        .map(|(_, l)| l)
+    else {
+        return false;
+    };
+    // a file written twice: its temporary name is reused, one rename
+    if !list.iter().any(|(_, p)| p == path) {
+        list.push((tmp.to_path_buf(), path.to_path_buf()));
+    }
+    true
+}
+
+/// The files a command writes into one directory, made visible together.
+///
+/// ```
+/// use wtmm::io::{OutputBatch, write_atomic};
+/// let dir = std::env::temp_dir().join(format!("wtmm-batch-doc-{}", std::process::id()));
+/// std::fs::create_dir_all(&dir).unwrap();
+/// let batch = OutputBatch::begin(&dir).unwrap();
+/// write_atomic(&dir.join("a.txt"), b"a").unwrap();
+/// assert!(!dir.join("a.txt").exists()); // not yet
+/// batch.commit().unwrap();
+/// assert!(dir.join("a.txt").exists());
+/// # std::fs::remove_dir_all(&dir).unwrap();
+/// ```
+#[derive(Debug)]
+pub struct OutputBatch {
+    dir: PathBuf,
+}
+
+impl OutputBatch {
+    /// Opens a batch for the files written under `dir`.
+    ///
+    /// **Errors** if a batch is already open for `dir`.
+    pub fn begin(dir: &Path) -> Result<OutputBatch> {
+        let mut g = batches();
+        let map = g.get_or_insert_with(HashMap::new);
+        if map.contains_key(dir) {
+            return Err(Error::Input(format!(
+                "{}: another command is writing to this directory",
+                dir.display()
+            )));
+        }
+        map.insert(dir.to_path_buf(), Vec::new());
+        Ok(OutputBatch {
+            dir: dir.to_path_buf(),
+        })
+    }
+
+    fn take(&self) -> Vec<(PathBuf, PathBuf)> {
+        let mut g = batches();
+        g.as_mut()
+            .and_then(|m| m.remove(&self.dir))
+            .unwrap_or_default()
+    }
+
+    /// Renames every file written under the directory to its final name.
+    ///
+    /// **Errors** when a final name is taken by a directory (then nothing is
+    /// renamed), or on the first rename that fails (the files not yet
+    /// renamed are removed).
+    pub fn commit(self) -> Result<()> {
+        let files = self.take();
+        // what would make a rename fail, before any is done
+        if let Some((_, path)) = files.iter().find(|(_, p)| p.is_dir()) {
+            for (t, _) in &files {
+                let _ = std::fs::remove_file(t);
+            }
+            return Err(Error::Write {
+                path: path.clone(),
+                source: std::io::Error::other("a directory of that name is in the way"),
+            });
+        }
+        let mut it = files.iter();
+        for (tmp, path) in it.by_ref() {
+            if let Err(source) = std::fs::rename(tmp, path) {
+                let _ = std::fs::remove_file(tmp);
+                for (t, _) in it {
+                    let _ = std::fs::remove_file(t);
+                }
+                return Err(Error::Write {
+                    path: path.clone(),
+                    source,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Drop for OutputBatch {
+    /// Without a commit: the temporary files are removed.
+    fn drop(&mut self) {
+        for (tmp, _) in self.take() {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("wtmm-batch-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn dropped_batch_leaves_the_directory_as_it_was() {
+        let d = dir("drop");
+        std::fs::write(d.join("old.json"), b"old").unwrap();
+        {
+            let _b = OutputBatch::begin(&d).unwrap();
+            write_atomic(&d.join("old.json"), b"new").unwrap();
+            write_atomic(&d.join("new.png"), b"png").unwrap();
+        }
+        let names: Vec<_> = std::fs::read_dir(&d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        assert_eq!(names, vec!["old.json".to_string()]);
+        assert_eq!(std::fs::read(d.join("old.json")).unwrap(), b"old");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn committed_batch_shows_every_file_once_and_other_dirs_are_untouched() {
+        let d = dir("commit");
+        let other = dir("other");
+        let b = OutputBatch::begin(&d).unwrap();
+        assert!(OutputBatch::begin(&d).is_err());
+        write_atomic(&d.join("a.json"), b"1").unwrap();
+        write_atomic(&d.join("a.json"), b"2").unwrap();
+        write_atomic(&other.join("x"), b"x").unwrap();
+        assert!(other.join("x").exists(), "a write outside the batch waited");
+        assert!(!d.join("a.json").exists());
+        b.commit().unwrap();
+        assert_eq!(std::fs::read(d.join("a.json")).unwrap(), b"2");
+        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 1);
+        std::fs::remove_dir_all(&d).unwrap();
+        std::fs::remove_dir_all(&other).unwrap();
+    }
 }
