@@ -357,7 +357,9 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
         ..Default::default()
     };
     let mut hb = Chart {
-        title: "(b) h(q, a)".into(),
+        // the level is a weighted mean of log2 M, not an exponent: the
+        // slope is h(q) (SPEC §4), as tau(q) is that of log2 Z
+        title: "(b) h(q, a): the slopes are h(q)".into(),
         x_label: "log2 a".into(),
         y_label: "h(q, a) = Σ W log2 M".into(),
         ..Default::default()

@@ -674,7 +674,8 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                 format!("theory: {:.4}", t[n]),
                 vec![(0.0, 0.0), (xmax, t[n] * xmax)],
                 Style::Dashed,
-                9,
+                // not the fit's grey, nor a reference scale's colour (0..6)
+                8,
             ));
         }
         save_chart(&c, &dir.join(format!("cumulant_C{}.png", n + 1)))?;
