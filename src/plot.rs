@@ -9,6 +9,9 @@ use std::path::Path;
 use std::sync::Once;
 
 use ndarray::ArrayView2;
+use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
+use plotters::element::MultiLineText;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
@@ -80,6 +83,30 @@ pub struct Chart {
     /// Fixed ranges; computed from the data when `None`.
     pub x_range: Option<(f64, f64)>,
     pub y_range: Option<(f64, f64)>,
+    /// Where the legend goes; `None` (the default) places it automatically
+    /// in the inner corner that covers the least data, adding headroom to
+    /// an automatic y range or moving it right of the plot if every corner
+    /// would cover data (see [`save_chart`]).
+    pub legend: Option<LegendPos>,
+}
+
+impl Chart {
+    /// The same chart with the legend at `pos` instead of placed automatically.
+    pub fn with_legend(mut self, pos: LegendPos) -> Self {
+        self.legend = Some(pos);
+        self
+    }
+}
+
+/// Legend positions: an inner corner of the plotting area, or a column
+/// right of it (the plotting area shrinks to make room).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LegendPos {
+    UpperLeft,
+    UpperRight,
+    LowerLeft,
+    LowerRight,
+    OutsideRight,
 }
 
 /// A colour from a palette readable on white (tab10-like, then a ramp).
@@ -137,23 +164,339 @@ fn data_range(chart: &Chart) -> ((f64, f64), (f64, f64)) {
     )
 }
 
+type Ctx<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// Outer margin of a picture, and the sizes of the axis-label areas.
+const MARGIN: u32 = 14;
+const X_LABEL_AREA: u32 = 44;
+const Y_LABEL_AREA: u32 = 64;
+/// Legend geometry, as plotters lays it out: font size, the column of line
+/// samples left of the text, the inner margin, and the inset of a corner
+/// legend from the edges of the plotting area.
+const LEGEND_FONT: u32 = 14;
+const LEGEND_GLYPH: i32 = 30;
+const LEGEND_MARGIN: i32 = 10;
+const LEGEND_INSET: i32 = 5;
+/// Ink this close to the legend box counts as covered (marker radius, line width).
+const LEGEND_PAD: i32 = 3;
+/// The gap either side of a legend right of the plotting area.
+const LEGEND_GAP: i32 = 12;
+/// The most an automatic y range may grow (relative to itself) to free a corner.
+const MAX_HEADROOM: f64 = 0.6;
+/// The most of the picture's width a legend right of the plot may take.
+const MAX_OUTSIDE: f64 = 0.4;
+
+fn err_str(x: &dyn std::fmt::Display) -> String {
+    x.to_string()
+}
+
+/// The labels of the legend, in series order.
+fn legend_labels(chart: &Chart) -> Vec<&str> {
+    chart
+        .series
+        .iter()
+        .filter(|s| !s.name.is_empty())
+        .map(|s| s.name.as_str())
+        .collect()
+}
+
+/// The legend box (width, height) in pixels, as plotters will draw it.
+fn legend_size(labels: &[&str]) -> (i32, i32) {
+    let mut text = MultiLineText::<_, &str>::new((0, 0), ("sans-serif", LEGEND_FONT));
+    for &l in labels {
+        text.push_line(l);
+    }
+    let (w, h) = text.estimate_dimension().unwrap_or_else(|_| {
+        // conservative: 0.65 em per character, 1.25 em per line
+        let n = labels.iter().map(|l| l.chars().count()).max().unwrap_or(0);
+        let em = LEGEND_FONT as f64;
+        (
+            (0.65 * em * n as f64).ceil() as i32,
+            (1.25 * em * labels.len() as f64).ceil() as i32,
+        )
+    });
+    (w + LEGEND_GLYPH + 2 * LEGEND_MARGIN, h + 2 * LEGEND_MARGIN)
+}
+
+/// The legend box at an inner corner of the plotting area `(xs, ys)`, in
+/// backend pixels: (x0, y0, x1, y1).
+fn corner_box(
+    (xs, ys): (std::ops::Range<i32>, std::ops::Range<i32>),
+    (w, h): (i32, i32),
+    pos: LegendPos,
+) -> (i32, i32, i32, i32) {
+    use LegendPos::*;
+    let x0 = match pos {
+        UpperLeft | LowerLeft => xs.start + LEGEND_INSET,
+        _ => xs.end - w - LEGEND_INSET,
+    };
+    let y0 = match pos {
+        UpperLeft | UpperRight => ys.start + LEGEND_INSET,
+        _ => ys.end - h - LEGEND_INSET,
+    };
+    (x0, y0, x0 + w, y0 + h)
+}
+
+/// The chart's area below the title, inside the margin (draws the title).
+fn titled_area<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    title: &str,
+) -> std::result::Result<DrawingArea<DB, Shift>, String> {
+    root.margin(MARGIN, MARGIN, MARGIN, MARGIN)
+        .titled(title, ("sans-serif", 22))
+        .map_err(|x| err_str(&x))
+}
+
+/// The chart's coordinates on `area`, `right` pixels kept free on the right.
+/// Draws nothing: building it again with other ranges is free.
+fn build<'a, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    (x, y): ((f64, f64), (f64, f64)),
+    right: u32,
+) -> std::result::Result<Ctx<'a, DB>, String> {
+    ChartBuilder::on(area)
+        .margin_right(right)
+        .x_label_area_size(X_LABEL_AREA)
+        .y_label_area_size(Y_LABEL_AREA)
+        .build_cartesian_2d(x.0..x.1, y.0..y.1)
+        .map_err(|x| err_str(&x))
+}
+
+/// Where the chart puts ink, in data coordinates: its markers, and points
+/// every 2 px along its lines and error bars (so a line crossing a box
+/// counts even when none of its vertices is inside).
+fn ink<DB: DrawingBackend>(ctx: &Ctx<DB>, chart: &Chart) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    let segment = |a: (f64, f64), b: (f64, f64), out: &mut Vec<(f64, f64)>| {
+        let (pa, pb) = (ctx.backend_coord(&a), ctx.backend_coord(&b));
+        let len = (pb.0 as f64 - pa.0 as f64).hypot(pb.1 as f64 - pa.1 as f64);
+        let n = ((len / 2.0).ceil() as usize).clamp(1, 100_000);
+        for i in 0..=n {
+            let t = i as f64 / n as f64;
+            out.push((a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1)));
+        }
+    };
+    for s in &chart.series {
+        let pts: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .cloned()
+            .filter(|p| p.0.is_finite() && p.1.is_finite())
+            .collect();
+        if s.style != Style::Markers {
+            for w in pts.windows(2) {
+                segment(w[0], w[1], &mut out);
+            }
+        }
+        out.extend_from_slice(&pts);
+        if let Some(err) = &s.y_err {
+            for (&(x, y), &d) in s.points.iter().zip(err) {
+                if x.is_finite() && y.is_finite() && d.is_finite() {
+                    segment((x, y - d), (x, y + d), &mut out);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// How many of the `ink` points fall on (or within [`LEGEND_PAD`] of) `b`.
+fn covered<DB: DrawingBackend>(
+    ctx: &Ctx<DB>,
+    ink: &[(f64, f64)],
+    b: (i32, i32, i32, i32),
+) -> usize {
+    ink.iter()
+        .filter(|p| {
+            let (x, y) = ctx.backend_coord(p);
+            x >= b.0 - LEGEND_PAD
+                && x <= b.2 + LEGEND_PAD
+                && y >= b.1 - LEGEND_PAD
+                && y <= b.3 + LEGEND_PAD
+        })
+        .count()
+}
+
+/// The y range, grown at the top (upper corners) or the bottom (lower
+/// corners), that leaves the legend box at `pos` free of the ink in its
+/// columns; `None` if the box would need most of the height.
+fn headroom<DB: DrawingBackend>(
+    ctx: &Ctx<DB>,
+    ink: &[(f64, f64)],
+    pos: LegendPos,
+    size: (i32, i32),
+    y: (f64, f64),
+) -> Option<(f64, f64)> {
+    let area = ctx.plotting_area().get_pixel_range();
+    let ph = (area.1.end - area.1.start - 1).max(1) as f64;
+    let b = corner_box(area, size, pos);
+    let cols = (b.0 - LEGEND_PAD)..=(b.2 + LEGEND_PAD);
+    let ys = ink
+        .iter()
+        .filter(|p| cols.contains(&ctx.backend_coord(p).0))
+        .map(|p| p.1);
+    // the fraction of the height the box needs, with a 2 px cushion
+    let f = (LEGEND_INSET + size.1 + LEGEND_PAD + 2) as f64 / ph;
+    if f >= 0.9 {
+        return None;
+    }
+    match pos {
+        LegendPos::UpperLeft | LegendPos::UpperRight => {
+            let top = ys.fold(f64::NEG_INFINITY, f64::max);
+            top.is_finite()
+                .then(|| (y.0, ((top - f * y.0) / (1.0 - f)).max(y.1)))
+        }
+        _ => {
+            let bottom = ys.fold(f64::INFINITY, f64::min);
+            bottom
+                .is_finite()
+                .then(|| (((bottom - f * y.1) / (1.0 - f)).min(y.0), y.1))
+        }
+    }
+}
+
+/// The ranges and the legend placement of a chart on `area`.
+#[derive(Clone, Debug, PartialEq)]
+struct Plan {
+    x: (f64, f64),
+    y: (f64, f64),
+    /// `None`: no labelled series.
+    legend: Option<LegendPos>,
+    /// Pixels kept free right of the plotting area (an outside legend).
+    right: u32,
+    /// The legend box (width, height) in pixels.
+    size: (i32, i32),
+}
+
+/// Places the legend: the explicit `chart.legend`, or else the first of
+/// UpperRight, UpperLeft, LowerRight, LowerLeft covering the fewest ink
+/// points; if all cover some, the corner needing the least headroom on an
+/// automatic y range (at most [`MAX_HEADROOM`]); else right of the plot if
+/// the legend is narrow enough ([`MAX_OUTSIDE`]); else the least covered corner.
+fn plan<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    chart: &Chart,
+) -> std::result::Result<Plan, String> {
+    use LegendPos::*;
+    let (x, y) = data_range(chart);
+    let mut plan = Plan {
+        x,
+        y,
+        legend: None,
+        right: 0,
+        size: (0, 0),
+    };
+    let labels = legend_labels(chart);
+    if labels.is_empty() {
+        return Ok(plan);
+    }
+    let size = legend_size(&labels);
+    plan.size = size;
+    let outside = (size.0 + 2 * LEGEND_GAP) as u32;
+    if let Some(pos) = chart.legend {
+        plan.legend = Some(pos);
+        if pos == OutsideRight {
+            plan.right = outside;
+        }
+        return Ok(plan);
+    }
+    let ctx = build(area, (x, y), 0)?;
+    let ink = ink(&ctx, chart);
+    let corners = [UpperRight, UpperLeft, LowerRight, LowerLeft];
+    let range = ctx.plotting_area().get_pixel_range();
+    let cost = corners.map(|c| covered(&ctx, &ink, corner_box(range.clone(), size, c)));
+    let best = (0..4).min_by_key(|&i| (cost[i], i)).expect("four corners");
+    if cost[best] == 0 {
+        plan.legend = Some(corners[best]);
+        return Ok(plan);
+    }
+    if chart.y_range.is_none() {
+        let mut grown: Vec<(f64, LegendPos, (f64, f64))> = corners
+            .iter()
+            .filter_map(|&c| {
+                let ny = headroom(&ctx, &ink, c, size, y)?;
+                let g = (ny.1 - ny.0) / (y.1 - y.0) - 1.0;
+                (g.is_finite() && g <= MAX_HEADROOM).then_some((g, c, ny))
+            })
+            .collect();
+        // stable: equal growth keeps the corner order
+        grown.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for (_, c, ny) in grown {
+            let moved = build(area, (x, ny), 0)?;
+            let b = corner_box(moved.plotting_area().get_pixel_range(), size, c);
+            if covered(&moved, &ink, b) == 0 {
+                plan.y = ny;
+                plan.legend = Some(c);
+                return Ok(plan);
+            }
+        }
+    }
+    if outside as f64 <= MAX_OUTSIDE * area.dim_in_pixel().0 as f64 {
+        plan.legend = Some(OutsideRight);
+        plan.right = outside;
+    } else {
+        plan.legend = Some(corners[best]);
+    }
+    Ok(plan)
+}
+
+/// Draws the legend of `chart` on `root` (backend pixels), its box's upper
+/// left corner at `at`: one line per labelled series, a sample of the
+/// series (its line, dashed if dashed, its marker) left of the label.
+fn draw_legend<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    chart: &Chart,
+    at: (i32, i32),
+    (w, h): (i32, i32),
+) -> std::result::Result<(), String> {
+    let e = err_str;
+    let (x0, y0) = at;
+    let frame = [(x0, y0), (x0 + w, y0 + h)];
+    root.draw(&Rectangle::new(frame, WHITE.mix(0.85).filled()))
+        .map_err(|x| e(&x))?;
+    root.draw(&Rectangle::new(frame, BLACK))
+        .map_err(|x| e(&x))?;
+    let named: Vec<&Series> = chart.series.iter().filter(|s| !s.name.is_empty()).collect();
+    let mut text = MultiLineText::<_, &str>::new(
+        (x0 + LEGEND_GLYPH + LEGEND_MARGIN, y0 + LEGEND_MARGIN),
+        ("sans-serif", LEGEND_FONT),
+    );
+    for s in &named {
+        text.push_line(s.name.as_str());
+    }
+    root.draw(&text).map_err(|x| e(&x))?;
+    let lines = text.compute_line_layout().map_err(|x| e(&x))?;
+    for (s, ((_, ya), (_, yb))) in named.iter().zip(lines) {
+        let (x, y) = (x0 + LEGEND_MARGIN, (ya + yb) / 2);
+        let c = palette(s.color);
+        let line =
+            |a: i32, b: i32| PathElement::new(vec![(x + a, y), (x + b, y)], c.stroke_width(2));
+        let dot = Circle::new((x + 9, y), 3, c.filled());
+        match s.style {
+            Style::Line => root.draw(&line(0, 18)),
+            Style::Dashed => root
+                .draw(&line(0, 7))
+                .and_then(|_| root.draw(&line(11, 18))),
+            Style::Markers => root.draw(&dot),
+            Style::LineMarkers => root.draw(&line(0, 18)).and_then(|_| root.draw(&dot)),
+        }
+        .map_err(|x| e(&x))?;
+    }
+    Ok(())
+}
+
 fn draw<DB: DrawingBackend>(
-    root: DrawingArea<DB, plotters::coord::Shift>,
+    root: DrawingArea<DB, Shift>,
     chart: &Chart,
 ) -> std::result::Result<(), String>
 where
     DB::ErrorType: 'static,
 {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+    let e = err_str;
     root.fill(&WHITE).map_err(|x| e(&x))?;
-    let (xr, yr) = data_range(chart);
-    let mut ctx = ChartBuilder::on(&root)
-        .caption(&chart.title, ("sans-serif", 22))
-        .margin(14)
-        .x_label_area_size(44)
-        .y_label_area_size(64)
-        .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)
-        .map_err(|x| e(&x))?;
+    let area = titled_area(&root, &chart.title)?;
+    let plan = plan(&area, chart)?;
+    let mut ctx = build(&area, (plan.x, plan.y), plan.right)?;
     ctx.configure_mesh()
         .x_desc(&chart.x_label)
         .y_desc(&chart.y_label)
@@ -162,7 +505,6 @@ where
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(|x| e(&x))?;
-    let mut legend = false;
     for s in &chart.series {
         let c = palette(s.color);
         let pts: Vec<(f64, f64)> = s
@@ -171,7 +513,7 @@ where
             .cloned()
             .filter(|p| p.0.is_finite() && p.1.is_finite())
             .collect();
-        let anno = match s.style {
+        match s.style {
             Style::Line | Style::LineMarkers => ctx
                 .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
                 .map_err(|x| e(&x))?,
@@ -182,12 +524,6 @@ where
                 .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
                 .map_err(|x| e(&x))?,
         };
-        if !s.name.is_empty() {
-            legend = true;
-            anno.label(&s.name).legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
-            });
-        }
         if s.style == Style::LineMarkers {
             ctx.draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
                 .map_err(|x| e(&x))?;
@@ -204,13 +540,16 @@ where
             ctx.draw_series(bars).map_err(|x| e(&x))?;
         }
     }
-    if legend {
-        ctx.configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .draw()
-            .map_err(|x| e(&x))?;
+    if let Some(pos) = plan.legend {
+        let (xs, ys) = ctx.plotting_area().get_pixel_range();
+        let at = match pos {
+            LegendPos::OutsideRight => (xs.end + LEGEND_GAP, ys.start),
+            _ => {
+                let b = corner_box((xs, ys), plan.size, pos);
+                (b.0, b.1)
+            }
+        };
+        draw_legend(&root, chart, at, plan.size)?;
     }
     root.present().map_err(|x| e(&x))?;
     Ok(())
@@ -348,5 +687,109 @@ impl Raster {
             path,
             &encode_png_rgb8(&self.rgb, self.width as u32, self.height as u32),
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plan of `chart` on an 800x600 picture, as `save_chart` makes it.
+    fn plan_of(chart: &Chart) -> Plan {
+        register_font();
+        let (w, h) = (800u32, 600u32);
+        let mut buf = vec![0u8; (w * h * 3) as usize];
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let area = titled_area(&root, &chart.title).unwrap();
+        plan(&area, chart).unwrap()
+    }
+
+    /// A dense line through the unit square from `a` to `b`.
+    fn line(name: &str, a: (f64, f64), b: (f64, f64)) -> Series {
+        let pts = (0..=20)
+            .map(|i| {
+                let t = i as f64 / 20.0;
+                (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1))
+            })
+            .collect();
+        Series::new(name, pts, Style::Line, 0)
+    }
+
+    fn unit_chart(series: Vec<Series>) -> Chart {
+        Chart {
+            title: "legend".into(),
+            series,
+            x_range: Some((0.0, 1.0)),
+            y_range: Some((0.0, 1.0)),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn legend_avoids_the_data() {
+        // data only in the upper right: the first free corner in the order
+        let c = unit_chart(vec![
+            line("q = 1", (0.5, 0.5), (1.0, 1.0)),
+            line("q = 2", (0.5, 1.0), (1.0, 0.5)),
+            line("q = 3", (0.5, 0.98), (1.0, 0.98)),
+        ]);
+        let p = plan_of(&c);
+        assert_eq!(p.legend, Some(LegendPos::UpperLeft));
+        assert_eq!((p.y, p.right), ((0.0, 1.0), 0));
+        assert_eq!(plan_of(&c), p, "deterministic");
+        // along the top: a lower corner
+        let c = unit_chart(vec![line("top", (0.0, 0.96), (1.0, 0.96))]);
+        assert_eq!(plan_of(&c).legend, Some(LegendPos::LowerRight));
+        // a line crossing a corner with no vertex in it still covers it
+        let c = unit_chart(vec![
+            line("bottom", (0.0, 0.02), (1.0, 0.02)),
+            line("upper left", (0.0, 0.97), (0.3, 0.97)),
+            Series::new("crossing", vec![(0.5, 0.99), (1.5, 0.93)], Style::Dashed, 1),
+        ]);
+        let p = plan_of(&c);
+        assert_eq!(p.legend, Some(LegendPos::OutsideRight), "{p:?}");
+        assert!(p.right > 0);
+        // unlabelled series: no legend
+        let c = unit_chart(vec![line("", (0.0, 0.0), (1.0, 1.0))]);
+        assert_eq!(plan_of(&c).legend, None);
+    }
+
+    #[test]
+    fn legend_gets_headroom_on_an_automatic_range() {
+        // an X through all four corners
+        let mut c = unit_chart(vec![
+            line("rising", (0.0, 0.0), (1.0, 1.0)),
+            line("falling", (0.0, 1.0), (1.0, 0.0)),
+        ]);
+        c.y_range = None;
+        let auto = data_range(&c).1;
+        let p = plan_of(&c);
+        let pos = p.legend.expect("a legend");
+        assert_eq!(p.right, 0);
+        match pos {
+            LegendPos::UpperLeft | LegendPos::UpperRight => {
+                assert!(p.y.1 > auto.1 && p.y.0 == auto.0, "{p:?}")
+            }
+            LegendPos::LowerLeft | LegendPos::LowerRight => {
+                assert!(p.y.0 < auto.0 && p.y.1 == auto.1, "{p:?}")
+            }
+            LegendPos::OutsideRight => panic!("headroom expected: {p:?}"),
+        }
+        assert!((p.y.1 - p.y.0) / (auto.1 - auto.0) <= 1.0 + MAX_HEADROOM);
+        assert_eq!(plan_of(&c), p, "deterministic");
+        // a fixed y range is kept: the legend goes right of the plot
+        c.y_range = Some((0.0, 1.0));
+        let p = plan_of(&c);
+        assert_eq!((p.legend, p.y), (Some(LegendPos::OutsideRight), (0.0, 1.0)));
+    }
+
+    #[test]
+    fn legend_position_can_be_fixed() {
+        let c = unit_chart(vec![line("q = 1", (0.7, 0.95), (0.95, 0.7))])
+            .with_legend(LegendPos::UpperRight);
+        let p = plan_of(&c);
+        assert_eq!((p.legend, p.right), (Some(LegendPos::UpperRight), 0));
+        let p = plan_of(&c.with_legend(LegendPos::OutsideRight));
+        assert!(p.right > 0);
     }
 }
