@@ -10,6 +10,7 @@ use std::sync::Once;
 
 use ndarray::ArrayView2;
 use plotters::coord::Shift;
+use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
 use plotters::element::MultiLineText;
 use plotters::prelude::*;
@@ -690,6 +691,416 @@ impl Raster {
     }
 }
 
+/// A colour bar beside a raster chart: the colours `colors(t)`, t from 0
+/// (bottom) to 1 (top), labelled with the values they stand for, linearly
+/// from `range.0` (t = 0) to `range.1` (t = 1). For a density coloured
+/// with `ramp((log10(v / peak) + 4) / 4)`, say, the bar is
+/// `ColorBar::ramp("log10 density / peak", (-4.0, 0.0))`.
+#[derive(Clone, Debug)]
+pub struct ColorBar {
+    pub label: String,
+    pub range: (f64, f64),
+    pub colors: fn(f64) -> RGBColor,
+}
+
+impl ColorBar {
+    /// A bar of [`ramp`] from `range.0` to `range.1`.
+    pub fn ramp(label: impl Into<String>, range: (f64, f64)) -> Self {
+        ColorBar {
+            label: label.into(),
+            range,
+            colors: ramp,
+        }
+    }
+}
+
+/// The axes around a [`Raster`] (see [`save_raster_chart`]): the raster
+/// fills the plotting area, its pixels square, its edges at the ends of
+/// the physical ranges.
+#[derive(Clone, Debug)]
+pub struct RasterChart {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    /// Physical x at the left edge of column 0 and at the right edge of the
+    /// last column (increasing).
+    pub x_range: (f64, f64),
+    /// Physical y from the lowest to the highest value (increasing); which
+    /// of them is row 0 depends on `y_up`.
+    pub y_range: (f64, f64),
+    /// `true`: y grows upwards, the top edge of row 0 is at `y_range.1`
+    /// (maps, densities); `false`: y grows downwards, the top edge of row 0
+    /// is at `y_range.0` (pictures in pixel coordinates, row 0 at the top).
+    pub y_up: bool,
+    /// A colour bar right of the plot.
+    pub colorbar: Option<ColorBar>,
+    /// The picture's (width, height) in pixels, the raster scaled to fit;
+    /// `None`: the raster at an integer zoom (its longest side about 600
+    /// px; 1:1 from 600 to 1000 px, shrunk beyond) with the axes around it.
+    pub size: Option<(u32, u32)>,
+}
+
+impl Default for RasterChart {
+    /// No titles, the unit square, y downwards, no colour bar, automatic size.
+    fn default() -> Self {
+        RasterChart {
+            title: String::new(),
+            x_label: String::new(),
+            y_label: String::new(),
+            x_range: (0.0, 1.0),
+            y_range: (0.0, 1.0),
+            y_up: false,
+            colorbar: None,
+            size: None,
+        }
+    }
+}
+
+/// Raster chart layout: a colour bar's gap from the plot, its width, and
+/// the room for its ticks and label; the smallest automatic picture.
+const BAR_GAP: u32 = 16;
+const BAR_WIDTH: u32 = 18;
+const BAR_LABELS: u32 = 72;
+const MIN_WIDTH: u32 = 320;
+/// A filled rectangle of this colour in the SVG is replaced by the raster.
+const SENTINEL: RGBColor = RGBColor(0xFE, 0x01, 0xFD);
+
+/// Checks a raster and the chart's ranges.
+fn check_raster(raster: &Raster, spec: &RasterChart) -> Result<()> {
+    if raster.width == 0 || raster.height == 0 {
+        return Err(Error::param("raster", "empty raster"));
+    }
+    if raster.rgb.len() != 3 * raster.width * raster.height {
+        return Err(Error::param(
+            "raster",
+            format!(
+                "{} bytes of RGB for {} x {} pixels (needs {})",
+                raster.rgb.len(),
+                raster.width,
+                raster.height,
+                3 * raster.width * raster.height
+            ),
+        ));
+    }
+    let increasing = |r: (f64, f64)| r.0.is_finite() && r.1.is_finite() && r.0 < r.1;
+    for (name, r) in [("x_range", spec.x_range), ("y_range", spec.y_range)]
+        .into_iter()
+        .chain(spec.colorbar.as_ref().map(|c| ("colorbar.range", c.range)))
+    {
+        if !increasing(r) {
+            return Err(Error::param(
+                name,
+                format!("({}, {}) is not a finite increasing range", r.0, r.1),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The height [`DrawingArea::titled`] takes for `title` (nothing if empty).
+fn title_height(title: &str) -> u32 {
+    if title.is_empty() {
+        return 0;
+    }
+    let h = ("sans-serif", 22)
+        .into_font()
+        .box_size(title)
+        .map_or(30, |(_, h)| h);
+    h + 2 * (h / 2).min(5)
+}
+
+/// The picture's size and the plotting area's (width, height), in pixels.
+fn raster_layout(raster: &Raster, spec: &RasterChart) -> Result<((u32, u32), (u32, u32))> {
+    let (w, h) = (raster.width as f64, raster.height as f64);
+    let bar = if spec.colorbar.is_some() {
+        BAR_GAP + BAR_WIDTH + BAR_LABELS
+    } else {
+        0
+    };
+    let title = title_height(&spec.title);
+    let frame_w = 2 * MARGIN + Y_LABEL_AREA + bar;
+    let frame_h = 2 * MARGIN + title + X_LABEL_AREA;
+    match spec.size {
+        Some((pw, ph)) => {
+            let (aw, ah) = (pw.saturating_sub(frame_w), ph.saturating_sub(frame_h));
+            if aw < 8 || ah < 8 {
+                return Err(Error::param(
+                    "size",
+                    format!(
+                        "{pw} x {ph} leaves no room for the raster inside the axes \
+                         (at least {} x {})",
+                        frame_w + 8,
+                        frame_h + 8
+                    ),
+                ));
+            }
+            let s = (aw as f64 / w).min(ah as f64 / h);
+            let fit = |n: f64| ((n * s).round() as u32).max(1);
+            Ok(((pw, ph), (fit(w).min(aw), fit(h).min(ah))))
+        }
+        None => {
+            let long = w.max(h);
+            let s = if long <= 600.0 {
+                (600.0 / long).floor()
+            } else {
+                (1000.0 / long).min(1.0)
+            };
+            let (pw, ph) = (
+                ((w * s).round() as u32).max(1),
+                ((h * s).round() as u32).max(1),
+            );
+            let title_w = ("sans-serif", 22)
+                .into_font()
+                .box_size(&spec.title)
+                .map_or(0, |(w, _)| w);
+            let width = (frame_w + pw).max(title_w + 2 * MARGIN).max(MIN_WIDTH);
+            Ok(((width, frame_h + ph), (pw, ph)))
+        }
+    }
+}
+
+/// `raster` scaled to `w` x `h`: nearest pixel where it grows, the mean of
+/// the covered pixels where it shrinks.
+fn resample(raster: &Raster, w: usize, h: usize) -> Vec<u8> {
+    let (sw, sh) = (raster.width, raster.height);
+    if (w, h) == (sw, sh) {
+        return raster.rgb.clone();
+    }
+    // the source span [lo, hi) of output index i along an axis of n -> m
+    let span = |i: usize, n: usize, m: usize| -> (usize, usize) {
+        if m >= n {
+            let j = ((i as f64 + 0.5) * n as f64 / m as f64) as usize;
+            (j.min(n - 1), j.min(n - 1) + 1)
+        } else {
+            let lo = i * n / m;
+            let hi = ((i + 1) * n).div_ceil(m).clamp(lo + 1, n);
+            (lo, hi)
+        }
+    };
+    let cols: Vec<(usize, usize)> = (0..w).map(|i| span(i, sw, w)).collect();
+    let mut out = Vec::with_capacity(w * h * 3);
+    for oy in 0..h {
+        let (y0, y1) = span(oy, sh, h);
+        for &(x0, x1) in &cols {
+            let mut sum = [0u32; 3];
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let i = 3 * (y * sw + x);
+                    for (s, &v) in sum.iter_mut().zip(&raster.rgb[i..i + 3]) {
+                        *s += v as u32;
+                    }
+                }
+            }
+            let n = ((y1 - y0) * (x1 - x0)) as u32;
+            out.extend(sum.iter().map(|&s| ((s + n / 2) / n) as u8));
+        }
+    }
+    out
+}
+
+/// Standard base64 (RFC 4648, padded).
+fn base64(bytes: &[u8]) -> String {
+    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for c in bytes.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+/// A plotting area: its upper left corner and its size, in backend pixels.
+type PlotRect = ((i32, i32), (u32, u32));
+
+/// Draws the raster chart; the raster itself is blitted (`blit`) or left as
+/// a [`SENTINEL`] rectangle (for SVG). Returns the plotting area's upper
+/// left corner and size in backend pixels.
+fn draw_raster<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    raster: &Raster,
+    spec: &RasterChart,
+    plot: (u32, u32),
+    blit: bool,
+) -> std::result::Result<PlotRect, String>
+where
+    DB::ErrorType: 'static,
+{
+    let e = err_str;
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let area = if spec.title.is_empty() {
+        root.margin(MARGIN, MARGIN, MARGIN, MARGIN)
+    } else {
+        titled_area(&root, &spec.title)?
+    };
+    let (aw, ah) = area.dim_in_pixel();
+    let bar = if spec.colorbar.is_some() {
+        BAR_GAP + BAR_WIDTH + BAR_LABELS
+    } else {
+        0
+    };
+    let (bw, bh) = (Y_LABEL_AREA + plot.0 + bar, plot.1 + X_LABEL_AREA);
+    let (ox, oy) = (aw.saturating_sub(bw) / 2, ah.saturating_sub(bh) / 2);
+    let main = area.clone().shrink((ox, oy), (Y_LABEL_AREA + plot.0, bh));
+    // y downwards: the chart runs on -y, labelled with y
+    let (y_lo, y_hi, sign) = if spec.y_up {
+        (spec.y_range.0, spec.y_range.1, 1.0)
+    } else {
+        (-spec.y_range.1, -spec.y_range.0, -1.0)
+    };
+    let mut ctx = ChartBuilder::on(&main)
+        .x_label_area_size(X_LABEL_AREA)
+        .y_label_area_size(Y_LABEL_AREA)
+        .build_cartesian_2d(spec.x_range.0..spec.x_range.1, y_lo..y_hi)
+        .map_err(|x| e(&x))?;
+    let pa = ctx.plotting_area().strip_coord_spec();
+    let (pw, ph) = pa.dim_in_pixel();
+    let base = pa.get_base_pixel();
+    if blit {
+        let buf = resample(raster, pw as usize, ph as usize);
+        let img = BitMapElement::with_owned_buffer((0, 0), (pw, ph), buf)
+            .ok_or("raster buffer of the wrong size")?;
+        pa.draw(&img).map_err(|x| e(&x))?;
+    } else {
+        pa.draw(&Rectangle::new(
+            [(0, 0), (pw as i32, ph as i32)],
+            SENTINEL.filled(),
+        ))
+        .map_err(|x| e(&x))?;
+    }
+    let fmt_y = |v: &f64| <RangedCoordf64 as ValueFormatter<f64>>::format(&(sign * v + 0.0));
+    ctx.configure_mesh()
+        .disable_mesh()
+        .x_desc(&spec.x_label)
+        .y_desc(&spec.y_label)
+        .y_label_formatter(&fmt_y)
+        .label_style(("sans-serif", 15))
+        .axis_desc_style(("sans-serif", 17))
+        .draw()
+        .map_err(|x| e(&x))?;
+    // a frame just outside the raster
+    root.draw(&Rectangle::new(
+        [
+            (base.0 - 1, base.1 - 1),
+            (base.0 + pw as i32, base.1 + ph as i32),
+        ],
+        BLACK,
+    ))
+    .map_err(|x| e(&x))?;
+    if let Some(cb) = &spec.colorbar {
+        let column = area.clone().shrink(
+            (ox + Y_LABEL_AREA + pw + BAR_GAP, oy),
+            (BAR_WIDTH + BAR_LABELS, bh),
+        );
+        let (lo, hi) = cb.range;
+        let mut bar = ChartBuilder::on(&column)
+            .margin_bottom(X_LABEL_AREA)
+            .right_y_label_area_size(BAR_LABELS)
+            .build_cartesian_2d(0.0..1.0, lo..hi)
+            .map_err(|x| e(&x))?;
+        let n = ph.clamp(2, 256);
+        bar.draw_series((0..n).map(|i| {
+            let (t0, t1) = (i as f64 / n as f64, (i + 1) as f64 / n as f64);
+            let c = (cb.colors)(0.5 * (t0 + t1));
+            Rectangle::new(
+                [(0.0, lo + t0 * (hi - lo)), (1.0, lo + t1 * (hi - lo))],
+                c.filled(),
+            )
+        }))
+        .map_err(|x| e(&x))?;
+        bar.configure_mesh()
+            .disable_mesh()
+            .y_desc(&cb.label)
+            .label_style(("sans-serif", 15))
+            .axis_desc_style(("sans-serif", 17))
+            .draw()
+            .map_err(|x| e(&x))?;
+        let bp = bar.plotting_area().strip_coord_spec();
+        let (w, h) = bp.dim_in_pixel();
+        bp.draw(&Rectangle::new(
+            [(0, 0), (w as i32 - 1, h as i32 - 1)],
+            BLACK,
+        ))
+        .map_err(|x| e(&x))?;
+    }
+    root.present().map_err(|x| e(&x))?;
+    Ok((base, (pw, ph)))
+}
+
+/// Renders `raster` inside axes: `spec`'s title, axis labels and tick
+/// values for its physical ranges, and optionally a colour bar, to `path`
+/// (`.png` or `.svg`, by extension), written atomically as [`save_chart`].
+/// The raster's pixels stay square: it is scaled (nearest pixel up, mean
+/// down) to the largest size that fits, centred. In SVG it is embedded
+/// once at its own resolution (a PNG, drawn pixelated).
+///
+/// **Errors** on an unknown extension, a raster whose `rgb` is not
+/// `3 width height` bytes, empty or non-finite ranges, a `size` too small
+/// for the axes, or a write failure.
+pub fn save_raster_chart(raster: &Raster, spec: &RasterChart, path: &Path) -> Result<()> {
+    register_font();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    if ext != "png" && ext != "svg" {
+        return Err(Error::format(path, "plots are written as .png or .svg"));
+    }
+    check_raster(raster, spec)?;
+    let ((w, h), plot) = raster_layout(raster, spec)?;
+    let fail = |m: String| Error::format(path, format!("cannot render plot: {m}"));
+    if ext == "png" {
+        let mut buf = vec![0u8; (w * h * 3) as usize];
+        draw_raster(
+            BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area(),
+            raster,
+            spec,
+            plot,
+            true,
+        )
+        .map_err(fail)?;
+        return write_atomic(path, &encode_png_rgb8(&buf, w, h));
+    }
+    let mut s = String::new();
+    let ((x, y), (pw, ph)) = draw_raster(
+        SVGBackend::with_string(&mut s, (w, h)).into_drawing_area(),
+        raster,
+        spec,
+        plot,
+        false,
+    )
+    .map_err(fail)?;
+    let png = encode_png_rgb8(&raster.rgb, raster.width as u32, raster.height as u32);
+    let image = format!(
+        "<image x=\"{x}\" y=\"{y}\" width=\"{pw}\" height=\"{ph}\" \
+         preserveAspectRatio=\"none\" style=\"image-rendering:pixelated\" \
+         href=\"data:image/png;base64,{}\"/>",
+        base64(&png)
+    );
+    let fill = format!(
+        "fill=\"#{:02X}{:02X}{:02X}\"",
+        SENTINEL.0, SENTINEL.1, SENTINEL.2
+    );
+    let at = s
+        .find(&fill)
+        .and_then(|i| {
+            let start = s[..i].rfind("<rect")?;
+            let end = i + s[i..].find("/>")? + 2;
+            Some(start..end)
+        })
+        .ok_or_else(|| fail("no place for the raster in the SVG".into()))?;
+    s.replace_range(at, &image);
+    write_atomic(path, s.as_bytes())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -791,5 +1202,68 @@ mod tests {
         assert_eq!((p.legend, p.right), (Some(LegendPos::UpperRight), 0));
         let p = plan_of(&c.with_legend(LegendPos::OutsideRight));
         assert!(p.right > 0);
+    }
+
+    #[test]
+    fn raster_fills_the_plotting_area_unobstructed() {
+        register_font();
+        let (nx, ny) = (10, 6);
+        let rgb = (0..nx * ny)
+            .flat_map(|i| [(i * 4) as u8, (255 - i * 3) as u8, (i % 7 * 30) as u8])
+            .collect();
+        let r = Raster {
+            width: nx,
+            height: ny,
+            rgb,
+        };
+        for y_up in [false, true] {
+            let spec = RasterChart {
+                title: "t".into(),
+                x_label: "x".into(),
+                y_label: "y".into(),
+                y_up,
+                colorbar: Some(ColorBar::ramp("c", (0.0, 1.0))),
+                ..Default::default()
+            };
+            let ((w, h), plot) = raster_layout(&r, &spec).unwrap();
+            assert_eq!(plot, (600, 360), "integer zoom 60");
+            let mut buf = vec![0u8; (w * h * 3) as usize];
+            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            let (base, dims) = draw_raster(root, &r, &spec, plot, true).unwrap();
+            assert_eq!(dims, plot);
+            let want = resample(&r, plot.0 as usize, plot.1 as usize);
+            for y in 0..plot.1 as usize {
+                let row = 3 * ((base.1 as usize + y) * w as usize + base.0 as usize);
+                let n = 3 * plot.0 as usize;
+                assert_eq!(buf[row..row + n], want[y * n..y * n + n], "row {y}");
+            }
+        }
+    }
+
+    #[test]
+    fn resample_and_base64() {
+        let r = Raster {
+            width: 4,
+            height: 2,
+            rgb: (0..24).map(|i| i as u8 * 10).collect(),
+        };
+        // shrinking: the mean of 2 x 2 blocks
+        let m = |i: usize| {
+            ((r.rgb[i] as u32
+                + r.rgb[i + 3] as u32
+                + r.rgb[i + 12] as u32
+                + r.rgb[i + 15] as u32
+                + 2)
+                / 4) as u8
+        };
+        assert_eq!(resample(&r, 2, 1), vec![m(0), m(1), m(2), m(6), m(7), m(8)]);
+        // growing: nearest pixel
+        let g = resample(&r, 8, 4);
+        assert_eq!(g[..6], [0, 10, 20, 0, 10, 20]);
+        assert_eq!(g[3 * (3 * 8 + 7)..3 * (3 * 8 + 8)], r.rgb[21..24]);
+        assert_eq!(base64(b"Man"), "TWFu");
+        assert_eq!(base64(b"Ma"), "TWE=");
+        assert_eq!(base64(b"M"), "TQ==");
+        assert_eq!(base64(b""), "");
     }
 }
