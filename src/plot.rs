@@ -4,6 +4,11 @@
 //! `ab_glyph` feature), so the binary needs no fontconfig and no system font.
 //! PNG is encoded by the `png` crate from plotters' RGB buffer; SVG is built
 //! in memory. Files are written atomically: nothing half-written on error.
+//!
+//! Curves go through [`Chart`] and [`save_chart`] (the legend placed off
+//! the data); pictures through [`Raster`], bare ([`Raster::save`],
+//! [`save_grey`]) or inside axes with an optional colour bar
+//! ([`save_raster_chart`]).
 
 use std::path::Path;
 use std::sync::Once;
@@ -171,7 +176,7 @@ type Ctx<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf
 const MARGIN: u32 = 14;
 const X_LABEL_AREA: u32 = 44;
 const Y_LABEL_AREA: u32 = 64;
-/// Legend geometry, as plotters lays it out: font size, the column of line
+/// Legend geometry (plotters' layout): font size, the column of series
 /// samples left of the text, the inner margin, and the inset of a corner
 /// legend from the edges of the plotting area.
 const LEGEND_FONT: u32 = 14;
@@ -201,7 +206,7 @@ fn legend_labels(chart: &Chart) -> Vec<&str> {
         .collect()
 }
 
-/// The legend box (width, height) in pixels, as plotters will draw it.
+/// The legend box (width, height) in pixels, as [`draw_legend`] draws it.
 fn legend_size(labels: &[&str]) -> (i32, i32) {
     let mut text = MultiLineText::<_, &str>::new((0, 0), ("sans-serif", LEGEND_FONT));
     for &l in labels {
@@ -558,6 +563,15 @@ where
 
 /// Renders `chart` to `path` (`.png` or `.svg`, by extension), 800x600.
 ///
+/// The legend (one line per series with a name) goes where `chart.legend`
+/// says, or, by default, where it hides no data: the first of the inner
+/// corners upper right, upper left, lower right, lower left whose box
+/// covers no marker and no stretch of line or error bar; if every corner
+/// covers some, the y range (when automatic) grows at the top or bottom,
+/// by at most 60 %, to leave one corner empty; failing that the legend
+/// goes in a column right of the plot (if at most 40 % of the width), or,
+/// last, in the corner covering the least. Same chart, same picture.
+///
 /// **Errors** on an unknown extension or a write failure.
 pub fn save_chart(chart: &Chart, path: &Path) -> Result<()> {
     register_font();
@@ -626,7 +640,9 @@ pub fn save_grey(img: ArrayView2<f64>, path: &Path) -> Result<()> {
     write_atomic(path, &encode_png_rgb8(&buf, nx as u32, ny as u32))
 }
 
-/// An RGB raster that callers draw on (skeleton pictures), saved as PNG.
+/// An RGB raster that callers draw on (skeleton pictures), saved as PNG
+/// as it is ([`Raster::save`]) or inside axes ([`save_raster_chart`]).
+/// Row 0 is the top row; `rgb` holds `3 * width * height` bytes, row-major.
 pub struct Raster {
     pub width: usize,
     pub height: usize,
