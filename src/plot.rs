@@ -4,11 +4,20 @@
 //! `ab_glyph` feature), so the binary needs no fontconfig and no system font.
 //! PNG is encoded by the `png` crate from plotters' RGB buffer; SVG is built
 //! in memory. Files are written atomically: nothing half-written on error.
+//!
+//! Curves go through [`Chart`] and [`save_chart`] (the legend placed off
+//! the data); pictures through [`Raster`], bare ([`Raster::save`],
+//! [`save_grey`]) or inside axes with an optional colour bar
+//! ([`save_raster_chart`]).
 
 use std::path::Path;
 use std::sync::Once;
 
 use ndarray::ArrayView2;
+use plotters::coord::Shift;
+use plotters::coord::ranged1d::ValueFormatter;
+use plotters::coord::types::RangedCoordf64;
+use plotters::element::MultiLineText;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
@@ -80,6 +89,30 @@ pub struct Chart {
     /// Fixed ranges; computed from the data when `None`.
     pub x_range: Option<(f64, f64)>,
     pub y_range: Option<(f64, f64)>,
+    /// Where the legend goes; `None` (the default) places it automatically
+    /// in the inner corner that covers the least data, adding headroom to
+    /// an automatic y range or moving it right of the plot if every corner
+    /// would cover data (see [`save_chart`]).
+    pub legend: Option<LegendPos>,
+}
+
+impl Chart {
+    /// The same chart with the legend at `pos` instead of placed automatically.
+    pub fn with_legend(mut self, pos: LegendPos) -> Self {
+        self.legend = Some(pos);
+        self
+    }
+}
+
+/// Legend positions: an inner corner of the plotting area, or a column
+/// right of it (the plotting area shrinks to make room).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LegendPos {
+    UpperLeft,
+    UpperRight,
+    LowerLeft,
+    LowerRight,
+    OutsideRight,
 }
 
 /// A colour from a palette readable on white (tab10-like, then a ramp).
@@ -137,23 +170,339 @@ fn data_range(chart: &Chart) -> ((f64, f64), (f64, f64)) {
     )
 }
 
+type Ctx<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// Outer margin of a picture, and the sizes of the axis-label areas.
+const MARGIN: u32 = 14;
+const X_LABEL_AREA: u32 = 44;
+const Y_LABEL_AREA: u32 = 64;
+/// Legend geometry (plotters' layout): font size, the column of series
+/// samples left of the text, the inner margin, and the inset of a corner
+/// legend from the edges of the plotting area.
+const LEGEND_FONT: u32 = 14;
+const LEGEND_GLYPH: i32 = 30;
+const LEGEND_MARGIN: i32 = 10;
+const LEGEND_INSET: i32 = 5;
+/// Ink this close to the legend box counts as covered (marker radius, line width).
+const LEGEND_PAD: i32 = 3;
+/// The gap either side of a legend right of the plotting area.
+const LEGEND_GAP: i32 = 12;
+/// The most an automatic y range may grow (relative to itself) to free a corner.
+const MAX_HEADROOM: f64 = 0.6;
+/// The most of the picture's width a legend right of the plot may take.
+const MAX_OUTSIDE: f64 = 0.4;
+
+fn err_str(x: &dyn std::fmt::Display) -> String {
+    x.to_string()
+}
+
+/// The labels of the legend, in series order.
+fn legend_labels(chart: &Chart) -> Vec<&str> {
+    chart
+        .series
+        .iter()
+        .filter(|s| !s.name.is_empty())
+        .map(|s| s.name.as_str())
+        .collect()
+}
+
+/// The legend box (width, height) in pixels, as [`draw_legend`] draws it.
+fn legend_size(labels: &[&str]) -> (i32, i32) {
+    let mut text = MultiLineText::<_, &str>::new((0, 0), ("sans-serif", LEGEND_FONT));
+    for &l in labels {
+        text.push_line(l);
+    }
+    let (w, h) = text.estimate_dimension().unwrap_or_else(|_| {
+        // conservative: 0.65 em per character, 1.25 em per line
+        let n = labels.iter().map(|l| l.chars().count()).max().unwrap_or(0);
+        let em = LEGEND_FONT as f64;
+        (
+            (0.65 * em * n as f64).ceil() as i32,
+            (1.25 * em * labels.len() as f64).ceil() as i32,
+        )
+    });
+    (w + LEGEND_GLYPH + 2 * LEGEND_MARGIN, h + 2 * LEGEND_MARGIN)
+}
+
+/// The legend box at an inner corner of the plotting area `(xs, ys)`, in
+/// backend pixels: (x0, y0, x1, y1).
+fn corner_box(
+    (xs, ys): (std::ops::Range<i32>, std::ops::Range<i32>),
+    (w, h): (i32, i32),
+    pos: LegendPos,
+) -> (i32, i32, i32, i32) {
+    use LegendPos::*;
+    let x0 = match pos {
+        UpperLeft | LowerLeft => xs.start + LEGEND_INSET,
+        _ => xs.end - w - LEGEND_INSET,
+    };
+    let y0 = match pos {
+        UpperLeft | UpperRight => ys.start + LEGEND_INSET,
+        _ => ys.end - h - LEGEND_INSET,
+    };
+    (x0, y0, x0 + w, y0 + h)
+}
+
+/// The chart's area below the title, inside the margin (draws the title).
+fn titled_area<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    title: &str,
+) -> std::result::Result<DrawingArea<DB, Shift>, String> {
+    root.margin(MARGIN, MARGIN, MARGIN, MARGIN)
+        .titled(title, ("sans-serif", 22))
+        .map_err(|x| err_str(&x))
+}
+
+/// The chart's coordinates on `area`, `right` pixels kept free on the right.
+/// Draws nothing: building it again with other ranges is free.
+fn build<'a, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    (x, y): ((f64, f64), (f64, f64)),
+    right: u32,
+) -> std::result::Result<Ctx<'a, DB>, String> {
+    ChartBuilder::on(area)
+        .margin_right(right)
+        .x_label_area_size(X_LABEL_AREA)
+        .y_label_area_size(Y_LABEL_AREA)
+        .build_cartesian_2d(x.0..x.1, y.0..y.1)
+        .map_err(|x| err_str(&x))
+}
+
+/// Where the chart puts ink, in data coordinates: its markers, and points
+/// every 2 px along its lines and error bars (so a line crossing a box
+/// counts even when none of its vertices is inside).
+fn ink<DB: DrawingBackend>(ctx: &Ctx<DB>, chart: &Chart) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    let segment = |a: (f64, f64), b: (f64, f64), out: &mut Vec<(f64, f64)>| {
+        let (pa, pb) = (ctx.backend_coord(&a), ctx.backend_coord(&b));
+        let len = (pb.0 as f64 - pa.0 as f64).hypot(pb.1 as f64 - pa.1 as f64);
+        let n = ((len / 2.0).ceil() as usize).clamp(1, 100_000);
+        for i in 0..=n {
+            let t = i as f64 / n as f64;
+            out.push((a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1)));
+        }
+    };
+    for s in &chart.series {
+        let pts: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .cloned()
+            .filter(|p| p.0.is_finite() && p.1.is_finite())
+            .collect();
+        if s.style != Style::Markers {
+            for w in pts.windows(2) {
+                segment(w[0], w[1], &mut out);
+            }
+        }
+        out.extend_from_slice(&pts);
+        if let Some(err) = &s.y_err {
+            for (&(x, y), &d) in s.points.iter().zip(err) {
+                if x.is_finite() && y.is_finite() && d.is_finite() {
+                    segment((x, y - d), (x, y + d), &mut out);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// How many of the `ink` points fall on (or within [`LEGEND_PAD`] of) `b`.
+fn covered<DB: DrawingBackend>(
+    ctx: &Ctx<DB>,
+    ink: &[(f64, f64)],
+    b: (i32, i32, i32, i32),
+) -> usize {
+    ink.iter()
+        .filter(|p| {
+            let (x, y) = ctx.backend_coord(p);
+            x >= b.0 - LEGEND_PAD
+                && x <= b.2 + LEGEND_PAD
+                && y >= b.1 - LEGEND_PAD
+                && y <= b.3 + LEGEND_PAD
+        })
+        .count()
+}
+
+/// The y range, grown at the top (upper corners) or the bottom (lower
+/// corners), that leaves the legend box at `pos` free of the ink in its
+/// columns; `None` if the box would need most of the height.
+fn headroom<DB: DrawingBackend>(
+    ctx: &Ctx<DB>,
+    ink: &[(f64, f64)],
+    pos: LegendPos,
+    size: (i32, i32),
+    y: (f64, f64),
+) -> Option<(f64, f64)> {
+    let area = ctx.plotting_area().get_pixel_range();
+    let ph = (area.1.end - area.1.start - 1).max(1) as f64;
+    let b = corner_box(area, size, pos);
+    let cols = (b.0 - LEGEND_PAD)..=(b.2 + LEGEND_PAD);
+    let ys = ink
+        .iter()
+        .filter(|p| cols.contains(&ctx.backend_coord(p).0))
+        .map(|p| p.1);
+    // the fraction of the height the box needs, with a 2 px cushion
+    let f = (LEGEND_INSET + size.1 + LEGEND_PAD + 2) as f64 / ph;
+    if f >= 0.9 {
+        return None;
+    }
+    match pos {
+        LegendPos::UpperLeft | LegendPos::UpperRight => {
+            let top = ys.fold(f64::NEG_INFINITY, f64::max);
+            top.is_finite()
+                .then(|| (y.0, ((top - f * y.0) / (1.0 - f)).max(y.1)))
+        }
+        _ => {
+            let bottom = ys.fold(f64::INFINITY, f64::min);
+            bottom
+                .is_finite()
+                .then(|| (((bottom - f * y.1) / (1.0 - f)).min(y.0), y.1))
+        }
+    }
+}
+
+/// The ranges and the legend placement of a chart on `area`.
+#[derive(Clone, Debug, PartialEq)]
+struct Plan {
+    x: (f64, f64),
+    y: (f64, f64),
+    /// `None`: no labelled series.
+    legend: Option<LegendPos>,
+    /// Pixels kept free right of the plotting area (an outside legend).
+    right: u32,
+    /// The legend box (width, height) in pixels.
+    size: (i32, i32),
+}
+
+/// Places the legend: the explicit `chart.legend`, or else the first of
+/// UpperRight, UpperLeft, LowerRight, LowerLeft covering the fewest ink
+/// points; if all cover some, the corner needing the least headroom on an
+/// automatic y range (at most [`MAX_HEADROOM`]); else right of the plot if
+/// the legend is narrow enough ([`MAX_OUTSIDE`]); else the least covered corner.
+fn plan<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    chart: &Chart,
+) -> std::result::Result<Plan, String> {
+    use LegendPos::*;
+    let (x, y) = data_range(chart);
+    let mut plan = Plan {
+        x,
+        y,
+        legend: None,
+        right: 0,
+        size: (0, 0),
+    };
+    let labels = legend_labels(chart);
+    if labels.is_empty() {
+        return Ok(plan);
+    }
+    let size = legend_size(&labels);
+    plan.size = size;
+    let outside = (size.0 + 2 * LEGEND_GAP) as u32;
+    if let Some(pos) = chart.legend {
+        plan.legend = Some(pos);
+        if pos == OutsideRight {
+            plan.right = outside;
+        }
+        return Ok(plan);
+    }
+    let ctx = build(area, (x, y), 0)?;
+    let ink = ink(&ctx, chart);
+    let corners = [UpperRight, UpperLeft, LowerRight, LowerLeft];
+    let range = ctx.plotting_area().get_pixel_range();
+    let cost = corners.map(|c| covered(&ctx, &ink, corner_box(range.clone(), size, c)));
+    let best = (0..4).min_by_key(|&i| (cost[i], i)).expect("four corners");
+    if cost[best] == 0 {
+        plan.legend = Some(corners[best]);
+        return Ok(plan);
+    }
+    if chart.y_range.is_none() {
+        let mut grown: Vec<(f64, LegendPos, (f64, f64))> = corners
+            .iter()
+            .filter_map(|&c| {
+                let ny = headroom(&ctx, &ink, c, size, y)?;
+                let g = (ny.1 - ny.0) / (y.1 - y.0) - 1.0;
+                (g.is_finite() && g <= MAX_HEADROOM).then_some((g, c, ny))
+            })
+            .collect();
+        // stable: equal growth keeps the corner order
+        grown.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for (_, c, ny) in grown {
+            let moved = build(area, (x, ny), 0)?;
+            let b = corner_box(moved.plotting_area().get_pixel_range(), size, c);
+            if covered(&moved, &ink, b) == 0 {
+                plan.y = ny;
+                plan.legend = Some(c);
+                return Ok(plan);
+            }
+        }
+    }
+    if outside as f64 <= MAX_OUTSIDE * area.dim_in_pixel().0 as f64 {
+        plan.legend = Some(OutsideRight);
+        plan.right = outside;
+    } else {
+        plan.legend = Some(corners[best]);
+    }
+    Ok(plan)
+}
+
+/// Draws the legend of `chart` on `root` (backend pixels), its box's upper
+/// left corner at `at`: one line per labelled series, a sample of the
+/// series (its line, dashed if dashed, its marker) left of the label.
+fn draw_legend<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    chart: &Chart,
+    at: (i32, i32),
+    (w, h): (i32, i32),
+) -> std::result::Result<(), String> {
+    let e = err_str;
+    let (x0, y0) = at;
+    let frame = [(x0, y0), (x0 + w, y0 + h)];
+    root.draw(&Rectangle::new(frame, WHITE.mix(0.85).filled()))
+        .map_err(|x| e(&x))?;
+    root.draw(&Rectangle::new(frame, BLACK))
+        .map_err(|x| e(&x))?;
+    let named: Vec<&Series> = chart.series.iter().filter(|s| !s.name.is_empty()).collect();
+    let mut text = MultiLineText::<_, &str>::new(
+        (x0 + LEGEND_GLYPH + LEGEND_MARGIN, y0 + LEGEND_MARGIN),
+        ("sans-serif", LEGEND_FONT),
+    );
+    for s in &named {
+        text.push_line(s.name.as_str());
+    }
+    root.draw(&text).map_err(|x| e(&x))?;
+    let lines = text.compute_line_layout().map_err(|x| e(&x))?;
+    for (s, ((_, ya), (_, yb))) in named.iter().zip(lines) {
+        let (x, y) = (x0 + LEGEND_MARGIN, (ya + yb) / 2);
+        let c = palette(s.color);
+        let line =
+            |a: i32, b: i32| PathElement::new(vec![(x + a, y), (x + b, y)], c.stroke_width(2));
+        let dot = Circle::new((x + 9, y), 3, c.filled());
+        match s.style {
+            Style::Line => root.draw(&line(0, 18)),
+            Style::Dashed => root
+                .draw(&line(0, 7))
+                .and_then(|_| root.draw(&line(11, 18))),
+            Style::Markers => root.draw(&dot),
+            Style::LineMarkers => root.draw(&line(0, 18)).and_then(|_| root.draw(&dot)),
+        }
+        .map_err(|x| e(&x))?;
+    }
+    Ok(())
+}
+
 fn draw<DB: DrawingBackend>(
-    root: DrawingArea<DB, plotters::coord::Shift>,
+    root: DrawingArea<DB, Shift>,
     chart: &Chart,
 ) -> std::result::Result<(), String>
 where
     DB::ErrorType: 'static,
 {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+    let e = err_str;
     root.fill(&WHITE).map_err(|x| e(&x))?;
-    let (xr, yr) = data_range(chart);
-    let mut ctx = ChartBuilder::on(&root)
-        .caption(&chart.title, ("sans-serif", 22))
-        .margin(14)
-        .x_label_area_size(44)
-        .y_label_area_size(64)
-        .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)
-        .map_err(|x| e(&x))?;
+    let area = titled_area(&root, &chart.title)?;
+    let plan = plan(&area, chart)?;
+    let mut ctx = build(&area, (plan.x, plan.y), plan.right)?;
     ctx.configure_mesh()
         .x_desc(&chart.x_label)
         .y_desc(&chart.y_label)
@@ -162,7 +511,6 @@ where
         .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(|x| e(&x))?;
-    let mut legend = false;
     for s in &chart.series {
         let c = palette(s.color);
         let pts: Vec<(f64, f64)> = s
@@ -171,7 +519,7 @@ where
             .cloned()
             .filter(|p| p.0.is_finite() && p.1.is_finite())
             .collect();
-        let anno = match s.style {
+        match s.style {
             Style::Line | Style::LineMarkers => ctx
                 .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
                 .map_err(|x| e(&x))?,
@@ -182,12 +530,6 @@ where
                 .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
                 .map_err(|x| e(&x))?,
         };
-        if !s.name.is_empty() {
-            legend = true;
-            anno.label(&s.name).legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
-            });
-        }
         if s.style == Style::LineMarkers {
             ctx.draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
                 .map_err(|x| e(&x))?;
@@ -204,19 +546,31 @@ where
             ctx.draw_series(bars).map_err(|x| e(&x))?;
         }
     }
-    if legend {
-        ctx.configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .draw()
-            .map_err(|x| e(&x))?;
+    if let Some(pos) = plan.legend {
+        let (xs, ys) = ctx.plotting_area().get_pixel_range();
+        let at = match pos {
+            LegendPos::OutsideRight => (xs.end + LEGEND_GAP, ys.start),
+            _ => {
+                let b = corner_box((xs, ys), plan.size, pos);
+                (b.0, b.1)
+            }
+        };
+        draw_legend(&root, chart, at, plan.size)?;
     }
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
 
 /// Renders `chart` to `path` (`.png` or `.svg`, by extension), 800x600.
+///
+/// The legend (one line per series with a name) goes where `chart.legend`
+/// says, or, by default, where it hides no data: the first of the inner
+/// corners upper right, upper left, lower right, lower left whose box
+/// covers no marker and no stretch of line or error bar; if every corner
+/// covers some, the y range (when automatic) grows at the top or bottom,
+/// by at most 60 %, to leave one corner empty; failing that the legend
+/// goes in a column right of the plot (if at most 40 % of the width), or,
+/// last, in the corner covering the least. Same chart, same picture.
 ///
 /// **Errors** on an unknown extension or a write failure.
 pub fn save_chart(chart: &Chart, path: &Path) -> Result<()> {
@@ -286,7 +640,9 @@ pub fn save_grey(img: ArrayView2<f64>, path: &Path) -> Result<()> {
     write_atomic(path, &encode_png_rgb8(&buf, nx as u32, ny as u32))
 }
 
-/// An RGB raster that callers draw on (skeleton pictures), saved as PNG.
+/// An RGB raster that callers draw on (skeleton pictures), saved as PNG
+/// as it is ([`Raster::save`]) or inside axes ([`save_raster_chart`]).
+/// Row 0 is the top row; `rgb` holds `3 * width * height` bytes, row-major.
 pub struct Raster {
     pub width: usize,
     pub height: usize,
@@ -348,5 +704,582 @@ impl Raster {
             path,
             &encode_png_rgb8(&self.rgb, self.width as u32, self.height as u32),
         )
+    }
+}
+
+/// A colour bar beside a raster chart: the colours `colors(t)`, t from 0
+/// (bottom) to 1 (top), labelled with the values they stand for, linearly
+/// from `range.0` (t = 0) to `range.1` (t = 1). For a density coloured
+/// with `ramp((log10(v / peak) + 4) / 4)`, say, the bar is
+/// `ColorBar::ramp("log10 density / peak", (-4.0, 0.0))`.
+#[derive(Clone, Debug)]
+pub struct ColorBar {
+    pub label: String,
+    pub range: (f64, f64),
+    pub colors: fn(f64) -> RGBColor,
+}
+
+impl ColorBar {
+    /// A bar of [`ramp`] from `range.0` to `range.1`.
+    pub fn ramp(label: impl Into<String>, range: (f64, f64)) -> Self {
+        ColorBar {
+            label: label.into(),
+            range,
+            colors: ramp,
+        }
+    }
+}
+
+/// The axes around a [`Raster`] (see [`save_raster_chart`]): the raster
+/// fills the plotting area, its pixels square, its edges at the ends of
+/// the physical ranges.
+#[derive(Clone, Debug)]
+pub struct RasterChart {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    /// Physical x at the left edge of column 0 and at the right edge of the
+    /// last column (increasing).
+    pub x_range: (f64, f64),
+    /// Physical y from the lowest to the highest value (increasing); which
+    /// of them is row 0 depends on `y_up`.
+    pub y_range: (f64, f64),
+    /// `true`: y grows upwards, the top edge of row 0 is at `y_range.1`
+    /// (maps, densities); `false`: y grows downwards, the top edge of row 0
+    /// is at `y_range.0` (pictures in pixel coordinates, row 0 at the top).
+    pub y_up: bool,
+    /// A colour bar right of the plot.
+    pub colorbar: Option<ColorBar>,
+    /// The picture's (width, height) in pixels, the raster scaled to fit;
+    /// `None`: the raster at an integer zoom (its longest side about 600
+    /// px; 1:1 from 600 to 1000 px, shrunk beyond) with the axes around it.
+    pub size: Option<(u32, u32)>,
+}
+
+impl Default for RasterChart {
+    /// No titles, the unit square, y downwards, no colour bar, automatic size.
+    fn default() -> Self {
+        RasterChart {
+            title: String::new(),
+            x_label: String::new(),
+            y_label: String::new(),
+            x_range: (0.0, 1.0),
+            y_range: (0.0, 1.0),
+            y_up: false,
+            colorbar: None,
+            size: None,
+        }
+    }
+}
+
+/// Raster chart layout: a colour bar's gap from the plot, its width, and
+/// the room for its ticks and label; the smallest automatic picture.
+const BAR_GAP: u32 = 16;
+const BAR_WIDTH: u32 = 18;
+const BAR_LABELS: u32 = 72;
+const MIN_WIDTH: u32 = 320;
+/// A filled rectangle of this colour in the SVG is replaced by the raster.
+const SENTINEL: RGBColor = RGBColor(0xFE, 0x01, 0xFD);
+
+/// Checks a raster and the chart's ranges.
+fn check_raster(raster: &Raster, spec: &RasterChart) -> Result<()> {
+    if raster.width == 0 || raster.height == 0 {
+        return Err(Error::param("raster", "empty raster"));
+    }
+    if raster.rgb.len() != 3 * raster.width * raster.height {
+        return Err(Error::param(
+            "raster",
+            format!(
+                "{} bytes of RGB for {} x {} pixels (needs {})",
+                raster.rgb.len(),
+                raster.width,
+                raster.height,
+                3 * raster.width * raster.height
+            ),
+        ));
+    }
+    let increasing = |r: (f64, f64)| r.0.is_finite() && r.1.is_finite() && r.0 < r.1;
+    for (name, r) in [("x_range", spec.x_range), ("y_range", spec.y_range)]
+        .into_iter()
+        .chain(spec.colorbar.as_ref().map(|c| ("colorbar.range", c.range)))
+    {
+        if !increasing(r) {
+            return Err(Error::param(
+                name,
+                format!("({}, {}) is not a finite increasing range", r.0, r.1),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The height [`DrawingArea::titled`] takes for `title` (nothing if empty).
+fn title_height(title: &str) -> u32 {
+    if title.is_empty() {
+        return 0;
+    }
+    let h = ("sans-serif", 22)
+        .into_font()
+        .box_size(title)
+        .map_or(30, |(_, h)| h);
+    h + 2 * (h / 2).min(5)
+}
+
+/// The picture's size and the plotting area's (width, height), in pixels.
+fn raster_layout(raster: &Raster, spec: &RasterChart) -> Result<((u32, u32), (u32, u32))> {
+    let (w, h) = (raster.width as f64, raster.height as f64);
+    let bar = if spec.colorbar.is_some() {
+        BAR_GAP + BAR_WIDTH + BAR_LABELS
+    } else {
+        0
+    };
+    let title = title_height(&spec.title);
+    let frame_w = 2 * MARGIN + Y_LABEL_AREA + bar;
+    let frame_h = 2 * MARGIN + title + X_LABEL_AREA;
+    match spec.size {
+        Some((pw, ph)) => {
+            let (aw, ah) = (pw.saturating_sub(frame_w), ph.saturating_sub(frame_h));
+            if aw < 8 || ah < 8 {
+                return Err(Error::param(
+                    "size",
+                    format!(
+                        "{pw} x {ph} leaves no room for the raster inside the axes \
+                         (at least {} x {})",
+                        frame_w + 8,
+                        frame_h + 8
+                    ),
+                ));
+            }
+            let s = (aw as f64 / w).min(ah as f64 / h);
+            let fit = |n: f64| ((n * s).round() as u32).max(1);
+            Ok(((pw, ph), (fit(w).min(aw), fit(h).min(ah))))
+        }
+        None => {
+            let long = w.max(h);
+            let s = if long <= 600.0 {
+                (600.0 / long).floor()
+            } else {
+                (1000.0 / long).min(1.0)
+            };
+            let (pw, ph) = (
+                ((w * s).round() as u32).max(1),
+                ((h * s).round() as u32).max(1),
+            );
+            let title_w = ("sans-serif", 22)
+                .into_font()
+                .box_size(&spec.title)
+                .map_or(0, |(w, _)| w);
+            let width = (frame_w + pw).max(title_w + 2 * MARGIN).max(MIN_WIDTH);
+            Ok(((width, frame_h + ph), (pw, ph)))
+        }
+    }
+}
+
+/// `raster` scaled to `w` x `h`: nearest pixel where it grows, the mean of
+/// the covered pixels where it shrinks.
+fn resample(raster: &Raster, w: usize, h: usize) -> Vec<u8> {
+    let (sw, sh) = (raster.width, raster.height);
+    if (w, h) == (sw, sh) {
+        return raster.rgb.clone();
+    }
+    // the source span [lo, hi) of output index i along an axis of n -> m
+    let span = |i: usize, n: usize, m: usize| -> (usize, usize) {
+        if m >= n {
+            let j = ((i as f64 + 0.5) * n as f64 / m as f64) as usize;
+            (j.min(n - 1), j.min(n - 1) + 1)
+        } else {
+            let lo = i * n / m;
+            let hi = ((i + 1) * n).div_ceil(m).clamp(lo + 1, n);
+            (lo, hi)
+        }
+    };
+    let cols: Vec<(usize, usize)> = (0..w).map(|i| span(i, sw, w)).collect();
+    let mut out = Vec::with_capacity(w * h * 3);
+    for oy in 0..h {
+        let (y0, y1) = span(oy, sh, h);
+        for &(x0, x1) in &cols {
+            let mut sum = [0u32; 3];
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let i = 3 * (y * sw + x);
+                    for (s, &v) in sum.iter_mut().zip(&raster.rgb[i..i + 3]) {
+                        *s += v as u32;
+                    }
+                }
+            }
+            let n = ((y1 - y0) * (x1 - x0)) as u32;
+            out.extend(sum.iter().map(|&s| ((s + n / 2) / n) as u8));
+        }
+    }
+    out
+}
+
+/// Standard base64 (RFC 4648, padded).
+fn base64(bytes: &[u8]) -> String {
+    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for c in bytes.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+/// A plotting area: its upper left corner and its size, in backend pixels.
+type PlotRect = ((i32, i32), (u32, u32));
+
+/// Draws the raster chart; the raster itself is blitted (`blit`) or left as
+/// a [`SENTINEL`] rectangle (for SVG). Returns the plotting area's upper
+/// left corner and size in backend pixels.
+fn draw_raster<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    raster: &Raster,
+    spec: &RasterChart,
+    plot: (u32, u32),
+    blit: bool,
+) -> std::result::Result<PlotRect, String>
+where
+    DB::ErrorType: 'static,
+{
+    let e = err_str;
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let area = if spec.title.is_empty() {
+        root.margin(MARGIN, MARGIN, MARGIN, MARGIN)
+    } else {
+        titled_area(&root, &spec.title)?
+    };
+    let (aw, ah) = area.dim_in_pixel();
+    let bar = if spec.colorbar.is_some() {
+        BAR_GAP + BAR_WIDTH + BAR_LABELS
+    } else {
+        0
+    };
+    let (bw, bh) = (Y_LABEL_AREA + plot.0 + bar, plot.1 + X_LABEL_AREA);
+    let (ox, oy) = (aw.saturating_sub(bw) / 2, ah.saturating_sub(bh) / 2);
+    let main = area.clone().shrink((ox, oy), (Y_LABEL_AREA + plot.0, bh));
+    // y downwards: the chart runs on -y, labelled with y
+    let (y_lo, y_hi, sign) = if spec.y_up {
+        (spec.y_range.0, spec.y_range.1, 1.0)
+    } else {
+        (-spec.y_range.1, -spec.y_range.0, -1.0)
+    };
+    let mut ctx = ChartBuilder::on(&main)
+        .x_label_area_size(X_LABEL_AREA)
+        .y_label_area_size(Y_LABEL_AREA)
+        .build_cartesian_2d(spec.x_range.0..spec.x_range.1, y_lo..y_hi)
+        .map_err(|x| e(&x))?;
+    let pa = ctx.plotting_area().strip_coord_spec();
+    let (pw, ph) = pa.dim_in_pixel();
+    let base = pa.get_base_pixel();
+    if blit {
+        let buf = resample(raster, pw as usize, ph as usize);
+        let img = BitMapElement::with_owned_buffer((0, 0), (pw, ph), buf)
+            .ok_or("raster buffer of the wrong size")?;
+        pa.draw(&img).map_err(|x| e(&x))?;
+    } else {
+        pa.draw(&Rectangle::new(
+            [(0, 0), (pw as i32, ph as i32)],
+            SENTINEL.filled(),
+        ))
+        .map_err(|x| e(&x))?;
+    }
+    let fmt_y = |v: &f64| <RangedCoordf64 as ValueFormatter<f64>>::format(&(sign * v + 0.0));
+    ctx.configure_mesh()
+        .disable_mesh()
+        .x_desc(&spec.x_label)
+        .y_desc(&spec.y_label)
+        .y_label_formatter(&fmt_y)
+        .label_style(("sans-serif", 15))
+        .axis_desc_style(("sans-serif", 17))
+        .draw()
+        .map_err(|x| e(&x))?;
+    // a frame just outside the raster
+    root.draw(&Rectangle::new(
+        [
+            (base.0 - 1, base.1 - 1),
+            (base.0 + pw as i32, base.1 + ph as i32),
+        ],
+        BLACK,
+    ))
+    .map_err(|x| e(&x))?;
+    if let Some(cb) = &spec.colorbar {
+        let column = area.clone().shrink(
+            (ox + Y_LABEL_AREA + pw + BAR_GAP, oy),
+            (BAR_WIDTH + BAR_LABELS, bh),
+        );
+        let (lo, hi) = cb.range;
+        let mut bar = ChartBuilder::on(&column)
+            .margin_bottom(X_LABEL_AREA)
+            .right_y_label_area_size(BAR_LABELS)
+            .build_cartesian_2d(0.0..1.0, lo..hi)
+            .map_err(|x| e(&x))?;
+        let n = ph.clamp(2, 256);
+        bar.draw_series((0..n).map(|i| {
+            let (t0, t1) = (i as f64 / n as f64, (i + 1) as f64 / n as f64);
+            let c = (cb.colors)(0.5 * (t0 + t1));
+            Rectangle::new(
+                [(0.0, lo + t0 * (hi - lo)), (1.0, lo + t1 * (hi - lo))],
+                c.filled(),
+            )
+        }))
+        .map_err(|x| e(&x))?;
+        bar.configure_mesh()
+            .disable_mesh()
+            .y_desc(&cb.label)
+            .label_style(("sans-serif", 15))
+            .axis_desc_style(("sans-serif", 17))
+            .draw()
+            .map_err(|x| e(&x))?;
+        let bp = bar.plotting_area().strip_coord_spec();
+        let (w, h) = bp.dim_in_pixel();
+        bp.draw(&Rectangle::new(
+            [(0, 0), (w as i32 - 1, h as i32 - 1)],
+            BLACK,
+        ))
+        .map_err(|x| e(&x))?;
+    }
+    root.present().map_err(|x| e(&x))?;
+    Ok((base, (pw, ph)))
+}
+
+/// Renders `raster` inside axes: `spec`'s title, axis labels and tick
+/// values for its physical ranges, and optionally a colour bar, to `path`
+/// (`.png` or `.svg`, by extension), written atomically as [`save_chart`].
+/// The raster's pixels stay square: it is scaled (nearest pixel up, mean
+/// down) to the largest size that fits, centred. In SVG it is embedded
+/// once at its own resolution (a PNG, drawn pixelated).
+///
+/// **Errors** on an unknown extension, a raster whose `rgb` is not
+/// `3 width height` bytes, empty or non-finite ranges, a `size` too small
+/// for the axes, or a write failure.
+pub fn save_raster_chart(raster: &Raster, spec: &RasterChart, path: &Path) -> Result<()> {
+    register_font();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    if ext != "png" && ext != "svg" {
+        return Err(Error::format(path, "plots are written as .png or .svg"));
+    }
+    check_raster(raster, spec)?;
+    let ((w, h), plot) = raster_layout(raster, spec)?;
+    let fail = |m: String| Error::format(path, format!("cannot render plot: {m}"));
+    if ext == "png" {
+        let mut buf = vec![0u8; (w * h * 3) as usize];
+        draw_raster(
+            BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area(),
+            raster,
+            spec,
+            plot,
+            true,
+        )
+        .map_err(fail)?;
+        return write_atomic(path, &encode_png_rgb8(&buf, w, h));
+    }
+    let mut s = String::new();
+    let ((x, y), (pw, ph)) = draw_raster(
+        SVGBackend::with_string(&mut s, (w, h)).into_drawing_area(),
+        raster,
+        spec,
+        plot,
+        false,
+    )
+    .map_err(fail)?;
+    let png = encode_png_rgb8(&raster.rgb, raster.width as u32, raster.height as u32);
+    let image = format!(
+        "<image x=\"{x}\" y=\"{y}\" width=\"{pw}\" height=\"{ph}\" \
+         preserveAspectRatio=\"none\" style=\"image-rendering:pixelated\" \
+         href=\"data:image/png;base64,{}\"/>",
+        base64(&png)
+    );
+    let fill = format!(
+        "fill=\"#{:02X}{:02X}{:02X}\"",
+        SENTINEL.0, SENTINEL.1, SENTINEL.2
+    );
+    let at = s
+        .find(&fill)
+        .and_then(|i| {
+            let start = s[..i].rfind("<rect")?;
+            let end = i + s[i..].find("/>")? + 2;
+            Some(start..end)
+        })
+        .ok_or_else(|| fail("no place for the raster in the SVG".into()))?;
+    s.replace_range(at, &image);
+    write_atomic(path, s.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plan of `chart` on an 800x600 picture, as `save_chart` makes it.
+    fn plan_of(chart: &Chart) -> Plan {
+        register_font();
+        let (w, h) = (800u32, 600u32);
+        let mut buf = vec![0u8; (w * h * 3) as usize];
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let area = titled_area(&root, &chart.title).unwrap();
+        plan(&area, chart).unwrap()
+    }
+
+    /// A dense line through the unit square from `a` to `b`.
+    fn line(name: &str, a: (f64, f64), b: (f64, f64)) -> Series {
+        let pts = (0..=20)
+            .map(|i| {
+                let t = i as f64 / 20.0;
+                (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1))
+            })
+            .collect();
+        Series::new(name, pts, Style::Line, 0)
+    }
+
+    fn unit_chart(series: Vec<Series>) -> Chart {
+        Chart {
+            title: "legend".into(),
+            series,
+            x_range: Some((0.0, 1.0)),
+            y_range: Some((0.0, 1.0)),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn legend_avoids_the_data() {
+        // data only in the upper right: the first free corner in the order
+        let c = unit_chart(vec![
+            line("q = 1", (0.5, 0.5), (1.0, 1.0)),
+            line("q = 2", (0.5, 1.0), (1.0, 0.5)),
+            line("q = 3", (0.5, 0.98), (1.0, 0.98)),
+        ]);
+        let p = plan_of(&c);
+        assert_eq!(p.legend, Some(LegendPos::UpperLeft));
+        assert_eq!((p.y, p.right), ((0.0, 1.0), 0));
+        assert_eq!(plan_of(&c), p, "deterministic");
+        // along the top: a lower corner
+        let c = unit_chart(vec![line("top", (0.0, 0.96), (1.0, 0.96))]);
+        assert_eq!(plan_of(&c).legend, Some(LegendPos::LowerRight));
+        // a line crossing a corner with no vertex in it still covers it
+        let c = unit_chart(vec![
+            line("bottom", (0.0, 0.02), (1.0, 0.02)),
+            line("upper left", (0.0, 0.97), (0.3, 0.97)),
+            Series::new("crossing", vec![(0.5, 0.99), (1.5, 0.93)], Style::Dashed, 1),
+        ]);
+        let p = plan_of(&c);
+        assert_eq!(p.legend, Some(LegendPos::OutsideRight), "{p:?}");
+        assert!(p.right > 0);
+        // unlabelled series: no legend
+        let c = unit_chart(vec![line("", (0.0, 0.0), (1.0, 1.0))]);
+        assert_eq!(plan_of(&c).legend, None);
+    }
+
+    #[test]
+    fn legend_gets_headroom_on_an_automatic_range() {
+        // an X through all four corners
+        let mut c = unit_chart(vec![
+            line("rising", (0.0, 0.0), (1.0, 1.0)),
+            line("falling", (0.0, 1.0), (1.0, 0.0)),
+        ]);
+        c.y_range = None;
+        let auto = data_range(&c).1;
+        let p = plan_of(&c);
+        let pos = p.legend.expect("a legend");
+        assert_eq!(p.right, 0);
+        match pos {
+            LegendPos::UpperLeft | LegendPos::UpperRight => {
+                assert!(p.y.1 > auto.1 && p.y.0 == auto.0, "{p:?}")
+            }
+            LegendPos::LowerLeft | LegendPos::LowerRight => {
+                assert!(p.y.0 < auto.0 && p.y.1 == auto.1, "{p:?}")
+            }
+            LegendPos::OutsideRight => panic!("headroom expected: {p:?}"),
+        }
+        assert!((p.y.1 - p.y.0) / (auto.1 - auto.0) <= 1.0 + MAX_HEADROOM);
+        assert_eq!(plan_of(&c), p, "deterministic");
+        // a fixed y range is kept: the legend goes right of the plot
+        c.y_range = Some((0.0, 1.0));
+        let p = plan_of(&c);
+        assert_eq!((p.legend, p.y), (Some(LegendPos::OutsideRight), (0.0, 1.0)));
+    }
+
+    #[test]
+    fn legend_position_can_be_fixed() {
+        let c = unit_chart(vec![line("q = 1", (0.7, 0.95), (0.95, 0.7))])
+            .with_legend(LegendPos::UpperRight);
+        let p = plan_of(&c);
+        assert_eq!((p.legend, p.right), (Some(LegendPos::UpperRight), 0));
+        let p = plan_of(&c.with_legend(LegendPos::OutsideRight));
+        assert!(p.right > 0);
+    }
+
+    #[test]
+    fn raster_fills_the_plotting_area_unobstructed() {
+        register_font();
+        let (nx, ny) = (10, 6);
+        let rgb = (0..nx * ny)
+            .flat_map(|i| [(i * 4) as u8, (255 - i * 3) as u8, (i % 7 * 30) as u8])
+            .collect();
+        let r = Raster {
+            width: nx,
+            height: ny,
+            rgb,
+        };
+        for y_up in [false, true] {
+            let spec = RasterChart {
+                title: "t".into(),
+                x_label: "x".into(),
+                y_label: "y".into(),
+                y_up,
+                colorbar: Some(ColorBar::ramp("c", (0.0, 1.0))),
+                ..Default::default()
+            };
+            let ((w, h), plot) = raster_layout(&r, &spec).unwrap();
+            assert_eq!(plot, (600, 360), "integer zoom 60");
+            let mut buf = vec![0u8; (w * h * 3) as usize];
+            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            let (base, dims) = draw_raster(root, &r, &spec, plot, true).unwrap();
+            assert_eq!(dims, plot);
+            let want = resample(&r, plot.0 as usize, plot.1 as usize);
+            for y in 0..plot.1 as usize {
+                let row = 3 * ((base.1 as usize + y) * w as usize + base.0 as usize);
+                let n = 3 * plot.0 as usize;
+                assert_eq!(buf[row..row + n], want[y * n..y * n + n], "row {y}");
+            }
+        }
+    }
+
+    #[test]
+    fn resample_and_base64() {
+        let r = Raster {
+            width: 4,
+            height: 2,
+            rgb: (0..24).map(|i| i as u8 * 10).collect(),
+        };
+        // shrinking: the mean of 2 x 2 blocks
+        let m = |i: usize| {
+            ((r.rgb[i] as u32
+                + r.rgb[i + 3] as u32
+                + r.rgb[i + 12] as u32
+                + r.rgb[i + 15] as u32
+                + 2)
+                / 4) as u8
+        };
+        assert_eq!(resample(&r, 2, 1), vec![m(0), m(1), m(2), m(6), m(7), m(8)]);
+        // growing: nearest pixel
+        let g = resample(&r, 8, 4);
+        assert_eq!(g[..6], [0, 10, 20, 0, 10, 20]);
+        assert_eq!(g[3 * (3 * 8 + 7)..3 * (3 * 8 + 8)], r.rgb[21..24]);
+        assert_eq!(base64(b"Man"), "TWFu");
+        assert_eq!(base64(b"Ma"), "TWE=");
+        assert_eq!(base64(b"M"), "TQ==");
+        assert_eq!(base64(b""), "");
     }
 }
