@@ -27,7 +27,9 @@ use super::{OutDir, Outcome};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::field::Field;
-use crate::plot::{Chart, Raster, Series, Style, ramp, save_chart};
+use crate::plot::{
+    Chart, ColorBar, Raster, RasterChart, Series, Style, ramp, save_chart, save_raster_chart,
+};
 use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::fit::line_fit;
 use crate::stats::kernel::{nearest_scale, octave_on_grid};
@@ -655,22 +657,29 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
         save_chart(&cs, &dir.join(format!("pdf_M_sectors_{n}.png")))?;
     }
     for (n, s) in show.iter().enumerate() {
-        joint_picture(s, &dir.join(format!("joint_T_{n}.png")))?;
+        joint_picture(
+            s,
+            title(&format!(
+                "joint density of (T1, T2), {} (II Fig 19)",
+                label(s)
+            )),
+            &dir.join(format!("joint_T_{n}.png")),
+        )?;
     }
     Ok(())
 }
 
 /// II Figs 13, 19: the density of (T1, T2) at the WTMMM, log colour scale
-/// (white = no WTMMM), 4 px per cell, with the axes as a cross.
-fn joint_picture(s: &ScalePdf, path: &Path) -> Result<()> {
-    let n = s.joint.t.len();
-    let px = 4usize;
+/// over 4 decades (white = no WTMMM), T2 upwards, with axes and a colour bar.
+fn joint_picture(s: &ScalePdf, title: String, path: &Path) -> Result<()> {
+    let t = &s.joint.t;
+    let n = t.len();
     let d = &s.joint.density;
     let peak = d.iter().cloned().fold(0.0, f64::max);
     let mut r = Raster {
-        width: n * px,
-        height: n * px,
-        rgb: vec![255; n * px * n * px * 3],
+        width: n,
+        height: n,
+        rgb: vec![255; n * n * 3],
     };
     for iy in 0..n {
         for ix in 0..n {
@@ -678,26 +687,28 @@ fn joint_picture(s: &ScalePdf, path: &Path) -> Result<()> {
             if !(v > 0.0 && peak > 0.0) {
                 continue;
             }
-            // 4 decades of log density
-            let t = ((v / peak).log10() + 4.0) / 4.0;
-            let c = ramp(t.clamp(0.0, 1.0));
-            for dy in 0..px {
-                for dx in 0..px {
-                    // T2 upwards
-                    r.put(
-                        (ix * px + dx) as isize,
-                        ((n - 1 - iy) * px + dy) as isize,
-                        (c.0, c.1, c.2),
-                    );
-                }
-            }
+            let c = ramp((((v / peak).log10() + 4.0) / 4.0).clamp(0.0, 1.0));
+            // row 0 at the top: the largest T2
+            r.put(ix as isize, (n - 1 - iy) as isize, (c.0, c.1, c.2));
         }
     }
-    let mid = (n * px / 2) as f64;
-    let end = (n * px) as f64;
-    r.line(0.0, mid, end, mid, (0, 0, 0));
-    r.line(mid, 0.0, mid, end, (0, 0, 0));
-    r.save(path)
+    // cell centres t[i]: the picture spans half a cell beyond them
+    let w = if n > 1 { t[1] - t[0] } else { 1.0 };
+    let range = (t[0] - 0.5 * w, t[n - 1] + 0.5 * w);
+    save_raster_chart(
+        &r,
+        &RasterChart {
+            title,
+            x_label: "T1".into(),
+            y_label: "T2".into(),
+            x_range: range,
+            y_range: range,
+            y_up: true,
+            colorbar: Some(ColorBar::ramp("log10 density / peak", (-4.0, 0.0))),
+            size: None,
+        },
+        path,
+    )
 }
 
 /// Shared by the kernel command: a mutex-guarded cache is not needed here,

@@ -12,7 +12,7 @@ use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
 use super::{OutDir, Outcome};
 use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
-use crate::plot::Raster;
+use crate::plot::{Raster, RasterChart, save_raster_chart};
 use crate::skeleton::{Parallelism, skeleton_with};
 
 #[derive(Args, Debug)]
@@ -156,7 +156,18 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
             }
         }
         let name = format!("skeleton_j{j:02}_a{:.2}.png", sm.a);
-        r.save(&args.out.out.join(&name))?;
+        save_raster_chart(
+            &r,
+            &RasterChart {
+                title: format!("maxima chains and WTMMM, a = {:.2} px (II Fig 15)", sm.a),
+                x_label: "x (px)".into(),
+                y_label: "y (px)".into(),
+                x_range: (0.0, nx as f64),
+                y_range: (0.0, ny as f64),
+                ..Default::default()
+            },
+            &args.out.out.join(&name),
+        )?;
         pictures.push(json!({"j": j, "a": sm.a, "file": name}));
     }
     let mut body = header("skeleton", json!({"image": args.image, "analysis": cfg}));
