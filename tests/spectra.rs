@@ -430,3 +430,183 @@ fn experiment_wtmmm_amplitudes() {
         );
     }
 }
+
+// ---------------------------------------------------------------- sup rule
+
+/// `log2 Σ 2^(q l)` over `l`, by log-sum-exp (the reference for the cells).
+fn log2_sum_pow(l: &[f64], q: f64) -> f64 {
+    let mx = l.iter().map(|&v| q * v).fold(f64::NEG_INFINITY, f64::max);
+    mx + l.iter().map(|&v| (q * v - mx).exp2()).sum::<f64>().log2()
+}
+
+/// The values `(log2 M, log2 M_sup)` that count at scale `j`, recomputed
+/// from the lines as SPEC §4 defines them: lines alive at `j` that link at
+/// least once, whose point lies in the counting domain; the sup-rule value
+/// is the running maximum of M along the line from `a_min` up to `a_j`,
+/// recomputed here from the moduli (not read from `LinePoint::sup`).
+fn counted_values(sk: &wtmm::skeleton::Skeleton, j: usize) -> (Vec<f64>, Vec<f64>) {
+    sk.alive_at(j)
+        .filter(|l| l.points.len() > 1 && sk.counts(l.points[j].x, l.points[j].y))
+        .map(|l| {
+            let run = l.points[..=j]
+                .iter()
+                .map(|p| p.m)
+                .fold(f64::NEG_INFINITY, f64::max);
+            (l.points[j].m.log2(), run.log2())
+        })
+        .unzip()
+}
+
+/// The sup rule by construction (SPEC §4, `M_L(a) = max over a' <= a`
+/// along L): on a rough field (an fBm, where M goes up and down along the
+/// lines), at every point of every line the stored sup value is the
+/// running maximum of the moduli up to that scale, to the last bit (a max
+/// of the same floats is exact), hence `>= M` and non-decreasing in a; and
+/// the partition sums of both rules are those of the recomputed values
+/// (rounding: the cells sum in a different order, relative 1e-12 on Z),
+/// so `Z_sup >= Z_plain` for q > 0, `<=` for q < 0 and `=` at q = 0. The
+/// test needs lines whose modulus falls somewhere (else both rules
+/// coincide and nothing is tested): it asserts that a share of the points
+/// have `sup > M`.
+#[test]
+fn sup_rule_is_the_running_maximum_along_every_line() {
+    let q = [-2.0, -1.0, 0.0, 1.0, 2.0, 3.0];
+    let f = Field::new(fbm(FbmParams { hurst: 0.4 }, 256, 256, 31, 0).unwrap());
+    let sk = wtmm::skeleton::skeleton(&f, &small_cfg()).unwrap();
+    let (mut points, mut above) = (0usize, 0usize);
+    for l in &sk.lines {
+        let mut run = f64::NEG_INFINITY;
+        for (j, p) in l.points.iter().enumerate() {
+            run = run.max(p.m);
+            assert_eq!(
+                p.sup.to_bits(),
+                run.to_bits(),
+                "scale {j}: sup {} vs running max {run}",
+                p.sup
+            );
+            assert!(p.sup >= p.m);
+            if j > 0 {
+                assert!(p.sup >= l.points[j - 1].sup, "sup falls along a line");
+            }
+            points += 1;
+            above += (p.sup > p.m) as usize;
+        }
+    }
+    println!("{above} of {points} line points have sup > M");
+    assert!(
+        above * 10 > points,
+        "too few falling moduli to test the rule: {above} of {points}"
+    );
+    let ps = PartitionSums::from_skeleton(&sk, &q, "fbm");
+    let ns = sk.scales.len();
+    let im = &ps.images[0];
+    for j in 0..ns {
+        let (lp, ls) = counted_values(&sk, j);
+        assert_eq!(im.lines[j], lp.len() as u64, "scale {j}: lines counted");
+        if lp.is_empty() {
+            continue;
+        }
+        for (qi, &qv) in q.iter().enumerate() {
+            let got = |c: &wtmm::spectra::Cell| c.e as f64 + c.z.log2();
+            let (zp, zs) = (got(&im.plain[qi * ns + j]), got(&im.sup[qi * ns + j]));
+            let (wp, ws) = (log2_sum_pow(&lp, qv), log2_sum_pow(&ls, qv));
+            // |log2 Z| up to ~40 here: 1e-12 relative on Z is 1.5e-12 in log2
+            assert!(
+                (zp - wp).abs() < 2e-12 * (1.0 + wp.abs()),
+                "plain q={qv} j={j}: {zp} vs {wp}"
+            );
+            assert!(
+                (zs - ws).abs() < 2e-12 * (1.0 + ws.abs()),
+                "sup q={qv} j={j}: {zs} vs {ws}"
+            );
+            if qv > 0.0 {
+                assert!(zs >= zp - 1e-12, "q={qv} j={j}: Z_sup < Z_plain");
+            } else if qv < 0.0 {
+                assert!(zs <= zp + 1e-12, "q={qv} j={j}: Z_sup > Z_plain");
+            } else {
+                assert_eq!(
+                    zs.to_bits(),
+                    zp.to_bits(),
+                    "q=0 j={j}: both count the lines"
+                );
+            }
+        }
+    }
+}
+
+/// Where M grows with the scale along every line the two rules are the
+/// same estimator: `max_{a' <= a} M(a') = M(a)`, so the partition sums and
+/// the spectra agree to the last bit. Field: five parallel step edges of
+/// heights 1..5, 32 px apart (a staircase). Along the line on an isolated
+/// step M = (1/√(2π)) (1 - 1/(12 a²) + ...) grows with a (the pixel
+/// sampling of the step, see `tests/skeleton.rs`), and each neighbouring
+/// step of the same sign adds a positive, growing share to T1. The
+/// precondition is checked, not assumed: every counted line has a
+/// non-decreasing modulus; the disc (a closed edge: M falls as the
+/// smoothing reaches across it) is the counter-example where the rules
+/// must differ.
+#[test]
+fn sup_and_plain_agree_where_the_modulus_grows_along_every_line() {
+    let q = [-2.0, -1.0, 0.0, 1.0, 2.0, 3.0];
+    let n = 256;
+    let stairs = ndarray::Array2::from_shape_fn((n, n), |(_, x)| {
+        (0..5)
+            .map(|k| {
+                let e = 64 + 32 * k;
+                match x.cmp(&e) {
+                    std::cmp::Ordering::Less => 0.0,
+                    std::cmp::Ordering::Equal => 0.5,
+                    std::cmp::Ordering::Greater => 1.0,
+                }
+            })
+            .sum::<f64>()
+    });
+    let disc = ndarray::Array2::from_shape_fn((n, n), |(y, x)| {
+        let (dx, dy) = (x as f64 - 128.0, y as f64 - 128.0);
+        if dx * dx + dy * dy < 30.0 * 30.0 {
+            1.0
+        } else {
+            0.0
+        }
+    });
+    let cfg = AnalysisConfig {
+        octaves: 3,
+        a_min: 2.0,
+        margin: Some(40),
+        ..Default::default()
+    };
+    for (name, img, monotone) in [("stairs", stairs, true), ("disc", disc, false)] {
+        let sk = wtmm::skeleton::skeleton(&Field::new(img), &cfg).unwrap();
+        let counted: Vec<_> = sk
+            .lines
+            .iter()
+            .filter(|l| l.points.len() > 1 && sk.counts(l.points[0].x, l.points[0].y))
+            .collect();
+        assert!(counted.len() >= 5, "{name}: {} lines", counted.len());
+        let grows = counted
+            .iter()
+            .all(|l| l.points.windows(2).all(|w| w[1].m >= w[0].m));
+        assert_eq!(grows, monotone, "{name}: does M grow along every line?");
+        let sums = PartitionSums::from_skeleton(&sk, &q, name);
+        let (s, p) = (
+            sums.spectra(Rule::Sup, (0.0, 3.0)).unwrap(),
+            sums.spectra(Rule::Plain, (0.0, 3.0)).unwrap(),
+        );
+        let bits = |v: &Vec<Vec<f64>>| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+        if monotone {
+            assert_eq!(bits(&s.log2_z), bits(&p.log2_z), "{name}: log2 Z");
+            assert_eq!(bits(&s.h_qa), bits(&p.h_qa), "{name}: h(q, a)");
+        } else {
+            // M falls along the disc's lines: the sup rule holds the
+            // earlier, larger value, so h(q, a) is larger at some scale
+            assert!(
+                s.h_qa
+                    .iter()
+                    .flatten()
+                    .zip(p.h_qa.iter().flatten())
+                    .any(|(a, b)| a > b),
+                "{name}: the rules should differ"
+            );
+        }
+    }
+}
