@@ -563,3 +563,118 @@ fn lines_link_across_the_edge_of_a_torus() {
     let e = torus.push(&s1);
     assert_eq!(e.no_candidate, 1);
 }
+
+/// `T1` at column `x0` of an image `f(x)` constant along y, by the 1D
+/// discrete Fourier sum of SPEC §1's `T̂1(k) = i a kx φ̂(a|k|) f̂(k)` (only
+/// ky = 0 carries power): `T1(x0) = (1/N) Σ_m i a k_m φ̂(a |k_m|) f̂[m]
+/// e^(i k_m x0)`, `k_m = 2π m/N` folded into (-π, π], with the derivative
+/// set to 0 at the Nyquist mode m = N/2 (a real field's derivative there is
+/// ambiguous; the CWT uses the same convention). Written out directly,
+/// O(N²), independent of the library's FFTs and filters.
+fn dft_t1(f: &[f64], wavelet: Wavelet, a: f64, x0: usize) -> f64 {
+    use std::f64::consts::PI;
+    let n = f.len();
+    let mut t = 0.0;
+    for m in 0..n {
+        if 2 * m == n {
+            continue;
+        }
+        let k = 2.0
+            * PI
+            * if 2 * m < n {
+                m as f64
+            } else {
+                m as f64 - n as f64
+            }
+            / n as f64;
+        let (mut re, mut im) = (0.0, 0.0);
+        for (x, v) in f.iter().enumerate() {
+            let ph = -k * x as f64;
+            re += v * ph.cos();
+            im += v * ph.sin();
+        }
+        let g = (-0.5 * a * a * k * k).exp()
+            * match wavelet {
+                Wavelet::Gauss => 1.0,
+                Wavelet::Mexican => a * a * k * k,
+            };
+        // Re[i a k g F e^(i k x0)] = -a k g Im[F e^(i k x0)]
+        let ph = k * x0 as f64;
+        t -= a * k * g * (re * ph.sin() + im * ph.cos());
+    }
+    t / n as f64
+}
+
+/// Absolute calibration (SPEC §1, L1 normalisation). On a unit step edge
+/// `f = H(x - x0)` the transform is `T1(x) = a ∂x (φ_a * H)(x) = a
+/// (marginal of φ_a)(x - x0)`: for gauss the marginal is the 1D Gaussian of
+/// standard deviation a, so on the edge `M = a · 1/(a √(2π)) = 1/√(2π)`
+/// at every scale; for mexican `φ = -∇²g`, the marginal of `φ_a` is
+/// `-(1/a) g1''(u/a)`, `T1 = (1 - u²/a²) g1(u/a)` and again `M(x0) =
+/// 1/√(2π)`. A prefactor `a^p` with p ≠ 1, a Gaussian of width other than
+/// a (M = a/σ √(2π)) or a lost 2π all move this number.
+///
+/// The image samples the step (0, then 1/2 on the edge column, then 1), so
+/// the discrete transform differs from the continuous one by the pixel:
+/// the step's difference has the spectrum `e^(-ik/2) cos(k/2)` per unit
+/// jump against `(ik)^-1`, which multiplies the integrand by `(k/2)
+/// cot(k/2) = 1 - k²/12 - k⁴/720 - ...`, so `M √(2π) = 1 - c1/a² - r`,
+/// with the Gaussian moments `c1 = 1/12` (gauss; `<k²> = 1/a²`) and `1/4`
+/// (mexican, weight `k² e^(-a²k²/2)`: `<k²> = 3/a²`), and a remainder `r`
+/// between `c2/a⁴` and `2 c2/a⁴` (all terms of the cot series are negative
+/// and fall off by `(a 2π)^-2` per order), `c2 = 1/240` and `1/48`.
+/// Checked: along the maxima line on the edge, at every scale,
+/// (1) M equals the direct discrete Fourier sum [`dft_t1`] to 1e-12
+///     relative (rounding of the FFTs);
+/// (2) M √(2π) lies in `[1 - c1/a² - 2 c2/a⁴, 1 - c1/a² - c2/a⁴]` (plus
+///     1e-12), which pins the normalisation to about 1e-4 at a = 3.
+#[test]
+fn step_edge_modulus_is_calibrated() {
+    let n = 256;
+    let row: Vec<f64> = (0..n)
+        .map(|x| match x.cmp(&128) {
+            std::cmp::Ordering::Less => 0.0,
+            std::cmp::Ordering::Equal => 0.5,
+            std::cmp::Ordering::Greater => 1.0,
+        })
+        .collect();
+    let img = Array2::from_shape_fn((n, n), |(_, x)| row[x]);
+    let s2pi = (2.0 * std::f64::consts::PI).sqrt();
+    for (wavelet, c1, c2) in [
+        (Wavelet::Gauss, 1.0 / 12.0, 1.0 / 240.0),
+        (Wavelet::Mexican, 0.25, 1.0 / 48.0),
+    ] {
+        let sk = skeleton(&Field::new(img.clone()), &cfg(wavelet, 3, 40)).unwrap();
+        let ns = sk.scales.len();
+        let on_edge: Vec<&MaximaLine> = sk
+            .lines
+            .iter()
+            .filter(|l| l.points.len() == ns && l.points.iter().all(|p| p.x == 128))
+            .collect();
+        assert_eq!(on_edge.len(), 1, "{wavelet}: one line along the edge");
+        for (j, p) in on_edge[0].points.iter().enumerate() {
+            let a = sk.scales[j];
+            let want = dft_t1(&row, wavelet, a, 128);
+            assert!(
+                (p.m - want).abs() < 1e-12 * want,
+                "{wavelet} a={a:.3}: M = {} vs direct sum {want}",
+                p.m
+            );
+            let x = p.m * s2pi;
+            let (hi, lo) = (
+                1.0 - c1 / (a * a) - c2 / a.powi(4),
+                1.0 - c1 / (a * a) - 2.0 * c2 / a.powi(4),
+            );
+            if j % 10 == 0 || j == ns - 1 {
+                println!(
+                    "{wavelet} a={a:6.3}: M sqrt(2 pi) = {x:.8} in [{lo:.8}, {hi:.8}], |M - direct| / M = {:.1e}",
+                    (p.m - want).abs() / want
+                );
+            }
+            assert!(
+                x <= hi + 1e-12 && x >= lo - 1e-12,
+                "{wavelet} a={a:.3}: M sqrt(2 pi) = {x:.8}, expected in [{lo:.8}, {hi:.8}]"
+            );
+        }
+    }
+}

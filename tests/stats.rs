@@ -353,29 +353,60 @@ fn brute_pairs(
     }
 }
 
-/// `ln M` of a field at the given scales over a rectangle, at the points
-/// where `M >= eps max M` at every scale (max over the rectangle), not
-/// centred.
-fn ln_m_points(
+/// `|T|²` box-averaged over a periodic square of side `2 floor(a/2) + 1`
+/// px centred on each pixel (II eqs 65, 67; SPEC §6 `ε²`), written out
+/// directly.
+fn box_energy_direct(t2: &Array2<f64>, a: f64) -> Array2<f64> {
+    let (ny, nx) = t2.dim();
+    let r = (a / 2.0).floor() as i64;
+    let w = ((2 * r + 1) * (2 * r + 1)) as f64;
+    Array2::from_shape_fn((ny, nx), |(y, x)| {
+        let mut s = 0.0;
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let yy = (y as i64 + dy).rem_euclid(ny as i64) as usize;
+                let xx = (x as i64 + dx).rem_euclid(nx as i64) as usize;
+                s += t2[[yy, xx]];
+            }
+        }
+        s / w
+    })
+}
+
+/// The magnitude of a field at the given scales over a rectangle (`ln M`,
+/// or `½ ln ε²` for [`Magnitude::Energy`]), at the points where the
+/// magnitude's own amplitude (M, or ε) is `>= eps` times its maximum over
+/// the rectangle at every scale, not centred.
+fn magnitude_points(
     img: &Array2<f64>,
     scales: &[f64],
     dom: (usize, usize, usize, usize),
     eps: f64,
+    magnitude: Magnitude,
 ) -> Vec<Vec<(usize, usize, f64)>> {
     let (ny, nx) = img.dim();
     let plan = CwtPlan::new(ny, nx, Wavelet::Gauss, scales).unwrap();
     let fi = plan.forward(img.view()).unwrap();
     let mut ws = plan.workspace();
-    let mods: Vec<Array2<f64>> = (0..scales.len())
-        .map(|s| plan.scale(&fi, s, &mut ws).map(|&z| modulus(z)))
+    // the amplitude whose log is the magnitude: M, or ε = sqrt(box mean |T|²)
+    let amps: Vec<Array2<f64>> = (0..scales.len())
+        .map(|s| {
+            let t = plan.scale(&fi, s, &mut ws);
+            match magnitude {
+                Magnitude::Lnm => t.map(|&z| modulus(z)),
+                Magnitude::Energy => {
+                    box_energy_direct(&t.map(|z| z.norm_sqr()), scales[s]).mapv(f64::sqrt)
+                }
+            }
+        })
         .collect();
     let pts = || (dom.0..dom.1).flat_map(|y| (dom.2..dom.3).map(move |x| (y, x)));
-    let mx: Vec<f64> = mods
+    let mx: Vec<f64> = amps
         .iter()
         .map(|m| pts().map(|(y, x)| m[[y, x]]).fold(0.0, f64::max))
         .collect();
-    let ok = |y: usize, x: usize| (0..scales.len()).all(|s| mods[s][[y, x]] >= eps * mx[s]);
-    mods.iter()
+    let ok = |y: usize, x: usize| (0..scales.len()).all(|s| amps[s][[y, x]] >= eps * mx[s]);
+    amps.iter()
         .map(|m| {
             pts()
                 .filter(|&(y, x)| ok(y, x))
@@ -425,11 +456,27 @@ fn norm_of(v: &[(usize, usize, f64)]) -> f64 {
     v.iter().map(|p| p.2 * p.2).sum::<f64>().sqrt()
 }
 
+/// The FFT correlation (SPEC §6) equals a brute-force loop over every pair
+/// of points, binned the same way: pair counts exactly (integers), mean
+/// log2 |Δx| to 1e-6, C (per-image and ensemble centring) within the f32
+/// FFT's rounding bound. For `ln M` at scales 1.3 and 2.1, and for the box
+/// energy `½ ln ε²` (`Magnitude::Energy`, II eqs 65, 67) at 2.1 and 4.2
+/// (boxes of 3 and 5 px; at a < 2 the box is one pixel and the energy is
+/// `ln M` itself, which would test nothing), whose boxes the brute force
+/// averages directly ([`box_energy_direct`]).
 #[test]
 fn fft_correlation_equals_brute_force_pairs() {
+    for (magnitude, scales) in [
+        (Magnitude::Lnm, vec![1.3, 2.1]),
+        (Magnitude::Energy, vec![2.1, 4.2]),
+    ] {
+        brute_force_check(magnitude, scales);
+    }
+}
+
+fn brute_force_check(magnitude: Magnitude, scales: Vec<f64>) {
     // odd, non-power-of-two sizes; periodic and interior domains
     let (ny, nx) = (23, 29);
-    let scales = vec![1.3, 2.1];
     let pairs = vec![(0, 0), (0, 1), (1, 0), (1, 1)];
     let bpo = 3;
     // eps = 0.3 leaves out a share of the points (the masked paths); with
@@ -448,6 +495,7 @@ fn fft_correlation_equals_brute_force_pairs() {
             bins_per_octave: bpo,
             max_dx: Some(max_dx),
             eps,
+            magnitude,
             ..Default::default()
         };
         let plan = CorrelationPlan::new(ny, nx, &cfg).unwrap();
@@ -466,12 +514,12 @@ fn fft_correlation_equals_brute_force_pairs() {
         // brute force: per-image centring, and ensemble centring
         let raw: Vec<Vec<Vec<(usize, usize, f64)>>> = imgs
             .iter()
-            .map(|im| ln_m_points(im, &scales, dom, eps))
+            .map(|im| magnitude_points(im, &scales, dom, eps, magnitude))
             .collect();
         let n_pts = raw[0][0].len();
         assert!(
             n_pts > 0 && (eps < 1e-3) == (n_pts == (ny - 2 * margin) * (nx - 2 * margin)),
-            "eps = {eps}: {n_pts} valid points"
+            "{magnitude:?} eps = {eps}: {n_pts} valid points"
         );
         // means[s][i]: image i's mean at scale s
         let means: Vec<Vec<f64>> = (0..scales.len())
@@ -546,10 +594,10 @@ fn fft_correlation_equals_brute_force_pairs() {
             assert_eq!(
                 pc.c.len(),
                 keep.len(),
-                "periodic={periodic} eps={eps} pair {p}"
+                "{magnitude:?} periodic={periodic} eps={eps} pair {p}"
             );
             for (o, &k) in keep.iter().enumerate() {
-                let ctx = format!("periodic={periodic} eps={eps} pair {p} bin {k}");
+                let ctx = format!("{magnitude:?} periodic={periodic} eps={eps} pair {p} bin {k}");
                 let tol = |norm: f64| f32_fft_bound(norm, n_fft, lags[k]) / b.cnt[k];
                 assert!((pc.pairs[o] - b.cnt[k]).abs() < 1e-6, "{ctx}: count");
                 assert!(

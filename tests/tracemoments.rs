@@ -2,9 +2,11 @@
 //! cascade with exactly known K(q), and small FIF ensembles.
 //!
 //! Tolerances: every estimate is compared with its theory within
-//! `4 σ + b`, where σ is the standard error of the ensemble estimate taken
-//! from the scatter of the per-image estimates (`std / sqrt(n)`), and `b` a
-//! stated, measured finite-size allowance (0 where none is needed).
+//! `4 σ + b`, where σ is the standard error of the ensemble estimate, a
+//! jackknife over the images ([`finish_ensemble`], or computed in the test
+//! where the library reports none) or the scatter of the per-image
+//! estimates (`std / sqrt(n)`), and `b` a stated, measured finite-size
+//! allowance (0 where none is needed).
 
 use ndarray::Array2;
 use rand_distr::{Distribution, StandardNormal};
@@ -150,17 +152,173 @@ fn lognormal_cascade_recovers_k_alpha_c1() {
     }
 }
 
+/// The FIF flux ensemble of the tests below: 32 images of 256² of
+/// topo-fif (α = 1.8, C1 = 0.12), seed 2024, one accumulator per image
+/// (built once, shared).
+fn fif_flux_parts() -> &'static [TraceMomentAccumulator] {
+    use rayon::prelude::*;
+    static PARTS: std::sync::OnceLock<Vec<TraceMomentAccumulator>> = std::sync::OnceLock::new();
+    PARTS.get_or_init(|| {
+        (0..32u64)
+            .into_par_iter()
+            .map(|i| {
+                let phi = wtmm::synth::fif::fif_flux(&FifParams::TOPO, 256, 256, 2024, i).unwrap();
+                let mut a = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+                a.add_flux(phi.view(), None).unwrap();
+                a
+            })
+            .collect()
+    })
+}
+
+/// Trace moments of the simulated FIF flux against the universal theory
+/// (seed 000 eq 8; SPEC §8-§9), 32 images of 256² (`fif_flux_parts`):
+/// K(q) for 0 < q <= 2, the universal fit's α and C1, the DTM α. Every
+/// estimate within 4 jackknife standard errors (over the images,
+/// [`finish_ensemble`]) of the theory, with no allowance: the generator
+/// follows λ^K(q) over the fitted boxes. Measured on an independent
+/// ensemble of 64 images (seed 4242): K(q) - K_theory within 2.2 % ± 2.4 %
+/// for 0 < q <= 2 (at q = 2: -1.0 % ± 2.7 %), α 1.770 ± 0.031, C1 0.1211 ±
+/// 0.0026, DTM α 1.778 ± 0.015, none beyond 1.5 se. (The "lattice kernel"
+/// excess of a few % that the module docs of `synth::fif` compute for
+/// <φ_l²> at α = 2 is not resolved at this size.) Before: 8 images and
+/// `4 σ + 0.08 |K| + 1e-3` on K, `+ 0.1` on α and DTM α, `+ 0.2 C1` on C1;
+/// with 32 images and no allowance the tolerance on K(2) is 0.031 (was
+/// 0.046), on C1 0.011 (was 0.037).
 #[test]
 fn fif_ensemble_matches_theory() {
     let p = FifParams::TOPO;
+    let fc = TraceMomentFitConfig::default();
+    let (_, res) = finish_ensemble(fif_flux_parts(), &fc).unwrap();
+    assert_eq!(res.jackknife_groups, 32);
+    println!(
+        "fif flux: alpha {:.3} +- {:.3} C1 {:.4} +- {:.4} dtm_alpha {:.3} +- {:.3} dtm_C1 {:.4} q_s {:.2} K(0.5) {:.4} K(1.5) {:.4} K(2) {:.4} +- {:.4} log2 lambda_eff {:.2}",
+        res.alpha,
+        res.alpha_stderr,
+        res.c1,
+        res.c1_stderr,
+        res.dtm_alpha,
+        res.dtm_alpha_stderr,
+        res.dtm_c1,
+        res.q_s,
+        res.k[4],
+        res.k[14],
+        res.k[19],
+        res.k_stderr[19],
+        res.log2_lambda_eff
+    );
+    for (i, &q) in res.q.iter().enumerate() {
+        if q > 2.0 + 1e-9 {
+            break;
+        }
+        let kth = th::k(&p, q);
+        // K(1) = 0 exactly (the ensemble mean of φ is 1 at every box
+        // size): its jackknife error is rounding, hence the 1e-12
+        let tol = 4.0 * res.k_stderr[i] + 1e-12;
+        assert!(
+            (res.k[i] - kth).abs() < tol,
+            "q {q}: K {} theory {kth} tol {tol}",
+            res.k[i]
+        );
+    }
+    for (name, v, se, want) in [
+        ("alpha", res.alpha, res.alpha_stderr, p.alpha),
+        ("C1", res.c1, res.c1_stderr, p.c1),
+        ("dtm alpha", res.dtm_alpha, res.dtm_alpha_stderr, p.alpha),
+    ] {
+        assert!(
+            (v - want).abs() < 4.0 * se,
+            "{name} {v} +- {se}, theory {want}"
+        );
+    }
+}
+
+/// Double trace moments (seed 000 §6; SPEC §8) on the 32 FIF fluxes
+/// (`fif_flux_parts`; truth α = 1.8, C1 = 0.12; DTM at q = 1.5, fitted
+/// over η in [0.3, 2]). For a universal multifractal `K(q, η) = η^α
+/// K(q)`, so the intercept of `log K(q, η)` against `log η` is `log K(q) =
+/// log(C1 (q^α - q)/(α - 1))`, which gives C1 with the fitted α.
+/// * `K(1.5, η)` at every η of the fit range equals `η^α K(1.5)` of the
+///   theory within 4 jackknife standard errors;
+/// * at η = 1 the double trace moment is the trace moment: `K(1.5, 1) =
+///   K(1.5)` to rounding;
+/// * the DTM C1 equals 0.12 within 4 jackknife standard errors.
+///
+/// The jackknife (leave one image out) is computed here: the library
+/// reports none for `K(q, η)` or the DTM C1. No allowance: measured on 64
+/// independent images (seed 4242) the DTM C1 is 0.1198, and 0.120 ± 0.006
+/// (sd) over 8 groups of 8.
+#[test]
+fn fif_double_trace_moments() {
+    let p = FifParams::TOPO;
+    let parts = fif_flux_parts();
+    let merged = |skip: Option<usize>| {
+        let mut m = TraceMomentAccumulator::new(parts[0].config.clone()).unwrap();
+        for (j, a) in parts.iter().enumerate() {
+            if Some(j) != skip {
+                m.merge(a).unwrap();
+            }
+        }
+        m.finish(&TraceMomentFitConfig::default()).unwrap()
+    };
+    let all = merged(None);
+    let loo: Vec<TraceMomentResult> = (0..parts.len()).map(|i| merged(Some(i))).collect();
+    let jk = |f: &dyn Fn(&TraceMomentResult) -> f64| {
+        wtmm::stats::jackknife_se(&loo.iter().map(f).collect::<Vec<_>>())
+    };
+    assert_eq!(all.dtm_q, vec![1.5]);
+    let q = 1.5;
+    let k_q = th::k(&p, q);
+    let iq = all.q.iter().position(|&v| (v - q).abs() < 1e-9).unwrap();
+    let (lo, hi) = all.dtm_eta_range;
+    let mut fitted = 0;
+    for (ie, &eta) in all.eta.iter().enumerate() {
+        if (eta - 1.0).abs() < 1e-9 {
+            assert!(
+                (all.k_eta[0][ie] - all.k[iq]).abs() < 1e-12,
+                "K(1.5, 1) = {} vs K(1.5) = {}",
+                all.k_eta[0][ie],
+                all.k[iq]
+            );
+        }
+        if eta < lo - 1e-12 || eta > hi + 1e-12 || q * eta > all.q_s {
+            continue;
+        }
+        fitted += 1;
+        let want = eta.powf(p.alpha) * k_q;
+        let se = jk(&|r| r.k_eta[0][ie]);
+        println!(
+            "eta {eta:.3}: K(1.5, eta) {:.4} +- {se:.4}, theory {want:.4}",
+            all.k_eta[0][ie]
+        );
+        assert!(
+            (all.k_eta[0][ie] - want).abs() < 4.0 * se,
+            "eta {eta:.3}: K(1.5, eta) = {} +- {se}, theory {want}",
+            all.k_eta[0][ie]
+        );
+    }
+    assert!(fitted >= 5, "{fitted} eta in the fit range");
+    let se = jk(&|r| r.dtm_c1);
+    println!(
+        "DTM C1 {:.4} +- {se:.4} (theory {}), DTM alpha {:.3}",
+        all.dtm_c1, p.c1, all.dtm_alpha
+    );
+    assert!(se > 0.0 && se < 0.25 * p.c1, "jackknife error {se}");
+    assert!(
+        (all.dtm_c1 - p.c1).abs() < 4.0 * se,
+        "DTM C1 {} +- {se}, theory {}",
+        all.dtm_c1,
+        p.c1
+    );
+}
+
+#[test]
+fn fif_field_matches_theory() {
+    let p = FifParams::TOPO;
     let (n, n_img) = (256, 8);
-    let mut flux_accs = Vec::new();
     let mut field_accs = Vec::new();
     for i in 0..n_img {
-        let (f, phi) = fif_with_flux(&p, n, n, 2024, i).unwrap();
-        let mut a = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
-        a.add_flux(phi.view(), None).unwrap();
-        flux_accs.push(a);
+        let f = fif(&p, n, n, 2024, i).unwrap();
         // seed 000's estimator: the gradient modulus alone
         let mut b = TraceMomentAccumulator::new(TraceMomentConfig {
             diff: FluxDiff::None,
@@ -171,60 +329,6 @@ fn fif_ensemble_matches_theory() {
         field_accs.push(b);
     }
     let fc = TraceMomentFitConfig::default();
-    let (res, per) = ensemble(&flux_accs, &fc);
-    println!(
-        "fif flux: alpha {:.3} (se {:.3}) C1 {:.4} dtm_alpha {:.3} dtm_C1 {:.4} q_s {:.2} K(0.5) {:.4} K(1.5) {:.4} K(2) {:.4} (se {:.4}) log2 lambda_eff {:.2}",
-        res.alpha,
-        se(&per, |r| r.alpha),
-        res.c1,
-        res.dtm_alpha,
-        res.dtm_c1,
-        res.q_s,
-        res.k[4],
-        res.k[14],
-        res.k[19],
-        se(&per, |r| r.k[19]),
-        res.log2_lambda_eff
-    );
-    // K(q) of the simulated flux for 0 < q <= 2. Allowance b = 0.08 |K|:
-    // the lattice kernel's moments grow a few % faster than K(q) between
-    // the pixel and the outer cut (exact computation at α = 2: slopes of
-    // <φ_l²> 0.243-0.255 per octave for K(2) = 0.24; measured here ~6 % at
-    // q = 2).
-    for (i, &q) in res.q.iter().enumerate() {
-        if q > 2.0 + 1e-9 {
-            break;
-        }
-        let kth = th::k(&p, q);
-        let sig = se(&per, |r| r.k[i]);
-        let tol = 4.0 * sig + 0.08 * kth.abs() + 1e-3;
-        assert!(
-            (res.k[i] - kth).abs() < tol,
-            "q {q}: K {} theory {kth} tol {tol}",
-            res.k[i]
-        );
-    }
-    // universal and DTM parameters (b: 0.1 for α, 20 % for C1, which
-    // absorbs the same few-% excess of K)
-    let sa = se(&per, |r| r.alpha);
-    assert!(
-        (res.alpha - p.alpha).abs() < 4.0 * sa + 0.1,
-        "alpha {} se {sa}",
-        res.alpha
-    );
-    let sc = se(&per, |r| r.c1);
-    assert!(
-        (res.c1 - p.c1).abs() < 4.0 * sc + 0.2 * p.c1,
-        "C1 {} se {sc}",
-        res.c1
-    );
-    let sd = se(&per, |r| r.dtm_alpha);
-    assert!(
-        (res.dtm_alpha - p.alpha).abs() < 4.0 * sd + 0.1,
-        "dtm alpha {} se {sd}",
-        res.dtm_alpha
-    );
-
     // the surface: spectrum, structure functions, gradient flux
     let (fres, fper) = ensemble(&field_accs, &fc);
     println!(
