@@ -77,6 +77,15 @@ impl Series {
         self.y_err = Some(err);
         self
     }
+
+    /// The points with both coordinates finite (the ones drawn).
+    fn finite_points(&self) -> Vec<(f64, f64)> {
+        self.points
+            .iter()
+            .cloned()
+            .filter(|p| p.0.is_finite() && p.1.is_finite())
+            .collect()
+    }
 }
 
 /// A 2D chart: title, axis labels, series.
@@ -283,12 +292,7 @@ fn ink<DB: DrawingBackend>(ctx: &Ctx<DB>, chart: &Chart) -> Vec<(f64, f64)> {
         }
     };
     for s in &chart.series {
-        let pts: Vec<(f64, f64)> = s
-            .points
-            .iter()
-            .cloned()
-            .filter(|p| p.0.is_finite() && p.1.is_finite())
-            .collect();
+        let pts = s.finite_points();
         if s.style != Style::Markers {
             for w in pts.windows(2) {
                 segment(w[0], w[1], &mut out);
@@ -513,12 +517,7 @@ where
         .map_err(|x| e(&x))?;
     for s in &chart.series {
         let c = palette(s.color);
-        let pts: Vec<(f64, f64)> = s
-            .points
-            .iter()
-            .cloned()
-            .filter(|p| p.0.is_finite() && p.1.is_finite())
-            .collect();
+        let pts = s.finite_points();
         match s.style {
             Style::Line | Style::LineMarkers => ctx
                 .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
