@@ -395,20 +395,18 @@ fn check_exact_beta_converges(label: &str, p: &WCascadeParams, want: f64) {
     );
 }
 
-/// Mean compensated power `|f̂|² |k|^β` in 4 angular sectors of width π/4
-/// centred on 0 (x axis), π/4, π/2 (y axis), 3π/4, over `k_lo <= |k| <= k_hi`.
-fn sector_power(f: &Array2<f64>, beta: f64, k_lo: f64, k_hi: f64) -> [f64; 4] {
-    let n = f.nrows();
-    let fft = FftPlanner::new().plan_fft_forward(n);
-    let mut a: Vec<Complex64> = f.iter().map(|&v| Complex64::new(v, 0.0)).collect();
-    for row in a.chunks_exact_mut(n) {
-        fft.process(row);
-    }
-    let mut t = vec![Complex64::default(); n * n];
-    transpose::transpose(&a, &mut t, n, n);
-    for row in t.chunks_exact_mut(n) {
-        fft.process(row);
-    }
+/// Mean compensated power `P(k) |k|^β` in 4 angular sectors of width π/4
+/// centred on 0 (x axis), π/4, π/2 (y axis), 3π/4, over `k_lo <= |k| <=
+/// k_hi`, for a power `power(i, j)` on the `n x n` FFT grid (standard
+/// order; the two indices are the two axes, in either order: swapping them
+/// swaps the two axis sectors and leaves the diagonal ones).
+fn sector_mean(
+    n: usize,
+    power: impl Fn(usize, usize) -> f64,
+    beta: f64,
+    k_lo: f64,
+    k_hi: f64,
+) -> [f64; 4] {
     let pi = std::f64::consts::PI;
     let k = |m: usize| {
         2.0 * pi
@@ -428,59 +426,112 @@ fn sector_power(f: &Array2<f64>, beta: f64, k_lo: f64, k_hi: f64) -> [f64; 4] {
                 continue;
             }
             let sector = ((fy.atan2(fx).rem_euclid(pi) / (pi / 4.0)) + 0.5).floor() as usize % 4;
-            s[sector] += t[kx * n + ky].norm_sqr() * r.powf(beta);
+            s[sector] += power(kx, ky) * r.powf(beta);
             c[sector] += 1;
         }
     }
     std::array::from_fn(|i| s[i] / c[i] as f64)
 }
 
-/// `ln(axis power / diagonal power)` per image, mean and standard error.
+/// [`sector_mean`] of an image's periodogram `|f̂|²`.
+fn sector_power(f: &Array2<f64>, beta: f64, k_lo: f64, k_hi: f64) -> [f64; 4] {
+    let n = f.nrows();
+    let fft = FftPlanner::new().plan_fft_forward(n);
+    let mut a: Vec<Complex64> = f.iter().map(|&v| Complex64::new(v, 0.0)).collect();
+    for row in a.chunks_exact_mut(n) {
+        fft.process(row);
+    }
+    let mut t = vec![Complex64::default(); n * n];
+    transpose::transpose(&a, &mut t, n, n);
+    for row in t.chunks_exact_mut(n) {
+        fft.process(row);
+    }
+    sector_mean(n, |kx, ky| t[kx * n + ky].norm_sqr(), beta, k_lo, k_hi)
+}
+
+/// `ln(axis / diagonal)` of summed sector powers `s`.
+fn axis_diag(s: &[f64; 4]) -> f64 {
+    ((s[0] + s[2]) / (s[1] + s[3])).ln()
+}
+
+/// Anisotropy of `count` images of 256² at mid frequencies (0.2-0.8 rad/px,
+/// the fit range): the ensemble's `ln(axis / diagonal)` compensated power
+/// (sector powers summed over the images) with its jackknife error, and
+/// the same for the exact expected spectrum of the generator
+/// ([`wtmm::theory::wcascade::expected_power`], linear in the power, so
+/// the expectation of the summed sectors). The x and y axes must agree
+/// within 4 standard errors (θ is uniform).
 fn anisotropy(p: &WCascadeParams, count: u64) -> (f64, f64, f64) {
+    let n = 256;
     let beta = p.law.tau(2.0) + 4.0;
     let per: Vec<[f64; 4]> = (0..count)
         .into_par_iter()
-        .map(|i| sector_power(&wcascade(p, 256, 11, i).unwrap(), beta, 0.2, 0.8))
+        .map(|i| sector_power(&wcascade(p, n, 11, i).unwrap(), beta, 0.2, 0.8))
         .collect();
-    let axis_diag: Vec<f64> = per
-        .iter()
-        .map(|s| ((s[0] + s[2]) / (s[1] + s[3])).ln())
-        .collect();
-    let x_y: Vec<f64> = per.iter().map(|s| (s[0] / s[2]).ln()).collect();
-    let (m, se) = mean_se(&axis_diag);
-    let (xy, xy_se) = mean_se(&x_y);
+    let summed = |skip: Option<usize>| -> [f64; 4] {
+        std::array::from_fn(|k| {
+            per.iter()
+                .enumerate()
+                .filter(|(i, _)| Some(*i) != skip)
+                .map(|(_, s)| s[k])
+                .sum()
+        })
+    };
+    let all = summed(None);
+    let jk = |f: &dyn Fn(&[f64; 4]) -> f64| {
+        wtmm::stats::jackknife_se(
+            &(0..per.len())
+                .map(|i| f(&summed(Some(i))))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let xy = |s: &[f64; 4]| (s[0] / s[2]).ln();
+    let xy_se = jk(&xy);
     assert!(
-        xy.abs() < 4.0 * xy_se,
-        "x and y axes differ: {xy:.3} +- {xy_se:.3}"
+        xy(&all).abs() < 4.0 * xy_se,
+        "x and y axes differ: {:.3} +- {xy_se:.3}",
+        xy(&all)
     );
-    (m, se, xy)
+    let d = wtmm::theory::wcascade::expected_power(p, n).unwrap();
+    let exact = sector_mean(n, |i, j| d[[i, j]], beta, 0.2, 0.8);
+    (axis_diag(&all), jk(&axis_diag), axis_diag(&exact))
 }
 
-/// Isotropy (II Fig 5): on db8, at mid frequencies (0.2-0.8 rad/px, the
-/// fit range) the isotropic variant puts within ~10% the same compensated
-/// power on the axes as on the diagonals (measured ln ratio 0.10 ± 0.02:
-/// the paper notes the residual anisotropy of the square-lattice
-/// fragmentation), while ψ1+ψ2 only enhances the axes by ~70% and ψ3 only
-/// empties them. Tolerance for "isotropic": |ln ratio| < 0.2, less than 40%
-/// of the ψ1+ψ2 departure. The x and y axes agree within 4 standard errors
-/// in every variant (θ is uniform).
+/// Isotropy (II Fig 5; SPEC §9): at mid frequencies the compensated power
+/// on the axes against the diagonals, `ln(axis / diagonal)`, of 8 images of
+/// 256² per variant equals that of the generator's exact expected spectrum
+/// within 4 jackknife standard errors (for all three variants: the
+/// isotropic one, ψ1+ψ2 only, ψ3 only). The exact values then say what the
+/// variants are, without statistics: the isotropic variant keeps a
+/// residual anisotropy (the paper notes that of the square-lattice
+/// fragmentation; exact 0.099) that is less than 40 % of the ψ1+ψ2
+/// variant's enhancement of the axes (0.547), and ψ3 alone empties them
+/// (-4.41). Measured: 0.111 ± 0.023, 0.525 ± 0.033, -4.469 ± 0.027.
+/// Before: the ensemble's own values were held to bare bounds (|ln ratio|
+/// < 0.2, > 0.4, < -1). The sensitivity to the isotropic variant is about
+/// the same (4 se = 0.09 here: a φ range 13 % too narrow, ln ratio 0.205,
+/// fails; 8 % too narrow passes), but the ψ1+ψ2 and ψ3 variants are now
+/// held to their exact values, not to their sign.
 #[test]
 fn isotropic_variant_has_an_isotropic_spectrum() {
     let base = wc(preset("paper-lognormal"));
     let with = |isotropy| WCascadeParams { isotropy, ..base };
-    let (iso, iso_se, _) = anisotropy(&with(Isotropy::Isotropic), 8);
-    let (p12, _, _) = anisotropy(&with(Isotropy::Psi12), 8);
-    let (p3, _, _) = anisotropy(&with(Isotropy::Psi3), 8);
-    println!("ln(axis/diagonal): isotropic {iso:.3} +- {iso_se:.3}, psi12 {p12:.3}, psi3 {p3:.3}");
+    let mut exact = Vec::new();
+    for iso in [Isotropy::Isotropic, Isotropy::Psi12, Isotropy::Psi3] {
+        let (r, se, r_exact) = anisotropy(&with(iso), 8);
+        println!("{iso:?}: ln(axis/diagonal) {r:.3} +- {se:.3}, exact {r_exact:.3}");
+        assert!(
+            (r - r_exact).abs() < 4.0 * se,
+            "{iso:?}: ln(axis/diag) = {r:.3} +- {se:.3}, exact expectation {r_exact:.3}"
+        );
+        exact.push(r_exact);
+    }
+    let (iso, p12, p3) = (exact[0], exact[1], exact[2]);
     assert!(
-        iso.abs() < 0.2,
-        "isotropic variant: ln(axis/diag) = {iso:.3}"
+        iso.abs() < 0.4 * p12,
+        "isotropic {iso:.3} vs psi12 {p12:.3}"
     );
-    assert!(
-        p12 > 0.4 && iso.abs() < 0.4 * p12,
-        "psi12 should favour the axes: {p12:.3}"
-    );
-    assert!(p3 < -1.0, "psi3 should favour the diagonals: {p3:.3}");
+    assert!(p12 > 0.0 && p3 < 0.0, "psi12 {p12:.3}, psi3 {p3:.3}");
 }
 
 // ---------------------------------------------------------------- spectra
