@@ -18,7 +18,7 @@ use serde_json::json;
 
 use super::analyze_cmd::{LineOpts, fit_range};
 use super::common::{f, header, make_out_dir, write_csv, write_json};
-use super::pdf_cmd::{StatsInput, check_octaves, octaves_or_default, scales_at};
+use super::pdf_cmd::{StatsInput, check_octaves, grid_top, octaves_or_default, scales_at};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
@@ -86,12 +86,6 @@ pub fn parse_pairs(flag: &str, s: &str) -> Result<Vec<(f64, f64)>> {
         .collect()
 }
 
-/// An octave rounded to 1e-9 (a grid's top is `log2` of a ratio: 2.9 is
-/// printed 2.9000000000000004 otherwise).
-fn round_octave(o: f64) -> f64 {
-    (o * 1e9).round() / 1e9
-}
-
 /// A pairs option (`a:b,...`, octaves above a_min): the given pairs, each
 /// checked against the grid, or without one the pairs of `default` with
 /// octaves beyond the grid lowered to its top scale (so a shorter
@@ -112,7 +106,7 @@ pub fn pairs_or_default(
         }
         return Ok(v);
     }
-    let top = round_octave((scales[scales.len() - 1] / scales[0]).log2());
+    let top = grid_top(scales);
     let mut v: Vec<(f64, f64)> = Vec::new();
     for (a, b) in parse_pairs(flag, default)? {
         let p = (a.min(top), b.min(top));
@@ -262,7 +256,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         "0,1,2,3",
         &scales,
     )?;
-    let top = round_octave((scales[scales.len() - 1] / scales[0]).log2());
+    let top = grid_top(&scales);
     if args.reconstruct.is_none() && rec.len() < 2 && top > 0.0 {
         // a grid shorter than an octave: from its top scale to its first
         rec = vec![0.0, top];

@@ -254,9 +254,10 @@ pub fn scales_at(scales: &[f64], octaves: &[f64]) -> Vec<usize> {
     v
 }
 
-/// Octaves spanned by the grid above its smallest scale.
-fn grid_top(scales: &[f64]) -> f64 {
-    (scales[scales.len() - 1] / scales[0]).log2()
+/// Octaves spanned by the grid above its smallest scale, rounded to 1e-9
+/// (`log2` of a ratio: 2.9 would print as 2.9000000000000004).
+pub fn grid_top(scales: &[f64]) -> f64 {
+    ((scales[scales.len() - 1] / scales[0]).log2() * 1e9).round() / 1e9
 }
 
 /// Checks that octaves lie on the scale grid.
