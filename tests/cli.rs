@@ -581,6 +581,39 @@ fn validate_judges_the_fbm_range_once() {
         })
         .count();
     assert_eq!(n, 1);
+    // fBm is not periodic: the interior at the default margin
+    assert!(v["params"]["analysis"]["margin"].is_null());
+}
+
+/// Periodic models are analysed on the whole torus unless `--margin` says
+/// otherwise, and the margin used is recorded.
+#[test]
+fn validate_uses_the_torus_on_periodic_models() {
+    let dir = scratch("validate-torus");
+    for (margin, want) in [(None, 0), (Some("40"), 40)] {
+        let o = dir.join(format!("o{want}")).display().to_string();
+        let mut args = vec![
+            "validate",
+            "--preset",
+            "paper-lognormal",
+            "--count",
+            "1",
+            "--size",
+            "256",
+            "--octaves",
+            "3",
+            "--q",
+            "0",
+            "--out",
+            &o,
+        ];
+        if let Some(m) = margin {
+            args.extend(["--margin", m]);
+        }
+        assert_eq!(run(&args), 0);
+        let v = json(&Path::new(&o).join("validation.json"));
+        assert_eq!(v["params"]["analysis"]["margin"], want);
+    }
 }
 
 /// Options that would be dropped without a word are refused (exit 2,

@@ -208,6 +208,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     if opts.line.cwt.wavelet.is_none() {
         opts.line.cwt.wavelet = Some(r.wavelet);
     }
+    opts.line.cwt.torus_for(&model);
     let cfg = opts.analysis()?;
     let fit = opts.fit()?;
     let q = opts.q()?;
@@ -242,10 +243,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     tm_q.extend(q.iter().copied().filter(|&v| v >= 0.0));
     tm_q.sort_by(f64::total_cmp);
     tm_q.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-    // fBm is cropped from a larger torus; the other models are periodic
-    let tm_cfg = args
-        .tm
-        .config(tm_q.clone(), !matches!(model, Model::Fbm(_)))?;
+    let tm_cfg = args.tm.config(tm_q.clone(), model.is_periodic())?;
     let tm_fit = args.tm.fit()?;
     let name = r.preset.unwrap_or(model.name()).to_string();
 

@@ -635,7 +635,7 @@ pub fn validation_criteria(
     if th_c.is_none() && !has_corr {
         return Ok(vec![]);
     }
-    let periodic = !matches!(model, Model::Fbm(_));
+    let periodic = model.is_periodic();
     let mut kcfg_a = cfg.clone();
     if periodic && kcfg_a.margin.is_none() {
         kcfg_a.margin = Some(0);

@@ -86,7 +86,9 @@ pub struct CwtOpts {
     /// Scales per octave.
     #[arg(long, default_value_t = 10)]
     pub voices: usize,
-    /// Interior margin in pixels (default: computed from the wavelet and the largest scale).
+    /// Interior margin in pixels (default: computed from the wavelet and the
+    /// largest scale; 0, the whole torus, for the periodic models generated
+    /// by validate, compare, pdf, kernel and correlate).
     #[arg(long)]
     pub margin: Option<usize>,
 }
@@ -100,6 +102,15 @@ impl CwtOpts {
         };
         g.validate()?;
         Ok(g)
+    }
+
+    /// Margin 0 (the whole torus) for a generated periodic model unless
+    /// `--margin` was given: the periodic FFT transform is exact everywhere
+    /// on such fields, so an interior would only discard half the maxima.
+    pub fn torus_for(&mut self, model: &crate::theory::Model) {
+        if model.is_periodic() && self.margin.is_none() {
+            self.margin = Some(0);
+        }
     }
 }
 

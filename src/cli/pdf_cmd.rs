@@ -133,10 +133,7 @@ impl StatsInput {
             DomainChoice::Torus => true,
             DomainChoice::Interior => false,
             DomainChoice::Auto => {
-                generated
-                    && resolved
-                        .as_ref()
-                        .is_some_and(|r| !matches!(r.model, Model::Fbm(_)))
+                generated && resolved.as_ref().is_some_and(|r| r.model.is_periodic())
             }
         };
         Ok(Input {

@@ -123,6 +123,7 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     if opts.line.cwt.wavelet.is_none() {
         opts.line.cwt.wavelet = Some(r.wavelet);
     }
+    opts.line.cwt.torus_for(&r.model);
     let cfg = opts.analysis()?;
     let fit = opts.fit()?;
     let (pq_lo, pq_hi) = published_q_range(&r.model);
@@ -158,8 +159,7 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             format!("{} needs a power of two, got {}", r.model.name(), args.size),
         ));
     }
-    // fBm is cropped from a larger torus; the other models are periodic
-    let ps_cfg = PowerSpectrumConfig::for_field(!matches!(r.model, Model::Fbm(_)));
+    let ps_cfg = PowerSpectrumConfig::for_field(r.model.is_periodic());
     let t0 = std::time::Instant::now();
     let pb = progress(args.count as u64, "validate", quiet);
     let model = r.model;

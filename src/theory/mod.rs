@@ -200,6 +200,14 @@ impl Model {
         }
     }
 
+    /// True when the generated fields are periodic (W-cascades, FISC and
+    /// FIF are built on the torus; fBm is cropped from a larger one), so the
+    /// periodic FFT transform is exact over the whole image and no interior
+    /// margin is needed (SPEC §1, §14).
+    pub fn is_periodic(&self) -> bool {
+        !matches!(self, Model::Fbm(_))
+    }
+
     /// **Errors** with the offending parameter named (see each params type).
     pub fn validate(&self) -> Result<()> {
         match self {
