@@ -707,3 +707,47 @@ fn failed_command_leaves_an_existing_directory_as_it_was() {
     assert!(json(&out.join("spectra.json"))["tau"].is_array());
     assert!(out.join("tau.png").is_file());
 }
+
+/// Ctrl-C: the binary removes what it had started (the directories it
+/// created, any temporary file) and exits 130, leaving an existing
+/// directory as it was.
+#[cfg(unix)]
+#[test]
+fn interrupted_command_leaves_nothing_behind() {
+    let base = scratch("interrupt");
+    std::fs::write(base.join("keep.txt"), b"old").unwrap();
+    let out = base.join("new").join("sub");
+    // 32 images of 1024^2: many seconds on any machine, far beyond the signal
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
+        .args(["--quiet", "validate", "--preset", "paper-lognormal"])
+        .args(["--count", "32", "--size", "1024", "--q", "0", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // wait until the command has made its directory (it is then running)
+    let t0 = std::time::Instant::now();
+    while !out.exists() && t0.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(
+        out.exists(),
+        "the command never created its output directory"
+    );
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let killed = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(130), "{:?}", o);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("interrupted"));
+    let names: Vec<String> = std::fs::read_dir(&base)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    assert_eq!(names, vec!["keep.txt"]);
+    assert_eq!(std::fs::read(base.join("keep.txt")).unwrap(), b"old");
+}

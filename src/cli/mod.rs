@@ -198,6 +198,10 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
     let (inputs, images, out) = io_of(&cli.command);
     check_inputs(&inputs, images)?;
     let created = out.map(prepare_out).transpose()?.unwrap_or_default();
+    CREATED
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone_from(&created);
     // nothing half-written: the files appear together when the command
     // succeeds (an existing directory keeps its older files otherwise)
     let batch = out.map(crate::io::OutputBatch::begin).transpose()?;
@@ -234,8 +238,27 @@ fn run_command(cli: Cli) -> Result<Outcome> {
     }
 }
 
+/// The directories the running command created (removed on an interrupt
+/// if still empty).
+static CREATED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
 /// Parses the process arguments, runs the command, returns the exit code.
+///
+/// Ctrl-C (or SIGTERM) removes the temporary files of the outputs, and the
+/// directories the command created if still empty, then exits with 130:
+/// an interrupted command leaves the output directory as it was.
 pub fn run() -> i32 {
+    // the handler can be installed once per process; failing to install it
+    // only loses the clean-up, so the command runs anyway
+    let _ = ctrlc::set_handler(|| {
+        crate::io::remove_temporaries();
+        let created = CREATED.lock().unwrap_or_else(|e| e.into_inner());
+        for d in created.iter() {
+            let _ = std::fs::remove_dir(d);
+        }
+        eprintln!("interrupted: no output written");
+        std::process::exit(130);
+    });
     run_from(std::env::args_os())
 }
 

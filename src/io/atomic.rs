@@ -26,6 +26,35 @@ fn batches() -> std::sync::MutexGuard<'static, Option<Batches>> {
     BATCHES.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// Temporary files that exist now (created, not yet renamed or removed), so
+/// that an interrupt can remove them ([`remove_temporaries`]).
+static LIVE: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+fn live() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    LIVE.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn forget_live(done: &[&Path]) {
+    live().retain(|p| !done.contains(&p.as_path()));
+}
+
+/// Removes every temporary file of [`write_atomic`] and of the open
+/// batches, for an interrupt handler (Ctrl-C): the process must exit right
+/// after, since no temporary can be created from this call on (the
+/// registry stays locked), so a worker thread still writing blocks instead
+/// of leaving a new one behind. Returns how many files were removed.
+pub fn remove_temporaries() -> usize {
+    let mut g = live();
+    let mut n = 0;
+    for p in g.drain(..) {
+        if std::fs::remove_file(&p).is_ok() {
+            n += 1;
+        }
+    }
+    std::mem::forget(g);
+    n
+}
+
 /// Writes `bytes` to a temporary file beside `path`, then renames it over
 /// `path` (or, under an open [`OutputBatch`], leaves the rename to its commit).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
@@ -41,19 +70,35 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         name.to_string_lossy(),
         std::process::id()
     ));
+    {
+        // registered before it exists: an interrupt removes it either way
+        let mut g = live();
+        if !g.contains(&tmp) {
+            g.push(tmp.clone());
+        }
+    }
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all().ok();
         if defer(&tmp, path) {
-            return Ok(());
+            return Ok(true);
         }
-        std::fs::rename(&tmp, path)
+        std::fs::rename(&tmp, path).map(|()| false)
     })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    match result {
+        // the batch's commit or drop finishes it
+        Ok(true) => Ok(()),
+        Ok(false) => {
+            forget_live(&[&tmp]);
+            Ok(())
+        }
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            forget_live(&[&tmp]);
+            Err(err(e))
+        }
     }
-    result.map_err(err)
 }
 
 /// Records `tmp -> path` in the batch whose directory holds `path`, if any.
@@ -121,6 +166,21 @@ impl OutputBatch {
             .unwrap_or_default()
     }
 
+    /// Renames or removes `files` (per `commit`), then unregisters them.
+    fn finish(files: &[(PathBuf, PathBuf)], commit: bool) -> Result<()> {
+        let r = if commit {
+            Self::rename_all(files)
+        } else {
+            for (t, _) in files {
+                let _ = std::fs::remove_file(t);
+            }
+            Ok(())
+        };
+        let done: Vec<&Path> = files.iter().map(|(t, _)| t.as_path()).collect();
+        forget_live(&done);
+        r
+    }
+
     /// Renames every file written under the directory to its final name.
     ///
     /// **Errors** when a final name is taken by a directory (then nothing is
@@ -128,9 +188,13 @@ impl OutputBatch {
     /// renamed are removed).
     pub fn commit(self) -> Result<()> {
         let files = self.take();
+        Self::finish(&files, true)
+    }
+
+    fn rename_all(files: &[(PathBuf, PathBuf)]) -> Result<()> {
         // what would make a rename fail, before any is done
         if let Some((_, path)) = files.iter().find(|(_, p)| p.is_dir()) {
-            for (t, _) in &files {
+            for (t, _) in files {
                 let _ = std::fs::remove_file(t);
             }
             return Err(Error::Write {
@@ -158,9 +222,7 @@ impl OutputBatch {
 impl Drop for OutputBatch {
     /// Without a commit: the temporary files are removed.
     fn drop(&mut self) {
-        for (tmp, _) in self.take() {
-            let _ = std::fs::remove_file(tmp);
-        }
+        let _ = Self::finish(&self.take(), false);
     }
 }
 
