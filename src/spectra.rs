@@ -70,6 +70,10 @@ impl Cell {
 pub struct ImagePartial {
     /// Free label (file name), for the record.
     pub label: String,
+    /// Image size `[ny, nx]` (absent for sums built from bare values, and
+    /// in `sums.json` files written before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shape: Option<[usize; 2]>,
     /// Lines alive per scale.
     pub lines: Vec<u64>,
     pub sup: Vec<Cell>,
@@ -126,6 +130,7 @@ impl PartitionSums {
             scales: sk.scales.clone(),
             images: vec![ImagePartial {
                 label: label.into(),
+                shape: Some([sk.shape.0, sk.shape.1]),
                 lines,
                 sup,
                 plain,
@@ -177,6 +182,7 @@ impl PartitionSums {
             scales: scales.to_vec(),
             images: vec![ImagePartial {
                 label: label.into(),
+                shape: None,
                 lines: log2_values.iter().map(|v| v.len() as u64).collect(),
                 sup: cells.clone(),
                 plain: cells,
@@ -350,6 +356,19 @@ impl PartitionSums {
                 ));
             }
         }
+        let image_shapes = self.image_shapes();
+        if image_shapes.len() > 1 {
+            let list: Vec<String> = image_shapes
+                .iter()
+                .map(|c| format!("{} of {}x{}", c.images, c.ny, c.nx))
+                .collect();
+            warnings.push(format!(
+                "images of {} sizes ({}): the sums add every image's maxima at the same pixel \
+                 scales, so the larger images weigh more",
+                image_shapes.len(),
+                list.join(", ")
+            ));
+        }
         let last_fit = *in_fit.last().expect("3 scales");
         if ens.lines[last_fit] < 100 {
             warnings.push(format!(
@@ -368,6 +387,7 @@ impl PartitionSums {
         Ok(Spectra {
             rule,
             images: n_img,
+            image_shapes,
             q: self.q.clone(),
             fit_octaves: fit,
             fit_scales: (self.scales[in_fit[0]], self.scales[last_fit]),
@@ -569,6 +589,10 @@ pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {
 pub struct Spectra {
     pub rule: Rule,
     pub images: usize,
+    /// The image sizes and how many images have each (empty when the sums
+    /// do not record them).
+    #[serde(default)]
+    pub image_shapes: Vec<ShapeCount>,
     pub q: Vec<f64>,
     /// Fit range in octaves above a_min, and in pixels.
     pub fit_octaves: (f64, f64),
@@ -602,6 +626,36 @@ pub struct Spectra {
     /// Maxima lines alive per scale (all images).
     pub lines: Vec<u64>,
     pub warnings: Vec<String>,
+}
+
+/// A number of images of one size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ShapeCount {
+    pub ny: usize,
+    pub nx: usize,
+    pub images: usize,
+}
+
+impl ShapeCount {
+    /// The distinct sizes `[ny, nx]` among `shapes`, with their counts,
+    /// largest first (outputs record them: an ensemble may mix sizes).
+    pub fn tally(shapes: impl IntoIterator<Item = [usize; 2]>) -> Vec<ShapeCount> {
+        let mut m = std::collections::BTreeMap::new();
+        for s in shapes {
+            *m.entry(s).or_insert(0usize) += 1;
+        }
+        m.into_iter()
+            .rev()
+            .map(|([ny, nx], images)| ShapeCount { ny, nx, images })
+            .collect()
+    }
+}
+
+impl PartitionSums {
+    /// The distinct recorded image sizes, with their counts, largest first.
+    pub fn image_shapes(&self) -> Vec<ShapeCount> {
+        ShapeCount::tally(self.images.iter().filter_map(|p| p.shape))
+    }
 }
 
 impl Spectra {

@@ -751,3 +751,48 @@ fn interrupted_command_leaves_nothing_behind() {
     assert_eq!(names, vec!["keep.txt"]);
     assert_eq!(std::fs::read(base.join("keep.txt")).unwrap(), b"old");
 }
+
+/// Ensembles may mix image sizes (the sums are in pixels); the outputs say
+/// which sizes went in, and analyze warns that larger images weigh more.
+#[test]
+fn mixed_sizes_are_recorded() {
+    let dir = scratch("mixed");
+    let a = fbm_npy(&dir, "a.npy", 160, 1);
+    let b = fbm_npy(&dir, "b.npy", 192, 2);
+    let c = fbm_npy(&dir, "c.npy", 160, 3);
+    let o = dir.join("an").display().to_string();
+    assert_eq!(
+        run(&["analyze", &a, &b, &c, "--octaves", "2", "--out", &o]),
+        0
+    );
+    let v = json(&Path::new(&o).join("spectra.json"));
+    let shapes = &v["image_shapes"];
+    assert_eq!(shapes.as_array().unwrap().len(), 2, "{shapes}");
+    assert_eq!(shapes[0]["ny"], 192);
+    assert_eq!(shapes[0]["images"], 1);
+    assert_eq!(shapes[1]["nx"], 160);
+    assert_eq!(shapes[1]["images"], 2);
+    assert!(
+        v["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().starts_with("images of 2 sizes"))
+    );
+    let o = dir.join("sp").display().to_string();
+    assert_eq!(run(&["spectrum", &a, &b, &c, "--out", &o]), 0);
+    let v = json(&Path::new(&o).join("spectrum.json"));
+    assert_eq!(v["image_shapes"], shapes.clone());
+    // one size: recorded, no warning
+    let o = dir.join("one").display().to_string();
+    assert_eq!(run(&["analyze", &a, &c, "--octaves", "2", "--out", &o]), 0);
+    let v = json(&Path::new(&o).join("spectra.json"));
+    assert_eq!(v["image_shapes"][0]["images"], 2);
+    assert!(
+        !v["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().starts_with("images of"))
+    );
+}

@@ -109,6 +109,10 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         json!({"images": args.images, "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave}),
     );
     body["images"] = json!(fields.len());
+    body["image_shapes"] = json!(crate::spectra::ShapeCount::tally(fields.iter().map(|f| {
+        let (ny, nx) = f.dim();
+        [ny, nx]
+    })));
     body["beta"] = json!(fit.beta);
     body["beta_stderr"] = json!(fit.beta_stderr);
     body["r2"] = json!(fit.line.r2);

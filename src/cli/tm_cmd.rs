@@ -185,7 +185,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         // one image: its tiles are not independent samples for the covariance
         fc.universal = args.tm.universal_fit.unwrap_or(UniversalWeighting::Ols);
     }
-    let (acc, res) = if args.images.len() == 1 {
+    let (acc, res, shapes) = if args.images.len() == 1 {
         // one image: block jackknife over tiles of the largest fitted box
         let path = &args.images[0];
         let field = super::common::read_image(path)?;
@@ -198,13 +198,16 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         let (whole, tiles) = TraceMomentAccumulator::field_tiles(&cfg, &field, tile)
             .map_err(|e| Error::format(path, e.to_string()))?;
         let res = finish_jackknife(&whole, &tiles, &fc, &format!("tiles of {tile} px"))?;
-        (whole, res)
+        (whole, res, vec![[ny, nx]])
     } else {
-        let parts = accumulate_paths(&args.images, &cfg, quiet)?;
-        finish_ensemble(&parts, &fc)?
+        let (parts, shapes) = accumulate_paths(&args.images, &cfg, quiet)?;
+        let (acc, res) = finish_ensemble(&parts, &fc)?;
+        (acc, res, shapes)
     };
     make_out_dir(&args.out.out)?;
-    let params = json!({"images": args.images, "config": cfg, "fit": fc});
+    // box levels are in pixels: images of several sizes weigh by their area
+    let shapes = crate::spectra::ShapeCount::tally(shapes);
+    let params = json!({"images": args.images, "image_shapes": shapes, "config": cfg, "fit": fc});
     write_outputs(&args.out.out, "tm", params, &res, acc.spectrum.as_ref())?;
     print!("{}", summary(&res));
     for w in tm_warnings(&res) {
@@ -217,15 +220,16 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
 }
 
 /// Reads and accumulates every image (in parallel), one accumulator per
-/// image in input order (for the jackknife of [`finish_ensemble`]); a bad
-/// file stops everything before any output is written.
+/// image in input order (for the jackknife of [`finish_ensemble`]), with
+/// the images' sizes `[ny, nx]`; a bad file stops everything before any
+/// output is written.
 pub fn accumulate_paths(
     paths: &[PathBuf],
     cfg: &TraceMomentConfig,
     quiet: bool,
-) -> Result<Vec<TraceMomentAccumulator>> {
+) -> Result<(Vec<TraceMomentAccumulator>, Vec<[usize; 2]>)> {
     let pb = progress(paths.len() as u64, "tm", quiet);
-    let parts: Vec<TraceMomentAccumulator> = paths
+    let parts: Vec<(TraceMomentAccumulator, [usize; 2])> = paths
         .par_iter()
         .map(|p| {
             let field = super::common::read_image(p)?;
@@ -233,11 +237,12 @@ pub fn accumulate_paths(
             acc.add_field(&field)
                 .map_err(|e| Error::format(p, e.to_string()))?;
             pb.inc(1);
-            Ok(acc)
+            let (ny, nx) = field.dim();
+            Ok((acc, [ny, nx]))
         })
         .collect::<Result<_>>()?;
     pb.finish_and_clear();
-    Ok(parts)
+    Ok(parts.into_iter().unzip())
 }
 
 /// `τ(q) = qH - K(q) - 2` from the measured K(q) and the spectral H (NaN
