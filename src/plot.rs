@@ -619,24 +619,7 @@ fn encode_png_rgb8(buf: &[u8], w: u32, h: u32) -> Vec<u8> {
 /// Writes a grey-level PNG of a field, linearly mapped from its finite
 /// min..max to 0..255 (NaN black). For eyes, not for data.
 pub fn save_grey(img: ArrayView2<f64>, path: &Path) -> Result<()> {
-    let (ny, nx) = img.dim();
-    let (lo, hi) = img
-        .iter()
-        .filter(|v| v.is_finite())
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-            (a.min(v), b.max(v))
-        });
-    let d = if hi > lo { hi - lo } else { 1.0 };
-    let mut buf = Vec::with_capacity(nx * ny * 3);
-    for &v in img.iter() {
-        let g = if v.is_finite() {
-            (255.0 * (v - lo) / d).round() as u8
-        } else {
-            0
-        };
-        buf.extend_from_slice(&[g, g, g]);
-    }
-    write_atomic(path, &encode_png_rgb8(&buf, nx as u32, ny as u32))
+    Raster::grey(img, (0, 255)).save(path)
 }
 
 /// An RGB raster that callers draw on (skeleton pictures), saved as PNG
@@ -649,8 +632,9 @@ pub struct Raster {
 }
 
 impl Raster {
-    /// Grey background from a field (as [`save_grey`]).
-    pub fn from_grey(img: ArrayView2<f64>) -> Self {
+    /// A field's finite min..max mapped linearly to the grey levels
+    /// `levels.0..=levels.1` (NaN black).
+    pub fn grey(img: ArrayView2<f64>, levels: (u8, u8)) -> Self {
         let (ny, nx) = img.dim();
         let (lo, hi) = img
             .iter()
@@ -659,10 +643,11 @@ impl Raster {
                 (a.min(v), b.max(v))
             });
         let d = if hi > lo { hi - lo } else { 1.0 };
+        let (g0, span) = (levels.0 as f64, levels.1 as f64 - levels.0 as f64);
         let mut rgb = Vec::with_capacity(nx * ny * 3);
         for &v in img.iter() {
             let g = if v.is_finite() {
-                (60.0 + 170.0 * (v - lo) / d).round() as u8
+                (g0 + span * (v - lo) / d).round() as u8
             } else {
                 0
             };
@@ -673,6 +658,12 @@ impl Raster {
             height: ny,
             rgb,
         }
+    }
+
+    /// Grey background for drawing on: levels 60..230, so that marks in
+    /// colour stand out at both ends.
+    pub fn from_grey(img: ArrayView2<f64>) -> Self {
+        Raster::grey(img, (60, 230))
     }
 
     /// Sets one pixel (ignored outside).

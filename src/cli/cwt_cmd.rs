@@ -10,7 +10,7 @@ use super::{OutDir, Outcome};
 use crate::cwt::{CwtPlan, Wavelet, modulus_argument};
 use crate::error::{Error, Result};
 use crate::io::write_npy;
-use crate::plot::save_grey;
+use crate::plot::{ColorBar, Raster, RasterChart, save_raster_chart};
 
 #[derive(Args, Debug)]
 pub struct CwtArgs {
@@ -64,7 +64,12 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
         let r = (|| {
             write_npy(&args.out.out.join(format!("modulus_{stem}.npy")), &m)?;
             write_npy(&args.out.out.join(format!("argument_{stem}.npy")), &arg)?;
-            save_grey(m.view(), &args.out.out.join(format!("modulus_{stem}.png")))
+            save_modulus_png(
+                m.view(),
+                a,
+                args.wavelet,
+                &args.out.out.join(format!("modulus_{stem}.png")),
+            )
         })();
         match r {
             Ok(()) => files.push(json!({"index": j, "a": a, "modulus": format!("modulus_{stem}.npy"), "argument": format!("argument_{stem}.npy"), "png": format!("modulus_{stem}.png")})),
@@ -97,4 +102,42 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     body["scales"] = json!(files);
     write_json(&args.out.out.join("cwt.json"), &body)?;
     Ok(Outcome::Ok)
+}
+
+/// The modulus at one scale as a grey picture inside pixel axes, with a
+/// grey bar giving the values (white = the largest M; NaN black).
+fn save_modulus_png(
+    m: ndarray::ArrayView2<f64>,
+    a: f64,
+    wavelet: Wavelet,
+    path: &std::path::Path,
+) -> Result<()> {
+    let (ny, nx) = m.dim();
+    let (lo, hi) = m
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    let colorbar = (lo < hi).then(|| ColorBar {
+        label: "M".into(),
+        range: (lo, hi),
+        colors: |t| {
+            let g = (255.0 * t.clamp(0.0, 1.0)).round() as u8;
+            plotters::style::RGBColor(g, g, g)
+        },
+    });
+    save_raster_chart(
+        &Raster::grey(m, (0, 255)),
+        &RasterChart {
+            title: format!("modulus M(b, a), a = {a:.2} px, {} wavelet", wavelet.name()),
+            x_label: "x (px)".into(),
+            y_label: "y (px)".into(),
+            x_range: (0.0, nx as f64),
+            y_range: (0.0, ny as f64),
+            colorbar,
+            ..Default::default()
+        },
+        path,
+    )
 }
