@@ -243,6 +243,21 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             })
             .unwrap_or_default()
     };
+    // the signed deviation at the worst q and its standard error: whether a
+    // pass or a fail is within the ensemble's own scatter
+    let worst_note = |qv: f64| -> String {
+        s.q_index(qv)
+            .filter(|&i| s.q[i] == qv)
+            .map(|i| {
+                format!(
+                    " (tau - theory = {:+.4} +- {:.4}, {})",
+                    s.tau[i] - th.tau[i],
+                    s.tau_stderr[i],
+                    s.stderr_method
+                )
+            })
+            .unwrap_or_default()
+    };
     let (core_lo, core_hi) = (pq_lo.max(-4.0), pq_hi.min(6.0));
     let (d_core, q_core) = dev(core_lo, core_hi);
     let (d_pub, q_pub) = dev(pq_lo, pq_hi);
@@ -254,7 +269,8 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             0.0,
             0.1,
             &format!(
-                "worst at q = {q_core}; the paper's tau(q) lies on the theory over this range{}",
+                "worst at q = {q_core}{}; the paper's tau(q) lies on the theory over this range{}",
+                worst_note(q_core),
                 sample_note(core_lo, core_hi)
             ),
         ),
@@ -264,7 +280,8 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             0.0,
             0.2,
             &format!(
-                "worst at q = {q_pub}; at large |q| few lines dominate (see warnings){}",
+                "worst at q = {q_pub}{}; at large |q| few lines dominate (see warnings){}",
+                worst_note(q_pub),
                 sample_note(pq_lo, pq_hi)
             ),
         ),
@@ -273,14 +290,20 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             s.h[i0],
             th.h_of_q0,
             0.02,
-            "II §3: 0.38 +- 0.02 (W-cascades), 0.74 +- 0.02 (FISC)",
+            &format!(
+                "+- {:.4} ({}); II §3: 0.38 +- 0.02 (W-cascades), 0.74 +- 0.02 (FISC)",
+                s.h_stderr[i0], s.stderr_method
+            ),
         ),
         criterion(
             "D(h(q=0))",
             s.d[i0],
             2.0,
             0.02,
-            "surfaces singular everywhere: D(h(0)) = 2",
+            &format!(
+                "+- {:.4} ({}); surfaces singular everywhere: D(h(0)) = 2",
+                s.d_stderr[i0], s.stderr_method
+            ),
         ),
         criterion(
             "beta (power spectrum)",
@@ -426,6 +449,10 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
                 (false, false) => "FAIL",
             }
         );
+    }
+    let _ = writeln!(t, "\nnotes:");
+    for c in crit.iter().filter(|c| !c.note.is_empty()) {
+        let _ = writeln!(t, "  {}: {}", c.name, c.note);
     }
     if let Some(ss) = &sample {
         let _ = writeln!(
