@@ -99,8 +99,13 @@ impl Field {
 
     /// Min and max over valid pixels, `None` if every pixel is masked.
     pub fn range(&self) -> Option<(f64, f64)> {
-        let mut it = self.data.iter().filter(|v| v.is_finite());
-        let first = *it.next()?;
-        Some(it.fold((first, first), |(lo, hi), &v| (lo.min(v), hi.max(v))))
+        finite_range(self.data.iter())
     }
+}
+
+/// The smallest and largest finite values (`None` if there are none).
+pub fn finite_range<'a>(values: impl IntoIterator<Item = &'a f64>) -> Option<(f64, f64)> {
+    let mut it = values.into_iter().filter(|v| v.is_finite());
+    let first = *it.next()?;
+    Some(it.fold((first, first), |(lo, hi), &v| (lo.min(v), hi.max(v))))
 }

@@ -636,12 +636,7 @@ impl Raster {
     /// `levels.0..=levels.1` (NaN black).
     pub fn grey(img: ArrayView2<f64>, levels: (u8, u8)) -> Self {
         let (ny, nx) = img.dim();
-        let (lo, hi) = img
-            .iter()
-            .filter(|v| v.is_finite())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-                (a.min(v), b.max(v))
-            });
+        let (lo, hi) = crate::field::finite_range(img.iter()).unwrap_or((0.0, 0.0));
         let d = if hi > lo { hi - lo } else { 1.0 };
         let (g0, span) = (levels.0 as f64, levels.1 as f64 - levels.0 as f64);
         let mut rgb = Vec::with_capacity(nx * ny * 3);

@@ -113,12 +113,7 @@ fn save_modulus_png(
     path: &std::path::Path,
 ) -> Result<()> {
     let (ny, nx) = m.dim();
-    let (lo, hi) = m
-        .iter()
-        .filter(|v| v.is_finite())
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
-            (l.min(v), h.max(v))
-        });
+    let (lo, hi) = crate::field::finite_range(m.iter()).unwrap_or((0.0, 0.0));
     let colorbar = (lo < hi).then(|| ColorBar {
         label: "M".into(),
         range: (lo, hi),
