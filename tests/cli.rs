@@ -796,3 +796,74 @@ fn mixed_sizes_are_recorded() {
             .any(|w| w.as_str().unwrap().starts_with("images of"))
     );
 }
+
+/// `validate --replicates`: one directory per seed, and a summary whose
+/// means, pass counts and averaged tau(q) come from those runs.
+#[test]
+fn validate_replicates_summarise_independent_ensembles() {
+    let dir = scratch("replicates");
+    let o = dir.join("o").display().to_string();
+    let base = [
+        "validate",
+        "--preset",
+        "paper-lognormal",
+        "--count",
+        "2",
+        "--size",
+        "256",
+        "--octaves",
+        "3",
+        "--q",
+        "0,2",
+        "--seed",
+        "5",
+        "--out",
+        &o,
+    ];
+    let mut args = base.to_vec();
+    args.extend(["--replicates", "0"]);
+    assert_eq!(run(&args), 2);
+    let mut args = base.to_vec();
+    args.extend(["--replicates", "2"]);
+    assert_eq!(run(&args), 0);
+    let sum = json(&Path::new(&o).join("replicates.json"));
+    assert_eq!(sum["seeds"], serde_json::json!([5, 6]));
+    let runs: Vec<Value> = [5, 6]
+        .iter()
+        .map(|s| {
+            json(
+                &Path::new(&o)
+                    .join(format!("seed_{s}"))
+                    .join("validation.json"),
+            )
+        })
+        .collect();
+    assert_eq!(runs[0]["params"]["seed"], 5);
+    assert_eq!(runs[1]["params"]["seed"], 6);
+    let crit = sum["criteria"].as_array().unwrap();
+    assert_eq!(crit.len(), runs[0]["criteria"].as_array().unwrap().len());
+    for (i, c) in crit.iter().enumerate() {
+        let v: Vec<f64> = runs
+            .iter()
+            .map(|r| num(&r["criteria"][i], "value"))
+            .collect();
+        assert!((num(c, "mean") - 0.5 * (v[0] + v[1])).abs() < 1e-12, "{c}");
+        let passes = runs
+            .iter()
+            .filter(|r| r["criteria"][i]["pass"] == true)
+            .count();
+        assert_eq!(c["passes"], passes);
+    }
+    // the averaged tau(q) is the mean of the two runs' curves
+    let (t0, t1) = (&runs[0]["estimates"]["tau"], &runs[1]["estimates"]["tau"]);
+    for (k, m) in sum["mean_tau"]["tau"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .enumerate()
+    {
+        let want = 0.5 * (t0[k].as_f64().unwrap() + t1[k].as_f64().unwrap());
+        assert!((m.as_f64().unwrap() - want).abs() < 1e-12);
+    }
+    assert!(Path::new(&o).join("replicates.txt").is_file());
+}

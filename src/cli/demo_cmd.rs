@@ -39,6 +39,7 @@ pub fn run(args: DemoArgs, quiet: bool) -> Result<Outcome> {
         count: args.count,
         size: args.size,
         seed: args.seed,
+        replicates: 1,
         opts: SpectraOpts::defaults(),
         check: false,
         out: OutDir {
