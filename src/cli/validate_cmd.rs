@@ -136,6 +136,16 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     run_replicates(args, quiet)
 }
 
+/// The table's word for a criterion.
+fn verdict(informational: bool, pass: bool) -> &'static str {
+    match (informational, pass) {
+        (true, true) => "(info: within)",
+        (true, false) => "(info: outside)",
+        (false, true) => "PASS",
+        (false, false) => "FAIL",
+    }
+}
+
 fn outcome(pass: bool, check: bool) -> Outcome {
     if pass || !check {
         Outcome::Ok
@@ -259,12 +269,7 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             c.tolerance,
             c.passes,
             n,
-            match (c.informational, c.pass_mean) {
-                (true, true) => "(info: within)",
-                (true, false) => "(info: outside)",
-                (false, true) => "PASS",
-                (false, false) => "FAIL",
-            }
+            verdict(c.informational, c.pass_mean)
         );
     }
     for (c, &r) in summary.iter().zip(&first.tau_ranges) {
@@ -635,12 +640,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             c.value,
             c.target,
             c.tolerance,
-            match (c.informational, c.pass) {
-                (true, true) => "(info: within)",
-                (true, false) => "(info: outside)",
-                (false, true) => "PASS",
-                (false, false) => "FAIL",
-            }
+            verdict(c.informational, c.pass)
         );
     }
     let _ = writeln!(t, "\nnotes:");
