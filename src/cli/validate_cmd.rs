@@ -136,6 +136,25 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     run_replicates(args, quiet)
 }
 
+/// `max |tau - theory|` over the q in `[lo, hi]` and the index where it is
+/// (`None` if the range holds no q); infinite at the first non-finite
+/// value, so that a missing estimate fails instead of reading as 0.
+fn max_dev(q: &[f64], tau: &[f64], theory: &[f64], (lo, hi): (f64, f64)) -> (f64, Option<usize>) {
+    let mut worst = (0.0, None);
+    for (i, &qi) in q.iter().enumerate() {
+        if qi >= lo - 1e-12 && qi <= hi + 1e-12 {
+            let d = (tau[i] - theory[i]).abs();
+            if !d.is_finite() {
+                return (f64::INFINITY, Some(i));
+            }
+            if d > worst.0 || worst.1.is_none() {
+                worst = (d, Some(i));
+            }
+        }
+    }
+    worst
+}
+
 /// The table's word for a criterion.
 fn verdict(informational: bool, pass: bool) -> &'static str {
     match (informational, pass) {
@@ -216,13 +235,8 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             (m, sd / (n as f64).sqrt())
         })
         .collect();
-    // (max |mean τ - theory| over the range, the q where it is)
-    let mean_dev = |(lo, hi): (f64, f64)| -> (f64, usize) {
-        (0..nq)
-            .filter(|&i| first.q[i] >= lo - 1e-12 && first.q[i] <= hi + 1e-12)
-            .map(|i| ((tau_stats[i].0 - first.tau_theory[i]).abs(), i))
-            .fold((0.0, 0), |a, b| if b.0 > a.0 { b } else { a })
-    };
+    let mean_tau: Vec<f64> = tau_stats.iter().map(|x| x.0).collect();
+    let mean_dev = |r: (f64, f64)| max_dev(&first.q, &mean_tau, &first.tau_theory, r);
     let summary: Vec<ReplicatedCriterion> = first
         .criteria
         .iter()
@@ -274,11 +288,12 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     }
     for (c, &r) in summary.iter().zip(&first.tau_ranges) {
         let (d, i) = mean_dev(r);
+        let (qd, se) = i.map_or((f64::NAN, f64::NAN), |i| (first.q[i], tau_stats[i].1));
         let _ = writeln!(
             t,
             "  {}: the verdict is on the averaged tau(q): max |mean tau - theory| = {d:.4} \
-             at q = {} (+- {:.4})",
-            c.name, first.q[i], tau_stats[i].1
+             at q = {qd} (+- {se:.4})",
+            c.name
         );
     }
     let _ = writeln!(
@@ -305,7 +320,7 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     body["seeds"] = json!((args.seed..=last).collect::<Vec<u64>>());
     body["criteria"] = json!(summary);
     body["pass"] = json!(all_pass);
-    body["mean_tau"] = json!({"q": first.q, "tau": tau_stats.iter().map(|x| x.0).collect::<Vec<_>>(),
+    body["mean_tau"] = json!({"q": first.q, "tau": mean_tau,
         "stderr": tau_stats.iter().map(|x| x.1).collect::<Vec<_>>(), "theory": first.tau_theory});
     write_json(&args.out.out.join("replicates.json"), &body)?;
     write_atomic(&args.out.out.join("replicates.txt"), t.as_bytes())?;
@@ -413,19 +428,8 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
 
     // criteria (SPEC §11)
     let dev_of = |tau: &[f64], lo: f64, hi: f64| -> (f64, f64) {
-        let mut worst: (f64, f64) = (0.0, f64::NAN);
-        for (i, &qi) in q.iter().enumerate() {
-            if qi >= lo - 1e-12 && qi <= hi + 1e-12 {
-                let d = (tau[i] - th.tau[i]).abs();
-                if !d.is_finite() {
-                    return (f64::INFINITY, qi);
-                }
-                if d > worst.0 {
-                    worst = (d, qi);
-                }
-            }
-        }
-        worst
+        let (d, i) = max_dev(&q, tau, &th.tau, (lo, hi));
+        (d, i.map_or(f64::NAN, |i| q[i]))
     };
     let dev = |lo: f64, hi: f64| dev_of(&s.tau, lo, hi);
     // "; the images' own cascades: 0.005 at q = -4 (dyadic 2-32 px)"
@@ -691,4 +695,31 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         tau_theory: th.tau.clone(),
         tau_ranges,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::max_dev;
+
+    #[test]
+    fn max_dev_finds_the_worst_q_and_fails_on_a_missing_value() {
+        let q = [-4.0, -2.0, 0.0, 2.0, 6.0];
+        let th = [1.0, 1.0, 1.0, 1.0, 1.0];
+        let tau = [1.3, 0.8, 1.0, 1.1, 0.5];
+        // range [-2, 2]: worst at q = -2 (0.2), q = -4 and 6 are outside
+        let (d, i) = max_dev(&q, &tau, &th, (-2.0, 2.0));
+        assert!((d - 0.2).abs() < 1e-12);
+        assert_eq!(i, Some(1));
+        assert_eq!(max_dev(&q, &tau, &th, (-4.0, 6.0)).1, Some(4));
+        // a NaN estimate is infinitely wrong, not 0 (the fold it replaces
+        // skipped NaN and could report a pass)
+        let mut bad = tau;
+        bad[2] = f64::NAN;
+        assert_eq!(
+            max_dev(&q, &bad, &th, (-2.0, 2.0)),
+            (f64::INFINITY, Some(2))
+        );
+        // no q in the range
+        assert_eq!(max_dev(&q, &tau, &th, (3.0, 5.0)), (0.0, None));
+    }
 }
