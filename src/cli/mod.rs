@@ -246,7 +246,8 @@ static CREATED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new(
 ///
 /// Ctrl-C (or SIGTERM) removes the temporary files of the outputs, and the
 /// directories the command created if still empty, then exits with 130:
-/// an interrupted command leaves the output directory as it was.
+/// an interrupted command leaves the output directory as it was (or, if
+/// the interrupt came after the batch was committed, complete).
 pub fn run() -> i32 {
     // the handler can be installed once per process; failing to install it
     // only loses the clean-up, so the command runs anyway
@@ -256,7 +257,12 @@ pub fn run() -> i32 {
         for d in created.iter() {
             let _ = std::fs::remove_dir(d);
         }
-        eprintln!("interrupted: no output written");
+        if crate::io::outputs_committed() {
+            // the renames had finished (the clean-up waits for them)
+            eprintln!("interrupted after the outputs were written");
+        } else {
+            eprintln!("interrupted: no output written");
+        }
         std::process::exit(130);
     });
     run_from(std::env::args_os())

@@ -10,6 +10,7 @@ use std::collections::HashMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::error::{Error, Result};
 
@@ -36,6 +37,15 @@ fn live() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
 
 fn forget_live(done: &[&Path]) {
     live().retain(|p| !done.contains(&p.as_path()));
+}
+
+/// Set when a batch has made its files visible (see [`outputs_committed`]).
+static COMMITTED: AtomicBool = AtomicBool::new(false);
+
+/// Whether an [`OutputBatch`] of this process has committed its files: an
+/// interrupt after that point leaves complete outputs, not none.
+pub fn outputs_committed() -> bool {
+    COMMITTED.load(Ordering::SeqCst)
 }
 
 /// Removes every temporary file of [`write_atomic`] and of the open
@@ -167,7 +177,13 @@ impl OutputBatch {
     }
 
     /// Renames or removes `files` (per `commit`), then unregisters them.
+    ///
+    /// The registry of temporaries stays locked throughout, so an interrupt
+    /// ([`remove_temporaries`]) waits for the renames (milliseconds) and
+    /// finds either the whole set still temporary or the whole set renamed,
+    /// never a mix.
     fn finish(files: &[(PathBuf, PathBuf)], commit: bool) -> Result<()> {
+        let mut g = live();
         let r = if commit {
             Self::rename_all(files)
         } else {
@@ -176,8 +192,10 @@ impl OutputBatch {
             }
             Ok(())
         };
-        let done: Vec<&Path> = files.iter().map(|(t, _)| t.as_path()).collect();
-        forget_live(&done);
+        g.retain(|p| !files.iter().any(|(t, _)| t == p));
+        if commit && r.is_ok() && !files.is_empty() {
+            COMMITTED.store(true, Ordering::SeqCst);
+        }
         r
     }
 
@@ -252,6 +270,28 @@ mod tests {
             .collect();
         assert_eq!(names, vec!["old.json".to_string()]);
         assert_eq!(std::fs::read(d.join("old.json")).unwrap(), b"old");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn commit_waits_for_the_registry_an_interrupt_holds() {
+        // remove_temporaries (the Ctrl-C handler) runs under the registry
+        // lock; a commit must not rename anything while it is held, so the
+        // handler sees all the files temporary or all renamed
+        let d = dir("lock");
+        let b = OutputBatch::begin(&d).unwrap();
+        write_atomic(&d.join("a.json"), b"1").unwrap();
+        write_atomic(&d.join("b.json"), b"2").unwrap();
+        let g = live();
+        assert_eq!(g.iter().filter(|p| p.starts_with(&d)).count(), 2);
+        let t = std::thread::spawn(move || b.commit());
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        assert!(!d.join("a.json").exists() && !d.join("b.json").exists());
+        drop(g);
+        t.join().unwrap().unwrap();
+        assert!(d.join("a.json").exists() && d.join("b.json").exists());
+        assert!(!live().iter().any(|p| p.starts_with(&d)));
+        assert!(outputs_committed());
         std::fs::remove_dir_all(&d).unwrap();
     }
 
