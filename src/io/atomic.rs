@@ -286,6 +286,8 @@ mod tests {
         assert_eq!(g.iter().filter(|p| p.starts_with(&d)).count(), 2);
         let t = std::thread::spawn(move || b.commit());
         std::thread::sleep(std::time::Duration::from_millis(100));
+        // still waiting (a commit that ignored the lock would be done by now)
+        assert!(!t.is_finished());
         assert!(!d.join("a.json").exists() && !d.join("b.json").exists());
         drop(g);
         t.join().unwrap().unwrap();

@@ -594,3 +594,176 @@ impl Linker {
         self.lines
     }
 }
+
+#[cfg(test)]
+mod tests {
+    //! The linking rules of SPEC §3 on hand-made scales.
+    use super::*;
+    use crate::skeleton::maxima::Wtmmm;
+
+    /// A scale holding WTMMM at `(x, y, M)`.
+    fn scale(j: usize, a: f64, pts: &[(u32, u32, f64)]) -> ScaleMaxima {
+        ScaleMaxima {
+            j,
+            a,
+            n_wtmm: pts.len(),
+            n_chains: pts.len(),
+            wtmmm: pts
+                .iter()
+                .enumerate()
+                .map(|(c, &(x, y, m))| Wtmmm {
+                    x,
+                    y,
+                    m,
+                    arg: 0.0,
+                    chain: c as u32,
+                })
+                .collect(),
+            chains: Vec::new(),
+        }
+    }
+
+    fn link(params: LinkParams, scales: &[ScaleMaxima]) -> (Vec<MaximaLine>, Vec<Endings>) {
+        let mut l = Linker::new(params);
+        let ends = scales.iter().map(|s| l.push(s)).collect();
+        (l.finish(), ends)
+    }
+
+    fn xs(line: &MaximaLine) -> Vec<u32> {
+        line.points.iter().map(|p| p.x).collect()
+    }
+
+    #[test]
+    fn the_reference_box_grows_as_two_log2_of_6_98_a_up_to_its_cap() {
+        let r = SearchRadius::Reference { cap: 12.0 };
+        for a in [1.5, 3.0, 8.0] {
+            assert!((r.at(a) - 2.0 * (6.98 * a).log2()).abs() < 1e-12);
+        }
+        assert!((r.at(1.5) - 6.776).abs() < 1e-3); // about 6.8 px at a_min
+        assert_eq!(r.at(100.0), 12.0);
+        assert_eq!(SearchRadius::Reference { cap: 7.0 }.at(8.0), 7.0);
+        // never below one pixel
+        assert_eq!(r.at(0.1), 1.0);
+        // xsmurf's Euclidean bound dist^2 < cap^2 + 1 (50 for the 7 px cap)
+        let r7 = SearchRadius::Reference { cap: 7.0 };
+        assert!(49.0 < r7.max_d2() && r7.max_d2() < 50.0);
+        let p = SearchRadius::Proportional {
+            factor: 0.5,
+            min: 2.0,
+        };
+        assert_eq!((p.at(1.0), p.at(10.0)), (2.0, 5.0));
+        assert_eq!(p.max_d2(), f64::INFINITY);
+    }
+
+    #[test]
+    fn a_line_takes_the_nearest_candidate_and_keeps_a_running_sup() {
+        let s = [
+            scale(0, 1.5, &[(50, 50, 1.0)]),
+            // 3 px right and 2 px left: the nearer wins
+            scale(1, 1.6, &[(53, 50, 1.0), (48, 50, 1.05)]),
+            scale(2, 1.7, &[(49, 51, 1.0)]),
+        ];
+        let (lines, ends) = link(LinkParams::default(), &s);
+        assert_eq!(lines.len(), 1);
+        assert_eq!(xs(&lines[0]), vec![50, 48, 49]);
+        let sup: Vec<f64> = lines[0].points.iter().map(|p| p.sup).collect();
+        assert_eq!(sup, vec![1.0, 1.05, 1.05]);
+        let m: Vec<f64> = lines[0].points.iter().map(|p| p.m).collect();
+        assert_eq!(m, vec![1.0, 1.05, 1.0]);
+        assert_eq!(ends[1], Endings::default());
+    }
+
+    #[test]
+    fn the_euclidean_bound_cuts_the_corners_of_the_box() {
+        // 7 px cap at a = 8 (box half-width 7): (7, 0) is inside (d^2 = 49),
+        // (5, 5) is in the square box but d^2 = 50 is not below 50
+        let params = LinkParams {
+            radius: SearchRadius::Reference { cap: 7.0 },
+            ..LinkParams::default()
+        };
+        let s0 = scale(0, 8.0, &[(50, 50, 1.0)]);
+        let (lines, _) = link(params, &[s0.clone(), scale(1, 8.5, &[(57, 50, 1.0)])]);
+        assert_eq!(xs(&lines[0]), vec![50, 57]);
+        let (lines, ends) = link(params, &[s0.clone(), scale(1, 8.5, &[(55, 55, 1.0)])]);
+        assert_eq!(lines[0].points.len(), 1);
+        assert_eq!(ends[1].no_candidate, 1);
+        // and 8 px away along an axis is outside the box
+        let (_, ends) = link(params, &[s0, scale(1, 8.5, &[(42, 50, 1.0)])]);
+        assert_eq!(ends[1].no_candidate, 1);
+    }
+
+    #[test]
+    fn the_ratio_window_ends_a_line_whose_candidates_jump() {
+        // (0.9, 1.11): a candidate 1 px away with M x 1.3 or x 0.85 is refused,
+        // a farther one with M x 1.05 is taken instead
+        let s0 = scale(0, 1.5, &[(50, 50, 1.0)]);
+        for m in [1.3, 0.85] {
+            let (lines, ends) = link(
+                LinkParams::default(),
+                &[s0.clone(), scale(1, 1.6, &[(51, 50, m)])],
+            );
+            assert_eq!(lines[0].points.len(), 1, "M ratio {m} accepted");
+            assert_eq!(
+                ends[1],
+                Endings {
+                    ratio: 1,
+                    ..Endings::default()
+                }
+            );
+        }
+        let (lines, _) = link(
+            LinkParams::default(),
+            &[s0, scale(1, 1.6, &[(51, 50, 1.3), (54, 50, 1.05)])],
+        );
+        assert_eq!(xs(&lines[0]), vec![50, 54]);
+    }
+
+    #[test]
+    fn a_contested_candidate_goes_to_the_nearer_line_and_the_other_ends() {
+        // lines at x = 40 and 43; the candidate at 42 is 2 px from the first
+        // and 1 px from the second: the second takes it, and the first ends
+        // although the candidate at 37 (3 px) was free (one-to-one, no
+        // second choice: SPEC §3)
+        let s0 = scale(0, 1.5, &[(40, 50, 1.0), (43, 50, 1.0)]);
+        let s1 = scale(1, 1.6, &[(42, 50, 1.0), (37, 50, 1.0)]);
+        let (lines, ends) = link(LinkParams::default(), &[s0, s1]);
+        assert_eq!(xs(&lines[0]), vec![40]);
+        assert_eq!(xs(&lines[1]), vec![43, 42]);
+        assert_eq!(
+            ends[1],
+            Endings {
+                contested: 1,
+                ..Endings::default()
+            }
+        );
+        // equal distances: the lower line id wins
+        let s0 = scale(0, 1.5, &[(40, 50, 1.0), (44, 50, 1.0)]);
+        let s1 = scale(1, 1.6, &[(42, 50, 1.0)]);
+        let (lines, _) = link(LinkParams::default(), &[s0, s1]);
+        assert_eq!((lines[0].points.len(), lines[1].points.len()), (2, 1));
+    }
+
+    #[test]
+    fn lines_are_born_only_at_the_smallest_scale() {
+        // a WTMMM that appears at scale 1 far from every line starts nothing,
+        // and a line that has ended is not revived by a later candidate
+        let s = [
+            scale(0, 1.5, &[(10, 10, 1.0), (80, 80, 1.0)]),
+            scale(1, 1.6, &[(10, 11, 1.0), (200, 200, 1.0)]),
+            scale(2, 1.7, &[(10, 12, 1.0), (80, 80, 1.0), (200, 200, 1.0)]),
+        ];
+        let (lines, ends) = link(LinkParams::default(), &s);
+        assert_eq!(lines.len(), 2);
+        assert_eq!(lines[0].points.len(), 3);
+        assert_eq!(lines[1].points.len(), 1);
+        assert_eq!(ends[1].no_candidate, 1);
+        assert_eq!(ends[2], Endings::default());
+    }
+
+    #[test]
+    #[should_panic(expected = "scales must be pushed in order")]
+    fn scales_out_of_order_panic() {
+        let mut l = Linker::new(LinkParams::default());
+        l.push(&scale(1, 1.6, &[(1, 1, 1.0)]));
+    }
+}
