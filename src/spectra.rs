@@ -330,6 +330,17 @@ impl PartitionSums {
                 jk_d[qi] = jk(&|e: &Estimates| e.d[qi]);
             }
         }
+        let last_fit = *in_fit.last().expect("3 scales");
+        if est.tau.iter().all(|t| !t.is_finite()) {
+            // nothing to report: an error, not a file of nulls
+            return Err(Error::Input(format!(
+                "no q has a partition function over the fit range: {} maxima lines reach \
+                 a = {:.2} px, the top of the fit range, in {} image(s); the counting domain \
+                 is too small for these scales (use fewer --octaves, a smaller --margin, \
+                 or a lower --fit)",
+                ens.lines[last_fit], self.scales[last_fit], n_img
+            )));
+        }
         let (legendre_h, legendre_d) = legendre(&self.q, &est.tau);
         let mut warnings = Vec::new();
         for qi in 0..nq {
@@ -369,7 +380,6 @@ impl PartitionSums {
                 list.join(", ")
             ));
         }
-        let last_fit = *in_fit.last().expect("3 scales");
         if ens.lines[last_fit] < 100 {
             warnings.push(format!(
                 "only {} maxima lines alive at the largest fitted scale a = {:.2}",

@@ -867,3 +867,136 @@ fn validate_replicates_summarise_independent_ensembles() {
     }
     assert!(Path::new(&o).join("replicates.txt").is_file());
 }
+
+/// Inputs a demanding user gets wrong: the same image twice (it would pass
+/// for two independent samples and shrink the error bars), a q repeated, a
+/// fit range beyond the data, an image whose counting domain is too small
+/// for any exponent. Each exits 2, names the problem and writes nothing.
+#[test]
+fn inputs_that_would_give_wrong_or_empty_results_are_refused() {
+    let dir = scratch("refused");
+    let a = fbm_npy(&dir, "a.npy", 128, 5);
+    let same = dir.join(".").join("a.npy").display().to_string();
+    let o = dir.join("o");
+    let out = o.display().to_string();
+    for args in [
+        vec!["analyze", &a, &same, "--octaves", "2", "--out", &out],
+        vec!["tm", &a, &same, "--out", &out],
+        vec!["analyze", &a, "--octaves", "2", "--q=0,1,1", "--out", &out],
+        vec!["spectrum", &a, "--k-range", "0.1:10", "--out", &out],
+        vec!["tm", &a, "--lambda-fit", "0:20", "--out", &out],
+        vec![
+            "kernel",
+            &a,
+            "--octaves",
+            "3",
+            "--refs",
+            "1.05",
+            "--out",
+            &out,
+        ],
+    ] {
+        assert_eq!(run(&args), 2, "{args:?}");
+        assert!(!o.exists(), "{args:?} left {}", o.display());
+    }
+    // 300^2 with the default 5 octaves: the margin (143 px) leaves a 14 px
+    // square, where no line reaches a = 24 px; this used to write a
+    // spectra.json of nulls and exit 0
+    let big = fbm_npy(&dir, "b.npy", 300, 6);
+    assert_eq!(run(&["analyze", &big, "--out", &out]), 2);
+    assert!(!o.exists());
+}
+
+/// q lists are sorted (the Legendre transform differentiates along q): an
+/// unsorted list gives the spectra of the sorted one.
+#[test]
+fn an_unsorted_q_list_gives_the_sorted_spectra() {
+    let dir = scratch("qsort");
+    let a = fbm_npy(&dir, "a.npy", 128, 7);
+    let spectra = |q: &str, name: &str| {
+        let o = dir.join(name).display().to_string();
+        let qa = format!("--q={q}");
+        assert_eq!(run(&["analyze", &a, "--octaves", "2", &qa, "--out", &o]), 0);
+        json(&dir.join(name).join("spectra.json"))
+    };
+    let s = spectra("-2,-1,0,1,2", "sorted");
+    let u = spectra("2,0,-2,1,-1", "unsorted");
+    for key in ["q", "tau", "legendre_h", "legendre_D", "h", "D"] {
+        assert_eq!(s[key], u[key], "{key}");
+    }
+}
+
+/// A preset's wavelet is the default of `analyze` too (mexican for FISC,
+/// as `pdf`, `kernel` and `correlate` do), unless `--wavelet` is given.
+#[test]
+fn analyze_takes_the_presets_wavelet() {
+    let dir = scratch("presetwavelet");
+    let a = fbm_npy(&dir, "a.npy", 128, 8);
+    let wavelet = |extra: &[&str], name: &str| {
+        let o = dir.join(name).display().to_string();
+        let mut args = vec!["analyze", &a, "--octaves", "2", "--out", &o];
+        args.extend_from_slice(extra);
+        assert_eq!(run(&args), 0);
+        json(&dir.join(name).join("spectra.json"))["params"]["analysis"]["wavelet"].clone()
+    };
+    assert_eq!(wavelet(&[], "none"), "gauss");
+    assert_eq!(wavelet(&["--preset", "paper-fisc"], "fisc"), "mexican");
+    assert_eq!(
+        wavelet(&["--preset", "paper-fisc", "--wavelet", "gauss"], "forced"),
+        "gauss"
+    );
+    assert_eq!(wavelet(&["--preset", "paper-fbm"], "fbm"), "gauss");
+}
+
+/// `validate --check` exits 1 exactly when a criterion fails, and writes
+/// its outputs either way. FISC analysed with the gauss wavelet (one
+/// vanishing moment, while its h reaches 1.28) must miss tau(q) at q < 0.
+#[test]
+fn validate_check_exits_1_when_a_criterion_fails() {
+    let dir = scratch("check");
+    let o = dir.join("o");
+    let out = o.display().to_string();
+    let code = run(&[
+        "validate",
+        "--preset",
+        "paper-fisc",
+        "--wavelet",
+        "gauss",
+        "--count",
+        "2",
+        "--size",
+        "256",
+        "--octaves",
+        "3",
+        "--check",
+        "--out",
+        &out,
+    ]);
+    let v = json(&o.join("validation.json"));
+    let crit = v["criteria"].as_array().unwrap();
+    let failed: Vec<&str> = crit
+        .iter()
+        .filter(|c| c["pass"] == false)
+        .map(|c| c["name"].as_str().unwrap())
+        .collect();
+    assert!(!failed.is_empty(), "expected a failure: {crit:?}");
+    assert_eq!(code, 1, "failed: {failed:?}");
+    // without --check the same run succeeds
+    let o2 = dir.join("o2").display().to_string();
+    let code = run(&[
+        "validate",
+        "--preset",
+        "paper-fisc",
+        "--wavelet",
+        "gauss",
+        "--count",
+        "2",
+        "--size",
+        "256",
+        "--octaves",
+        "3",
+        "--out",
+        &o2,
+    ]);
+    assert_eq!(code, 0);
+}

@@ -169,10 +169,19 @@ pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> TheoryCurves {
 }
 
 pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
-    let cfg = args.opts.analysis()?;
     let q = args.opts.q()?;
     let fit = args.opts.fit()?;
-    let (theory, theory_model) = match args.model_opts.resolve_optional(args.theory)? {
+    let resolved = args.model_opts.resolve_optional(args.theory)?;
+    // the preset's wavelet unless --wavelet (paper-fisc: mexican), as in
+    // pdf, kernel and correlate
+    let mut opts = args.opts.clone();
+    if let Some(r) = &resolved
+        && opts.line.cwt.wavelet.is_none()
+    {
+        opts.line.cwt.wavelet = Some(r.wavelet);
+    }
+    let cfg = opts.analysis()?;
+    let (theory, theory_model) = match resolved {
         Some(r) => {
             let name = r.preset.unwrap_or(r.model.name());
             (
@@ -183,7 +192,13 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         None => (None, None),
     };
     let sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
-    let spectra = sums.spectra(args.opts.rule(), fit)?;
+    let spectra = sums.spectra(args.opts.rule(), fit).map_err(|e| match e {
+        // name the input: "nothing estimable" is about these images
+        Error::Input(m) if args.images.len() == 1 => {
+            Error::Input(format!("{}: {m}", args.images[0].display()))
+        }
+        e => e,
+    })?;
     let other_rule = match args.opts.rule() {
         Rule::Sup => Rule::Plain,
         Rule::Plain => Rule::Sup,
@@ -204,10 +219,10 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         theory.as_ref(),
     )?;
     for w in &spectra.warnings {
-        eprintln!("warning: {w}");
+        say!("warning: {w}");
     }
     if !quiet {
-        eprintln!("wrote {}", args.out.out.join("spectra.json").display());
+        say!("wrote {}", args.out.out.join("spectra.json").display());
     }
     Ok(Outcome::Ok)
 }

@@ -11,7 +11,8 @@ use crate::error::{Error, Result};
 use crate::field::Field;
 use crate::io::{read_field, write_atomic};
 
-/// Parses `start:stop:step` (inclusive) or `a,b,c`.
+/// Parses `start:stop:step` (inclusive) or `a,b,c`, returned ascending;
+/// a value given twice is an error.
 pub fn parse_list(flag: &str, s: &str) -> Result<Vec<f64>> {
     let bad = |why: &str| Error::param(flag, format!("`{s}`: {why}"));
     let num = |t: &str| t.trim().parse::<f64>().map_err(|_| bad("not a number"));
@@ -33,6 +34,13 @@ pub fn parse_list(flag: &str, s: &str) -> Result<Vec<f64>> {
     };
     if v.is_empty() || v.iter().any(|x| !x.is_finite()) {
         return Err(bad("empty or non-finite"));
+    }
+    // ascending and distinct: the Legendre transform takes differences of
+    // neighbouring q, and a repeated value would count twice
+    let mut v = v;
+    v.sort_by(f64::total_cmp);
+    if let Some(w) = v.windows(2).find(|w| w[1] - w[0] < 1e-9) {
+        return Err(bad(&format!("{} is given twice", w[0])));
     }
     Ok(v)
 }
@@ -74,12 +82,20 @@ pub fn read_image(path: &Path) -> Result<Field> {
     Ok(field)
 }
 
-/// Creates the output directory (and parents).
+/// Creates the output directory (and parents), noting the ones it created
+/// so that a failed or interrupted command removes them again if empty.
 pub fn make_out_dir(dir: &Path) -> Result<()> {
+    let created: Vec<PathBuf> = dir
+        .ancestors()
+        .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
+        .map(Path::to_path_buf)
+        .collect();
     std::fs::create_dir_all(dir).map_err(|source| Error::Write {
         path: dir.into(),
         source,
-    })
+    })?;
+    super::note_created(created);
+    Ok(())
 }
 
 /// Pretty JSON written atomically.
@@ -128,4 +144,52 @@ pub fn progress(len: u64, msg: &str, quiet: bool) -> ProgressBar {
 /// Commands add their result keys to it.
 pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
     serde_json::json!({"version": crate::VERSION, "command": command, "params": params})
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lists_are_parsed_sorted_and_distinct() {
+        assert_eq!(
+            parse_list("q", "-1:1:0.5").unwrap(),
+            vec![-1.0, -0.5, 0.0, 0.5, 1.0]
+        );
+        // the stop is kept despite rounding of the step
+        assert_eq!(parse_list("q", "0:0.3:0.1").unwrap().len(), 4);
+        assert_eq!(
+            parse_list("q", "2,0,-2, 1").unwrap(),
+            vec![-2.0, 0.0, 1.0, 2.0]
+        );
+        assert_eq!(parse_list("q", "3").unwrap(), vec![3.0]);
+        for bad in [
+            "0,1,1,2",
+            "1:0:1",
+            "0:1:0",
+            "0:1:-1",
+            "a,b",
+            "1:2",
+            "nan",
+            "",
+            "0:1e9:1e-9",
+        ] {
+            let e = parse_list("q", bad).unwrap_err().to_string();
+            assert!(e.contains("--q") || e.contains("q"), "{bad}: {e}");
+        }
+        assert!(
+            parse_list("q", "0,1,1")
+                .unwrap_err()
+                .to_string()
+                .contains("1 is given twice")
+        );
+    }
+
+    #[test]
+    fn ranges_need_lo_below_hi() {
+        assert_eq!(parse_range("fit", "0.5:4").unwrap(), (0.5, 4.0));
+        for bad in ["4:0.5", "1:1", "1", "a:2"] {
+            assert!(parse_range("fit", bad).is_err(), "{bad}");
+        }
+    }
 }

@@ -547,7 +547,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         &timing,
     );
     write_atomic(&dir.join("compare.txt"), text.as_bytes())?;
-    print!("{text}");
+    show!("{text}");
     Ok(Outcome::Ok)
 }
 

@@ -291,11 +291,11 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         cost,
     )?;
     if !quiet {
-        eprintln!("correlate: {} images, {wall:.1} s", input.len());
+        say!("correlate: {} images, {wall:.1} s", input.len());
         if let Some(c) = body.get("checks").and_then(|c| c.as_object()) {
             for (src, v) in c {
                 let dev = |w: &str, k: &str| v[w][k].as_f64().unwrap_or(f64::NAN);
-                eprintln!(
+                say!(
                     "  {src}: max |C - II eq 76| for {PAPER_UNIT:.1} max(a1, a2) < dx < L/4: \
                      {:.4} (ensemble centring), {:.4} (per image); for dx > max(a1, a2): {:.4}",
                     dev("paper", "max_abs_dev_C_ensemble"),
@@ -305,7 +305,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
             }
         }
         if let Some(c) = cost {
-            eprintln!(
+            say!(
                 "cost: correlation {:.2} ms = {:.1} CWT scales ({:.2} ms each)",
                 c.0 * 1e3,
                 c.2,

@@ -308,7 +308,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     )?;
     let cu = &out.main.cumulants;
     if !quiet {
-        eprintln!(
+        say!(
             "kernel ({} set, {} images, fit {}:{} octaves, {wall:.1} s): c1 = {:.4} +- {:.4}, c2 = {:.4} +- {:.4}, c3 = {:.4} +- {:.4}",
             args.set.name(),
             out.main.images,
@@ -324,13 +324,18 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     }
     if !quiet {
         let pc = &out.main.pooled;
-        eprintln!(
+        say!(
             "pooled C_n(a, a') tables (II Figs 26, 28): c1 = {:.4} +- {:.4}, c2 = {:.4} +- {:.4}, c3 = {:.4} +- {:.4}",
-            pc.c1.value, pc.c1.stderr, pc.c2.value, pc.c2.stderr, pc.c3.value, pc.c3.stderr
+            pc.c1.value,
+            pc.c1.stderr,
+            pc.c2.value,
+            pc.c2.stderr,
+            pc.c3.value,
+            pc.c3.stderr
         );
     }
     for w in &out.main.warnings {
-        eprintln!("warning: {w}");
+        say!("warning: {w}");
     }
     Ok(Outcome::Ok)
 }

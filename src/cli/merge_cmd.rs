@@ -96,7 +96,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         curves.as_ref(),
     )?;
     if !quiet {
-        eprintln!(
+        say!(
             "merged {} images from {} files into {}",
             s.images,
             args.sums.len(),

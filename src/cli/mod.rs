@@ -3,6 +3,24 @@
 //! `run` only maps errors to exit codes (0 ok, 1 a check failed, 2 bad usage
 //! or bad input).
 
+/// `eprintln!` that never panics: a closed stderr (`wtmm ... 2>&1 | head`)
+/// must not abort a command whose results go to files.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+
+/// `print!` of a summary that never panics (a closed stdout loses only the
+/// summary; the files are the results).
+macro_rules! show {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stdout(), $($t)*);
+    }};
+}
+
 mod analyze_cmd;
 mod common;
 mod compare_cmd;
@@ -74,7 +92,8 @@ pub enum Command {
 /// Wavelet and scale-grid options shared by the analysis commands.
 #[derive(Args, Debug, Clone)]
 pub struct CwtOpts {
-    /// Analysing wavelet (gauss: 1 vanishing moment; mexican: 3) [default: gauss, or the preset's].
+    /// Analysing wavelet (gauss: 1 vanishing moment; mexican: 3) [default: gauss, or the
+    /// wavelet of the paper's results for a --preset or --theory model, e.g. mexican for FISC].
     #[arg(long, value_enum)]
     pub wavelet: Option<Wavelet>,
     /// Smallest scale in pixels (std of the Gaussian).
@@ -148,6 +167,20 @@ fn io_of(cmd: &Command) -> (Vec<&Path>, bool, Option<&Path>) {
 /// 32-image ensemble used to surface after the whole analysis): it must be a
 /// readable regular file, and an image must have a known extension.
 fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
+    // an ensemble counts each image once: a repeated file would pass for an
+    // independent sample and shrink the jackknife errors
+    let mut seen: std::collections::HashMap<PathBuf, &Path> = Default::default();
+    for &p in paths {
+        if let Ok(c) = std::fs::canonicalize(p)
+            && let Some(first) = seen.insert(c, p)
+        {
+            return Err(Error::Input(format!(
+                "{} and {} are the same file: give each input once",
+                first.display(),
+                p.display()
+            )));
+        }
+    }
     for &p in paths {
         let meta = std::fs::metadata(p).map_err(|source| Error::Read {
             path: p.into(),
@@ -169,20 +202,15 @@ fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
 }
 
 /// Creates the output directory before computing, so that an unwritable
-/// one fails at once; returns the directories created (deepest first), to
-/// be removed again, if still empty, when the command fails.
-fn prepare_out(dir: &Path) -> Result<Vec<PathBuf>> {
+/// one fails at once (the directories created are noted, to be removed
+/// again, if still empty, when the command fails).
+fn prepare_out(dir: &Path) -> Result<()> {
     if dir.exists() && !dir.is_dir() {
         return Err(Error::Input(format!(
             "{}: exists and is not a directory",
             dir.display()
         )));
     }
-    let created: Vec<PathBuf> = dir
-        .ancestors()
-        .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
-        .map(Path::to_path_buf)
-        .collect();
     common::make_out_dir(dir)?;
     // writable? (an existing directory may not be)
     let probe = dir.join(format!(".wtmm-probe-{}", std::process::id()));
@@ -191,30 +219,30 @@ fn prepare_out(dir: &Path) -> Result<Vec<PathBuf>> {
         source,
     })?;
     let _ = std::fs::remove_file(&probe);
-    Ok(created)
+    Ok(())
 }
 
 fn dispatch(cli: Cli) -> Result<Outcome> {
     let (inputs, images, out) = io_of(&cli.command);
     check_inputs(&inputs, images)?;
-    let created = out.map(prepare_out).transpose()?.unwrap_or_default();
-    CREATED
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .clone_from(&created);
+    let out: Option<PathBuf> = out.map(Path::to_path_buf);
+    if let Some(dir) = &out
+        && let Err(e) = prepare_out(dir)
+    {
+        release_created(Some(dir), true);
+        return Err(e);
+    }
     // nothing half-written: the files appear together when the command
     // succeeds (an existing directory keeps its older files otherwise)
-    let batch = out.map(crate::io::OutputBatch::begin).transpose()?;
+    let batch = out
+        .as_deref()
+        .map(crate::io::OutputBatch::begin)
+        .transpose()?;
     let r = run_command(cli).and_then(|o| {
         batch.map(|b| b.commit()).transpose()?;
         Ok(o)
     });
-    if r.is_err() {
-        // directories this run created go if still empty
-        for d in &created {
-            let _ = std::fs::remove_dir(d);
-        }
-    }
+    release_created(out.as_deref(), r.is_err());
     r
 }
 
@@ -238,9 +266,41 @@ fn run_command(cli: Cli) -> Result<Outcome> {
     }
 }
 
-/// The directories the running command created (removed on an interrupt
-/// if still empty).
+/// The directories the running command created (removed on a failure or
+/// an interrupt if still empty).
 static CREATED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Records directories the command created ([`common::make_out_dir`]).
+fn note_created(dirs: Vec<PathBuf>) {
+    CREATED
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .extend(dirs);
+}
+
+/// Forgets the directories created for the output directory `root` (under
+/// it, or its new parents; all of them when `None`) and, with `remove`,
+/// removes those that are empty, deepest first: their files went with the
+/// batch's temporaries. Keyed by `root` because commands may run
+/// concurrently in one process (the tests).
+fn release_created(root: Option<&Path>, remove: bool) {
+    let mut created = CREATED.lock().unwrap_or_else(|e| e.into_inner());
+    let mut mine: Vec<PathBuf> = Vec::new();
+    created.retain(|d| {
+        let ours = root.is_none_or(|r| d.starts_with(r) || r.starts_with(d));
+        if ours {
+            mine.push(d.clone());
+        }
+        !ours
+    });
+    if !remove {
+        return;
+    }
+    mine.sort_by_key(|d| std::cmp::Reverse(d.components().count()));
+    for d in mine {
+        let _ = std::fs::remove_dir(d);
+    }
+}
 
 /// Parses the process arguments, runs the command, returns the exit code.
 ///
@@ -253,15 +313,14 @@ pub fn run() -> i32 {
     // only loses the clean-up, so the command runs anyway
     let _ = ctrlc::set_handler(|| {
         crate::io::remove_temporaries();
-        let created = CREATED.lock().unwrap_or_else(|e| e.into_inner());
-        for d in created.iter() {
-            let _ = std::fs::remove_dir(d);
+        if !crate::io::outputs_committed() {
+            release_created(None, true);
         }
         if crate::io::outputs_committed() {
             // the renames had finished (the clean-up waits for them)
-            eprintln!("interrupted after the outputs were written");
+            say!("interrupted after the outputs were written");
         } else {
-            eprintln!("interrupted: no output written");
+            say!("interrupted: no output written");
         }
         std::process::exit(130);
     });
@@ -286,7 +345,7 @@ where
         Ok(Outcome::Ok) => 0,
         Ok(Outcome::CheckFailed) => 1,
         Err(e) => {
-            eprintln!("error: {e}");
+            say!("error: {e}");
             2
         }
     }

@@ -266,6 +266,24 @@ pub fn check_octaves(flag: &str, octaves: &[f64], scales: &[f64]) -> Result<()> 
             format!("octave {o} is outside the scales (0..{top:.2} octaves above a_min)"),
         ));
     }
+    // between two voices: the value would be read at the nearest scale and
+    // recorded as given
+    let step = if scales.len() > 1 {
+        (scales[1] / scales[0]).log2()
+    } else {
+        1.0
+    };
+    if let Some(o) = octaves
+        .iter()
+        .find(|&&o| ((o / step).round() - o / step).abs() > 1e-6)
+    {
+        return Err(Error::param(
+            flag,
+            format!(
+                "octave {o} lies between two scales: use a multiple of the voice step {step:.4} octave"
+            ),
+        ));
+    }
     Ok(())
 }
 
@@ -449,7 +467,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         h0,
     )?;
     if !quiet {
-        eprintln!(
+        say!(
             "pdf: {} images, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s; wrote {}",
             hist.images,
             args.set.name(),

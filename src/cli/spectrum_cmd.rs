@@ -50,6 +50,15 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         .as_deref()
         .map(|s| parse_range("k-range", s))
         .transpose()?;
+    if let Some((lo, hi)) = k_range
+        && !(lo > 0.0 && hi <= std::f64::consts::PI)
+    {
+        // beyond pi the bins are the corners of the spectrum only
+        return Err(crate::Error::param(
+            "k-range",
+            format!("[{lo}, {hi}] rad/px: need 0 < LO < HI <= pi (the Nyquist wavenumber)"),
+        ));
+    }
     let fields = read_all(&args.images)?;
     for (fl, p) in fields.iter().zip(&args.images) {
         if let Some((lo, hi)) = fl.range()

@@ -139,7 +139,7 @@ where
     // into the same directory) would join a `DIR/*.npy` ensemble unnoticed
     let stale = stale_files(&c.out.out, stem, c.count);
     if !stale.is_empty() {
-        eprintln!(
+        say!(
             "warning: {} holds {} older file(s) `{stem}_NNNN` beyond --count {} (e.g. {}): \
              they are not part of this ensemble (see synth.json)",
             c.out.out.display(),

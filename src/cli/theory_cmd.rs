@@ -44,10 +44,18 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
         }
     }
     body["recommended_wavelet"] = json!(r.wavelet);
-    println!(
-        "{}",
-        serde_json::to_string_pretty(&body).map_err(|e| Error::Input(e.to_string()))?
-    );
+    let text = serde_json::to_string_pretty(&body).map_err(|e| Error::Input(e.to_string()))?;
+    {
+        use std::io::Write as _;
+        match writeln!(std::io::stdout(), "{text}") {
+            // the reader has seen what it wanted (`wtmm theory ... | head`)
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {}
+            r => r.map_err(|source| Error::Write {
+                path: "standard output".into(),
+                source,
+            })?,
+        }
+    }
     if let Some(dir) = &args.out {
         make_out_dir(dir)?;
         write_json(&dir.join("theory.json"), &body)?;

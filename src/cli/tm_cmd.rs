@@ -144,8 +144,11 @@ impl TmOpts {
             return Err(Error::param("eta-fit", "η must be > 0"));
         }
         let k_range = opt("k-range", &self.k_range)?;
-        if k_range.is_some_and(|(lo, _)| lo <= 0.0) {
-            return Err(Error::param("k-range", "wavenumbers must be > 0"));
+        if k_range.is_some_and(|(lo, hi)| lo <= 0.0 || hi > std::f64::consts::PI) {
+            return Err(Error::param(
+                "k-range",
+                "need 0 < LO < HI <= pi rad/px (the Nyquist wavenumber)",
+            ));
         }
         if let Some(q) = self.q_fit_max
             && !(q.is_finite() && q > 0.0)
@@ -209,12 +212,12 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let shapes = crate::spectra::ShapeCount::tally(shapes);
     let params = json!({"images": args.images, "image_shapes": shapes, "config": cfg, "fit": fc});
     write_outputs(&args.out.out, "tm", params, &res, acc.spectrum.as_ref())?;
-    print!("{}", summary(&res));
+    show!("{}", summary(&res));
     for w in tm_warnings(&res) {
-        eprintln!("warning: {w}");
+        say!("warning: {w}");
     }
     if !quiet {
-        eprintln!("wrote {}", args.out.out.join("tm.json").display());
+        say!("wrote {}", args.out.out.join("tm.json").display());
     }
     Ok(Outcome::Ok)
 }

@@ -695,6 +695,13 @@ impl TraceMomentAccumulator {
         } else {
             (0.0, kmax)
         });
+        if lo < -1e-9 || hi > kmax + 1e-9 {
+            // a range beyond the data would be recorded as if it were fitted
+            return Err(Error::param(
+                "lambda-fit",
+                format!("[{lo}, {hi}] goes beyond the scales: log2 λ runs from 0 to {kmax}"),
+            ));
+        }
         let in_range: Vec<bool> = log2_lambda
             .iter()
             .map(|&x| x >= lo - 1e-9 && x <= hi + 1e-9)
@@ -830,6 +837,15 @@ impl TraceMomentAccumulator {
         let nj = self.sf_count.len();
         let log2_lag: Vec<f64> = (0..nj).map(|j| j as f64).collect();
         let (llo, lhi) = fc.log2_lag.unwrap_or((1.0, (kmax - 3.0).max(2.0)));
+        if fc.log2_lag.is_some() && (llo < -1e-9 || lhi > (nj as f64 - 1.0) + 1e-9) {
+            return Err(Error::param(
+                "lag-fit",
+                format!(
+                    "[{llo}, {lhi}] goes beyond the lags: log2 of the lag runs from 0 to {}",
+                    nj as f64 - 1.0
+                ),
+            ));
+        }
         let mut log2_sf = Vec::new();
         let (mut xi, mut xi_se) = (Vec::new(), Vec::new());
         for (iq, _) in self.config.sf_q.iter().enumerate() {
