@@ -84,6 +84,11 @@ pub struct ImagePartial {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PartitionSums {
     pub version: String,
+    /// The analysis that produced the sums (wavelet, scales, margin,
+    /// linking), so that shards of different analyses are not merged;
+    /// `None` when unknown (sums of given values, files of older versions).
+    #[serde(default)]
+    pub analysis: Option<crate::skeleton::AnalysisConfig>,
     pub q: Vec<f64>,
     pub scales: Vec<f64>,
     pub images: Vec<ImagePartial>,
@@ -126,6 +131,7 @@ impl PartitionSums {
         }
         PartitionSums {
             version: crate::VERSION.to_string(),
+            analysis: None,
             q: q.to_vec(),
             scales: sk.scales.clone(),
             images: vec![ImagePartial {
@@ -178,6 +184,7 @@ impl PartitionSums {
         }
         Ok(PartitionSums {
             version: crate::VERSION.to_string(),
+            analysis: None,
             q: q.to_vec(),
             scales: scales.to_vec(),
             images: vec![ImagePartial {
@@ -206,6 +213,20 @@ impl PartitionSums {
                 "scales",
                 "cannot merge partition sums over different scales",
             ));
+        }
+        match (&self.analysis, &other.analysis) {
+            (Some(a), Some(b)) if a != b => {
+                return Err(Error::param(
+                    "analysis",
+                    format!(
+                        "cannot merge partition sums of different analyses ({})",
+                        config_difference(a, b)
+                    ),
+                ));
+            }
+            // one shard of unknown provenance: so is the merge
+            (Some(_), None) => self.analysis = None,
+            _ => {}
         }
         self.images.extend(other.images.iter().cloned());
         Ok(())
@@ -684,7 +705,27 @@ pub fn image_sums(
     label: impl Into<String>,
 ) -> Result<PartitionSums> {
     let sk = crate::skeleton::skeleton(field, cfg)?;
-    Ok(PartitionSums::from_skeleton(&sk, q, label))
+    let mut s = PartitionSums::from_skeleton(&sk, q, label);
+    s.analysis = Some(cfg.clone());
+    Ok(s)
+}
+
+/// The fields in which two analyses differ, as `key: a vs b`.
+fn config_difference(
+    a: &crate::skeleton::AnalysisConfig,
+    b: &crate::skeleton::AnalysisConfig,
+) -> String {
+    let (ja, jb) = (serde_json::json!(a), serde_json::json!(b));
+    let mut d: Vec<String> = Vec::new();
+    if let (Some(ma), Some(mb)) = (ja.as_object(), jb.as_object()) {
+        for (k, va) in ma {
+            let vb = mb.get(k).unwrap_or(&serde_json::Value::Null);
+            if va != vb {
+                d.push(format!("{k}: {va} vs {vb}"));
+            }
+        }
+    }
+    d.join("; ")
 }
 
 #[cfg(test)]

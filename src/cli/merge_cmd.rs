@@ -85,7 +85,9 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     let o = sums.spectra(other, fit)?;
     make_out_dir(&args.out.out)?;
     let curves = theory.map(|m| theory_curves(&m, m.name(), &s.q));
-    let params = json!({"sums": args.sums, "fit_octaves": fit, "rule": rule, "theory": theory});
+    // the analysis the shards share (null when a shard predates the record)
+    let params = json!({"sums": args.sums, "analysis": sums.analysis, "fit_octaves": fit,
+        "rule": rule, "theory": theory});
     write_outputs(
         &args.out.out,
         "merge",
