@@ -480,9 +480,21 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     assert_eq!(s["params"]["analysis"]["wavelet"], "gauss");
     // same scales and q, another wavelet (or linking): not one ensemble
     let b = fbm_npy(&dir, "b.npy", 128, 3);
-    for (extra, name) in [(["--wavelet", "mexican"], "mex"), (["--ratio", "0.8:1.25"], "ratio")] {
+    for (extra, name) in [
+        (["--wavelet", "mexican"], "mex"),
+        (["--ratio", "0.8:1.25"], "ratio"),
+    ] {
         let o = dir.join(name).display().to_string();
-        let mut args = vec!["analyze", &b, "--octaves", "2", "--fit", "0.5:2", "--q", "-2:2:1"];
+        let mut args = vec![
+            "analyze",
+            &b,
+            "--octaves",
+            "2",
+            "--fit",
+            "0.5:2",
+            "--q",
+            "-2:2:1",
+        ];
         args.extend_from_slice(&extra);
         args.extend_from_slice(&["--out", &o]);
         assert_eq!(run(&args), 0);
@@ -494,7 +506,16 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     // a shard of the same analysis merges
     let o = dir.join("same").display().to_string();
     let code = run(&[
-        "analyze", &b, "--octaves", "2", "--fit", "0.5:2", "--q", "-2:2:1", "--out", &o,
+        "analyze",
+        &b,
+        "--octaves",
+        "2",
+        "--fit",
+        "0.5:2",
+        "--q",
+        "-2:2:1",
+        "--out",
+        &o,
     ]);
     assert_eq!(code, 0);
     let j = dir.join("same").join("sums.json").display().to_string();
@@ -605,8 +626,13 @@ fn validate_judges_the_fbm_range_once() {
         })
         .count();
     assert_eq!(n, 1);
-    // fBm is not periodic: the interior at the default margin
-    assert!(v["params"]["analysis"]["margin"].is_null());
+    // fBm is not periodic: the interior at the default margin, recorded in
+    // pixels (SPEC §1: ceil(R a_max), a_max = 1.5 * 2^2.9 px)
+    let an = &v["params"]["analysis"];
+    assert_eq!(an["margin_default"], true);
+    let want = wtmm::cwt::default_margin(wtmm::cwt::Wavelet::Gauss, 1.5 * 2f64.powf(2.9));
+    assert_eq!(an["margin"], want);
+    assert!(want > 30, "{want}");
 }
 
 /// Periodic models are analysed on the whole torus unless `--margin` says

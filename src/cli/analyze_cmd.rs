@@ -206,7 +206,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     let other = sums.spectra(other_rule, fit)?;
     make_out_dir(&args.out.out)?;
     let params = json!({
-        "images": args.images, "analysis": cfg, "q": q, "fit_octaves": fit,
+        "images": args.images, "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit,
         "rule": args.opts.rule(), "theory": theory_model,
     });
     write_outputs(

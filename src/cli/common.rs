@@ -98,6 +98,16 @@ pub fn make_out_dir(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The analysis configuration as recorded in the outputs, with the margin
+/// resolved to the pixels used (`margin_default` says it was the default
+/// for the wavelet and the largest scale) instead of `null`.
+pub fn analysis_json(cfg: &crate::skeleton::AnalysisConfig) -> serde_json::Value {
+    let mut v = serde_json::json!(cfg);
+    v["margin_default"] = serde_json::json!(cfg.margin.is_none());
+    v["margin"] = serde_json::json!(cfg.margin_px());
+    v
+}
+
 /// Pretty JSON written atomically.
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     let s = serde_json::to_string_pretty(value)

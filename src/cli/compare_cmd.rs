@@ -452,7 +452,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     let params = json!({
         "model": model, "preset": r.preset, "count": args.count, "size": args.size,
         "seed": args.seed, "groups": args.groups, "summary_q": summary_q,
-        "wtmm": {"analysis": cfg, "q": q, "fit_octaves": fit, "rule": rule},
+        "wtmm": {"analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit, "rule": rule},
         "tm": {"config": tm_cfg, "fit": tm_fit},
     });
     let mut body = header("compare", params.clone());

@@ -274,7 +274,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     };
     let l = args.integral_scale.unwrap_or(side);
     make_out_dir(&args.out.out)?;
-    let params = json!({"input": input.params_json(), "analysis": cfg, "correlation": ccfg,
+    let params = json!({"input": input.params_json(), "analysis": super::common::analysis_json(&cfg), "correlation": ccfg,
         "pairs_octaves": pairs_oct, "source": format!("{:?}", args.source).to_lowercase(),
         "set": args.set, "integral_scale": l});
     let body = write_correlation_outputs(

@@ -295,7 +295,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         recon3,
     };
     make_out_dir(&args.out.out)?;
-    let params = json!({"input": input.params_json(), "analysis": cfg, "set": args.set,
+    let params = json!({"input": input.params_json(), "analysis": super::common::analysis_json(&cfg), "set": args.set,
         "kernel": kcfg, "options": kopts});
     write_kernel_outputs(
         &args.out.out,

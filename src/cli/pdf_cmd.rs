@@ -438,7 +438,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let dir = &args.out.out;
     let mut body = header(
         "pdf",
-        json!({"input": input.params_json(), "analysis": cfg, "set": args.set,
+        json!({"input": input.params_json(), "analysis": super::common::analysis_json(&cfg), "set": args.set,
             "fit_octaves": fit, "binning": pcfg}),
     );
     body["set"] = json!(args.set);

@@ -170,7 +170,10 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
         )?;
         pictures.push(json!({"j": j, "a": sm.a, "file": name}));
     }
-    let mut body = header("skeleton", json!({"image": args.image, "analysis": cfg}));
+    let mut body = header(
+        "skeleton",
+        json!({"image": args.image, "analysis": super::common::analysis_json(&cfg)}),
+    );
     body["shape"] = json!([ny, nx]);
     body["margin"] = json!(sk.margin);
     body["lines"] = json!(sk.lines.len());

@@ -554,7 +554,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         .map(|ss| ss.q.iter().copied().zip(ss.tau.iter().copied()).collect());
     let params = json!({
         "model": model, "preset": r.preset, "count": args.count, "size": args.size, "seed": args.seed,
-        "analysis": cfg, "q": q, "fit_octaves": fit, "rule": rule,
+        "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit, "rule": rule,
     });
     write_outputs(
         &args.out.out,
