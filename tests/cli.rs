@@ -677,7 +677,7 @@ fn ignored_options_are_refused_and_defaults_follow_the_grid() {
     let b = fbm_npy(&dir, "b.npy", 192, 2);
     let out = dir.join("out");
     let o = out.display().to_string();
-    let refused: [&[&str]; 9] = [
+    let refused: [&[&str]; 14] = [
         &["pdf", &a, "--count", "3"],
         &["kernel", &a, "--size", "256"],
         &["correlate", &a, "--seed", "5"],
@@ -700,6 +700,21 @@ fn ignored_options_are_refused_and_defaults_follow_the_grid() {
         &["pdf", &a, "--q", "0:4:1"],
         &["skeleton", &a, "--rule", "sup"],
         &["correlate", &a, "--fit", "0:2"],
+        // the CWT source builds no skeleton: linking options would be recorded unused
+        &["correlate", &a, "--source", "cwt", "--ratio", "0.8:1.25"],
+        &["correlate", &a, "--source", "cwt", "--link-climb"],
+        // the skeleton source has one magnitude, ln M
+        &[
+            "correlate",
+            &a,
+            "--source",
+            "wtmmm",
+            "--magnitude",
+            "energy",
+        ],
+        // margin 0 is the torus: a domain that says otherwise is a contradiction
+        &["kernel", &a, "--domain", "torus", "--margin", "10"],
+        &["pdf", &a, "--domain", "interior", "--margin", "0"],
     ];
     for args in refused {
         let mut v = args.to_vec();

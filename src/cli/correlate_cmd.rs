@@ -169,7 +169,7 @@ impl Runner {
 }
 
 pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
-    let input = args.input.resolve()?;
+    let input = args.input.resolve(args.opts.cwt.margin)?;
     let cfg = input.analysis(&args.opts)?;
     let grid = cfg.scale_list();
     let pairs_oct = pairs_or_default("pairs", args.pairs.as_deref(), "1:1,0:1,0:2,1:2", &grid)?;
@@ -194,6 +194,24 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         eps: cfg.eps,
     };
     ccfg.validate()?;
+    // options the chosen source would not use are refused, not recorded
+    if args.source == Source::Cwt
+        && (cfg.link != crate::skeleton::LinkParams::default()
+            || !cfg.guard
+            || args.set != WtmmmSet::Lines)
+    {
+        return Err(Error::param(
+            "source",
+            "--ratio, --radius-cap, --link-climb, --no-guard and --set shape the skeleton's \
+             WTMMM, which --source cwt does not use: drop them, or use --source wtmmm or both",
+        ));
+    }
+    if args.source == Source::Wtmmm && args.magnitude != Magnitude::Lnm {
+        return Err(Error::param(
+            "magnitude",
+            "the skeleton's magnitude is ln M at its WTMMM; --magnitude applies to --source cwt or both",
+        ));
+    }
     let do_cwt = args.source != Source::Wtmmm;
     let skel = if args.source != Source::Cwt {
         // the skeleton over the grid scales up to the largest one needed;

@@ -97,7 +97,9 @@ impl StatsInput {
     ///
     /// **Errors** naming the flag: neither images nor a model, a model option
     /// without a model, `--count 0`.
-    pub fn resolve(&self) -> Result<Input> {
+    /// `margin` is `--margin`: it must agree with `--domain` (margin 0 is
+    /// the torus), and under `auto` it decides.
+    pub fn resolve(&self, margin: Option<usize>) -> Result<Input> {
         let resolved = self.model.resolve_optional(self.theory)?;
         if self.images.is_empty() && resolved.is_none() {
             return Err(Error::param(
@@ -129,10 +131,27 @@ impl StatsInput {
             return Err(Error::param("count", "must be >= 1"));
         }
         let generated = self.images.is_empty();
-        let periodic = match self.domain {
-            DomainChoice::Torus => true,
-            DomainChoice::Interior => false,
-            DomainChoice::Auto => {
+        let periodic = match (self.domain, margin) {
+            (DomainChoice::Torus, Some(m)) if m != 0 => {
+                return Err(Error::param(
+                    "margin",
+                    format!(
+                        "--domain torus analyses the whole periodic image (margin 0), not a \
+                         {m} px margin: drop --margin or use --domain interior"
+                    ),
+                ));
+            }
+            (DomainChoice::Interior, Some(0)) => {
+                return Err(Error::param(
+                    "margin",
+                    "margin 0 is the whole image taken as a torus: use --domain torus",
+                ));
+            }
+            (DomainChoice::Torus, _) => true,
+            (DomainChoice::Interior, _) => false,
+            // what is computed: margin 0 is the torus
+            (DomainChoice::Auto, Some(m)) => m == 0,
+            (DomainChoice::Auto, None) => {
                 generated && resolved.as_ref().is_some_and(|r| r.model.is_periodic())
             }
         };
@@ -395,7 +414,7 @@ pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64)) -> f64 {
 }
 
 pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
-    let input = args.input.resolve()?;
+    let input = args.input.resolve(args.opts.cwt.margin)?;
     let cfg = input.analysis(&args.opts)?;
     let fit = fit_range(args.fit.as_deref(), args.opts.cwt.octaves)?;
     let scales = cfg.scale_list();
