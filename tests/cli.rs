@@ -412,6 +412,11 @@ fn fif_model_in_synth_and_theory() {
     let k2 = 0.15 * (2f64.powf(1.8) - 2.0);
     assert!((th["K"][2].as_f64().unwrap() - k2).abs() < 1e-12);
     assert!((th["tau"][2].as_f64().unwrap() - (1.4 - k2 - 2.0)).abs() < 1e-12);
+    // both spectral conventions: angle-averaged tau(2) + 4, angle-integrated
+    // 1 + 2H - K(2) (TM eq 11, what `tm` reports)
+    assert!((th["beta"].as_f64().unwrap() - (4.0 + 1.4 - k2 - 2.0)).abs() < 1e-12);
+    assert!((th["beta_integrated"].as_f64().unwrap() - (1.0 + 1.4 - k2)).abs() < 1e-12);
+    assert!(th["notes"][0].as_str().unwrap().contains("q < 0"));
 }
 
 fn fbm_npy(dir: &Path, name: &str, n: usize, seed: u64) -> String {

@@ -11,7 +11,7 @@ use super::common::{header, make_out_dir, parse_list, write_json};
 use super::model_args::{ModelName, ModelOpts};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
-use crate::theory::TheoryTable;
+use crate::theory::{Model, TheoryTable};
 
 #[derive(Args, Debug)]
 pub struct TheoryArgs {
@@ -44,6 +44,19 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
         }
     }
     body["recommended_wavelet"] = json!(r.wavelet);
+    // the angle-integrated exponent of TM eq 11 and `tm` (E(k) ~ k S(k) for
+    // an isotropic field), beside the angle-averaged `beta` = tau(2) + 4
+    body["beta_integrated"] = json!(r.model.beta() - 1.0);
+    if let Model::Fif(p) = r.model
+        && p.alpha < 2.0
+        && p.c1 > 0.0
+    {
+        body["notes"] = json!([
+            "q < 0: tau(q) = q h_max - 2 is the spectrum truncated at h_max, where D = 2; \
+             the strict Legendre transform of K (defined for q >= 0 only) gives D = 2 for every \
+             h >= h_max and tau(q < 0) = -inf (src/theory/mod.rs)"
+        ]);
+    }
     let text = serde_json::to_string_pretty(&body).map_err(|e| Error::Input(e.to_string()))?;
     {
         use std::io::Write as _;

@@ -190,6 +190,15 @@ pub fn fisc_log2_amplitudes(
 ///
 /// **Errors** on invalid parameters or a size that is not a power of two.
 pub fn fisc(params: FiscParams, size: usize, seed: u64, index: u64) -> Result<Array2<f64>> {
+    if params.p == 0.5 {
+        // every split is even: μ is uniform, its only Fourier mode is k = 0,
+        // which the integration sets to 0 (the theory's monofractal h = H*
+        // describes the limit p -> 1/2, not this image)
+        return Err(Error::param(
+            "p",
+            "p = 1/2 gives a uniform measure, so the integrated field is identically 0: use p < 1/2",
+        ));
+    }
     let mu = fisc_measure(params, size, seed, index)?;
     Ok(fractional_integration(
         &mu,
@@ -255,6 +264,28 @@ mod tests {
     use super::*;
 
     #[test]
+    fn p_one_half_is_refused_by_the_generator() {
+        // a valid model (the theory's monofractal limit), but every split is
+        // even and the image would be identically 0
+        let p = FiscParams { p: 0.5, hstar: 0.5 };
+        assert!(p.validate().is_ok());
+        let e = fisc(p, 16, 1, 0).unwrap_err().to_string();
+        assert!(e.contains("`p`") && e.contains("uniform"), "{e}");
+        assert!(
+            fisc(
+                FiscParams {
+                    p: 0.49,
+                    hstar: 0.5
+                },
+                16,
+                1,
+                0
+            )
+            .is_ok()
+        );
+    }
+
+    #[test]
     fn validation_names_the_flag() {
         let e = FiscParams { p: 0.6, hstar: 0.5 }.validate().unwrap_err();
         assert!(e.to_string().contains("`p`"), "{e}");
@@ -281,7 +312,8 @@ mod tests {
         let prm = FiscParams { p: 0.5, hstar: 0.5 };
         let mu = fisc_measure(prm, 32, 1, 0).unwrap();
         assert!(mu.iter().all(|&v| (v - 1.0).abs() < 1e-12));
-        let f = fisc(prm, 32, 1, 0).unwrap();
+        // why `fisc` refuses p = 1/2: the integrated field is 0
+        let f = fractional_integration(&mu, prm.hstar, prm.amplitude());
         assert!(f.iter().all(|v| v.abs() < 1e-12));
     }
 

@@ -31,7 +31,7 @@ use crate::synth::fif::FifParams;
 /// Dimension of space.
 pub const D: f64 = 2.0;
 
-const ALPHA_ONE_EPS: f64 = 1e-9;
+pub(crate) const ALPHA_ONE_EPS: f64 = 1e-9;
 
 /// The universal moment scaling function `K(q)` of parameters `(α, C1)`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

@@ -79,15 +79,19 @@ pub trait Multifractal {
 /// `h(q) = H - K'(q)`, `D(h) = 2 - c(H - h)` with the universal codimension
 /// `c(γ)`, so `D(h(q)) = 2 - C1 q^α`.
 ///
-/// **Negative q (α < 2).** The flux moments of order q < 0 diverge (the
-/// generator's heavy tail is on the negative side): the singularities
-/// `γ = H - h` reach down only to `γ_min = K'(0+) = -C1/(α-1)` (1 < α < 2),
-/// where `c(γ_min) = 0`, so `D(h)` rises to its maximum 2 at
-/// `h_max = H + C1/(α-1)` and has no right-hand branch. τ(q) for q < 0 is the
-/// Legendre transform of this `D(h)`, `τ(q) = min_h (q h - D(h)) =
-/// q h_max - 2`: linear, `h(q) = h_max`, `D(q) = 2` (a phase transition at
-/// q = 0, where τ is C¹ but not C²). For α <= 1, `K'(0+) = -∞`: `h_max = +∞`
-/// and `τ(q < 0) = -∞`. The kernel cumulants exist only at α = 2 (K is
+/// **Negative q (α < 2): a convention.** The flux moments of order q < 0
+/// diverge (the generator's heavy tail is on the negative side), so K is
+/// defined for q >= 0 only. Its Legendre transform reaches `c = 0` at
+/// `γ_min = K'(0+) = -C1/(α-1)` (1 < α < 2), i.e. `D = 2` at
+/// `h_max = H + C1/(α-1)`; below `γ_min` (above `h_max`) the strict
+/// transform gives `c = 0` too (the left tail of the Lévy generator falls
+/// off slower than any power of λ), so `D(h) = 2` for every `h >= h_max` and
+/// strictly `τ(q < 0) = -∞`. What is reported instead is the spectrum
+/// truncated at `h_max`: `τ(q) = q h_max - 2`, `h(q) = h_max`, `D(q) = 2`
+/// (linear, C¹ at q = 0), the τ of the singularities the cascade's
+/// intermittent part produces. A finite image, analysed with a wavelet of
+/// n vanishing moments, shows finite h(q < 0) bounded by n. For α <= 1,
+/// `K'(0+) = -∞`: `h_max = +∞` and `τ(q < 0) = -∞`. The kernel cumulants exist only at α = 2 (K is
 /// analytic at 0): `c1 = -(H + C1)`, `c2 = 2 C1`, `c3 = 0`.
 impl Multifractal for FifParams {
     fn tau(&self, q: f64) -> f64 {
@@ -138,7 +142,8 @@ impl Multifractal for FifParams {
         let h_min = fif::h(self, qs);
         let h_max = if self.alpha >= 2.0 {
             fif::h(self, -qs)
-        } else if self.alpha > 1.0 {
+        } else if self.alpha > 1.0 + fif::ALPHA_ONE_EPS {
+            // α within ALPHA_ONE_EPS of 1 is α = 1, as in K(q)
             self.hurst + self.c1 / (self.alpha - 1.0)
         } else {
             f64::INFINITY
