@@ -243,10 +243,7 @@ pub fn analyze_paths(
             let s = image_sums(&field, cfg, q, p.display().to_string())
                 .map_err(|e| Error::format(p, e.to_string()))?;
             if s.images[0].lines[0] == 0 {
-                return Err(Error::format(
-                    p,
-                    "no maxima lines: the image is constant or flat",
-                ));
+                return Err(Error::format(p, super::common::NO_MAXIMA));
             }
             pb.inc(1);
             Ok(s)

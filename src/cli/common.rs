@@ -98,6 +98,12 @@ pub fn make_out_dir(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Why an image gave no maxima at the smallest scale (the causes seen in
+/// practice, not only a constant image).
+pub const NO_MAXIMA: &str = "no maxima at the smallest scale: the image is flat (constant, or one \
+     extreme value such as an untagged nodata dwarfing the rest), or the counting domain left by \
+     the margin is too small (try a smaller --margin or fewer --octaves)";
+
 /// The analysis configuration as recorded in the outputs, with the margin
 /// resolved to the pixels used (`margin_default` says it was the default
 /// for the wavelet and the largest scale) instead of `null`.

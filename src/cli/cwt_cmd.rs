@@ -29,7 +29,8 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     let field = super::common::read_image(&args.image)?;
     let scales = parse_list("scales", &args.scales)?;
     let (ny, nx) = field.dim();
-    let plan = CwtPlan::new(ny, nx, args.wavelet, &scales)?;
+    let plan = CwtPlan::new(ny, nx, args.wavelet, &scales)
+        .map_err(|e| crate::Error::format(&args.image, e.to_string()))?;
     let margin = plan.default_margin();
     if 2 * margin >= ny.min(nx) {
         return Err(Error::Input(format!(

@@ -22,7 +22,8 @@ pub struct DemoArgs {
     /// Number of images.
     #[arg(long, default_value_t = 8)]
     pub count: usize,
-    /// Image side (a power of two; more than 288 px for the default 5 octaves).
+    /// Image side (a power of two; the W-cascades are analysed on the torus,
+    /// so 128 px will do for a quick look, 512-1024 px for numbers).
     #[arg(long, default_value_t = 1024)]
     pub size: usize,
     #[arg(long, default_value_t = 2026)]

@@ -160,9 +160,10 @@ fn collect(
         |acc, field, label, par| {
             let w = image_wtmmm(field, cfg, par, true)?;
             if w.all.first().is_none_or(|v| v.is_empty()) {
-                return Err(Error::Input(
-                    "no WTMMM at the smallest scale: the image is constant or flat".into(),
-                ));
+                return Err(Error::Input(format!(
+                    "{label}: {}",
+                    super::common::NO_MAXIMA
+                )));
             }
             let m = KernelSums::from_points(&scales, kcfg, set, w.set(set), label)?;
             let o = KernelSums::from_points(&scales, kcfg, set.other(), w.set(set.other()), label)?;

@@ -387,12 +387,13 @@ pub fn collect_histograms(
         quiet,
         "pdf",
         || empty.clone(),
-        |acc, field, _label, par| {
+        |acc, field, label, par| {
             let w = image_wtmmm(field, cfg, par, set == WtmmmSet::Lines)?;
             if w.all.first().is_none_or(|v| v.is_empty()) {
-                return Err(Error::Input(
-                    "no WTMMM at the smallest scale: the image is constant or flat".into(),
-                ));
+                return Err(Error::Input(format!(
+                    "{label}: {}",
+                    super::common::NO_MAXIMA
+                )));
             }
             acc.merge(&WtmmmHistograms::from_points(&scales, pcfg, w.set(set))?)
         },

@@ -85,8 +85,14 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         None => {
             let r = default_k_range(nmin);
             if r.0 >= r.1 {
+                let small = fields
+                    .iter()
+                    .zip(&args.images)
+                    .find(|(f, _)| f.dim().0.min(f.dim().1) == nmin)
+                    .map(|(_, p)| p.display().to_string())
+                    .unwrap_or_default();
                 return Err(crate::Error::Input(format!(
-                    "images of {nmin} px are too small for the default fit range \
+                    "{small}: a side of {nmin} px is too small for the default fit range \
                      (8 cycles per image up to pi/4 rad/px needs more than 64 px); give --k-range"
                 )));
             }
@@ -128,6 +134,23 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     body["k_range"] = json!([k_lo, k_hi]);
     body["k_units"] = json!("rad/px");
     body["convention"] = json!(CONVENTION);
+    // missing pixels were filled with the image mean before the FFT: say so
+    let missing: Vec<usize> = fields
+        .iter()
+        .map(|f| f.dim().0 * f.dim().1 - f.valid_count())
+        .collect();
+    let mut warnings = Vec::new();
+    for (n, p) in missing.iter().zip(&args.images) {
+        if *n > 0 {
+            warnings.push(format!(
+                "{}: {n} missing pixels filled with the image mean before the FFT \
+                 (large gaps bias the spectrum)",
+                p.display()
+            ));
+        }
+    }
+    body["missing_pixels"] = json!(missing);
+    body["warnings"] = json!(warnings);
     body["per_image_beta"] = json!(per_image);
     body["per_image_beta_mean"] = json!(m);
     body["per_image_beta_std"] = json!(sd);
@@ -137,6 +160,9 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     body["k"] = json!(pts.iter().map(|p| p.0).collect::<Vec<_>>());
     body["S"] = json!(pts.iter().map(|p| p.1).collect::<Vec<_>>());
     write_json(&args.out.out.join("spectrum.json"), &body)?;
+    for w in &warnings {
+        say!("warning: {w}");
+    }
     let rows: Vec<Vec<String>> = pts.iter().map(|p| vec![f(p.0), f(p.1)]).collect();
     write_csv(
         &args.out.out.join("spectrum.csv"),

@@ -339,6 +339,13 @@ fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
             res.c1
         ));
     }
+    if res.beta.is_none() {
+        w.push(
+            "beta and H not estimable: fewer than 3 spectrum bins in the k range \
+             (images too small for the default range; give --k-range)"
+                .to_string(),
+        );
+    }
     if res.dtm_alpha.is_finite() && !(res.dtm_alpha >= 0.0 && res.dtm_alpha <= 2.0) {
         w.push(format!(
             "DTM alpha = {:.3} lies outside [0, 2]: too few scales or images",

@@ -332,6 +332,18 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
 /// `args.out` and returns its criteria and table (not printed).
 fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let r = args.model_opts.resolve(args.model)?;
+    let (k_lo, k_hi) = default_k_range(args.size);
+    if k_lo >= k_hi {
+        // checked before the ensemble is analysed, not after
+        return Err(Error::param(
+            "size",
+            format!(
+                "{} px is too small for the spectral criterion: beta is fitted from 8 cycles \
+                 per image to pi/4 rad/px, which needs more than 64 px",
+                args.size
+            ),
+        ));
+    }
     let mut opts = args.opts.clone();
     if opts.line.cwt.wavelet.is_none() {
         opts.line.cwt.wavelet = Some(r.wavelet);
@@ -397,7 +409,6 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         fit,
     )?;
     let th = TheoryTable::new(&model, &q);
-    let (k_lo, k_hi) = default_k_range(args.size);
     let beta_fit = ens.spectrum.fit(k_lo, k_hi)?;
     let per_image_beta: Vec<f64> = ens
         .spectra
