@@ -1070,3 +1070,21 @@ fn validate_check_exits_1_when_a_criterion_fails() {
     ]);
     assert_eq!(code, 0);
 }
+
+/// What `synth` writes says how it was made: the format in synth.json, and
+/// the version in a PNG's sidecar (which also reads back).
+#[test]
+fn synth_records_its_format_and_the_sidecar_its_version() {
+    let dir = scratch("synthpng");
+    let o = dir.join("o");
+    let out = o.display().to_string();
+    let code = run(&[
+        "synth", "fbm", "--hurst", "0.3", "--size", "64", "--format", "png", "--out", &out,
+    ]);
+    assert_eq!(code, 0);
+    assert_eq!(json(&o.join("synth.json"))["params"]["format"], "png");
+    let side = json(&o.join("fbm_0000.json"));
+    assert_eq!(side["version"], env!("CARGO_PKG_VERSION"));
+    let f = read_field(&o.join("fbm_0000.png")).unwrap();
+    assert_eq!(f.dim(), (64, 64));
+}

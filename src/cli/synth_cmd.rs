@@ -99,7 +99,36 @@ fn check_common(c: &SynthCommon) -> Result<()> {
     if c.count == 0 {
         return Err(Error::param("count", "must be >= 1"));
     }
+    // an allocation beyond the machine aborts the process (no message, and
+    // the directory left behind): estimate first. The fBm is drawn on a
+    // grid twice as large in complex f64 (64 N^2 bytes), the largest case.
+    let per_image = 64.0 * (c.size as f64).powi(2);
+    let at_once = c.count.min(rayon::current_num_threads()) as f64;
+    if let Some(avail) = available_memory()
+        && per_image * at_once > avail
+    {
+        return Err(Error::param(
+            "size",
+            format!(
+                "{} px needs about {:.1} GB in memory ({} image(s) at once, {:.1} GB each); \
+                 {:.1} GB are available",
+                c.size,
+                per_image * at_once / 1e9,
+                at_once,
+                per_image / 1e9,
+                avail / 1e9
+            ),
+        ));
+    }
     Ok(())
+}
+
+/// `MemAvailable` of /proc/meminfo in bytes (Linux); `None` elsewhere.
+fn available_memory() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = s.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024.0)
 }
 
 /// Generates and writes `count` images in parallel; image `i` depends only on
@@ -132,6 +161,7 @@ where
     p["size"] = json!(c.size);
     p["count"] = json!(c.count);
     p["seed"] = json!(c.seed);
+    p["format"] = json!(c.format.ext());
     let mut body = header("synth", p);
     body["theory"] = theory;
     body["files"] = json!(names);

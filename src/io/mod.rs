@@ -184,7 +184,11 @@ pub fn write_tiff_f32(path: &Path, a: &Array2<f64>) -> Result<()> {
 pub fn write_png16(path: &Path, a: &Array2<f64>) -> Result<Png16Mapping> {
     let (png_bytes, mapping) = png::encode_u16(path, a)?;
     let sidecar = path.with_extension("json");
-    let json = serde_json::to_vec_pretty(&mapping)
+    // the mapping, and what wrote it (every JSON output says so)
+    let mut body = serde_json::json!(mapping);
+    body["version"] = serde_json::json!(crate::VERSION);
+    body["written_by"] = serde_json::json!("wtmm");
+    let json = serde_json::to_vec_pretty(&body)
         .map_err(|e| Error::format(&sidecar, format!("cannot encode JSON: {e}")))?;
     write_atomic(&sidecar, &json)?;
     if let Err(e) = write_atomic(path, &png_bytes) {
