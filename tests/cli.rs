@@ -431,15 +431,23 @@ fn fbm_npy(dir: &Path, name: &str, n: usize, seed: u64) -> String {
 fn inputs_are_checked_before_computing_and_nothing_is_left() {
     let dir = scratch("inputs");
     let a = fbm_npy(&dir, "a.npy", 128, 1);
+    let big = fbm_npy(&dir, "big.npy", 512, 1);
     let missing = dir.join("missing.npy").display().to_string();
     let out = dir.join("out").join("deeper");
     let o = out.display().to_string();
+    // against the time of analysing the valid image alone (same load on the
+    // machine), not a wall-clock constant
+    let ok = dir.join("ok").display().to_string();
+    let t = std::time::Instant::now();
+    assert_eq!(run(&["analyze", &big, "--octaves", "2", "--out", &ok]), 0);
+    let t_ok = t.elapsed().as_secs_f64();
     let t = std::time::Instant::now();
     assert_eq!(
-        run(&["analyze", &a, &missing, "--octaves", "2", "--out", &o]),
+        run(&["analyze", &big, &missing, "--octaves", "2", "--out", &o]),
         2
     );
-    assert!(t.elapsed().as_secs_f64() < 0.5, "failed late");
+    let t_fail = t.elapsed().as_secs_f64();
+    assert!(t_fail < 0.5 * t_ok, "failed late: {t_fail:.3} s, analysis {t_ok:.3} s");
     assert!(!dir.join("out").exists(), "output directory left behind");
     // a directory is not an image
     let d = dir.display().to_string();
