@@ -447,7 +447,10 @@ fn inputs_are_checked_before_computing_and_nothing_is_left() {
         2
     );
     let t_fail = t.elapsed().as_secs_f64();
-    assert!(t_fail < 0.5 * t_ok, "failed late: {t_fail:.3} s, analysis {t_ok:.3} s");
+    assert!(
+        t_fail < 0.5 * t_ok,
+        "failed late: {t_fail:.3} s, analysis {t_ok:.3} s"
+    );
     assert!(!dir.join("out").exists(), "output directory left behind");
     // a directory is not an image
     let d = dir.display().to_string();
@@ -1095,4 +1098,139 @@ fn synth_records_its_format_and_the_sidecar_its_version() {
     assert_eq!(side["version"], env!("CARGO_PKG_VERSION"));
     let f = read_field(&o.join("fbm_0000.png")).unwrap();
     assert_eq!(f.dim(), (64, 64));
+}
+
+/// The output contract of SPEC §13, command by command, on small inputs:
+/// the keys scripts rely on, with values of the right kind, and the files.
+#[test]
+fn every_command_writes_the_spec_keys() {
+    let dir = scratch("contract");
+    let imgs: Vec<String> = (0..3)
+        .map(|i| fbm_npy(&dir, &format!("f{i}.npy"), 192, 20 + i))
+        .collect();
+    let im: Vec<&str> = imgs.iter().map(String::as_str).collect();
+    let out = |name: &str| dir.join(name);
+    let run_to = |cmd: &[&str], name: &str| {
+        let o = out(name).display().to_string();
+        let mut v = cmd.to_vec();
+        v.extend_from_slice(&["--out", &o]);
+        assert_eq!(run(&v), 0, "{cmd:?}");
+    };
+    let has = |v: &Value, keys: &[&str], what: &str| {
+        for k in keys {
+            assert!(!v[*k].is_null(), "{what}: no `{k}`");
+        }
+    };
+    let files = |name: &str, list: &[&str]| {
+        for f in list {
+            assert!(out(name).join(f).is_file(), "{name}/{f} missing");
+        }
+    };
+    let head = ["version", "command", "params"];
+
+    let mut a = vec!["analyze"];
+    a.extend_from_slice(&im);
+    a.extend_from_slice(&["--octaves", "3", "--margin", "20"]);
+    run_to(&a, "analyze");
+    let s = json(&out("analyze").join("spectra.json"));
+    has(&s, &head, "spectra.json");
+    has(
+        &s,
+        &[
+            "images",
+            "q",
+            "tau",
+            "tau_stderr",
+            "h",
+            "D",
+            "legendre_h",
+            "legendre_D",
+            "log2_scales",
+            "log2_Z",
+        ],
+        "spectra.json",
+    );
+    assert_eq!(s["images"], 3);
+    let nq = s["q"].as_array().unwrap().len();
+    assert_eq!(s["tau"].as_array().unwrap().len(), nq);
+    assert_eq!(s["log2_Z"].as_array().unwrap().len(), nq);
+    files(
+        "analyze",
+        &[
+            "sums.json",
+            "tau.csv",
+            "tau.png",
+            "dh.png",
+            "logZ.png",
+            "hqa.png",
+        ],
+    );
+
+    let mut a = vec!["spectrum"];
+    a.extend_from_slice(&im);
+    run_to(&a, "spectrum");
+    let s = json(&out("spectrum").join("spectrum.json"));
+    has(&s, &head, "spectrum.json");
+    has(
+        &s,
+        &["beta", "beta_stderr", "k_range", "convention"],
+        "spectrum.json",
+    );
+    assert!(s["beta"].as_f64().unwrap().is_finite());
+
+    let mut a = vec!["kernel"];
+    a.extend_from_slice(&im);
+    a.extend_from_slice(&["--octaves", "3", "--margin", "20"]);
+    run_to(&a, "kernel");
+    let s = json(&out("kernel").join("kernel.json"));
+    has(&s, &head, "kernel.json");
+    for c in ["c1", "c2", "c3"] {
+        assert!(s["cumulants"][c]["value"].as_f64().is_some(), "{c}");
+        assert!(s["cumulants"][c]["stderr"].as_f64().is_some(), "{c}");
+    }
+
+    let mut a = vec!["correlate"];
+    a.extend_from_slice(&im);
+    a.extend_from_slice(&["--octaves", "3", "--margin", "20"]);
+    run_to(&a, "correlate");
+    let s = json(&out("correlate").join("correlation.json"));
+    has(&s, &head, "correlation.json");
+    let pairs = s["pairs"].as_array().unwrap();
+    assert!(!pairs.is_empty());
+    for p in pairs {
+        let n = p["log2_dx"].as_array().unwrap().len();
+        assert!(n > 0 && p["C"].as_array().unwrap().len() == n);
+    }
+
+    run_to(
+        &["skeleton", im[0], "--octaves", "3", "--margin", "20"],
+        "skeleton",
+    );
+    has(
+        &json(&out("skeleton").join("skeleton.json")),
+        &head,
+        "skeleton.json",
+    );
+    files("skeleton", &["wtmmm.csv", "lines.csv"]);
+
+    run_to(&["theory", "--preset", "paper-lognormal"], "theory");
+    let s = json(&out("theory").join("theory.json"));
+    has(
+        &s,
+        &["q", "tau", "h", "D", "h_min", "h_max", "beta", "cumulants"],
+        "theory.json",
+    );
+
+    run_to(&["demo", "--size", "128", "--count", "2"], "demo");
+    let v = json(&out("demo").join("validation.json"));
+    has(&v, &head, "validation.json");
+    has(&v, &["model", "criteria"], "validation.json");
+    for c in v["criteria"].as_array().unwrap() {
+        has(
+            c,
+            &["name", "value", "target", "tolerance", "pass"],
+            "criterion",
+        );
+    }
+    files("demo", &["validation.txt", "tau.png", "spectrum.png"]);
 }
