@@ -218,8 +218,8 @@ fn fbm_ensembles_match_theory() {
         // q + Δ] is the mean of the canonical h there: Simpson's rule on the
         // three grid values is exact to O(Δ⁴ h⁗), far below the jackknife
         // errors (about 1e-2)
-        for i in 1..q.len() - 1 {
-            let simpson = (s.h[i - 1] + 4.0 * s.h[i] + s.h[i + 1]) / 6.0;
+        for (i, w) in s.h.windows(3).enumerate().map(|(k, w)| (k + 1, w)) {
+            let simpson = (w[0] + 4.0 * w[1] + w[2]) / 6.0;
             let d = s.legendre_h[i] - simpson;
             assert!(
                 d.abs() < 1e-3 * s.h_stderr[i],
