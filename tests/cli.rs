@@ -1036,8 +1036,11 @@ fn analyze_takes_the_presets_wavelet() {
 fn validate_check_exits_1_when_a_criterion_fails() {
     let dir = scratch("check");
     let o = dir.join("o");
-    let out = o.display().to_string();
-    let code = run(&[
+    let (out, o2) = (
+        o.display().to_string(),
+        dir.join("o2").display().to_string(),
+    );
+    let base = [
         "validate",
         "--preset",
         "paper-fisc",
@@ -1049,10 +1052,10 @@ fn validate_check_exits_1_when_a_criterion_fails() {
         "256",
         "--octaves",
         "3",
-        "--check",
-        "--out",
-        &out,
-    ]);
+    ];
+    let mut with_check = base.to_vec();
+    with_check.extend_from_slice(&["--check", "--out", out.as_str()]);
+    let code = run(&with_check);
     let v = json(&o.join("validation.json"));
     let crit = v["criteria"].as_array().unwrap();
     let failed: Vec<&str> = crit
@@ -1063,23 +1066,9 @@ fn validate_check_exits_1_when_a_criterion_fails() {
     assert!(!failed.is_empty(), "expected a failure: {crit:?}");
     assert_eq!(code, 1, "failed: {failed:?}");
     // without --check the same run succeeds
-    let o2 = dir.join("o2").display().to_string();
-    let code = run(&[
-        "validate",
-        "--preset",
-        "paper-fisc",
-        "--wavelet",
-        "gauss",
-        "--count",
-        "2",
-        "--size",
-        "256",
-        "--octaves",
-        "3",
-        "--out",
-        &o2,
-    ]);
-    assert_eq!(code, 0);
+    let mut without = base.to_vec();
+    without.extend_from_slice(&["--out", o2.as_str()]);
+    assert_eq!(run(&without), 0);
 }
 
 /// What `synth` writes says how it was made: the format in synth.json, and
