@@ -307,32 +307,32 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         &input.name,
         wall,
     )?;
-    let cu = &out.main.cumulants;
+    // "value +- se", the se spelled out when it cannot be estimated
+    let pm = |e: &crate::stats::kernel::Estimate| {
+        if e.stderr.is_finite() {
+            format!("{:.4} +- {:.4}", e.value, e.stderr)
+        } else {
+            format!("{:.4} (no error: fewer than 3 images)", e.value)
+        }
+    };
     if !quiet {
+        let cu = &out.main.cumulants;
         say!(
-            "kernel ({} set, {} images, fit {}:{} octaves, {wall:.1} s): c1 = {:.4} +- {:.4}, c2 = {:.4} +- {:.4}, c3 = {:.4} +- {:.4}",
+            "kernel ({} set, {} images, fit {}:{} octaves, {wall:.1} s): c1 = {}, c2 = {}, c3 = {}",
             args.set.name(),
             out.main.images,
             fit.0,
             fit.1,
-            cu.c1.value,
-            cu.c1.stderr,
-            cu.c2.value,
-            cu.c2.stderr,
-            cu.c3.value,
-            cu.c3.stderr
+            pm(&cu.c1),
+            pm(&cu.c2),
+            pm(&cu.c3)
         );
-    }
-    if !quiet {
         let pc = &out.main.pooled;
         say!(
-            "pooled C_n(a, a') tables (II Figs 26, 28): c1 = {:.4} +- {:.4}, c2 = {:.4} +- {:.4}, c3 = {:.4} +- {:.4}",
-            pc.c1.value,
-            pc.c1.stderr,
-            pc.c2.value,
-            pc.c2.stderr,
-            pc.c3.value,
-            pc.c3.stderr
+            "pooled C_n(a, a') tables (II Figs 26, 28): c1 = {}, c2 = {}, c3 = {}",
+            pm(&pc.c1),
+            pm(&pc.c2),
+            pm(&pc.c3)
         );
     }
     for w in &out.main.warnings {
