@@ -235,6 +235,21 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         "0.5,1,1.5,2,2.5,3,3.5",
         &scales,
     )?;
+    // a reference scale needs smaller scales in the fit range (C_n(a, a')
+    // has a < a'): the paper's 0.5 is kept with its --fit 0:3.5 and dropped
+    // from the default 0.5:4, where its table would be empty
+    let mut refs = refs;
+    if args.refs.is_none() {
+        refs.retain(|&r| r > fit.0 + 1e-9);
+    } else if let Some(r) = refs.iter().find(|&&r| r <= fit.0 + 1e-9) {
+        return Err(Error::param(
+            "refs",
+            format!(
+                "reference octave {r} has no smaller scale in the fit range {}:{} (C_n(a, a') needs a < a')",
+                fit.0, fit.1
+            ),
+        ));
+    }
     let pairs = pairs_or_default(
         "pairs",
         args.pairs.as_deref(),
