@@ -74,6 +74,10 @@ pub struct ImagePartial {
     /// in `sums.json` files written before it was recorded).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shape: Option<[usize; 2]>,
+    /// Missing pixels (NaN, ±inf or nodata in the file); maxima whose
+    /// wavelet reaches one are left out.
+    #[serde(default)]
+    pub missing: u64,
     /// Lines alive per scale.
     pub lines: Vec<u64>,
     pub sup: Vec<Cell>,
@@ -137,6 +141,7 @@ impl PartitionSums {
             images: vec![ImagePartial {
                 label: label.into(),
                 shape: Some([sk.shape.0, sk.shape.1]),
+                missing: 0,
                 lines,
                 sup,
                 plain,
@@ -190,6 +195,7 @@ impl PartitionSums {
             images: vec![ImagePartial {
                 label: label.into(),
                 shape: None,
+                missing: 0,
                 lines: log2_values.iter().map(|v| v.len() as u64).collect(),
                 sup: cells.clone(),
                 plain: cells,
@@ -387,6 +393,20 @@ impl PartitionSums {
                     "q = {qv}: Z(q, a) is dominated by {worst:.1} effective maxima lines at the largest fitted scales (< {N_EFF_WARN})"
                 ));
             }
+        }
+        let holed: Vec<u64> = self
+            .images
+            .iter()
+            .map(|p| p.missing)
+            .filter(|&m| m > 0)
+            .collect();
+        if !holed.is_empty() {
+            warnings.push(format!(
+                "{} image(s) with missing pixels (NaN, inf or nodata; {} in all): the maxima \
+                 whose wavelet reaches one are left out",
+                holed.len(),
+                holed.iter().sum::<u64>()
+            ));
         }
         let image_shapes = self.image_shapes();
         if image_shapes.len() > 1 {
@@ -707,6 +727,8 @@ pub fn image_sums(
     let sk = crate::skeleton::skeleton(field, cfg)?;
     let mut s = PartitionSums::from_skeleton(&sk, q, label);
     s.analysis = Some(cfg.clone());
+    let (ny, nx) = field.dim();
+    s.images[0].missing = (ny * nx - field.valid_count()) as u64;
     Ok(s)
 }
 

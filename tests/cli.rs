@@ -1223,3 +1223,42 @@ fn every_command_writes_the_spec_keys() {
     }
     files("demo", &["validation.txt", "tau.png", "spectrum.png"]);
 }
+
+/// Missing pixels (NaN or ±inf) are counted, per image in sums.json and in
+/// a warning of spectra.json, not dropped without a word.
+#[test]
+fn missing_pixels_are_counted_and_reported() {
+    let dir = scratch("holes");
+    let mut f = fbm(FbmParams { hurst: 0.4 }, 192, 192, 31, 0).unwrap();
+    for y in 90..100 {
+        for x in 90..100 {
+            f[[y, x]] = f64::NAN;
+        }
+    }
+    f[[10, 10]] = f64::INFINITY;
+    let p = dir.join("holes.npy");
+    write_npy(&p, &f).unwrap();
+    let o = dir.join("o");
+    let code = run(&[
+        "analyze",
+        p.to_str().unwrap(),
+        "--octaves",
+        "3",
+        "--margin",
+        "20",
+        "--out",
+        o.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0);
+    assert_eq!(json(&o.join("sums.json"))["images"][0]["missing"], 101);
+    let s = json(&o.join("spectra.json"));
+    let w: Vec<&str> = s["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|w| w.as_str())
+        .filter(|w| w.contains("missing pixels"))
+        .collect();
+    assert_eq!(w.len(), 1, "{:?}", s["warnings"]);
+    assert!(w[0].contains("101 in all"), "{}", w[0]);
+}
