@@ -27,7 +27,7 @@ pub struct LineOpts {
     #[arg(long, default_value = "0.9:1.11")]
     pub ratio: String,
     /// Linking: cap (px) of the search box half-width min(cap, 2 log2(6.98 a)).
-    #[arg(long, default_value_t = 12.0)]
+    #[arg(long, default_value_t = 12.0, allow_negative_numbers = true)]
     pub radius_cap: f64,
     /// Linking: a line left without a WTMMM climbs the maxima chain it lands
     /// on to its maximum and takes it when free and inside the ratio window
@@ -93,7 +93,7 @@ pub struct SpectraOpts {
     /// Fit range in octaves above a_min, `LO:HI` (the first half octave is
     /// left out: see the README, "How the defaults were chosen"). Default
     /// 0.5:4, or 0.5:OCTAVES with fewer than 4 octaves.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub fit: Option<String>,
     /// Modulus along a maxima line: plain (M at a) or sup (max of M over scales <= a).
     #[arg(long, value_enum, default_value_t = Rule::Plain)]

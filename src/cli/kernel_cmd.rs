@@ -39,7 +39,7 @@ pub struct KernelArgs {
     pub opts: LineOpts,
     /// Scales whose cumulants enter the fits of c_n, octaves above a_min
     /// `LO:HI` (default 0.5:min(4, OCTAVES)).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub fit: Option<String>,
     /// WTMMM set reported as `cumulants` (the other is `alternate_set`).
     #[arg(long, value_enum, default_value = "lines")]

@@ -21,7 +21,7 @@ pub struct MergeArgs {
     #[arg(required = true)]
     pub sums: Vec<PathBuf>,
     /// Fit range in octaves above a_min, `LO:HI`.
-    #[arg(long, default_value = "0.5:4")]
+    #[arg(long, default_value = "0.5:4", allow_hyphen_values = true)]
     pub fit: String,
     /// Modulus along a maxima line: plain or sup.
     #[arg(long, value_enum, default_value_t = Rule::Plain)]

@@ -97,7 +97,7 @@ pub struct CwtOpts {
     #[arg(long, value_enum)]
     pub wavelet: Option<Wavelet>,
     /// Smallest scale in pixels (std of the Gaussian).
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = 1.5, allow_negative_numbers = true)]
     pub a_min: f64,
     /// Number of octaves of scales.
     #[arg(long, default_value_t = 5)]

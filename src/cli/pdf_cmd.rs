@@ -346,7 +346,7 @@ pub struct PdfArgs {
     pub opts: LineOpts,
     /// Fit range of the h(q=0) estimate for the rescaling test, octaves above
     /// a_min `LO:HI` (default 0.5:min(4, OCTAVES)).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub fit: Option<String>,
     /// Which WTMMM: those on maxima lines (the skeleton) or all WTMMM of each scale.
     #[arg(long, value_enum, default_value = "lines")]

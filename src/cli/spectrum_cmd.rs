@@ -23,7 +23,7 @@ pub struct SpectrumArgs {
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
     /// Fit range in rad/px, `LO:HI` (default: 8 cycles per image to pi/4).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub k_range: Option<String>,
     /// Taper before the FFT (hann for non-periodic fields, none for periodic ones).
     #[arg(long, value_enum, default_value_t = Window::Hann)]

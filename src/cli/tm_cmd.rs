@@ -56,16 +56,16 @@ pub struct TmOpts {
     pub sf_q: String,
     /// Fit range of K(q) and K(q, η) in log2 λ (λ = L/l), `LO:HI`
     /// [default: 1:log2(L)-1, dropping the finest and the coarsest octave].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub lambda_fit: Option<String>,
     /// η range of the double-trace-moment fit, `LO:HI`.
-    #[arg(long, default_value = "0.3:2")]
+    #[arg(long, default_value = "0.3:2", allow_hyphen_values = true)]
     pub eta_fit: String,
     /// Structure functions: fit range of log2 lag (px), `LO:HI` [default: 1:log2(L)-3].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub lag_fit: Option<String>,
     /// Power-spectrum fit range in rad/px, `LO:HI` [default: 8 cycles per image to pi/4].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub k_range: Option<String>,
     /// Upper bound on q in the universal fit (on top of the automatic q_s/2).
     #[arg(long)]
