@@ -234,10 +234,17 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
     }
     // nothing half-written: the files appear together when the command
     // succeeds (an existing directory keeps its older files otherwise)
-    let batch = out
+    let batch = match out
         .as_deref()
         .map(crate::io::OutputBatch::begin)
-        .transpose()?;
+        .transpose()
+    {
+        Ok(b) => b,
+        Err(e) => {
+            release_created(out.as_deref(), true);
+            return Err(e);
+        }
+    };
     let r = run_command(cli).and_then(|o| {
         batch.map(|b| b.commit()).transpose()?;
         Ok(o)
