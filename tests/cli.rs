@@ -1261,4 +1261,21 @@ fn missing_pixels_are_counted_and_reported() {
         .collect();
     assert_eq!(w.len(), 1, "{:?}", s["warnings"]);
     assert!(w[0].contains("101 in all"), "{}", w[0]);
+    // tm: the flux skips them, the spectrum sees them filled; both said
+    let t = dir.join("t");
+    assert_eq!(
+        run(&["tm", p.to_str().unwrap(), "--out", t.to_str().unwrap()]),
+        0
+    );
+    let tm = json(&t.join("tm.json"));
+    assert_eq!(tm["params"]["missing_pixels"], serde_json::json!([101]));
+    assert!(
+        tm["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("101 missing pixels")),
+        "{:?}",
+        tm["warnings"]
+    );
 }

@@ -529,7 +529,14 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     )?;
     let tdir = dir.join("tm");
     make_out_dir(&tdir)?;
-    super::tm_cmd::write_outputs(&tdir, "compare", params, &t_all, tm_acc.spectrum.as_ref())?;
+    super::tm_cmd::write_outputs(
+        &tdir,
+        "compare",
+        params,
+        &t_all,
+        tm_acc.spectrum.as_ref(),
+        &[],
+    )?;
 
     let text = table(
         &args,

@@ -201,19 +201,41 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         let (whole, tiles) = TraceMomentAccumulator::field_tiles(&cfg, &field, tile)
             .map_err(|e| Error::format(path, e.to_string()))?;
         let res = finish_jackknife(&whole, &tiles, &fc, &format!("tiles of {tile} px"))?;
-        (whole, res, vec![[ny, nx]])
+        (whole, res, vec![([ny, nx], ny * nx - field.valid_count())])
     } else {
         let (parts, shapes) = accumulate_paths(&args.images, &cfg, quiet)?;
         let (acc, res) = finish_ensemble(&parts, &fc)?;
         (acc, res, shapes)
     };
+    // the flux skips missing pixels; the spectrum (beta, H) sees them filled
+    // with the image mean
+    let missing: Vec<usize> = shapes.iter().map(|s| s.1).collect();
+    let shapes: Vec<[usize; 2]> = shapes.iter().map(|s| s.0).collect();
+    let mut extra = Vec::new();
+    for (n, p) in missing.iter().zip(&args.images) {
+        if *n > 0 {
+            extra.push(format!(
+                "{}: {n} missing pixels: left out of the flux, filled with the image mean for \
+                 the spectrum (beta, H)",
+                p.display()
+            ));
+        }
+    }
     make_out_dir(&args.out.out)?;
     // box levels are in pixels: images of several sizes weigh by their area
     let shapes = crate::spectra::ShapeCount::tally(shapes);
-    let params = json!({"images": args.images, "image_shapes": shapes, "config": cfg, "fit": fc});
-    write_outputs(&args.out.out, "tm", params, &res, acc.spectrum.as_ref())?;
+    let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
+        "config": cfg, "fit": fc});
+    write_outputs(
+        &args.out.out,
+        "tm",
+        params,
+        &res,
+        acc.spectrum.as_ref(),
+        &extra,
+    )?;
     show!("{}", summary(&res));
-    for w in tm_warnings(&res) {
+    for w in tm_warnings(&res).iter().chain(&extra) {
         say!("warning: {w}");
     }
     if !quiet {
@@ -222,17 +244,20 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     Ok(Outcome::Ok)
 }
 
+/// An image's `[ny, nx]` and its number of missing pixels.
+type ImageInfo = ([usize; 2], usize);
+
 /// Reads and accumulates every image (in parallel), one accumulator per
 /// image in input order (for the jackknife of [`finish_ensemble`]), with
-/// the images' sizes `[ny, nx]`; a bad file stops everything before any
-/// output is written.
+/// the images' sizes `[ny, nx]` and missing-pixel counts; a bad file stops
+/// everything before any output is written.
 pub fn accumulate_paths(
     paths: &[PathBuf],
     cfg: &TraceMomentConfig,
     quiet: bool,
-) -> Result<(Vec<TraceMomentAccumulator>, Vec<[usize; 2]>)> {
+) -> Result<(Vec<TraceMomentAccumulator>, Vec<ImageInfo>)> {
     let pb = progress(paths.len() as u64, "tm", quiet);
-    let parts: Vec<(TraceMomentAccumulator, [usize; 2])> = paths
+    let parts: Vec<(TraceMomentAccumulator, ImageInfo)> = paths
         .par_iter()
         .map(|p| {
             let field = super::common::read_image(p)?;
@@ -241,7 +266,7 @@ pub fn accumulate_paths(
                 .map_err(|e| Error::format(p, e.to_string()))?;
             pb.inc(1);
             let (ny, nx) = field.dim();
-            Ok((acc, [ny, nx]))
+            Ok((acc, ([ny, nx], ny * nx - field.valid_count())))
         })
         .collect::<Result<_>>()?;
     pb.finish_and_clear();
@@ -359,6 +384,7 @@ pub fn result_json(
     command: &str,
     params: serde_json::Value,
     res: &TraceMomentResult,
+    extra_warnings: &[String],
 ) -> Result<serde_json::Value> {
     let mut body = header(command, params);
     let r = serde_json::to_value(res).map_err(|e| Error::Input(e.to_string()))?;
@@ -367,7 +393,9 @@ pub fn result_json(
             obj.insert(k, v);
         }
     }
-    body["warnings"] = json!(tm_warnings(res));
+    let mut warnings = tm_warnings(res);
+    warnings.extend_from_slice(extra_warnings);
+    body["warnings"] = json!(warnings);
     body["K_universal"] = json!(k_universal(res, &res.q));
     body["tau"] = json!(tau_from_tm(res));
     body["tau_definition"] =
@@ -382,8 +410,12 @@ pub fn write_outputs(
     params: serde_json::Value,
     res: &TraceMomentResult,
     spectrum: Option<&PowerSpectrum>,
+    extra_warnings: &[String],
 ) -> Result<()> {
-    write_json(&dir.join("tm.json"), &result_json(command, params, res)?)?;
+    write_json(
+        &dir.join("tm.json"),
+        &result_json(command, params, res, extra_warnings)?,
+    )?;
     let ku = k_universal(res, &res.q);
     let tau = tau_from_tm(res);
     let rows: Vec<Vec<String>> = (0..res.q.len())
