@@ -131,37 +131,29 @@ fn lognormal_cascade_recovers_k_alpha_c1() {
             res.k[i2]
         );
     }
-    // q_s for 16 images of 256²: ((2 + ln16/ln256)/C1)^(1/2) = 5
-    assert!((res.q_s - 5.0).abs() < 0.5, "q_s {}", res.q_s);
-    // universal fit (over q <= q_s/2 ≈ 2.5): α = 2, C1 = 0.1. α is the
-    // curvature of K: its per-image scatter sets σ; b = 0.08 for α (the same
-    // 1-2 % bias of K at small q moves α by up to 0.06, measured) and
-    // 0.1 C1 for C1.
-    let sa = se(&per, |r| r.alpha);
-    assert!(
-        (res.alpha - 2.0).abs() < 4.0 * sa + 0.08,
-        "alpha {} se {sa}",
-        res.alpha
-    );
-    let sc = se(&per, |r| r.c1);
-    assert!(
-        (res.c1 - c1).abs() < 4.0 * sc + 0.01,
-        "C1 {} se {sc}",
-        res.c1
-    );
-    // double trace moments: K(q, η) = η² K(q) exactly for this cascade
-    let sd = se(&per, |r| r.dtm_alpha);
-    assert!(
-        (res.dtm_alpha - 2.0).abs() < 4.0 * sd + 0.05,
-        "dtm alpha {} se {sd}",
-        res.dtm_alpha
-    );
-    let sdc = se(&per, |r| r.dtm_c1);
-    assert!(
-        (res.dtm_c1 - c1).abs() < 4.0 * sdc + 0.01,
-        "dtm C1 {} se {sdc}",
-        res.dtm_c1
-    );
+    // The universal fit, DTM and q_s against the theory plus the bias
+    // measured by `experiment_cascade_bias` on 32 independent ensembles of
+    // the same 16 x 256² (seeds 2024..2055): `(b, se_b, sd)` = mean minus
+    // theory, its standard error, and the sd of one ensemble's estimate.
+    // That sd, not the per-image scatter / sqrt(16), is this estimate's
+    // error: the fit is nonlinear in the pooled moments, and the per-image
+    // se of α (0.023) is a third of the spread between ensembles (0.066).
+    // Tolerance 4 sqrt(sd² + se_b²). (Before: 4 per-image se plus bare
+    // allowances 0.08, 0.01, 0.05, 0.01, and q_s within 0.5 of 5.)
+    let check = |name: &str, v: f64, want: f64, (b, se_b, sd): (f64, f64, f64)| {
+        let tol = 4.0 * sd.hypot(se_b);
+        println!("{name}: {v:.4} (theory {want} + bias {b:+.4}, tol {tol:.4})");
+        assert!(
+            (v - want - b).abs() < tol,
+            "{name}: {v} vs theory {want} + bias {b}, tol {tol}"
+        );
+    };
+    check("alpha", res.alpha, 2.0, (-0.0304, 0.0116, 0.0656));
+    check("C1", res.c1, c1, (-0.00115, 0.00035, 0.00197));
+    check("DTM alpha", res.dtm_alpha, 2.0, (-0.0154, 0.0046, 0.0258));
+    check("DTM C1", res.dtm_c1, c1, (-0.00216, 0.00042, 0.00235));
+    // q_s = ((2 + ln 16 / ln 256)/C1)^(1/α) = 5 at the true α, C1
+    check("q_s", res.q_s, 5.0, (0.212, 0.043, 0.245));
     // the moment at q = 1 is exactly 1 at every scale (box averages preserve the mean)
     let i1 = res.q.iter().position(|&q| (q - 1.0).abs() < 1e-9).unwrap();
     assert!(res.log2_moments[i1].iter().all(|v| v.abs() < 1e-9));
@@ -927,4 +919,60 @@ fn experiment_fif_bias() {
         f.h_stderr.unwrap(),
         p.hurst
     );
+}
+
+/// The measurement behind the bias terms of
+/// `lognormal_cascade_recovers_k_alpha_c1` (not a check; `cargo test
+/// --release --test tracemoments experiment_cascade_bias -- --ignored
+/// --nocapture`, env R ensembles (default 32) of N images (default 16, the
+/// test's: q_s, hence the q range of the universal fit, depends on the
+/// image count, so the bias does too), seeds SEED.. (default 2024..),
+/// independent of the test's seed 11). Prints the mean over the ensembles
+/// of each estimate minus theory, with the standard error of that mean.
+#[test]
+#[ignore]
+fn experiment_cascade_bias() {
+    let n: u64 = std::env::var("N").map_or(16, |s| s.parse().unwrap());
+    let r: u64 = std::env::var("R").map_or(32, |s| s.parse().unwrap());
+    let seed: u64 = std::env::var("SEED").map_or(2024, |s| s.parse().unwrap());
+    let c1 = 0.1;
+    let s = (c1 * 2.0 * std::f64::consts::LN_2).sqrt();
+    let runs: Vec<[f64; 5]> = (0..r)
+        .map(|k| {
+            let accs: Vec<TraceMomentAccumulator> = (0..n)
+                .map(|i| {
+                    let mut acc =
+                        TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+                    acc.add_flux(cascade(8, s, seed + k, i).view(), None)
+                        .unwrap();
+                    acc
+                })
+                .collect();
+            let (res, _) = ensemble(&accs, &TraceMomentFitConfig::default());
+            [
+                res.alpha - 2.0,
+                res.c1 - c1,
+                res.dtm_alpha - 2.0,
+                res.dtm_c1 - c1,
+                res.q_s,
+            ]
+        })
+        .collect();
+    for (j, name) in [
+        "alpha - 2",
+        "C1 - 0.1",
+        "DTM alpha - 2",
+        "DTM C1 - 0.1",
+        "q_s",
+    ]
+    .iter()
+    .enumerate()
+    {
+        let v: Vec<f64> = runs.iter().map(|x| x[j]).collect();
+        let (m, sd) = mean_std(&v);
+        println!(
+            "{r} ensembles of {n} x 256^2 (seeds {seed}..): {name} {m:+.5} +- {:.5} (sd {sd:.5})",
+            sd / (r as f64).sqrt()
+        );
+    }
 }
