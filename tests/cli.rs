@@ -494,12 +494,15 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     let s = json(&dir.join("m").join("spectra.json"));
     assert_eq!(s["params"]["fit_octaves"], serde_json::json!([0.0, 2.0]));
     assert_eq!(s["params"]["analysis"]["wavelet"], "gauss");
-    // same scales and q, another wavelet (or linking): not one ensemble
+    // same scales and q, another wavelet (or linking): not one ensemble;
+    // a shard of the same analysis merges
     let b = fbm_npy(&dir, "b.npy", 128, 3);
-    for (extra, name) in [
-        (["--wavelet", "mexican"], "mex"),
-        (["--ratio", "0.8:1.25"], "ratio"),
-    ] {
+    let cases: [(&[&str], &str, i32); 3] = [
+        (&["--wavelet", "mexican"], "mex", 2),
+        (&["--ratio", "0.8:1.25"], "ratio", 2),
+        (&[], "same", 0),
+    ];
+    for (extra, name, want) in cases {
         let o = dir.join(name).display().to_string();
         let mut args = vec![
             "analyze",
@@ -511,33 +514,20 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
             "--q",
             "-2:2:1",
         ];
-        args.extend_from_slice(&extra);
+        args.extend_from_slice(extra);
         args.extend_from_slice(&["--out", &o]);
         assert_eq!(run(&args), 0);
         let j = dir.join(name).join("sums.json").display().to_string();
-        let m2 = dir.join("m2").display().to_string();
-        assert_eq!(run(&["merge", &j2, &j, "--out", &m2]), 2, "{name}");
-        assert!(!dir.join("m2").exists());
+        let m = dir.join(format!("m_{name}"));
+        let ms = m.display().to_string();
+        let code = run(&["merge", &j2, &j, "--fit", "0.5:2", "--out", &ms]);
+        assert_eq!(code, want, "{name}");
+        if want == 0 {
+            assert_eq!(json(&m.join("spectra.json"))["images"], 2);
+        } else {
+            assert!(!m.exists(), "{name}");
+        }
     }
-    // a shard of the same analysis merges
-    let o = dir.join("same").display().to_string();
-    let code = run(&[
-        "analyze",
-        &b,
-        "--octaves",
-        "2",
-        "--fit",
-        "0.5:2",
-        "--q",
-        "-2:2:1",
-        "--out",
-        &o,
-    ]);
-    assert_eq!(code, 0);
-    let j = dir.join("same").join("sums.json").display().to_string();
-    let m3 = dir.join("m3").display().to_string();
-    assert_eq!(run(&["merge", &j2, &j, "--fit", "0.5:2", "--out", &m3]), 0);
-    assert_eq!(json(&dir.join("m3").join("spectra.json"))["images"], 2);
 }
 
 /// The theory an analysis is drawn against is recorded with its parameters.
