@@ -43,6 +43,13 @@ impl FiscParams {
     ///
     /// H* is limited to (0, 1) as in II eq 5: the constant `A(H*)` of II eq 7
     /// vanishes at H* = 1 and changes sign beyond.
+    ///
+    /// Unlike the W-cascades (whose wavelet series must converge, II eq 31),
+    /// a negative `h_min = H* - 1 - log2(1-p)` is accepted (e.g. p = 0.1,
+    /// H* = 0.1): the field, a Riesz potential of order H* > 0 of a finite
+    /// measure, is still locally integrable, only unbounded at its
+    /// strongest singularities, and the WTMM resolves negative exponents as
+    /// it does for measures.
     pub fn validate(&self) -> Result<()> {
         if !(self.p > 0.0 && self.p <= 0.5) {
             return Err(Error::param(
