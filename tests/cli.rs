@@ -489,7 +489,23 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     let m = dir.join("m").display().to_string();
     assert_eq!(run(&["merge", &j2, &j3, "--out", &m]), 2);
     assert_eq!(run(&["merge", &j2, "--fit", "0:9", "--out", &m]), 2);
+    // an end between two voices (10 per octave) would fit from the next
+    // scale and be recorded as given
+    assert_eq!(run(&["merge", &j2, "--fit", "0.55:2", "--out", &m]), 2);
     assert!(!dir.join("m").exists());
+    let bad = dir.join("bad_fit").display().to_string();
+    let code = run(&[
+        "analyze",
+        &a,
+        "--octaves",
+        "2",
+        "--fit",
+        "0.5:1.95",
+        "--out",
+        &bad,
+    ]);
+    assert_eq!(code, 2);
+    assert!(!dir.join("bad_fit").exists());
     assert_eq!(run(&["merge", &j2, "--fit", "0:2", "--out", &m]), 0);
     let s = json(&dir.join("m").join("spectra.json"));
     assert_eq!(s["params"]["fit_octaves"], serde_json::json!([0.0, 2.0]));

@@ -67,19 +67,40 @@ impl LineOpts {
 }
 
 /// `--fit LO:HI` (octaves above a_min), or the default 0.5:min(4, octaves),
-/// checked against the grid.
-pub fn fit_range(fit: Option<&str>, octaves: usize) -> Result<(f64, f64)> {
+/// checked against the grid of `octaves` x `voices` scales.
+pub fn fit_range(fit: Option<&str>, octaves: usize, voices: usize) -> Result<(f64, f64)> {
     let r = match fit {
         Some(f) => parse_range("fit", f)?,
         None => (0.5, (octaves as f64).min(4.0)),
     };
-    if r.0 < 0.0 || r.1 > octaves as f64 + 1e-9 {
+    check_fit(r, octaves as f64, 1.0 / voices as f64, "")?;
+    Ok(r)
+}
+
+/// A fit range must lie within `0:span` octaves (`span` = the grid's
+/// octaves; HI = span runs to the top scale, one voice below it) and both
+/// ends on the grid: an end between two voices would fit from the next
+/// scale and be recorded as given. `what` ends the range message.
+pub fn check_fit(r: (f64, f64), span: f64, step: f64, what: &str) -> Result<()> {
+    if r.0 < 0.0 || r.1 > span + 1e-6 {
         return Err(Error::param(
             "fit",
-            format!("{}:{} must lie within 0:{} octaves", r.0, r.1, octaves),
+            format!("{}:{} must lie within 0:{span} octaves{what}", r.0, r.1),
         ));
     }
-    Ok(r)
+    if let Some(o) = [r.0, r.1]
+        .into_iter()
+        .find(|&o| ((o / step).round() - o / step).abs() > 1e-6)
+    {
+        return Err(Error::param(
+            "fit",
+            format!(
+                "octave {o} of {}:{} lies between two scales: use a multiple of the voice step {step:.4} octave",
+                r.0, r.1
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Options shared by every command that builds spectra.
@@ -121,7 +142,11 @@ impl SpectraOpts {
     }
 
     pub fn fit(&self) -> Result<(f64, f64)> {
-        fit_range(self.fit.as_deref(), self.line.cwt.octaves)
+        fit_range(
+            self.fit.as_deref(),
+            self.line.cwt.octaves,
+            self.line.cwt.voices,
+        )
     }
 
     pub fn rule(&self) -> Rule {

@@ -227,7 +227,11 @@ pub struct KernelOutputs {
 pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve(args.opts.cwt.margin)?;
     let cfg = input.analysis(&args.opts)?;
-    let fit = fit_range(args.fit.as_deref(), args.opts.cwt.octaves)?;
+    let fit = fit_range(
+        args.fit.as_deref(),
+        args.opts.cwt.octaves,
+        args.opts.cwt.voices,
+    )?;
     let scales = cfg.scale_list();
     let refs = octaves_or_default(
         "refs",

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use clap::Args;
 use serde_json::json;
 
-use super::analyze_cmd::{theory_curves, write_outputs};
+use super::analyze_cmd::{check_fit, theory_curves, write_outputs};
 use super::common::{make_out_dir, parse_range};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
@@ -62,15 +62,13 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         0.0
     };
     let span = (sums.scales[n - 1] / sums.scales[0]).log2() + step;
-    if fit.0 < 0.0 || fit.1 > span + 1e-6 {
-        return Err(Error::param(
-            "fit",
-            format!(
-                "{}:{} must lie within 0:{span:.2} octaves, the scales of these sums",
-                fit.0, fit.1
-            ),
-        ));
-    }
+    // older sums.json record no voices: the grid step is the scales' ratio
+    check_fit(
+        fit,
+        (span * 1e6).round() / 1e6,
+        step,
+        ", the scales of these sums",
+    )?;
     let theory = args
         .model_opts
         .resolve_optional(args.theory)?

@@ -417,7 +417,11 @@ pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64)) -> f64 {
 pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve(args.opts.cwt.margin)?;
     let cfg = input.analysis(&args.opts)?;
-    let fit = fit_range(args.fit.as_deref(), args.opts.cwt.octaves)?;
+    let fit = fit_range(
+        args.fit.as_deref(),
+        args.opts.cwt.octaves,
+        args.opts.cwt.voices,
+    )?;
     let scales = cfg.scale_list();
     let show_oct = octaves_or_default("show", args.show.as_deref(), "0,1,2,3", &scales)?;
     let sec_oct = octaves_or_default("sectors-at", args.sectors_at.as_deref(), "0.1,1.1", &scales)?;
