@@ -141,8 +141,11 @@ impl std::fmt::Display for Wavelet {
 /// (SPEC §1; defaults 1.5 px, 5 octaves, 10 voices).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ScaleGrid {
+    /// Smallest scale `a_min`, in pixels (std of the Gaussian; default 1.5).
     pub a_min: f64,
+    /// Number of octaves (factors of 2) spanned by the grid (default 5).
     pub octaves: usize,
+    /// Scales per octave (default 10).
     pub voices: usize,
 }
 
@@ -350,6 +353,7 @@ impl CwtPlan {
         (self.ny, self.nx)
     }
 
+    /// The analysing wavelet of this plan.
     pub fn wavelet(&self) -> Wavelet {
         self.wavelet
     }

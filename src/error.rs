@@ -10,21 +10,35 @@ pub enum Error {
     /// The file could not be opened or read at the OS level.
     #[error("{}: cannot read: {source}", path.display())]
     Read {
+        /// The file that could not be read.
         path: PathBuf,
+        /// The underlying OS error.
         source: std::io::Error,
     },
     /// The file could not be written.
     #[error("{}: cannot write: {source}", path.display())]
     Write {
+        /// The file that could not be written.
         path: PathBuf,
+        /// The underlying OS error.
         source: std::io::Error,
     },
     /// The file was read but its content is not what we support.
     #[error("{}: {reason}", path.display())]
-    Format { path: PathBuf, reason: String },
+    Format {
+        /// The file whose content was rejected.
+        path: PathBuf,
+        /// What is wrong with the content (human-readable).
+        reason: String,
+    },
     /// A parameter is out of range or inconsistent with another.
     #[error("invalid parameter `{name}`: {reason}")]
-    Param { name: String, reason: String },
+    Param {
+        /// The parameter at fault (a config field or CLI option name, e.g. `scales`, `max-dx`).
+        name: String,
+        /// Why the value was rejected (human-readable).
+        reason: String,
+    },
     /// The data itself cannot be analysed (constant image, too small, ...).
     #[error("invalid input: {0}")]
     Input(String),

@@ -11,6 +11,8 @@
 
 // `!(x > 0.0)` is how we reject NaN together with out-of-range values.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Every public item is documented; keep it so.
+#![warn(missing_docs)]
 
 pub mod cli;
 pub mod cwt;

@@ -39,25 +39,33 @@ fn register_font() {
 /// How a series is drawn.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Style {
+    /// A solid line through the points.
     Line,
+    /// A dashed line (theory curves, reference lines).
     Dashed,
+    /// Dots only.
     Markers,
+    /// A solid line with a dot at each point.
     LineMarkers,
 }
 
 /// One curve.
 #[derive(Clone, Debug)]
 pub struct Series {
+    /// Legend label; an empty name keeps the series out of the legend.
     pub name: String,
+    /// The `(x, y)` points in data coordinates; non-finite ones are skipped.
     pub points: Vec<(f64, f64)>,
     /// Optional symmetric error bar per point (same length as `points`).
     pub y_err: Option<Vec<f64>>,
+    /// How the series is drawn.
     pub style: Style,
     /// Index into the palette.
     pub color: usize,
 }
 
 impl Series {
+    /// A series without error bars.
     pub fn new(
         name: impl Into<String>,
         points: Vec<(f64, f64)>,
@@ -73,6 +81,7 @@ impl Series {
         }
     }
 
+    /// The same series with the symmetric error bars `err` (one per point).
     pub fn with_errors(mut self, err: Vec<f64>) -> Self {
         self.y_err = Some(err);
         self
@@ -91,12 +100,17 @@ impl Series {
 /// A 2D chart: title, axis labels, series.
 #[derive(Clone, Debug, Default)]
 pub struct Chart {
+    /// Title above the plot (none if empty).
     pub title: String,
+    /// Label of the x axis.
     pub x_label: String,
+    /// Label of the y axis.
     pub y_label: String,
+    /// The curves, drawn in order.
     pub series: Vec<Series>,
     /// Fixed ranges; computed from the data when `None`.
     pub x_range: Option<(f64, f64)>,
+    /// Fixed y range; computed from the data when `None`.
     pub y_range: Option<(f64, f64)>,
     /// Where the legend goes; `None` (the default) places it automatically
     /// in the inner corner that covers the least data, adding headroom to
@@ -117,10 +131,15 @@ impl Chart {
 /// right of it (the plotting area shrinks to make room).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LegendPos {
+    /// Inside, upper-left corner.
     UpperLeft,
+    /// Inside, upper-right corner.
     UpperRight,
+    /// Inside, lower-left corner.
     LowerLeft,
+    /// Inside, lower-right corner.
     LowerRight,
+    /// In a column right of the plotting area.
     OutsideRight,
 }
 
@@ -626,8 +645,11 @@ pub fn save_grey(img: ArrayView2<f64>, path: &Path) -> Result<()> {
 /// as it is ([`Raster::save`]) or inside axes ([`save_raster_chart`]).
 /// Row 0 is the top row; `rgb` holds `3 * width * height` bytes, row-major.
 pub struct Raster {
+    /// Width in pixels (columns).
     pub width: usize,
+    /// Height in pixels (rows).
     pub height: usize,
+    /// RGB bytes, row-major from the top row, 3 per pixel.
     pub rgb: Vec<u8>,
 }
 
@@ -699,8 +721,11 @@ impl Raster {
 /// `ColorBar::ramp("log10 density / peak", (-4.0, 0.0))`.
 #[derive(Clone, Debug)]
 pub struct ColorBar {
+    /// Label along the bar (what the colours stand for).
     pub label: String,
+    /// The values at the bottom (t = 0) and the top (t = 1) of the bar.
     pub range: (f64, f64),
+    /// The colour at t in [0, 1].
     pub colors: fn(f64) -> RGBColor,
 }
 
@@ -720,8 +745,11 @@ impl ColorBar {
 /// the physical ranges.
 #[derive(Clone, Debug)]
 pub struct RasterChart {
+    /// Title above the plot (none if empty).
     pub title: String,
+    /// Label of the x axis.
     pub x_label: String,
+    /// Label of the y axis.
     pub y_label: String,
     /// Physical x at the left edge of column 0 and at the right edge of the
     /// last column (increasing).

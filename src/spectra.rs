@@ -80,21 +80,27 @@ pub struct ImagePartial {
     pub missing: u64,
     /// Lines alive per scale.
     pub lines: Vec<u64>,
+    /// Cells of the sup rule ([`Rule::Sup`]), `[qi * n_scales + j]`.
     pub sup: Vec<Cell>,
+    /// Cells of the plain modulus ([`Rule::Plain`]), same layout.
     pub plain: Vec<Cell>,
 }
 
 /// Mergeable partition sums of an ensemble (one partial per image).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PartitionSums {
+    /// Crate version that wrote the sums.
     pub version: String,
     /// The analysis that produced the sums (wavelet, scales, margin,
     /// linking), so that shards of different analyses are not merged;
     /// `None` when unknown (sums of given values, files of older versions).
     #[serde(default)]
     pub analysis: Option<crate::skeleton::AnalysisConfig>,
+    /// The q grid.
     pub q: Vec<f64>,
+    /// The scales, in pixels, ascending.
     pub scales: Vec<f64>,
+    /// One partial per image, in the order added.
     pub images: Vec<ImagePartial>,
 }
 
@@ -638,52 +644,74 @@ pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {
 /// The spectra of an ensemble, ready for output (SPEC §13 `spectra.json`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Spectra {
+    /// Which modulus the lines contributed (sup rule or plain; SPEC §4).
     pub rule: Rule,
+    /// Number of images in the ensemble.
     pub images: usize,
     /// The image sizes and how many images have each (empty when the sums
     /// do not record them).
     #[serde(default)]
     pub image_shapes: Vec<ShapeCount>,
+    /// The q values.
     pub q: Vec<f64>,
     /// Fit range in octaves above a_min, and in pixels.
     pub fit_octaves: (f64, f64),
+    /// The smallest and largest scales (px) inside the fit range.
     pub fit_scales: (f64, f64),
+    /// τ(q): slope of the annealed `log2 Z(q, a)` against `log2 a` over the
+    /// fit range (SPEC §4); NaN where a fitted scale has no line.
     pub tau: Vec<f64>,
+    /// Standard error of τ(q): delete-one jackknife over images (>= 3
+    /// images), else the regression's (see `stderr_method`).
     pub tau_stderr: Vec<f64>,
     /// R^2 of the log2 Z fits.
     pub tau_r2: Vec<f64>,
     /// Canonical h(q) and D(q) (slopes of h(q, a) and D(q, a)).
     pub h: Vec<f64>,
+    /// Standard error of h(q), as `tau_stderr`.
     pub h_stderr: Vec<f64>,
+    /// Canonical D(q), slope of `D(q, a)` against `log2 a` (JSON `D`).
     #[serde(rename = "D")]
     pub d: Vec<f64>,
+    /// Standard error of D(q), as `tau_stderr` (JSON `D_stderr`).
     #[serde(rename = "D_stderr")]
     pub d_stderr: Vec<f64>,
     /// "jackknife over images" (>= 3 images) or "regression".
     pub stderr_method: String,
     /// h = dτ/dq, D = q h - τ.
     pub legendre_h: Vec<f64>,
+    /// D(h) by the Legendre route, `q h - τ` (JSON `legendre_D`).
     #[serde(rename = "legendre_D")]
     pub legendre_d: Vec<f64>,
+    /// `log2 a` of every scale (a in pixels), not only the fitted ones.
     pub log2_scales: Vec<f64>,
     /// Per q, per scale.
     #[serde(rename = "log2_Z")]
     pub log2_z: Vec<Vec<f64>>,
+    /// `h(q, a) = Σ_L W_L log2 M_L`, annealed, per q, per scale (NaN where
+    /// no line).
     pub h_qa: Vec<Vec<f64>>,
+    /// `D(q, a) = q h(q, a) - log2 Z(q, a)`, per q, per scale (JSON `D_qa`).
     #[serde(rename = "D_qa")]
     pub d_qa: Vec<Vec<f64>>,
     /// Effective number of lines `Z^2 / Σ M^2q` per q, per scale.
     pub n_eff: Vec<Vec<f64>>,
     /// Maxima lines alive per scale (all images).
     pub lines: Vec<u64>,
+    /// Human-readable warnings: q not estimable, poor power laws (R^2 below
+    /// [`R2_WARN`]), cells dominated by few lines (below [`N_EFF_WARN`]),
+    /// missing pixels, mixed image sizes, few lines at the top of the fit.
     pub warnings: Vec<String>,
 }
 
 /// A number of images of one size.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ShapeCount {
+    /// Rows.
     pub ny: usize,
+    /// Columns.
     pub nx: usize,
+    /// Number of images of this size.
     pub images: usize,
 }
 

@@ -53,10 +53,12 @@ pub struct Cli {
     /// No progress bars (they are also hidden when stderr is not a terminal).
     #[arg(long, global = true)]
     pub quiet: bool,
+    /// The subcommand to run.
     #[command(subcommand)]
     pub command: Command,
 }
 
+/// The subcommands of `wtmm` (SPEC §13), one variant per command.
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Generate synthetic fields with known spectra.
@@ -113,6 +115,8 @@ pub struct CwtOpts {
 }
 
 impl CwtOpts {
+    /// The scale grid `a_j = a_min 2^(j / voices)` (SPEC §1) of these options.
+    /// **Errors** if a parameter is out of range ([`ScaleGrid::validate`]).
     pub fn grid(&self) -> Result<ScaleGrid> {
         let g = ScaleGrid {
             a_min: self.a_min,
@@ -135,7 +139,9 @@ impl CwtOpts {
 
 /// Exit code of a finished command.
 pub enum Outcome {
+    /// The command succeeded (exit code 0).
     Ok,
+    /// The command ran but a `--check` criterion failed (exit code 1).
     CheckFailed,
 }
 

@@ -23,9 +23,17 @@ pub enum SearchRadius {
     /// (SPEC §3; about 6.8 px at a = 1.5, capped at 7 px), with candidates
     /// also within the Euclidean distance `d^2 < cap^2 + 1` (xsmurf
     /// `wt2d/chain2.c`: `dist < 50` for the 7 px cap).
-    Reference { cap: f64 },
+    Reference {
+        /// Largest half-width, in pixels (7 in the reference; default 12).
+        cap: f64,
+    },
     /// `max(min, factor * a)`: proportional to scale.
-    Proportional { factor: f64, min: f64 },
+    Proportional {
+        /// Half-width per unit scale (px per px of `a`).
+        factor: f64,
+        /// Smallest half-width, in pixels.
+        min: f64,
+    },
 }
 
 impl Default for SearchRadius {
@@ -59,7 +67,9 @@ impl SearchRadius {
 /// One point of a maxima line.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LinePoint {
+    /// Column of the WTMMM.
     pub x: u32,
+    /// Row of the WTMMM (0 at the top).
     pub y: u32,
     /// Modulus at this scale.
     pub m: f64,
@@ -74,12 +84,14 @@ pub struct LinePoint {
 /// consecutive points may lie on opposite edges of the image.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct MaximaLine {
+    /// The line's WTMMM, one per scale from `a_min` (index = scale index).
     pub points: Vec<LinePoint>,
 }
 
 /// Linking parameters.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LinkParams {
+    /// Half-width of the search box per scale (default: reference box, 12 px cap).
     pub radius: SearchRadius,
     /// Accept a candidate only when `lo < M_up / M_down < hi`. This bounds
     /// the local exponents a line can follow: with `v` voices per octave,
@@ -436,6 +448,7 @@ pub struct Linker {
 }
 
 impl Linker {
+    /// An empty linker (plane, not torus); push scale 0 first.
     pub fn new(params: LinkParams) -> Self {
         Linker {
             params,

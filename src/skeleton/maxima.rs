@@ -10,8 +10,9 @@ use crate::cwt::{CwtPlan, CwtWorkspace, FourierImage, argument};
 /// A local maximum of the modulus along a maxima chain (a WTMMM).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Wtmmm {
-    /// Column and row of the pixel.
+    /// Column of the pixel.
     pub x: u32,
+    /// Row of the pixel (0 at the top).
     pub y: u32,
     /// Modulus M.
     pub m: f64,
@@ -25,6 +26,7 @@ pub struct Wtmmm {
 /// a torus ([`Domain::is_torus`]) it may cross the image's edges.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Chain {
+    /// The pixels `(x, y)` in tracing order.
     pub pixels: Vec<(u32, u32)>,
     /// The chain closes on itself (last pixel 8-adjacent to the first, no end).
     pub closed: bool,
@@ -33,7 +35,9 @@ pub struct Chain {
 /// Everything found at one scale.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ScaleMaxima {
+    /// Scale index in the scale list (0 = `a_min`).
     pub j: usize,
+    /// Scale, in pixels.
     pub a: f64,
     /// Number of WTMM pixels.
     pub n_wtmm: usize,
@@ -53,11 +57,17 @@ pub struct ScaleMaxima {
 /// chains and end the lines that cross it.
 #[derive(Clone, Debug)]
 pub struct Domain {
+    /// Image height (rows).
     pub ny: usize,
+    /// Image width (columns).
     pub nx: usize,
+    /// First row of the counting rectangle.
     pub y0: usize,
+    /// One past its last row.
     pub y1: usize,
+    /// First column of the counting rectangle.
     pub x0: usize,
+    /// One past its last column.
     pub x1: usize,
     /// Euclidean distance (px) from each pixel to the nearest masked pixel;
     /// `None` without a mask.

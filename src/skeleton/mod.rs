@@ -51,9 +51,14 @@ pub enum Parallelism {
 /// output).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AnalysisConfig {
+    /// Analysing wavelet (SPEC §1; default gauss).
     pub wavelet: Wavelet,
+    /// Smallest scale of the dyadic grid, in pixels (default 1.5; ignored
+    /// when `scales` is given).
     pub a_min: f64,
+    /// Octaves of the dyadic grid (default 5; ignored when `scales` is given).
     pub octaves: usize,
+    /// Scales per octave (default 10; ignored when `scales` is given).
     pub voices: usize,
     /// Explicit scales (pixels) instead of the dyadic grid.
     pub scales: Option<Vec<f64>>,
@@ -62,6 +67,7 @@ pub struct AnalysisConfig {
     pub margin: Option<usize>,
     /// Moduli below `eps * max M` are ignored (SPEC §2).
     pub eps: f64,
+    /// Rules for linking WTMMM across scales into maxima lines (SPEC §3).
     pub link: LinkParams,
     /// Trace chains and link lines beyond the counting domain, wherever the
     /// transform is trusted at each scale (margin `R a`), and count maxima
@@ -134,6 +140,8 @@ impl AnalysisConfig {
         Ok(())
     }
 
+    /// The dyadic grid of `a_min`, `octaves`, `voices` (whether or not
+    /// explicit `scales` override it).
     pub fn grid(&self) -> ScaleGrid {
         ScaleGrid {
             a_min: self.a_min,
@@ -181,9 +189,14 @@ impl AnalysisConfig {
 /// Counts at one scale.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ScaleCounts {
+    /// Scale, in pixels.
     pub a: f64,
+    /// Number of WTMM pixels (over the detection rectangle, wider than the
+    /// counting domain when `guard` is on; [`ScaleMaxima::n_wtmm`]).
     pub wtmm: usize,
+    /// Number of maxima chains, of any length (same rectangle).
     pub chains: usize,
+    /// Number of WTMMM (same rectangle).
     pub wtmmm: usize,
     /// Maxima lines alive at this scale.
     pub lines: usize,
@@ -194,12 +207,18 @@ pub struct ScaleCounts {
 /// The WT skeleton of one image.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Skeleton {
+    /// The scales analysed, in pixels, smallest first.
     pub scales: Vec<f64>,
+    /// Image size `(ny, nx)`.
     pub shape: (usize, usize),
+    /// Interior margin used, in pixels.
     pub margin: usize,
     /// The counting domain `(y0, y1, x0, x1)`: maxima count only inside.
     pub domain: (usize, usize, usize, usize),
+    /// Counts per scale, in the order of `scales`.
     pub per_scale: Vec<ScaleCounts>,
+    /// All maxima lines, born at `a_min`; with `guard` their points may lie
+    /// outside the counting domain (test them with [`Skeleton::counts`]).
     pub lines: Vec<MaximaLine>,
     /// Chains and WTMMM of the scales asked for in `keep`.
     pub kept: Vec<ScaleMaxima>,

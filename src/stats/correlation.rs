@@ -124,6 +124,7 @@ pub enum Magnitude {
 /// Parameters of the correlation of one image.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CorrelationConfig {
+    /// Analysing wavelet (SPEC §1; default gauss).
     pub wavelet: Wavelet,
     /// The distinct scales (px) involved.
     pub scales: Vec<f64>,
@@ -138,6 +139,8 @@ pub struct CorrelationConfig {
     pub bins_per_octave: usize,
     /// Largest `|Δx|` (px); `None` = half the smaller side of the domain.
     pub max_dx: Option<f64>,
+    /// Which magnitude is correlated on the CWT grid ([`wtmmm_correlation`]
+    /// always uses `ln M`).
     pub magnitude: Magnitude,
     /// Points with `M < eps max M` (at that scale) are left out.
     pub eps: f64,
@@ -946,34 +949,47 @@ pub struct PairSums {
     pub ww: Vec<f64>,
     /// `Σ w̃1(x) m2(x + d)` and `Σ m1(x) w̃2(x + d)` (ensemble centring).
     pub wm: Vec<f64>,
+    /// `Σ m1(x) w̃2(x + d)`.
     pub mw: Vec<f64>,
     /// Number of pairs `Σ m1(x) m2(x + d)`, and weighted by `log2 |d|`.
     pub count: Vec<f64>,
+    /// `Σ m1(x) m2(x + d) log2 |d|` (for the pair-weighted mean lag of a bin).
     pub lcount: Vec<f64>,
 }
 
 /// The sums of one image.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CorrelationImage {
+    /// Free label (file name), for the record.
     pub label: String,
     /// Per scale: the image's mean magnitude and number of points.
     pub mean: Vec<f64>,
+    /// Number of valid points (grid pixels or WTMMM) per scale.
     pub n: Vec<f64>,
+    /// One set of binned sums per pair of scales, in the order of `pairs`.
     pub pairs: Vec<PairSums>,
 }
 
 /// Mergeable correlation sums of an ensemble (one partial per image).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CorrelationSums {
+    /// Crate version that wrote the sums.
     pub version: String,
     /// "cwt" (magnitudes on the CWT grid) or "wtmmm" (skeleton).
     pub source: String,
+    /// The distinct scales, in pixels.
     pub scales: Vec<f64>,
+    /// Pairs `(i1, i2)` of indices into `scales`.
     pub pairs: Vec<(usize, usize)>,
+    /// Log-spaced `|Δx|` bins per octave.
     pub bins_per_octave: usize,
+    /// Largest `|Δx|` binned, in pixels (the resolved value, not `None`).
     pub max_dx: f64,
+    /// Lags wrapped around a torus (circular correlations).
     pub periodic: bool,
+    /// The configured magnitude (meaningful for `source = "cwt"` only).
     pub magnitude: Magnitude,
+    /// One partial per image, in the order added.
     pub images: Vec<CorrelationImage>,
 }
 
@@ -1381,38 +1397,50 @@ pub fn wtmmm_correlation(
 /// The correlation of one pair of scales over the ensemble.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PairCorrelation {
+    /// First scale `a1`, in pixels.
     pub a1: f64,
+    /// Second scale `a2`, in pixels.
     pub a2: f64,
     /// Pair-weighted mean of `log2 |Δx|` in each non-empty bin, and `2^` it.
     pub log2_dx: Vec<f64>,
+    /// `2^log2_dx`, in pixels (lag 0 excluded; see `c0`).
     pub dx: Vec<f64>,
     /// `C(Δx; a1, a2)`, centred per image (SPEC §6), with jackknife errors.
     #[serde(rename = "C")]
     pub c: Vec<f64>,
+    /// Jackknife standard error of `c` over images (NaN with < 3 images).
     #[serde(rename = "C_stderr")]
     pub c_stderr: Vec<f64>,
     /// The same centred with the ensemble mean (II eq 68).
     #[serde(rename = "C_ensemble")]
     pub c_ensemble: Vec<f64>,
+    /// Jackknife standard error of `c_ensemble` (NaN with < 3 images).
     #[serde(rename = "C_ensemble_stderr")]
     pub c_ensemble_stderr: Vec<f64>,
     /// Number of pairs per bin (all images).
     pub pairs: Vec<f64>,
     /// Covariance at `Δx = 0` (per-image and ensemble centring).
     pub c0: f64,
+    /// Covariance at `Δx = 0`, ensemble centring.
     pub c0_ensemble: f64,
 }
 
 /// Everything [`correlation_estimates`] computes.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CorrelationResult {
+    /// "cwt" or "wtmmm", as [`CorrelationSums::source`].
     pub source: String,
+    /// The configured magnitude (meaningful for `source = "cwt"` only).
     pub magnitude: Magnitude,
+    /// Lags wrapped around a torus.
     pub periodic: bool,
+    /// Number of images.
     pub images: usize,
+    /// The distinct scales, in pixels.
     pub scales: Vec<f64>,
     /// Ensemble mean magnitude per scale.
     pub mean: Vec<f64>,
+    /// One correlation function per pair of scales, in the order of the sums.
     pub pairs: Vec<PairCorrelation>,
     /// "jackknife over images" (>= 3 images) or "none".
     pub stderr_method: String,

@@ -6,7 +6,9 @@ use serde::{Deserialize, Serialize};
 /// Result of a straight-line fit `y = intercept + slope x`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LineFit {
+    /// Least-squares slope (the exponent, in the units of `y` per unit of `x`).
     pub slope: f64,
+    /// Value of the fitted line at `x = 0`.
     pub intercept: f64,
     /// Standard error of the slope from the residuals (NaN with < 3 points).
     pub slope_stderr: f64,

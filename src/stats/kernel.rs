@@ -128,7 +128,9 @@ use crate::stats::pdf::{Point, WtmmmHistograms, WtmmmSet};
 /// (negative p by symmetry, `C(-p) = conj C(p)`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KernelConfig {
+    /// Largest p (conjugate to `ln M`, dimensionless; default 8).
     pub p_max: f64,
+    /// Step of the p grid (default 0.05).
     pub dp: f64,
 }
 
@@ -181,9 +183,13 @@ impl KernelConfig {
 /// Count, mean and central sums `Σ(u-ū)²`, `Σ(u-ū)³` of a sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Moments {
+    /// Number of values.
     pub n: u64,
+    /// Mean `ū` (0 when empty).
     pub mean: f64,
+    /// Central sum `Σ(u-ū)²` (not divided by n).
     pub m2: f64,
+    /// Central sum `Σ(u-ū)³` (not divided by n).
     pub m3: f64,
 }
 
@@ -244,21 +250,28 @@ impl Moments {
 /// The partial sums of one image.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KernelImage {
+    /// Free label (file name), for the record.
     pub label: String,
     /// Per scale.
     pub moments: Vec<Moments>,
     /// `Σ cos(p_k ln M)` and `Σ sin(p_k ln M)`, index `j * n_p + k`.
     pub cf_re: Vec<f64>,
+    /// `Σ sin(p_k ln M)`, same layout as `cf_re`.
     pub cf_im: Vec<f64>,
 }
 
 /// Mergeable kernel sums of an ensemble (one partial per image).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KernelSums {
+    /// Crate version that wrote the sums.
     pub version: String,
+    /// Which WTMMM were summed (all, or those on maxima lines).
     pub set: WtmmmSet,
+    /// The p grid of the characteristic-function sums.
     pub config: KernelConfig,
+    /// The scales, in pixels, ascending.
     pub scales: Vec<f64>,
+    /// One partial per image, in the order added.
     pub images: Vec<KernelImage>,
 }
 
@@ -508,7 +521,10 @@ impl Default for KernelOptions {
 /// A fitted cumulant.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Estimate {
+    /// The fitted `c_n` (natural-log convention of the module doc).
     pub value: f64,
+    /// Its standard error: delete-one jackknife over images (>= 3 images),
+    /// else the regression's (`pooled`: jackknife only, NaN with < 3 images).
     pub stderr: f64,
     /// R² of the regression of `κ_n` on `ln a`.
     pub r2: f64,
@@ -517,8 +533,11 @@ pub struct Estimate {
 /// `c1, c2, c3` (the JSON keys of `kernel.json`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FittedCumulants {
+    /// `c1` (II eq 49; `m/ln2` for a log-normal W-cascade, II eq 56).
     pub c1: Estimate,
+    /// `c2` (`σ²/ln2` for a log-normal W-cascade).
     pub c2: Estimate,
+    /// `c3` (0 for a log-normal W-cascade).
     pub c3: Estimate,
 }
 
@@ -532,7 +551,9 @@ impl FittedCumulants {
 /// One point of a `C_n(a, a')` table.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CnRow {
+    /// Scale `a`, in pixels.
     pub a: f64,
+    /// `log2(a / a_min)`.
     pub octave: f64,
     /// `ln(a'/a)`.
     pub ln_ratio: f64,
@@ -546,8 +567,11 @@ pub struct CnRow {
 /// in the fit range.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CnTable {
+    /// Reference scale `a'`, in pixels (the grid scale nearest the asked octave).
     pub a_ref: f64,
+    /// `log2(a' / a_min)`.
     pub octave_ref: f64,
+    /// One row per grid scale `a < a'` in the fit range, ascending.
     pub rows: Vec<CnRow>,
     /// Least-squares slopes through the origin of `C_n` against `ln(a'/a)`.
     pub slope: [f64; 3],
@@ -556,30 +580,44 @@ pub struct CnTable {
 /// `Ĝ_aa'(p)` for one pair, `p` from `-p_max` to `p_max`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KernelCurve {
+    /// Smaller scale `a`, in pixels (the grid scale nearest the asked octave).
     pub a: f64,
+    /// Larger scale `a'`, in pixels.
     pub a_ref: f64,
+    /// `log2(a / a_min)`.
     pub octave: f64,
+    /// `log2(a' / a_min)`.
     pub octave_ref: f64,
+    /// `ln(a'/a)`.
     pub ln_ratio: f64,
+    /// The p values, `-p_max ..= p_max` in steps of `dp`.
     pub p: Vec<f64>,
     /// `Re, Im C(p, a)` and `Re, Im C(p, a')` (II eq 45).
     pub cf_re: Vec<f64>,
+    /// `Im C(p, a)`.
     pub cf_im: Vec<f64>,
+    /// `Re C(p, a')`.
     pub cf_ref_re: Vec<f64>,
+    /// `Im C(p, a')`.
     pub cf_ref_im: Vec<f64>,
     /// `ln |Ĝ_aa'(p)|` and the phase unwrapped from `Φ(0) = 0`.
     pub ln_abs_g: Vec<f64>,
+    /// Unwrapped phase `Φ(p)` of `Ĝ_aa'(p)` (radians; odd in p).
     pub phase: Vec<f64>,
     /// The collapse `ln Ĝ_aa'^(1/ln(a'/a))`: both divided by `ln(a'/a)`.
     pub ln_abs_g_norm: Vec<f64>,
+    /// `phase / ln(a'/a)`.
     pub phase_norm: Vec<f64>,
 }
 
 /// Everything [`kernel_estimates`] computes.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KernelResult {
+    /// Which WTMMM were used.
     pub set: WtmmmSet,
+    /// Number of images.
     pub images: usize,
+    /// The scales, in pixels.
     pub scales: Vec<f64>,
     /// `log2(a / a_min)`.
     pub octaves: Vec<f64>,
@@ -587,13 +625,19 @@ pub struct KernelResult {
     pub n_wtmmm: Vec<u64>,
     /// Ensemble cumulants of `ln M` per scale.
     pub kappa1: Vec<f64>,
+    /// Plug-in variance `κ2` of `ln M` per scale (NaN where no WTMMM).
     pub kappa2: Vec<f64>,
+    /// Plug-in third cumulant `κ3` of `ln M` per scale.
     pub kappa3: Vec<f64>,
+    /// Fit range, in octaves above `a_min`.
     pub fit_octaves: (f64, f64),
+    /// The smallest and largest scales (px) inside the fit range.
     pub fit_scales: (f64, f64),
+    /// `c_n = -dκ_n/d ln a` over the fit range (SPEC §5; JSON `cumulants`).
     pub cumulants: FittedCumulants,
     /// "jackknife over images" (>= 3 images) or "regression".
     pub stderr_method: String,
+    /// One `C_n(a, a')` table per reference scale (II Figs 26, 28).
     pub tables: Vec<CnTable>,
     /// The slope through the origin of all the tables' `C_n(a, a')`
     /// points, references pooled (II Figs 26, 28 as drawn; with the default
@@ -601,7 +645,9 @@ pub struct KernelResult {
     /// jackknife errors (NaN with < 3 images); `r2` is the uncentred
     /// `(Σxy)² / (Σx² Σy²)`.
     pub pooled: FittedCumulants,
+    /// One kernel curve per pair of scales (II Figs 25, 27).
     pub kernels: Vec<KernelCurve>,
+    /// Human-readable warnings (few WTMMM at the top of the fit, < 3 images).
     pub warnings: Vec<String>,
 }
 
@@ -905,15 +951,19 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
 /// with the measured `P_a`, on the `ln M` bin centres.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Reconstruction {
-    /// Source scale `a'` and target scale `a < a'`.
+    /// Source scale `a' > a`, in pixels.
     pub a_from: f64,
+    /// Target scale `a`, in pixels.
     pub a_to: f64,
+    /// `ln(a'/a)`.
     pub ln_ratio: f64,
     /// Cumulants `c_1..c_n` of the kernel used.
     pub c: Vec<f64>,
+    /// Centres of the `ln M` bins at the target scale.
     pub ln_m: Vec<f64>,
     /// Density of `ln M` at `a_to`: measured, and predicted from `a_from`.
     pub measured: Vec<f64>,
+    /// The predicted density (same bins).
     pub predicted: Vec<f64>,
     /// `∫ |predicted - measured| d ln M` (0 = perfect, 2 = disjoint).
     pub l1: f64,

@@ -60,6 +60,7 @@ pub enum WtmmmSet {
 }
 
 impl WtmmmSet {
+    /// The set's name in outputs and on the command line (`all`, `lines`).
     pub fn name(self) -> &'static str {
         match self {
             WtmmmSet::All => "all",
@@ -79,15 +80,20 @@ impl WtmmmSet {
 /// One WTMMM: pixel, modulus, argument.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Point {
+    /// Column of the pixel.
     pub x: u32,
+    /// Row of the pixel (0 at the top).
     pub y: u32,
+    /// Modulus M (L1 normalisation, SPEC §1).
     pub m: f64,
+    /// Argument A = atan2(T2, T1), radians in [-π, π].
     pub arg: f64,
 }
 
 /// The WTMMM of one image, per scale, in both sets.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ImageWtmmm {
+    /// The scales, in pixels, smallest first.
     pub scales: Vec<f64>,
     /// `(ny, nx)` of the image.
     pub shape: (usize, usize),
@@ -236,6 +242,7 @@ pub struct ScaleHist {
     pub lo: i64,
     /// Number of `ln M` bins held.
     pub rows: usize,
+    /// Counts, `rows * arg_bins` of them, laid out as in the type's doc.
     pub counts: Vec<u64>,
     /// Number of WTMMM.
     pub n: u64,
@@ -244,11 +251,15 @@ pub struct ScaleHist {
 /// Mergeable `(ln M, A)` histograms of an ensemble, one per scale.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WtmmmHistograms {
+    /// Crate version that wrote the histograms.
     pub version: String,
+    /// The binning.
     pub config: PdfConfig,
+    /// The scales, in pixels, smallest first.
     pub scales: Vec<f64>,
     /// Number of images merged.
     pub images: usize,
+    /// One histogram per scale, in the order of `scales`.
     pub hist: Vec<ScaleHist>,
 }
 
@@ -440,6 +451,7 @@ impl Default for PdfOptions {
 pub struct SectorPdf {
     /// Sector centre (radians, mod π): 0, π/4, π/2, 3π/4.
     pub centre: f64,
+    /// Number of WTMMM in the sector.
     pub n: u64,
     /// `P(M | sector)` on the grid `m` of the scale.
     pub p_m: Vec<f64>,
@@ -451,31 +463,42 @@ pub struct SectorPdf {
 /// `t[i]` (both axes), `density[iy * t.len() + ix]` at `(T1, T2) = (t[ix], t[iy])`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JointDensity {
+    /// Cell centres, the same on both axes (symmetric about 0).
     pub t: Vec<f64>,
+    /// `p(T1, T2) = P(ln M, A) / M²`, row-major with T2 along the rows.
     pub density: Vec<f64>,
 }
 
 /// The densities of one scale (II Figs 11-14, 17-20).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ScalePdf {
+    /// Scale index.
     pub j: usize,
+    /// Scale, in pixels.
     pub a: f64,
     /// `log2(a / a_min)`.
     pub octave: f64,
+    /// Number of WTMMM at this scale (all images).
     pub n: u64,
     /// Bin centres of `ln M` and the density of `ln M`.
     pub ln_m: Vec<f64>,
+    /// `P(ln M)` (natural log; integrates to 1 over `ln_m`).
     pub p_ln_m: Vec<f64>,
     /// `M = exp(ln_m)` and the density of M, `P(ln M) / M`.
     pub m: Vec<f64>,
+    /// `P(M) = P(ln M) / M` on `m`.
     pub p_m: Vec<f64>,
     /// Argument bin centres and the density of A.
     pub arg: Vec<f64>,
+    /// `P(A)` (per radian) on `arg`.
     pub p_arg: Vec<f64>,
+    /// `P(M | A mod π)` in the four sectors `kπ/4 ± π/8` (II Figs 12, 18).
     pub sectors: Vec<SectorPdf>,
     /// II eq 39: `M / (a/a_min)^h0` and its density `s P(M)`.
     pub rescaled_m: Vec<f64>,
+    /// Density of the rescaled modulus on `rescaled_m`.
     pub p_rescaled: Vec<f64>,
+    /// Joint density of `(T1, T2)` (II Figs 13, 19).
     pub joint: JointDensity,
 }
 

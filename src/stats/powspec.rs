@@ -37,7 +37,9 @@ pub enum Window {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Detrend {
+    /// Nothing removed (the `k = 0` mode is left out of the bins anyway).
     None,
+    /// The mean (enough for periodic fields).
     Mean,
     /// Least-squares plane `c0 + c1 x + c2 y`. Not for periodic fields
     /// without a window: the removed plane is a jump across the border (a
@@ -49,7 +51,9 @@ pub enum Detrend {
 /// Options of [`power_spectrum`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PowerSpectrumConfig {
+    /// Taper before the FFT (default Hann).
     pub window: Window,
+    /// What is removed before the taper (default the plane).
     pub detrend: Detrend,
     /// Log-spaced bins per octave of |k|.
     pub bins_per_octave: usize,
@@ -87,6 +91,7 @@ impl Default for PowerSpectrumConfig {
 /// several images merge exactly into an ensemble average.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PowerSpectrum {
+    /// Log-spaced bins per octave of |k|, anchored at Nyquist (module doc).
     pub bins_per_octave: usize,
     /// Per bin: sum of |f̂|² (normalised per pixel and window energy).
     pub sum_s: Vec<f64>,
@@ -168,6 +173,7 @@ impl PowerSpectrum {
 pub struct SpectrumFit {
     /// `S ~ |k|^-β`, angle-averaged.
     pub beta: f64,
+    /// Standard error of β from the regression residuals (not a jackknife).
     pub beta_stderr: f64,
     /// Fit range in rad/px.
     pub k_range: (f64, f64),

@@ -75,9 +75,21 @@ use crate::synth::{SynthRng, rng_for};
 #[serde(tag = "law", rename_all = "lowercase")]
 pub enum Law {
     /// `ln M ~ Normal(m, σ²)` (II eq 29).
-    LogNormal { m: f64, sigma2: f64 },
+    LogNormal {
+        /// Mean `m` of `ln M` (natural log; paper preset `-0.38 ln 2`).
+        m: f64,
+        /// Variance `σ²` of `ln M` (paper preset `0.03 ln 2`).
+        sigma2: f64,
+    },
     /// `ln M = Y ln β + γ`, `Y ~ Poisson(λ)` (II eq 37); `0 < β < 1`.
-    LogPoisson { gamma: f64, beta: f64, lambda: f64 },
+    LogPoisson {
+        /// Additive constant `γ` of `ln M` (paper preset `-ln2/9`).
+        gamma: f64,
+        /// Multiplicative jump `β` in (0, 1) (paper preset `(2/3)^(1/3)`).
+        beta: f64,
+        /// Poisson mean `λ` (paper preset `2 ln 2`).
+        lambda: f64,
+    },
 }
 
 /// How the modulus is spread over ψ1, ψ2, ψ3 (II Fig 5).
@@ -109,9 +121,12 @@ impl Isotropy {
 /// Parameters of a W-cascade.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WCascadeParams {
+    /// Law of the multiplier `M`.
     pub law: Law,
+    /// How the modulus is spread over ψ1, ψ2, ψ3 (default isotropic).
     #[serde(default)]
     pub isotropy: Isotropy,
+    /// Orthonormal wavelet basis of the inverse DWT (default db8).
     #[serde(default)]
     pub basis: Basis,
 }

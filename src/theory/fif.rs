@@ -36,11 +36,14 @@ pub(crate) const ALPHA_ONE_EPS: f64 = 1e-9;
 /// The universal moment scaling function `K(q)` of parameters `(α, C1)`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct UniversalK {
+    /// Lévy index α in (0, 2] (the multifractality index; 2 = log-normal).
     pub alpha: f64,
+    /// Codimension of the mean singularity, C1 >= 0.
     pub c1: f64,
 }
 
 impl UniversalK {
+    /// `K(q)` of parameters `(alpha, c1)` (not validated).
     pub fn new(alpha: f64, c1: f64) -> Self {
         UniversalK { alpha, c1 }
     }
@@ -219,14 +222,21 @@ pub fn q_divergence(p: &FifParams) -> f64 {
 /// Everything the `theory` command prints for a FIF.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FifTheory {
+    /// The FIF parameters (α, C1, H).
     pub params: FifParams,
+    /// The q grid.
     pub q: Vec<f64>,
     /// `K(q)` (`null` in JSON where infinite, q < 0 with α < 2).
     #[serde(rename = "K")]
     pub k: Vec<f64>,
+    /// Structure-function exponent `ξ(q) = qH - K(q)` (seed 000 eq 10).
     pub xi: Vec<f64>,
+    /// `τ(q) = ξ(q) - 2`, strictly (`-∞`, JSON `null`, for q < 0 with
+    /// α < 2; unlike [`crate::theory::Model::tau`], not truncated at `h_max`).
     pub tau: Vec<f64>,
+    /// `h(q) = H - K'(q)` (NaN for q < 0 with α < 2).
     pub h: Vec<f64>,
+    /// `D(h(q)) = q h(q) - τ(q)` (JSON `D`).
     #[serde(rename = "D")]
     pub d: Vec<f64>,
     /// `h(q_D)`: the smallest exponent before the moments diverge.
@@ -239,9 +249,12 @@ pub struct FifTheory {
     pub beta_averaged: f64,
     /// Convention of `beta`.
     pub beta_convention: String,
+    /// `q_D`: moments of order `>= q_D` of the dressed cascade diverge,
+    /// `K(q_D) = 2 (q_D - 1)` (`+∞` when C1 = 0).
     pub q_divergence: f64,
     /// `C1` and α restated for the `K` consumers.
     pub alpha: f64,
+    /// `C1` (JSON `C1`).
     #[serde(rename = "C1")]
     pub c1: f64,
 }

@@ -164,8 +164,11 @@ impl Multifractal for FifParams {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "model", rename_all = "lowercase")]
 pub enum Model {
+    /// Fractional Brownian surface `B_H` (SPEC §9).
     Fbm(FbmParams),
+    /// Fractionally integrated singular cascade (II §2.1).
     Fisc(FiscParams),
+    /// Random W-cascade on an orthonormal wavelet basis (II §2.2; JSON `wcascade`).
     WCascade(WCascadeParams),
     /// Universal multifractal FIF surface (seed 000 §3.3; see [`fif`]).
     Fif(FifParams),
@@ -184,7 +187,9 @@ pub const PRESET_NAMES: [&str; 5] = [
 /// used for it.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Preset {
+    /// The preset's name, one of [`PRESET_NAMES`].
     pub name: &'static str,
+    /// The generator and its parameters.
     pub model: Model,
     /// gauss for fBm, the W-cascades and topo-fif (h in (-0.1, 0.85)); mexican
     /// for FISC, whose `h_max = 1.30 > 1` needs more than one vanishing
@@ -446,28 +451,42 @@ impl Model {
 /// `kernel.json`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Cumulants {
+    /// `c1` (`τ(q) = -Σ c_n q^n/n! - 2`, II eq 64).
     pub c1: f64,
+    /// `c2`.
     pub c2: f64,
+    /// `c3`.
     pub c3: f64,
 }
 
 /// Everything `wtmm theory` prints for one model on a q grid.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TheoryTable {
+    /// The model and its parameters.
     pub model: Model,
+    /// The q grid.
     pub q: Vec<f64>,
+    /// `τ(q)` per q (`-∞`, JSON `null`, for a FIF with α <= 1 at q < 0).
     pub tau: Vec<f64>,
+    /// `h(q) = τ'(q)` per q.
     pub h: Vec<f64>,
     /// `D(q) = q h(q) - τ(q)`.
     #[serde(rename = "D")]
     pub d: Vec<f64>,
+    /// Lower end of the support of `D(h)` (where `D(h) >= 0`; for FISC the
+    /// limit of h(q) as q → +∞, see the module doc).
     pub h_min: f64,
+    /// Upper end of the support of `D(h)` (`+∞`, JSON `null`, for a FIF
+    /// with α <= 1).
     pub h_max: f64,
+    /// The most frequent Hölder exponent `h(q = 0)`, where `D = 2`.
     pub h_of_q0: f64,
     /// Angle-averaged: `S(|k|) ~ |k|^-β`.
     pub beta: f64,
     /// Always `"angle-averaged"`.
     pub beta_convention: String,
+    /// Kernel cumulants where known (not for a FIF with α < 2 and C1 > 0);
+    /// omitted from the JSON otherwise.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub cumulants: Option<Cumulants>,
     /// The flux moment function K(q) (FIF only; `null` where infinite).
@@ -476,6 +495,7 @@ pub struct TheoryTable {
     /// The D(h) curve sampled on `[h_min, h_max]` (one point for a
     /// monofractal).
     pub dh_h: Vec<f64>,
+    /// `D(h)` at each `dh_h` (JSON `dh_D`).
     #[serde(rename = "dh_D")]
     pub dh_d: Vec<f64>,
 }

@@ -7,7 +7,9 @@ use serde::{Deserialize, Serialize};
 /// `(m, s) = (0, 0)` (always finite, JSON-safe).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LogSum {
+    /// Exponent `m` (natural log) of the scale factor.
     pub m: f64,
+    /// Mantissa `s >= 0` (0 when empty).
     pub s: f64,
 }
 
@@ -29,6 +31,7 @@ impl LogSum {
         }
     }
 
+    /// Adds the sum `o`.
     pub fn merge(&mut self, o: &LogSum) {
         self.add(o.m, o.s);
     }
@@ -76,12 +79,18 @@ pub fn universal_shape(alpha: f64, q: f64) -> f64 {
 /// Least-squares fit of `K(q) = C1 (q^α - q)/(α - 1)`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct UniversalFit {
+    /// Fitted α (searched in `[0.02, 3]`, not clamped to the Lévy range (0, 2]).
     pub alpha: f64,
+    /// Standard error of α from the fit's covariance (OLS: Gauss-Newton
+    /// `s² (JᵀJ)⁻¹`; GLS: `(J' w J)⁻¹`); NaN when singular.
     pub alpha_stderr: f64,
+    /// Fitted C1.
     pub c1: f64,
+    /// Standard error of C1, as `alpha_stderr`.
     pub c1_stderr: f64,
     /// Root-mean-square residual.
     pub rms: f64,
+    /// Number of points `(q, K)` used (finite, q > 0).
     pub n: usize,
 }
 

@@ -147,6 +147,7 @@ const D: f64 = 2.0;
 /// their configurations are equal).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TraceMomentConfig {
+    /// How the flux φ is taken from the field (default: gradient modulus).
     pub flux: FluxKind,
     /// Fractional differentiation of the field before the modulus (module
     /// docs, "Which flux").
@@ -292,7 +293,10 @@ impl Default for TraceMomentFitConfig {
 /// Mergeable per-image sums (annealed ensemble averages).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TraceMomentAccumulator {
+    /// What is accumulated (equal configurations only merge).
     pub config: TraceMomentConfig,
+    /// Number of fields (or fluxes, or tiles of [`Self::field_tiles`])
+    /// accumulated.
     pub images: usize,
     /// Largest `min(ny, nx)` seen.
     pub max_side: usize,
@@ -998,9 +1002,14 @@ fn linear_onset(q: &[f64], k: &[f64], u: &UniversalFit) -> Option<f64> {
 /// One double-trace-moment fit at fixed q.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DtmFit {
+    /// The moment order q.
     pub q: f64,
+    /// α: slope of `ln K(q, η)` against `ln η` over the η range (NaN if no fit).
     pub alpha: f64,
+    /// Its standard error: regression, or jackknife over the parts
+    /// ([`finish_ensemble`]).
     pub alpha_stderr: f64,
+    /// `C1 = e^intercept / |(q^α - q)/(α - 1)|` (JSON `C1`).
     #[serde(rename = "C1")]
     pub c1: f64,
     /// Number of η values in the fit.
@@ -1012,7 +1021,9 @@ pub struct DtmFit {
 /// scales and moments (exponents are base-independent).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TraceMomentResult {
+    /// Number of fields in the ensemble.
     pub images: usize,
+    /// How the flux was taken from the field.
     pub flux: FluxKind,
     /// The differentiation setting before the modulus.
     pub diff: FluxDiff,
@@ -1021,32 +1032,47 @@ pub struct TraceMomentResult {
     pub diff_order: f64,
     /// Its standard deviation over images.
     pub diff_order_sd: f64,
+    /// Order of the fractional integration applied before the flux, if any.
     pub frac_int: Option<f64>,
+    /// Trace-moment orders q.
     pub q: Vec<f64>,
+    /// `K(q)`: slope of `log2 <φ_λ^q>` against `log2 λ` over
+    /// `fit_log2_lambda` (TM eq 7; JSON `K`; NaN if no fit).
     #[serde(rename = "K")]
     pub k: Vec<f64>,
+    /// Standard error of K(q): regression, or jackknife over the parts
+    /// ([`finish_ensemble`]; JSON `K_stderr`).
     #[serde(rename = "K_stderr")]
     pub k_stderr: Vec<f64>,
     /// Intercepts `b(q)` of the fitted lines `log2 M = K log2 λ + b`.
     #[serde(rename = "K_intercept")]
     pub k_intercept: Vec<f64>,
-    /// `log2 λ` per level (λ = L/l, coarsest first).
+    /// `log2 λ` per level (λ = L/l; finest boxes first, so descending
+    /// from `log2 L` to 0).
     pub log2_lambda: Vec<f64>,
     /// `log2 <φ_λ^q>` per q per level.
     pub log2_moments: Vec<Vec<f64>>,
+    /// Range of `log2 λ` over which K(q) and K(q, η) were fitted.
     pub fit_log2_lambda: (f64, f64),
+    /// α of the universal fit `K(q) = C1/(α-1) (q^α - q)` over
+    /// `0 < q <= universal_q_max` (SPEC §8; NaN if no fit).
     pub alpha: f64,
     /// Standard error of α: jackknife over the images when there are at
     /// least 2 ([`finish_ensemble`]), else the regression error
     /// (`stderr_method` says which).
     pub alpha_stderr: f64,
     /// The Gauss-Newton error of the universal fit alone (residuals of K(q)
-    /// about the universal curve; blind to the sampling scatter of K).
+    /// about the universal curve; blind to the sampling scatter of K). After
+    /// a GLS refit it is the GLS fit's `(J' w J)⁻¹` error instead.
     pub alpha_stderr_fit: f64,
+    /// C1 of the universal fit (JSON `C1`).
     #[serde(rename = "C1")]
     pub c1: f64,
+    /// Standard error of C1, as `alpha_stderr` (JSON `C1_stderr`).
     #[serde(rename = "C1_stderr")]
     pub c1_stderr: f64,
+    /// The universal fit's own error of C1, as `alpha_stderr_fit` (JSON
+    /// `C1_stderr_fit`).
     #[serde(rename = "C1_stderr_fit")]
     pub c1_stderr_fit: f64,
     /// How `*_stderr` were obtained.
@@ -1061,6 +1087,7 @@ pub struct TraceMomentResult {
     /// The unweighted (OLS) universal fit over the same q, for comparison.
     #[serde(default)]
     pub alpha_ols: f64,
+    /// C1 of that OLS fit (JSON `C1_ols`).
     #[serde(default, rename = "C1_ols")]
     pub c1_ols: f64,
     /// Number of jackknife groups (0: none).
@@ -1069,7 +1096,11 @@ pub struct TraceMomentResult {
     pub universal_n: usize,
     /// Largest q of the universal fit (`q_s/2`, or `q_fit_max`).
     pub universal_q_max: f64,
+    /// Sampling phase-transition order `q_s = min(((2 + D_s)/C1)^(1/α), q_D)`,
+    /// `D_s = ln N_images / ln L` (TM eq 15; module doc; `+∞`, JSON `null`,
+    /// if the universal fit failed).
     pub q_s: f64,
+    /// The rule used for `q_s`, in words.
     pub q_s_rule: String,
     /// Onset of the linear regime of the measured K(q), if seen.
     pub q_s_empirical: Option<f64>,
@@ -1079,32 +1110,44 @@ pub struct TraceMomentResult {
     /// Where the moment lines meet (`log2 λ_eff`); the effective outer scale
     /// is `L / λ_eff` px (`λ_eff < 1`: larger than the image).
     pub log2_lambda_eff: f64,
+    /// `λ_eff = 2^log2_lambda_eff`.
     pub lambda_eff: f64,
+    /// Effective outer scale `L / λ_eff`, in pixels.
     pub outer_scale_px: f64,
+    /// Double-trace-moment powers η.
     pub eta: Vec<f64>,
+    /// Orders q of the double trace moments.
     pub dtm_q: Vec<f64>,
     /// `K(q, η)` per DTM q per η.
     #[serde(rename = "K_eta")]
     pub k_eta: Vec<Vec<f64>>,
+    /// Regression standard errors of `K(q, η)` (JSON `K_eta_stderr`).
     #[serde(rename = "K_eta_stderr")]
     pub k_eta_stderr: Vec<Vec<f64>>,
     /// `log2 <(φ^(η))_λ^q>` per DTM q, per η, per level.
     pub log2_moments_eta: Vec<Vec<Vec<f64>>>,
+    /// η range of the DTM fits (further limited to `η <= q_s`, `qη <= q_s`).
     pub dtm_eta_range: (f64, f64),
     /// α from the DTM at the first DTM q.
     pub dtm_alpha: f64,
+    /// Standard error of `dtm_alpha`, as [`DtmFit::alpha_stderr`].
     pub dtm_alpha_stderr: f64,
+    /// C1 from the DTM at the first DTM q (JSON `dtm_C1`).
     #[serde(rename = "dtm_C1")]
     pub dtm_c1: f64,
     /// Per DTM q.
     pub dtm: Vec<DtmFit>,
+    /// Structure-function orders q.
     pub sf_q: Vec<f64>,
     /// Structure-function exponents `ξ(q) = qH - K(q)`.
     pub xi: Vec<f64>,
+    /// Regression standard errors of ξ(q).
     pub xi_stderr: Vec<f64>,
+    /// `log2 l` of the lags `l = 2^j` px, `j = 0, 1, ...`.
     pub log2_lag: Vec<f64>,
     /// `log2 <|Δf(l)|^q>` per q per lag.
     pub log2_sf: Vec<Vec<f64>>,
+    /// Range of `log2 l` over which ξ(q) was fitted.
     pub fit_log2_lag: (f64, f64),
     /// H from the spectrum: `(β - 1 + K(2))/2` (seed 000 §6.1.2).
     #[serde(rename = "H")]
@@ -1115,13 +1158,17 @@ pub struct TraceMomentResult {
     /// H from the structure functions, `ξ(1)`.
     #[serde(rename = "H_sf")]
     pub h_sf: Option<f64>,
+    /// Jackknife standard error of `H_sf` (ensembles only; JSON `H_sf_stderr`).
     #[serde(rename = "H_sf_stderr")]
     pub h_sf_stderr: Option<f64>,
     /// Angle-integrated spectral exponent (seed 000 eq 11).
     pub beta: Option<f64>,
     /// Angle-averaged exponent, `beta + 1`.
     pub beta_averaged: Option<f64>,
+    /// Standard error of β: the spectrum fit's regression error, or the
+    /// jackknife over images ([`finish_ensemble`]).
     pub beta_stderr: Option<f64>,
+    /// Says that `beta` is angle-integrated (`beta_averaged = beta + 1`).
     pub beta_convention: String,
     /// Spectrum fit range (rad/px).
     pub k_range: Option<(f64, f64)>,
