@@ -433,6 +433,32 @@ impl PartitionSums {
                 ens.lines[last_fit], self.scales[last_fit]
             ));
         }
+        // where a leave-one-out sample has no estimate (an image carries
+        // every line that reaches the fit's top), the regression error
+        // stands in for that q: said, not silent
+        let fallback: Vec<String> = (0..nq)
+            .filter(|&qi| {
+                n_img >= 3
+                    && est.tau[qi].is_finite()
+                    && !(jk_tau[qi].is_finite() && jk_h[qi].is_finite() && jk_d[qi].is_finite())
+            })
+            .map(|qi| self.q[qi].to_string())
+            .collect();
+        let stderr_method = if n_img < 3 {
+            "regression".to_string()
+        } else if fallback.is_empty() {
+            "jackknife over images".to_string()
+        } else {
+            warnings.push(format!(
+                "q = {}: a leave-one-image-out sample has no estimate, so the standard error is \
+                 the regression's",
+                fallback.join(", ")
+            ));
+            format!(
+                "jackknife over images; regression at q = {}",
+                fallback.join(", ")
+            )
+        };
         let cell = |v: &Vec<f64>| -> Vec<Vec<f64>> {
             (0..nq)
                 .map(|qi| v[qi * ns..(qi + 1) * ns].to_vec())
@@ -451,12 +477,7 @@ impl PartitionSums {
             tau_stderr: pick(&jk_tau, &est.tau_se),
             h_stderr: pick(&jk_h, &est.h_se),
             d_stderr: pick(&jk_d, &est.d_se),
-            stderr_method: if n_img >= 3 {
-                "jackknife over images"
-            } else {
-                "regression"
-            }
-            .into(),
+            stderr_method,
             tau: est.tau,
             h: est.h,
             d: est.d,
@@ -662,7 +683,8 @@ pub struct Spectra {
     /// fit range (SPEC §4); NaN where a fitted scale has no line.
     pub tau: Vec<f64>,
     /// Standard error of τ(q): delete-one jackknife over images (>= 3
-    /// images), else the regression's (see `stderr_method`).
+    /// images), else the regression's; also the regression's at a q where
+    /// a leave-one-out sample has no estimate (`stderr_method` lists them).
     pub tau_stderr: Vec<f64>,
     /// R^2 of the log2 Z fits.
     pub tau_r2: Vec<f64>,
@@ -676,7 +698,9 @@ pub struct Spectra {
     /// Standard error of D(q), as `tau_stderr` (JSON `D_stderr`).
     #[serde(rename = "D_stderr")]
     pub d_stderr: Vec<f64>,
-    /// "jackknife over images" (>= 3 images) or "regression".
+    /// "jackknife over images" (>= 3 images), "regression", or
+    /// "jackknife over images; regression at q = ..." naming the q where
+    /// the jackknife had no finite value (also a warning).
     pub stderr_method: String,
     /// h = dτ/dq, D = q h - τ.
     pub legendre_h: Vec<f64>,

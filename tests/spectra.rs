@@ -739,3 +739,45 @@ fn experiment_wcascade_bias() {
         }
     }
 }
+
+/// Where a leave-one-image-out sample has no estimate (here: only image 0
+/// has lines at the top of the fit range), the jackknife has no value and
+/// the regression error stands in; `stderr_method` and a warning say so.
+#[test]
+fn regression_fallback_of_the_jackknife_is_reported() {
+    let cfg = small_cfg();
+    let q = [0.0, 1.0];
+    let mut parts = fbm_sums(0.5, 128, 3, 7, &cfg, &q);
+    let ns = parts[0].scales.len();
+    let top = ns - 1; // the default fit 0.5:3 ends at the last scale
+    for p in &mut parts[1..] {
+        let im = &mut p.images[0];
+        im.lines[top] = 0;
+        for qi in 0..q.len() {
+            for cells in [&mut im.plain, &mut im.sup] {
+                let c = &mut cells[qi * ns + top];
+                (c.e, c.z, c.zl, c.z2) = (i32::MIN, 0.0, 0.0, 0.0);
+            }
+        }
+    }
+    let sums = PartitionSums::merge_all(parts).unwrap().unwrap();
+    let s = sums.spectra(Rule::Plain, (0.5, 3.0)).unwrap();
+    assert!(s.tau.iter().all(|t| t.is_finite()), "{:?}", s.tau);
+    assert_eq!(
+        s.stderr_method,
+        "jackknife over images; regression at q = 0, 1"
+    );
+    assert!(s.tau_stderr.iter().all(|e| e.is_finite() && *e > 0.0));
+    assert!(
+        s.warnings.iter().any(|w| w.contains("leave-one-image-out")),
+        "{:?}",
+        s.warnings
+    );
+    // the untouched ensemble keeps the plain label
+    let s = PartitionSums::merge_all(fbm_sums(0.5, 128, 3, 7, &cfg, &q))
+        .unwrap()
+        .unwrap()
+        .spectra(Rule::Plain, (0.5, 3.0))
+        .unwrap();
+    assert_eq!(s.stderr_method, "jackknife over images");
+}

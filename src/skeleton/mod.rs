@@ -239,7 +239,7 @@ impl Skeleton {
 
 /// Builds the skeleton of one image with the default options (serial).
 ///
-/// **Errors** if the image is constant-free of valid pixels, smaller than
+/// **Errors** if the image has no valid pixels, is smaller than
 /// the wavelet, or a parameter is invalid. A constant image gives an empty
 /// skeleton (no error).
 pub fn skeleton(field: &Field, cfg: &AnalysisConfig) -> Result<Skeleton> {

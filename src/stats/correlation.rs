@@ -640,7 +640,12 @@ impl CorrelationPlan {
             bins_per_octave: self.cfg.bins_per_octave,
             max_dx: self.max_dx,
             periodic: self.cfg.periodic,
-            magnitude: self.cfg.magnitude,
+            // the skeleton's magnitudes are always ln M
+            magnitude: if source == "wtmmm" {
+                Magnitude::Lnm
+            } else {
+                self.cfg.magnitude
+            },
             images: vec![],
         }
     }
@@ -987,7 +992,8 @@ pub struct CorrelationSums {
     pub max_dx: f64,
     /// Lags wrapped around a torus (circular correlations).
     pub periodic: bool,
-    /// The configured magnitude (meaningful for `source = "cwt"` only).
+    /// The magnitude correlated: the configured one for `source = "cwt"`,
+    /// always ln M for `source = "wtmmm"`.
     pub magnitude: Magnitude,
     /// One partial per image, in the order added.
     pub images: Vec<CorrelationImage>,
@@ -1430,7 +1436,8 @@ pub struct PairCorrelation {
 pub struct CorrelationResult {
     /// "cwt" or "wtmmm", as [`CorrelationSums::source`].
     pub source: String,
-    /// The configured magnitude (meaningful for `source = "cwt"` only).
+    /// The magnitude correlated: the configured one for `source = "cwt"`,
+    /// always ln M for `source = "wtmmm"`.
     pub magnitude: Magnitude,
     /// Lags wrapped around a torus.
     pub periodic: bool,

@@ -635,7 +635,9 @@ pub struct KernelResult {
     pub fit_scales: (f64, f64),
     /// `c_n = -dκ_n/d ln a` over the fit range (SPEC §5; JSON `cumulants`).
     pub cumulants: FittedCumulants,
-    /// "jackknife over images" (>= 3 images) or "regression".
+    /// "jackknife over images" (>= 3 images), "regression", or
+    /// "jackknife over images; regression for c2, ..." naming the cumulants
+    /// whose leave-one-out fits were not all finite (also a warning).
     pub stderr_method: String,
     /// One `C_n(a, a')` table per reference scale (II Figs 26, 28).
     pub tables: Vec<CnTable>,
@@ -922,6 +924,30 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         warnings
             .push("fewer than 3 images: standard errors from the regression residuals only".into());
     }
+    // a cumulant whose leave-one-out fits are not all finite keeps the
+    // regression error (`est` above): said, not silent
+    let fallback: Vec<String> = (0..3)
+        .filter(|&n| {
+            n_img >= 3
+                && main[n].0.is_finite()
+                && !jk(&rep_fits.iter().map(|r| r[n].0).collect::<Vec<_>>()).is_finite()
+        })
+        .map(|n| format!("c{}", n + 1))
+        .collect();
+    let stderr_method = if n_img < 3 {
+        "regression".to_string()
+    } else if fallback.is_empty() {
+        "jackknife over images".to_string()
+    } else {
+        warnings.push(format!(
+            "{}: a leave-one-image-out fit failed, so the standard error is the regression's",
+            fallback.join(", ")
+        ));
+        format!(
+            "jackknife over images; regression for {}",
+            fallback.join(", ")
+        )
+    };
     Ok(KernelResult {
         set: s.set,
         images: n_img,
@@ -934,12 +960,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         fit_octaves: opts.fit,
         fit_scales: (s.scales[in_fit[0]], s.scales[last]),
         cumulants,
-        stderr_method: if n_img >= 3 {
-            "jackknife over images"
-        } else {
-            "regression"
-        }
-        .into(),
+        stderr_method,
         tables,
         pooled,
         kernels,

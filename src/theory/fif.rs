@@ -219,77 +219,6 @@ pub fn q_divergence(p: &FifParams) -> f64 {
     UniversalK::new(p.alpha, p.c1).q_divergence(D)
 }
 
-/// Everything the `theory` command prints for a FIF.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct FifTheory {
-    /// The FIF parameters (α, C1, H).
-    pub params: FifParams,
-    /// The q grid.
-    pub q: Vec<f64>,
-    /// `K(q)` (`null` in JSON where infinite, q < 0 with α < 2).
-    #[serde(rename = "K")]
-    pub k: Vec<f64>,
-    /// Structure-function exponent `ξ(q) = qH - K(q)` (seed 000 eq 10).
-    pub xi: Vec<f64>,
-    /// `τ(q) = ξ(q) - 2`, strictly (`-∞`, JSON `null`, for q < 0 with
-    /// α < 2; unlike [`crate::theory::Model::tau`], not truncated at `h_max`).
-    pub tau: Vec<f64>,
-    /// `h(q) = H - K'(q)` (NaN for q < 0 with α < 2).
-    pub h: Vec<f64>,
-    /// `D(h(q)) = q h(q) - τ(q)` (JSON `D`).
-    #[serde(rename = "D")]
-    pub d: Vec<f64>,
-    /// `h(q_D)`: the smallest exponent before the moments diverge.
-    pub h_min: f64,
-    /// `H - K'(0) = H + C1/(α-1)` for 1 < α < 2; `+∞` (null) for α <= 1 and α = 2.
-    pub h_max: f64,
-    /// Angle-integrated `β = 1 + 2H - K(2)`.
-    pub beta: f64,
-    /// Angle-averaged `β + 1`.
-    pub beta_averaged: f64,
-    /// Convention of `beta`.
-    pub beta_convention: String,
-    /// `q_D`: moments of order `>= q_D` of the dressed cascade diverge,
-    /// `K(q_D) = 2 (q_D - 1)` (`+∞` when C1 = 0).
-    pub q_divergence: f64,
-    /// `C1` and α restated for the `K` consumers.
-    pub alpha: f64,
-    /// `C1` (JSON `C1`).
-    #[serde(rename = "C1")]
-    pub c1: f64,
-}
-
-/// Tabulates the theory over `q`.
-pub fn theory(p: &FifParams, q: &[f64]) -> FifTheory {
-    let uk = UniversalK::new(p.alpha, p.c1);
-    let qd = uk.q_divergence(D);
-    let h_max = if p.alpha > 1.0 + ALPHA_ONE_EPS && p.alpha < 2.0 {
-        p.hurst + p.c1 / (p.alpha - 1.0)
-    } else if p.c1 == 0.0 {
-        p.hurst
-    } else {
-        f64::INFINITY
-    };
-    let h_min = if qd.is_finite() { h(p, qd) } else { p.hurst };
-    FifTheory {
-        params: *p,
-        q: q.to_vec(),
-        k: q.iter().map(|&v| k(p, v)).collect(),
-        xi: q.iter().map(|&v| xi(p, v)).collect(),
-        tau: q.iter().map(|&v| tau(p, v)).collect(),
-        h: q.iter().map(|&v| h(p, v)).collect(),
-        d: q.iter().map(|&v| big_d(p, v)).collect(),
-        h_min,
-        h_max,
-        beta: beta_integrated(p),
-        beta_averaged: beta_averaged(p),
-        beta_convention: "angle-integrated (angle-averaged = beta + 1)".into(),
-        q_divergence: qd,
-        alpha: p.alpha,
-        c1: p.c1,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -383,12 +312,5 @@ mod tests {
         assert!((qs - (2.5f64 / 0.1).sqrt()).abs() < 1e-12);
         // α = 2, K(q) = C1(q² - q) = 2(q - 1) at q_D = 2/C1
         assert!((uk.q_divergence(2.0) - 20.0).abs() < 1e-9);
-    }
-
-    #[test]
-    fn table_serialises() {
-        let t = theory(&P, &[0.0, 1.0, 2.0]);
-        let s = serde_json::to_string(&t).unwrap();
-        assert!(s.contains("\"K\"") && s.contains("\"beta\""));
     }
 }

@@ -287,7 +287,7 @@ impl Model {
         self.theory().cumulants()
     }
 
-    /// `C(Δx)` of II eq 76 (W-cascades; 0 for fBm; `None` for FISC).
+    /// `C(Δx)` of II eq 76 (W-cascades; 0 for fBm; `None` for FISC and FIF).
     pub fn magnitude_correlation(&self, dx: f64, l: f64) -> Option<f64> {
         self.theory().magnitude_correlation(dx, l)
     }

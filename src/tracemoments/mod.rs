@@ -150,7 +150,9 @@ pub struct TraceMomentConfig {
     /// How the flux φ is taken from the field (default: gradient modulus).
     pub flux: FluxKind,
     /// Fractional differentiation of the field before the modulus (module
-    /// docs, "Which flux").
+    /// docs, "Which flux"). [`Default`] is `Auto`; a stored config without
+    /// this key was written before it existed, with the plain gradient,
+    /// hence the serde default `None`.
     #[serde(default = "FluxDiff::none")]
     pub diff: FluxDiff,
     /// Order of the fractional integration applied before the flux (e.g.
