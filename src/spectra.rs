@@ -442,23 +442,9 @@ impl PartitionSums {
                     && est.tau[qi].is_finite()
                     && !(jk_tau[qi].is_finite() && jk_h[qi].is_finite() && jk_d[qi].is_finite())
             })
-            .map(|qi| self.q[qi].to_string())
+            .map(|qi| format!("q = {}", self.q[qi]))
             .collect();
-        let stderr_method = if n_img < 3 {
-            "regression".to_string()
-        } else if fallback.is_empty() {
-            "jackknife over images".to_string()
-        } else {
-            warnings.push(format!(
-                "q = {}: a leave-one-image-out sample has no estimate, so the standard error is \
-                 the regression's",
-                fallback.join(", ")
-            ));
-            format!(
-                "jackknife over images; regression at q = {}",
-                fallback.join(", ")
-            )
-        };
+        let stderr_method = crate::stats::fit::stderr_method(n_img, &fallback, &mut warnings);
         let cell = |v: &Vec<f64>| -> Vec<Vec<f64>> {
             (0..nq)
                 .map(|qi| v[qi * ns..(qi + 1) * ns].to_vec())
@@ -699,7 +685,7 @@ pub struct Spectra {
     #[serde(rename = "D_stderr")]
     pub d_stderr: Vec<f64>,
     /// "jackknife over images" (>= 3 images), "regression", or
-    /// "jackknife over images; regression at q = ..." naming the q where
+    /// "jackknife over images; regression for q = ..." naming the q where
     /// the jackknife had no finite value (also a warning).
     pub stderr_method: String,
     /// h = dτ/dq, D = q h - τ.

@@ -765,7 +765,7 @@ fn regression_fallback_of_the_jackknife_is_reported() {
     assert!(s.tau.iter().all(|t| t.is_finite()), "{:?}", s.tau);
     assert_eq!(
         s.stderr_method,
-        "jackknife over images; regression at q = 0, 1"
+        "jackknife over images; regression for q = 0, q = 1"
     );
     assert!(s.tau_stderr.iter().all(|e| e.is_finite() && *e > 0.0));
     assert!(

@@ -31,6 +31,26 @@ pub fn jackknife_se(v: &[f64]) -> f64 {
     ((n - 1.0) / n * v.iter().map(|x| (x - m) * (x - m)).sum::<f64>()).sqrt()
 }
 
+/// The `stderr_method` label of an ensemble estimate: "regression" with
+/// fewer than 3 images, else "jackknife over images", naming the entries
+/// in `fallback` (e.g. `q = 0, 1`, or `c2`) that kept the regression error
+/// because a leave-one-out estimate was not finite; that case also adds a
+/// warning, so the substitution is never silent.
+pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<String>) -> String {
+    if n_img < 3 {
+        return "regression".into();
+    }
+    if fallback.is_empty() {
+        return "jackknife over images".into();
+    }
+    let list = fallback.join(", ");
+    warnings.push(format!(
+        "{list}: a leave-one-image-out estimate is not finite, so the standard error is the \
+         regression's"
+    ));
+    format!("jackknife over images; regression for {list}")
+}
+
 /// Least-squares fit over the points where both `x` and `y` are finite.
 /// Returns `None` with fewer than 2 usable points or when all `x` coincide.
 pub fn line_fit(x: &[f64], y: &[f64]) -> Option<LineFit> {

@@ -934,20 +934,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         })
         .map(|n| format!("c{}", n + 1))
         .collect();
-    let stderr_method = if n_img < 3 {
-        "regression".to_string()
-    } else if fallback.is_empty() {
-        "jackknife over images".to_string()
-    } else {
-        warnings.push(format!(
-            "{}: a leave-one-image-out fit failed, so the standard error is the regression's",
-            fallback.join(", ")
-        ));
-        format!(
-            "jackknife over images; regression for {}",
-            fallback.join(", ")
-        )
-    };
+    let stderr_method = crate::stats::fit::stderr_method(n_img, &fallback, &mut warnings);
     Ok(KernelResult {
         set: s.set,
         images: n_img,
