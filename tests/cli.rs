@@ -425,6 +425,18 @@ fn fbm_npy(dir: &Path, name: &str, n: usize, seed: u64) -> String {
     p.display().to_string()
 }
 
+/// An fBm of `n x n` (H = 0.4) with the rectangle `ys x xs` missing (NaN).
+fn fbm_with_hole(
+    n: usize,
+    seed: u64,
+    ys: std::ops::Range<usize>,
+    xs: std::ops::Range<usize>,
+) -> Array2<f64> {
+    let mut f = fbm(FbmParams { hurst: 0.4 }, n, n, seed, 0).unwrap();
+    f.slice_mut(ndarray::s![ys, xs]).fill(f64::NAN);
+    f
+}
+
 /// A missing image at the end of the list fails at once, before the others
 /// are analysed, and the output directory it would have created is gone.
 #[test]
@@ -588,12 +600,7 @@ fn correlate_refuses_mixed_sizes() {
 #[test]
 fn cwt_is_nan_where_the_wavelet_reaches_missing_pixels() {
     let dir = scratch("cwt");
-    let mut img = fbm(FbmParams { hurst: 0.4 }, 128, 128, 6, 0).unwrap();
-    for y in 0..128 {
-        for x in 0..30 {
-            img[[y, x]] = f64::NAN;
-        }
-    }
+    let img = fbm_with_hole(128, 6, 0..128, 0..30);
     let p = dir.join("half.npy");
     write_npy(&p, &img).unwrap();
     let o = dir.join("o");
@@ -1235,12 +1242,7 @@ fn every_command_writes_the_spec_keys() {
 #[test]
 fn missing_pixels_are_counted_and_reported() {
     let dir = scratch("holes");
-    let mut f = fbm(FbmParams { hurst: 0.4 }, 192, 192, 31, 0).unwrap();
-    for y in 90..100 {
-        for x in 90..100 {
-            f[[y, x]] = f64::NAN;
-        }
-    }
+    let mut f = fbm_with_hole(192, 31, 90..100, 90..100);
     f[[10, 10]] = f64::INFINITY;
     let p = dir.join("holes.npy");
     write_npy(&p, &f).unwrap();
