@@ -58,6 +58,10 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// Optional symmetric error bar per point (same length as `points`).
     pub y_err: Option<Vec<f64>>,
+    /// Optional symmetric horizontal error bar per point (same length as
+    /// `points`), for estimates whose abscissa is itself estimated (the
+    /// canonical h(q) of a D(h) plot).
+    pub x_err: Option<Vec<f64>>,
     /// How the series is drawn.
     pub style: Style,
     /// Index into the palette.
@@ -76,6 +80,7 @@ impl Series {
             name: name.into(),
             points,
             y_err: None,
+            x_err: None,
             style,
             color,
         }
@@ -85,6 +90,30 @@ impl Series {
     pub fn with_errors(mut self, err: Vec<f64>) -> Self {
         self.y_err = Some(err);
         self
+    }
+
+    /// The same series with horizontal error bars `err` (one per point).
+    pub fn with_x_errors(mut self, err: Vec<f64>) -> Self {
+        self.x_err = Some(err);
+        self
+    }
+
+    /// The finite error bars of the series as segments in data
+    /// coordinates: vertical ones from `y_err`, horizontal from `x_err`.
+    fn error_bars(&self) -> Vec<((f64, f64), (f64, f64))> {
+        let mut out = Vec::new();
+        for (i, &(x, y)) in self.points.iter().enumerate() {
+            if !(x.is_finite() && y.is_finite()) {
+                continue;
+            }
+            if let Some(d) = self.y_err.as_ref().map(|e| e[i]).filter(|d| d.is_finite()) {
+                out.push(((x, y - d), (x, y + d)));
+            }
+            if let Some(d) = self.x_err.as_ref().map(|e| e[i]).filter(|d| d.is_finite()) {
+                out.push(((x - d, y), (x + d, y)));
+            }
+        }
+        out
     }
 
     /// The points with both coordinates finite (the ones drawn).
@@ -179,10 +208,13 @@ fn data_range(chart: &Chart) -> ((f64, f64), (f64, f64)) {
             if !(x.is_finite() && y.is_finite()) {
                 continue;
             }
-            let e = s.y_err.as_ref().map_or(0.0, |e| e[i].abs());
-            let e = if e.is_finite() { e } else { 0.0 };
-            xs = (xs.0.min(x), xs.1.max(x));
-            ys = (ys.0.min(y - e), ys.1.max(y + e));
+            let bar = |err: &Option<Vec<f64>>| {
+                let e = err.as_ref().map_or(0.0, |e| e[i].abs());
+                if e.is_finite() { e } else { 0.0 }
+            };
+            let (ex, ey) = (bar(&s.x_err), bar(&s.y_err));
+            xs = (xs.0.min(x - ex), xs.1.max(x + ex));
+            ys = (ys.0.min(y - ey), ys.1.max(y + ey));
         }
     }
     let pad = |r: (f64, f64)| {
@@ -318,12 +350,8 @@ fn ink<DB: DrawingBackend>(ctx: &Ctx<DB>, chart: &Chart) -> Vec<(f64, f64)> {
             }
         }
         out.extend_from_slice(&pts);
-        if let Some(err) = &s.y_err {
-            for (&(x, y), &d) in s.points.iter().zip(err) {
-                if x.is_finite() && y.is_finite() && d.is_finite() {
-                    segment((x, y - d), (x, y + d), &mut out);
-                }
-            }
+        for (a, b) in s.error_bars() {
+            segment(a, b, &mut out);
         }
     }
     out
@@ -552,17 +580,11 @@ where
             ctx.draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
                 .map_err(|x| e(&x))?;
         }
-        if let Some(err) = &s.y_err {
-            let bars = s
-                .points
-                .iter()
-                .zip(err)
-                .filter(|&(&(x, y), &d)| x.is_finite() && y.is_finite() && d.is_finite())
-                .map(|(&(x, y), &d)| {
-                    PathElement::new(vec![(x, y - d), (x, y + d)], c.stroke_width(1))
-                });
-            ctx.draw_series(bars).map_err(|x| e(&x))?;
-        }
+        let bars = s
+            .error_bars()
+            .into_iter()
+            .map(|(a, b)| PathElement::new(vec![a, b], c.stroke_width(1)));
+        ctx.draw_series(bars).map_err(|x| e(&x))?;
     }
     if let Some(pos) = plan.legend {
         let (xs, ys) = ctx.plotting_area().get_pixel_range();
@@ -1221,6 +1243,42 @@ mod tests {
         c.y_range = Some((0.0, 1.0));
         let p = plan_of(&c);
         assert_eq!((p.legend, p.y), (Some(LegendPos::OutsideRight), (0.0, 1.0)));
+    }
+
+    #[test]
+    fn error_bars_in_both_directions_set_the_range() {
+        // a cross of half-width 0.25 around the middle: the automatic range
+        // covers the bars; non-finite bars and points draw nothing
+        let s = Series::new(
+            "estimate",
+            vec![(0.5, 0.5), (f64::NAN, 0.5), (0.7, 0.2)],
+            Style::Markers,
+            0,
+        )
+        .with_errors(vec![0.25, 1.0, f64::INFINITY])
+        .with_x_errors(vec![0.25, 1.0, f64::NAN]);
+        assert_eq!(
+            s.error_bars(),
+            vec![((0.5, 0.25), (0.5, 0.75)), ((0.25, 0.5), (0.75, 0.5))]
+        );
+        let mut c = unit_chart(vec![s]);
+        c.x_range = None;
+        c.y_range = None;
+        let (x, y) = data_range(&c);
+        assert!(x.0 < 0.25 && x.1 > 0.75, "{x:?}");
+        assert!(y.0 < 0.2 && y.1 > 0.75, "{y:?}");
+        // without the bars the range is that of the two finite points
+        let mut bare = unit_chart(vec![Series::new(
+            "estimate",
+            vec![(0.5, 0.5), (0.7, 0.2)],
+            Style::Markers,
+            0,
+        )]);
+        bare.x_range = None;
+        bare.y_range = None;
+        let (bx, _) = data_range(&bare);
+        assert!(bx.0 > 0.4 && bx.1 < 0.8, "{bx:?}");
+        assert!(x.0 < bx.0 - 0.1, "the horizontal bar widens the range");
     }
 
     #[test]

@@ -478,12 +478,17 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
         y_label: "D(h)".into(),
         ..Default::default()
     };
-    dc.series.push(Series::new(
-        "canonical h(q), D(q)",
-        s.h.iter().cloned().zip(s.d.iter().cloned()).collect(),
-        Style::Markers,
-        0,
-    ));
+    // both coordinates are estimates: jackknife errors of h(q) and D(q)
+    dc.series.push(
+        Series::new(
+            "canonical h(q), D(q)",
+            s.h.iter().cloned().zip(s.d.iter().cloned()).collect(),
+            Style::Markers,
+            0,
+        )
+        .with_errors(s.d_stderr.clone())
+        .with_x_errors(s.h_stderr.clone()),
+    );
     dc.series.push(Series::new(
         "Legendre of tau(q)",
         s.legendre_h
