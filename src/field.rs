@@ -97,9 +97,47 @@ impl Field {
         Ok(out)
     }
 
+    /// [`amplitude_problem`] of the valid pixels.
+    pub fn amplitude_problem(&self) -> Option<String> {
+        amplitude_problem(self.data.iter())
+    }
+
     /// Min and max over valid pixels, `None` if every pixel is masked.
     pub fn range(&self) -> Option<(f64, f64)> {
         finite_range(self.data.iter())
+    }
+}
+
+/// Largest magnitude of a value, and smallest non-zero spread (max - min),
+/// that the transforms accept. The moduli are `sqrt(T1^2 + T2^2)` and the
+/// power spectrum sums `|f̂|^2` with `f̂` up to `N^2` times the values: at
+/// 1e100 (or a spread of 1e-100) and beyond, squares overflow (underflow)
+/// for any image a machine holds. The exponents do not depend on a
+/// constant factor, so such data only need rescaling.
+pub const AMPLITUDE_LIMIT: f64 = 1e100;
+
+/// Why finite `values` cannot be transformed in f64 (see
+/// [`AMPLITUDE_LIMIT`]), or `None`. A constant field passes (the commands
+/// report it as constant).
+pub fn amplitude_problem<'a>(values: impl IntoIterator<Item = &'a f64>) -> Option<String> {
+    let (lo, hi) = finite_range(values)?;
+    let big = lo.abs().max(hi.abs());
+    let spread = hi - lo;
+    if big > AMPLITUDE_LIMIT || spread > AMPLITUDE_LIMIT {
+        Some(format!(
+            "values up to {big:.3e} in magnitude (range {lo:.3e} to {hi:.3e}): beyond \
+             {AMPLITUDE_LIMIT:.0e} the squared wavelet moduli and spectra overflow; rescale \
+             the image (a constant factor leaves every exponent unchanged)"
+        ))
+    } else if spread > 0.0 && spread < 1.0 / AMPLITUDE_LIMIT {
+        Some(format!(
+            "values vary by only {spread:.3e} (range {lo:.3e} to {hi:.3e}): below {:.0e} the \
+             squared wavelet moduli and spectra underflow; rescale the image (a constant \
+             factor leaves every exponent unchanged)",
+            1.0 / AMPLITUDE_LIMIT
+        ))
+    } else {
+        None
     }
 }
 
@@ -108,4 +146,28 @@ pub fn finite_range<'a>(values: impl IntoIterator<Item = &'a f64>) -> Option<(f6
     let mut it = values.into_iter().filter(|v| v.is_finite());
     let first = *it.next()?;
     Some(it.fold((first, first), |(lo, hi), &v| (lo.min(v), hi.max(v))))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn amplitudes_beyond_the_squares_of_f64_are_named() {
+        let v = [1.0, -2.0, 3.5];
+        assert_eq!(amplitude_problem(&v), None);
+        // a constant is left to the commands' own message
+        assert_eq!(amplitude_problem(&[7.0, 7.0]), None);
+        assert_eq!(amplitude_problem(&[f64::NAN]), None);
+        let big = amplitude_problem(&[0.0, 2e100]).unwrap();
+        assert!(
+            big.contains("2.000e100") && big.contains("overflow"),
+            "{big}"
+        );
+        let tiny = amplitude_problem(&[1e-160, 3e-160]).unwrap();
+        assert!(tiny.contains("underflow"), "{tiny}");
+        // large but far from overflow, and a large offset with a sane spread
+        assert_eq!(amplitude_problem(&[0.0, 1e90]), None);
+        assert_eq!(amplitude_problem(&[1e50, 1e50 + 1e40]), None);
+    }
 }

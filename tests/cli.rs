@@ -1287,3 +1287,120 @@ fn missing_pixels_are_counted_and_reported() {
         tm["warnings"]
     );
 }
+
+/// Inputs that used to panic, write inf or zeros, or be silently bent into
+/// something else (a hostile-input audit): each exits 2 and writes nothing.
+/// * values beyond f64's squares (1e150, or varying by 1e-160: the exponents
+///   do not depend on a constant factor, so the fix is the user's rescaling);
+/// * non-finite or absurd list values (`--q=0:nan:1`, |q| > 1000);
+/// * scales the pixel grid cannot resolve (below 1/pi px for gauss), and a
+///   flood of scales for `cwt`;
+/// * a constant image for `cwt`; skeleton scales off the grid or two on one
+///   grid scale; a NaN `--theory-beta`; a `--summary-q` holding no q;
+/// * the same file twice through a hard link;
+/// * a PNG sidecar of another shape (a stale sidecar beside a new PNG).
+#[test]
+fn hostile_inputs_are_refused_and_nothing_is_written() {
+    let dir = scratch("hostile");
+    let f = fbm(FbmParams { hurst: 0.4 }, 64, 64, 3, 0).unwrap();
+    let save = |name: &str, a: &Array2<f64>| {
+        let p = dir.join(name);
+        write_npy(&p, a).unwrap();
+        p.display().to_string()
+    };
+    let ok = save("ok.npy", &f);
+    let big = save("big.npy", &f.mapv(|v| v * 1e150));
+    let tiny = save("tiny.npy", &f.mapv(|v| v * 1e-160));
+    let flat = save("flat.npy", &Array2::from_elem((64, 64), 3.0));
+    let hard = dir.join("hard.npy");
+    std::fs::hard_link(&ok, &hard).unwrap();
+    let hard = hard.display().to_string();
+    let png = dir.join("img.png");
+    wtmm::io::write_png16(&png, &f).unwrap();
+    let side = dir.join("img.json");
+    let mut sc = json(&side);
+    sc["shape"] = serde_json::json!([32, 64]);
+    std::fs::write(&side, sc.to_string()).unwrap();
+    let png = png.display().to_string();
+    let o = dir.join("o");
+    let out = o.display().to_string();
+    fn an(img: &str) -> Vec<&str> {
+        vec!["analyze", img, "--octaves", "2", "--margin", "0"]
+    }
+    let cases: Vec<Vec<&str>> = vec![
+        [an(&big), vec!["--out", &out]].concat(),
+        [an(&tiny), vec!["--out", &out]].concat(),
+        vec!["spectrum", &big, "--k-range", "0.3:1", "--out", &out],
+        vec!["cwt", &big, "--scales", "2", "--out", &out],
+        vec!["tm", &big, "--out", &out],
+        [an(&ok), vec!["--q=0:nan:1", "--out", &out]].concat(),
+        [an(&ok), vec!["--q=1e308", "--out", &out]].concat(),
+        vec![
+            "theory",
+            "--preset",
+            "paper-lognormal",
+            "--q=-2000,1",
+            "--out",
+            &out,
+        ],
+        [an(&ok), vec!["--a-min", "0.1", "--out", &out]].concat(),
+        vec!["cwt", &ok, "--scales", "0.1", "--out", &out],
+        vec!["cwt", &ok, "--scales", "1:3:0.001", "--out", &out],
+        vec!["cwt", &flat, "--scales", "2", "--out", &out],
+        vec![
+            "skeleton",
+            &ok,
+            "--octaves",
+            "2",
+            "--margin",
+            "0",
+            "--scales",
+            "1000",
+            "--out",
+            &out,
+        ],
+        vec![
+            "skeleton",
+            &ok,
+            "--octaves",
+            "2",
+            "--margin",
+            "0",
+            "--scales",
+            "3,3.05",
+            "--out",
+            &out,
+        ],
+        vec!["spectrum", &ok, "--theory-beta", "nan", "--out", &out],
+        vec![
+            "compare",
+            "--preset",
+            "paper-lognormal",
+            "--size",
+            "64",
+            "--count",
+            "2",
+            "--octaves",
+            "2",
+            "--groups",
+            "2",
+            "--summary-q",
+            "50:60",
+            "--out",
+            &out,
+        ],
+        [an(&ok), vec![&hard, "--out", &out]].concat(),
+        [an(&png), vec!["--out", &out]].concat(),
+    ];
+    for args in &cases {
+        assert_eq!(run(args), 2, "{args:?}");
+        assert!(!o.exists(), "{args:?} left {}", o.display());
+    }
+    // the same image at a sane amplitude runs, and its sidecar with the
+    // right shape is accepted
+    assert_eq!(run(&[an(&ok), vec!["--out", &out]].concat()), 0);
+    sc["shape"] = serde_json::json!([64, 64]);
+    std::fs::write(&side, sc.to_string()).unwrap();
+    let o2 = dir.join("o2").display().to_string();
+    assert_eq!(run(&[an(&png), vec!["--out", &o2]].concat()), 0);
+}

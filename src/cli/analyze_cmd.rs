@@ -7,7 +7,7 @@ use clap::Args;
 use rayon::prelude::*;
 use serde_json::json;
 
-use super::common::{f, header, make_out_dir, parse_list, parse_range, progress, write_csv};
+use super::common::{f, header, make_out_dir, parse_q, parse_range, progress, write_csv};
 use super::model_args::{ModelName, ModelOpts};
 use super::{CwtOpts, OutDir, Outcome};
 use crate::cwt::Wavelet;
@@ -138,7 +138,7 @@ impl SpectraOpts {
     }
 
     pub fn q(&self) -> Result<Vec<f64>> {
-        parse_list("q", &self.q)
+        parse_q("q", &self.q)
     }
 
     pub fn fit(&self) -> Result<(f64, f64)> {

@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::field::Field;
-use crate::io::{read_field, write_atomic};
+use crate::io::{read_field_with_info, write_atomic};
 
 /// Parses `start:stop:step` (inclusive) or `a,b,c`, returned ascending;
 /// a value given twice is an error.
@@ -21,6 +21,9 @@ pub fn parse_list(flag: &str, s: &str) -> Result<Vec<f64>> {
         1 => s.split(',').map(num).collect::<Result<Vec<f64>>>()?,
         3 => {
             let (a, b, st) = (num(parts[0])?, num(parts[1])?, num(parts[2])?);
+            if ![a, b, st].iter().all(|v| v.is_finite()) {
+                return Err(bad("start, stop and step must be finite"));
+            }
             if !(st > 0.0) || b < a {
                 return Err(bad("need start <= stop and step > 0"));
             }
@@ -41,6 +44,24 @@ pub fn parse_list(flag: &str, s: &str) -> Result<Vec<f64>> {
     v.sort_by(f64::total_cmp);
     if let Some(w) = v.windows(2).find(|w| w[1] - w[0] < 1e-9) {
         return Err(bad(&format!("{} is given twice", w[0])));
+    }
+    Ok(v)
+}
+
+/// Largest |q| a moment order may have. `q log2 M` with `|log2 M|` up to
+/// ~1000 stays far inside f64 for any |q| below it, and no ensemble of
+/// images resolves moments anywhere near it (the spectra warn from
+/// |q| ~ 5-10 on 32 images of 1024^2); larger values only overflow.
+pub const Q_LIMIT: f64 = 1000.0;
+
+/// [`parse_list`] for moment orders: |q| <= [`Q_LIMIT`].
+pub fn parse_q(flag: &str, s: &str) -> Result<Vec<f64>> {
+    let v = parse_list(flag, s)?;
+    if let Some(q) = v.iter().find(|q| q.abs() > Q_LIMIT) {
+        return Err(Error::param(
+            flag,
+            format!("`{s}`: {q} is beyond |q| = {Q_LIMIT} (moments that far only overflow)"),
+        ));
     }
     Ok(v)
 }
@@ -68,18 +89,35 @@ pub fn read_all(paths: &[PathBuf]) -> Result<Vec<Field>> {
     paths.iter().map(|p| read_image(p)).collect()
 }
 
-/// An image for analysis: [`read_field`], and an error naming the file when
-/// every pixel is missing (the library accepts such a field; no command
-/// can use it).
+/// An image for analysis: [`read_field_with_info`], its warnings (a colour
+/// image converted to luminance, an unreadable nodata tag, pages or bytes
+/// not read) said on stderr with the file's name, and an error naming the
+/// file when every pixel is missing (the library accepts such a field; no
+/// command can use it) or the values are beyond f64's squares.
 pub fn read_image(path: &Path) -> Result<Field> {
-    let field = read_field(path)?;
+    let (field, info) = read_field_with_info(path)?;
+    for w in &info.warnings {
+        say!("warning: {}: {w}", path.display());
+    }
     if field.valid_count() == 0 {
         return Err(Error::format(
             path,
             "every pixel is missing (NaN or nodata)",
         ));
     }
+    if let Some(why) = field.amplitude_problem() {
+        return Err(Error::format(path, why));
+    }
     Ok(field)
+}
+
+/// An error naming `path` when every valid pixel of `field` has the same
+/// value (`what` says what that makes zero).
+pub fn refuse_constant(field: &Field, path: &Path, what: &str) -> Result<()> {
+    match field.range() {
+        Some((lo, hi)) if lo == hi => Err(Error::format(path, format!("constant image: {what}"))),
+        _ => Ok(()),
+    }
 }
 
 /// Creates the output directory (and parents), noting the ones it created
@@ -189,9 +227,18 @@ mod tests {
             "nan",
             "",
             "0:1e9:1e-9",
+            "0:nan:1",
+            "nan:1:1",
+            "0:inf:1",
+            "0:1:nan",
         ] {
             let e = parse_list("q", bad).unwrap_err().to_string();
             assert!(e.contains("--q") || e.contains("q"), "{bad}: {e}");
+        }
+        assert_eq!(parse_q("q", "-1000,1000").unwrap(), vec![-1000.0, 1000.0]);
+        for bad in ["1e308", "-1001", "0:2000:1000"] {
+            let e = parse_q("q", bad).unwrap_err().to_string();
+            assert!(e.contains("beyond |q| = 1000"), "{bad}: {e}");
         }
         assert!(
             parse_list("q", "0,1,1")

@@ -238,6 +238,18 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         ));
     }
     let summary_q = parse_range("summary-q", &args.summary_q)?;
+    if !q.iter().any(|&v| v >= summary_q.0 && v <= summary_q.1) {
+        return Err(Error::param(
+            "summary-q",
+            format!(
+                "{}:{} holds none of the q of --q ({} to {})",
+                summary_q.0,
+                summary_q.1,
+                q[0],
+                q[q.len() - 1]
+            ),
+        ));
+    }
     // trace moments on a fine grid (for the universal fit) plus the q >= 0 of --q
     let mut tm_q = TraceMomentConfig::default().q;
     tm_q.extend(q.iter().copied().filter(|&v| v >= 0.0));

@@ -12,6 +12,9 @@ use crate::error::{Error, Result};
 use crate::io::write_npy;
 use crate::plot::{ColorBar, Raster, RasterChart, save_raster_chart};
 
+/// Most scales one `cwt` run writes (the analysis grid has 50).
+const MAX_SCALES: usize = 1000;
+
 #[derive(Args, Debug)]
 pub struct CwtArgs {
     /// Input image.
@@ -27,7 +30,17 @@ pub struct CwtArgs {
 
 pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     let field = super::common::read_image(&args.image)?;
+    super::common::refuse_constant(&field, &args.image, "its wavelet transform is zero")?;
     let scales = parse_list("scales", &args.scales)?;
+    if scales.len() > MAX_SCALES {
+        return Err(Error::param(
+            "scales",
+            format!(
+                "{} scales: at most {MAX_SCALES} (each writes two full-size arrays and a picture)",
+                scales.len()
+            ),
+        ));
+    }
     let (ny, nx) = field.dim();
     let plan = CwtPlan::new(ny, nx, args.wavelet, &scales)
         .map_err(|e| crate::Error::format(&args.image, e.to_string()))?;

@@ -169,16 +169,31 @@ fn io_of(cmd: &Command) -> (Vec<&Path>, bool, Option<&Path>) {
     }
 }
 
+/// What makes two paths the same file: device and inode on Unix (hard
+/// links, symlinks and `..` alike), else the canonical path.
+fn file_identity(p: &Path) -> Option<(u64, u64, PathBuf)> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        let m = std::fs::metadata(p).ok()?;
+        Some((m.dev(), m.ino(), PathBuf::new()))
+    }
+    #[cfg(not(unix))]
+    {
+        std::fs::canonicalize(p).ok().map(|c| (0, 0, c))
+    }
+}
+
 /// Checks every input before computing (a missing file at the end of a
 /// 32-image ensemble used to surface after the whole analysis): it must be a
 /// readable regular file, and an image must have a known extension.
 fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
     // an ensemble counts each image once: a repeated file would pass for an
     // independent sample and shrink the jackknife errors
-    let mut seen: std::collections::HashMap<PathBuf, &Path> = Default::default();
+    let mut seen: std::collections::HashMap<(u64, u64, PathBuf), &Path> = Default::default();
     for &p in paths {
-        if let Ok(c) = std::fs::canonicalize(p)
-            && let Some(first) = seen.insert(c, p)
+        if let Some(key) = file_identity(p)
+            && let Some(first) = seen.insert(key, p)
         {
             return Err(Error::Input(format!(
                 "{} and {} are the same file: give each input once",
@@ -251,12 +266,77 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
             return Err(e);
         }
     };
+    // files already there (synth says which of its own are left over)
+    let before = match (&out, &cli.command) {
+        (Some(dir), c) if !matches!(c, Command::Synth(_)) => files_under(dir),
+        _ => Vec::new(),
+    };
     let r = run_command(cli).and_then(|o| {
-        batch.map(|b| b.commit()).transpose()?;
+        let written = batch.map(|b| b.commit_files()).transpose()?;
+        if let (Some(dir), Some(written)) = (&out, written) {
+            warn_stale(dir, &before, &written);
+        }
         Ok(o)
     });
     release_created(out.as_deref(), r.is_err());
     r
+}
+
+/// Most files [`files_under`] lists (an --out pointed at a large tree is
+/// not walked whole).
+const STALE_SCAN: usize = 10_000;
+
+/// The files under `dir`, recursively (at most [`STALE_SCAN`]).
+fn files_under(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        let Ok(rd) = std::fs::read_dir(&d) else {
+            continue;
+        };
+        for e in rd.flatten() {
+            let Ok(t) = e.file_type() else { continue };
+            if t.is_dir() {
+                stack.push(e.path());
+            } else if !e.file_name().to_string_lossy().starts_with(".wtmm-") {
+                out.push(e.path());
+            }
+            if out.len() >= STALE_SCAN {
+                return out;
+            }
+        }
+    }
+    out
+}
+
+/// Warns when the output directory still holds files of an earlier run
+/// that this command did not rewrite (they would pass for its results).
+fn warn_stale(dir: &Path, before: &[PathBuf], written: &[PathBuf]) {
+    let written: std::collections::HashSet<&Path> = written.iter().map(PathBuf::as_path).collect();
+    let stale: Vec<&PathBuf> = before
+        .iter()
+        .filter(|p| !written.contains(p.as_path()))
+        .collect();
+    if stale.is_empty() {
+        return;
+    }
+    let show: Vec<String> = stale
+        .iter()
+        .take(4)
+        .map(|p| p.strip_prefix(dir).unwrap_or(p).display().to_string())
+        .collect();
+    say!(
+        "warning: {} holds {} older file(s) this command did not write ({}{}): they are not \
+         results of this run; remove them or use a fresh --out",
+        dir.display(),
+        stale.len(),
+        show.join(", "),
+        if stale.len() > show.len() {
+            ", ..."
+        } else {
+            ""
+        }
+    );
 }
 
 fn run_command(cli: Cli) -> Result<Outcome> {

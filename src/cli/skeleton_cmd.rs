@@ -21,7 +21,7 @@ pub struct SkeletonArgs {
     pub image: PathBuf,
     #[command(flatten)]
     pub opts: LineOpts,
-    /// Scales (px) to draw, nearest grid scale each: `a,b,c` (default: 1, 2 and 3 octaves above a_min).
+    /// Scales (px) to draw, each within half a voice of a grid scale: `a,b,c` (default: 1, 2 and 3 octaves above a_min, those within --octaves).
     #[arg(long)]
     pub scales: Option<String>,
     #[command(flatten)]
@@ -34,22 +34,49 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     let grid = cfg.scale_list();
     let want: Vec<f64> = match &args.scales {
         Some(s) => parse_list("scales", s)?,
-        None => vec![2.0 * cfg.a_min, 4.0 * cfg.a_min, 8.0 * cfg.a_min],
+        None => {
+            // 1, 2, 3 octaves above a_min, those the grid holds (else its top)
+            let top = grid[grid.len() - 1];
+            let v: Vec<f64> = [2.0, 4.0, 8.0]
+                .iter()
+                .map(|k| k * cfg.a_min)
+                .filter(|&a| a <= top * (1.0 + 1e-9))
+                .collect();
+            if v.is_empty() { vec![top] } else { v }
+        }
     };
-    let mut draw: Vec<usize> = want
-        .iter()
-        .map(|&a| {
-            (0..grid.len())
-                .min_by(|&i, &j| {
-                    (grid[i].ln() - a.ln())
-                        .abs()
-                        .total_cmp(&(grid[j].ln() - a.ln()).abs())
-                })
-                .expect("non-empty grid")
-        })
-        .collect();
+    // nearest grid scale of each, which must be within half a voice (a
+    // scale off the grid is not drawn silently at the grid's end) and
+    // distinct from the others'
+    let half_voice = 0.5 / cfg.voices as f64 + 1e-9;
+    let mut draw: Vec<usize> = Vec::with_capacity(want.len());
+    for &a in &want {
+        let nearest = |i: usize| (grid[i].log2() - a.log2()).abs();
+        let j = (0..grid.len())
+            .min_by(|&i, &k| nearest(i).total_cmp(&nearest(k)))
+            .expect("non-empty grid");
+        if !(a > 0.0) || nearest(j) > half_voice {
+            return Err(Error::param(
+                "scales",
+                format!(
+                    "{a} px is not on the analysis grid {:.3}-{:.3} px (within half a voice)",
+                    grid[0],
+                    grid[grid.len() - 1]
+                ),
+            ));
+        }
+        if draw.contains(&j) {
+            return Err(Error::param(
+                "scales",
+                format!(
+                    "{a} px is the grid scale {:.3} px of another value",
+                    grid[j]
+                ),
+            ));
+        }
+        draw.push(j);
+    }
     draw.sort_unstable();
-    draw.dedup();
     let all: Vec<usize> = (0..grid.len()).collect();
     let sk = skeleton_with(&field, &cfg, Parallelism::Scales, &all)
         .map_err(|e| Error::format(&args.image, e.to_string()))?;
@@ -169,7 +196,8 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     }
     let mut body = header(
         "skeleton",
-        json!({"image": args.image, "analysis": super::common::analysis_json(&cfg)}),
+        json!({"image": args.image, "analysis": super::common::analysis_json(&cfg),
+            "scales_requested": want}),
     );
     body["shape"] = json!([ny, nx]);
     body["margin"] = json!(sk.margin);

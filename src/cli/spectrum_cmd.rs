@@ -45,6 +45,14 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     if args.bins_per_octave == 0 {
         return Err(crate::Error::param("bins-per-octave", "must be >= 1"));
     }
+    if let Some(b) = args.theory_beta
+        && !b.is_finite()
+    {
+        return Err(crate::Error::param(
+            "theory-beta",
+            format!("{b}: must be finite"),
+        ));
+    }
     let k_range = args
         .k_range
         .as_deref()
@@ -61,14 +69,7 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     }
     let fields = read_all(&args.images)?;
     for (fl, p) in fields.iter().zip(&args.images) {
-        if let Some((lo, hi)) = fl.range()
-            && lo == hi
-        {
-            return Err(crate::Error::format(
-                p,
-                "constant image: its spectrum is zero",
-            ));
-        }
+        super::common::refuse_constant(fl, p, "its spectrum is zero")?;
     }
     let cfg = PowerSpectrumConfig {
         window: args.window,

@@ -7,7 +7,7 @@ use clap::Args;
 use serde_json::json;
 
 use super::Outcome;
-use super::common::{header, make_out_dir, parse_list, write_json};
+use super::common::{header, make_out_dir, parse_q, write_json};
 use super::model_args::{ModelName, ModelOpts};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
@@ -29,7 +29,7 @@ pub struct TheoryArgs {
 
 pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
     let r = args.model_opts.resolve(args.model)?;
-    let q = parse_list("q", &args.q)?;
+    let q = parse_q("q", &args.q)?;
     let t = TheoryTable::new(&r.model, &q);
     let mut body = header(
         "theory",

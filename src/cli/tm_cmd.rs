@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::{
-    f, header, make_out_dir, parse_list, parse_range, progress, write_csv, write_json,
+    f, header, make_out_dir, parse_list, parse_q, parse_range, progress, write_csv, write_json,
 };
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
@@ -111,8 +111,8 @@ impl TmOpts {
                 Some(s) => parse_list("eta", s)?,
                 None => d.eta,
             },
-            dtm_q: parse_list("dtm-q", &self.dtm_q)?,
-            sf_q: parse_list("sf-q", &self.sf_q)?,
+            dtm_q: parse_q("dtm-q", &self.dtm_q)?,
+            sf_q: parse_q("sf-q", &self.sf_q)?,
             spectrum: {
                 let s = PowerSpectrumConfig::for_field(periodic);
                 PowerSpectrumConfig {
@@ -181,7 +181,7 @@ pub struct TmArgs {
 }
 
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
-    let q = parse_list("q", &args.q)?;
+    let q = parse_q("q", &args.q)?;
     let cfg = args.tm.config(q, false)?;
     let mut fc = args.tm.fit()?;
     if args.images.len() == 1 {

@@ -205,8 +205,16 @@ impl OutputBatch {
     /// renamed), or on the first rename that fails (the files not yet
     /// renamed are removed).
     pub fn commit(self) -> Result<()> {
+        self.commit_files().map(|_| ())
+    }
+
+    /// [`commit`](Self::commit), returning the final names of the files
+    /// written (so that a caller can tell them from older files in the
+    /// directory).
+    pub fn commit_files(self) -> Result<Vec<PathBuf>> {
         let files = self.take();
-        Self::finish(&files, true)
+        Self::finish(&files, true)?;
+        Ok(files.into_iter().map(|(_, p)| p).collect())
     }
 
     fn rename_all(files: &[(PathBuf, PathBuf)]) -> Result<()> {
@@ -270,6 +278,22 @@ mod tests {
             .collect();
         assert_eq!(names, vec!["old.json".to_string()]);
         assert_eq!(std::fs::read(d.join("old.json")).unwrap(), b"old");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn commit_names_the_files_written_once_each() {
+        let d = dir("names");
+        std::fs::create_dir_all(d.join("sub")).unwrap();
+        std::fs::write(d.join("older.csv"), b"old").unwrap();
+        let b = OutputBatch::begin(&d).unwrap();
+        write_atomic(&d.join("a.json"), b"1").unwrap();
+        write_atomic(&d.join("a.json"), b"2").unwrap();
+        write_atomic(&d.join("sub").join("b.png"), b"3").unwrap();
+        let mut w = b.commit_files().unwrap();
+        w.sort();
+        assert_eq!(w, vec![d.join("a.json"), d.join("sub").join("b.png")]);
+        assert_eq!(std::fs::read(d.join("a.json")).unwrap(), b"2");
         std::fs::remove_dir_all(&d).unwrap();
     }
 

@@ -144,7 +144,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     }
 
     let mut nodata = None;
-    let (scale, offset) = match sidecar(path, &mut info)? {
+    let (scale, offset) = match sidecar(path, (ny, nx), &mut info)? {
         Some(sc) => {
             nodata = sc.nodata;
             (sc.scale, sc.offset)
@@ -175,9 +175,19 @@ struct Sidecar {
 /// Reads `<stem>.json` beside the PNG if there is one. Keys: `scale`,
 /// `offset`, and the nodata as `nodata` or as `png==N` in `png_decode`
 /// (the convention of `shared/data/*.json`).
-fn sidecar(png_path: &Path, info: &mut ReadInfo) -> Result<Option<Sidecar>> {
+fn sidecar(
+    png_path: &Path,
+    (ny, nx): (usize, usize),
+    info: &mut ReadInfo,
+) -> Result<Option<Sidecar>> {
     let path: PathBuf = png_path.with_extension("json");
     if !path.is_file() {
+        if path.exists() {
+            info.warnings.push(format!(
+                "{} is not a file; no sidecar applied, raw PNG values used",
+                path.display()
+            ));
+        }
         return Ok(None);
     }
     let bytes = read_bytes(&path)?;
@@ -198,6 +208,24 @@ fn sidecar(png_path: &Path, info: &mut ReadInfo) -> Result<Option<Sidecar>> {
         }
     };
     let (scale, offset) = (number("scale")?, number("offset")?);
+    if scale == Some(0.0) {
+        return Err(bad("`scale` is 0: every value would be the offset".into()));
+    }
+    // a sidecar written for another image (a stale one beside a new PNG)
+    if let Some(shape) = obj.get("shape").filter(|v| !v.is_null()) {
+        let dims: Option<Vec<u64>> = shape
+            .as_array()
+            .and_then(|a| a.iter().map(|v| v.as_u64()).collect());
+        match dims.as_deref() {
+            Some([r, c]) if (*r as usize, *c as usize) == (ny, nx) => {}
+            Some([r, c]) => {
+                return Err(bad(format!(
+                    "`shape` [{r}, {c}] is not the PNG's {ny} x {nx}: a sidecar of another image?"
+                )));
+            }
+            _ => return Err(bad("`shape` is not [rows, cols]".into())),
+        }
+    }
     if scale.is_none() && offset.is_none() {
         info.warnings.push(format!(
             "{} has no `scale` or `offset`; raw PNG values used",

@@ -112,6 +112,22 @@ impl AnalysisConfig {
         } else {
             self.grid().validate()?;
         }
+        let a0 = self.scale_list()[0];
+        if a0 < self.wavelet.min_scale() {
+            return Err(Error::param(
+                if self.scales.is_some() {
+                    "scales"
+                } else {
+                    "a-min"
+                },
+                format!(
+                    "{a0} px is below {:.2} px, where the {} wavelet's passband passes the \
+                     Nyquist wavenumber (the pixel grid cannot resolve it)",
+                    self.wavelet.min_scale(),
+                    self.wavelet
+                ),
+            ));
+        }
         if !(self.eps >= 0.0 && self.eps < 1.0) {
             return Err(Error::param(
                 "eps",

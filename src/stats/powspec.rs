@@ -145,7 +145,7 @@ impl PowerSpectrum {
         let pts: Vec<(f64, f64)> = self
             .points()
             .into_iter()
-            .filter(|&(k, s)| k >= k_lo && k <= k_hi && s > 0.0)
+            .filter(|&(k, s)| k >= k_lo && k <= k_hi && s > 0.0 && s.is_finite())
             .collect();
         if pts.len() < 3 {
             return Err(Error::param(
@@ -273,7 +273,8 @@ fn detrend(img: &mut Array2<f64>, how: Detrend) {
 /// Angle-averaged power spectrum of one image (finite values only; fill masked
 /// pixels first).
 ///
-/// **Errors** if a value is not finite or the image is smaller than 4x4.
+/// **Errors** if a value is not finite, the values are beyond
+/// [`crate::field::AMPLITUDE_LIMIT`], or the image is smaller than 4x4.
 pub fn power_spectrum(img: ArrayView2<f64>, cfg: &PowerSpectrumConfig) -> Result<PowerSpectrum> {
     let (ny, nx) = img.dim();
     if ny < 4 || nx < 4 {
@@ -283,6 +284,9 @@ pub fn power_spectrum(img: ArrayView2<f64>, cfg: &PowerSpectrumConfig) -> Result
     }
     if img.iter().any(|v| !v.is_finite()) {
         return Err(Error::Input("non-finite values in the image".into()));
+    }
+    if let Some(why) = crate::field::amplitude_problem(img.iter()) {
+        return Err(Error::Input(why));
     }
     if cfg.bins_per_octave == 0 {
         return Err(Error::param("bins-per-octave", "must be >= 1"));
