@@ -558,6 +558,44 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     }
 }
 
+/// The binary on `args` (quiet): its exit code and what it wrote on stderr.
+fn run_bin(args: &[&str]) -> (i32, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
+        .arg("--quiet")
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+/// Without --fit, merge fits 0.5:min(4, octaves of the sums), as analyze.
+#[test]
+fn merge_default_fit_follows_the_octaves_of_the_sums() {
+    let dir = scratch("merge_default_fit");
+    let a = fbm_npy(&dir, "a.npy", 128, 2);
+    let o = dir.join("o3").display().to_string();
+    let args = [
+        "analyze",
+        &a,
+        "--octaves",
+        "3",
+        "--q",
+        "-2:2:1",
+        "--out",
+        &o,
+    ];
+    assert_eq!(run(&args), 0);
+    let j = dir.join("o3").join("sums.json").display().to_string();
+    let m = dir.join("m");
+    let (code, err) = run_bin(&["merge", &j, "--out", &m.display().to_string()]);
+    assert_eq!(code, 0, "{err}");
+    let s = json(&m.join("spectra.json"));
+    assert_eq!(s["params"]["fit_octaves"], serde_json::json!([0.5, 3.0]));
+}
+
 /// The theory an analysis is drawn against is recorded with its parameters.
 #[test]
 fn analyze_records_the_theory_parameters() {

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use clap::Args;
 use serde_json::json;
 
-use super::analyze_cmd::{check_fit, theory_curves, write_outputs};
+use super::analyze_cmd::{check_fit, fit_range, theory_curves, write_outputs};
 use super::common::{make_out_dir, parse_range};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
@@ -20,9 +20,10 @@ pub struct MergeArgs {
     /// `sums.json` files written by analyze or validate.
     #[arg(required = true)]
     pub sums: Vec<PathBuf>,
-    /// Fit range in octaves above a_min, `LO:HI`.
-    #[arg(long, default_value = "0.5:4", allow_hyphen_values = true)]
-    pub fit: String,
+    /// Fit range in octaves above a_min, `LO:HI`. Default 0.5:4, or
+    /// 0.5:OCTAVES when the sums span fewer than 4 octaves (as analyze).
+    #[arg(long, allow_hyphen_values = true)]
+    pub fit: Option<String>,
     /// Modulus along a maxima line: plain or sup.
     #[arg(long, value_enum, default_value_t = Rule::Plain)]
     pub rule: Rule,
@@ -36,7 +37,6 @@ pub struct MergeArgs {
 }
 
 pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
-    let fit = parse_range("fit", &args.fit)?;
     let mut sums: Option<PartitionSums> = None;
     for p in &args.sums {
         let text = std::fs::read_to_string(p).map_err(|source| Error::Read {
@@ -62,6 +62,25 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         0.0
     };
     let span = (sums.scales[n - 1] / sums.scales[0]).log2() + step;
+    let fit = match &args.fit {
+        Some(f) => parse_range("fit", f)?,
+        // analyze's default for the whole octaves and the voices of the sums
+        None => {
+            let octaves = (span + 1e-6).floor() as usize;
+            if octaves == 0 {
+                return Err(Error::param(
+                    "fit",
+                    format!("the sums span {span:.3} octaves, less than one: give the range"),
+                ));
+            }
+            let voices = if step > 0.0 {
+                (1.0 / step).round().max(1.0)
+            } else {
+                1.0
+            };
+            fit_range(None, octaves, voices as usize)?
+        }
+    };
     // older sums.json record no voices: the grid step is the scales' ratio
     check_fit(
         fit,
