@@ -571,6 +571,134 @@ fn run_bin(args: &[&str]) -> (i32, String) {
     )
 }
 
+/// A small shard: `analyze IMAGE` over 2 octaves and q = -2..2 into `out`;
+/// returns the path of its sums.json.
+fn merge_shard(image: &str, out: &Path) -> String {
+    let o = out.display().to_string();
+    let args = [
+        "analyze",
+        image,
+        "--octaves",
+        "2",
+        "--fit",
+        "0.5:2",
+        "--q",
+        "-2:2:1",
+        "--out",
+        &o,
+    ];
+    assert_eq!(run(&args), 0);
+    out.join("sums.json").display().to_string()
+}
+
+/// `merge` checks what each shard holds (grids, lengths, cells, version,
+/// the analysis record) and names the file and the problem; shards that
+/// all predate the analysis record merge with a warning.
+#[test]
+fn merge_checks_the_content_of_each_shard() {
+    let dir = scratch("merge_content");
+    let a = fbm_npy(&dir, "a.npy", 128, 2);
+    let b = fbm_npy(&dir, "b.npy", 128, 3);
+    let ja = merge_shard(&a, &dir.join("A"));
+    let jb = merge_shard(&b, &dir.join("B"));
+    let good = json(Path::new(&ja));
+    let m = dir.join("m");
+    let ms = m.display().to_string();
+    type Edit = fn(&mut Value);
+    let cases: [(&str, Edit, &str); 9] = [
+        ("q_empty", |v| v["q"] = serde_json::json!([]), "`q`"),
+        (
+            "q_descending",
+            |v| v["q"] = serde_json::json!([2.0, 1.0, 0.0, -1.0, -2.0]),
+            "`q`",
+        ),
+        (
+            "scale_negative",
+            |v| v["scales"][0] = (-1.5).into(),
+            "`scales`",
+        ),
+        (
+            "no_images",
+            |v| v["images"] = serde_json::json!([]),
+            "no images",
+        ),
+        (
+            "short_lines",
+            |v| {
+                v["images"][0]["lines"].as_array_mut().unwrap().pop();
+            },
+            "line counts",
+        ),
+        (
+            "short_plain",
+            |v| {
+                v["images"][0]["plain"].as_array_mut().unwrap().pop();
+            },
+            "`plain` cells",
+        ),
+        (
+            "negative_z",
+            |v| v["images"][0]["sup"][3]["z"] = (-1.0).into(),
+            "`sup` cell 3",
+        ),
+        (
+            "newer_version",
+            |v| v["version"] = "99.0.0".into(),
+            "newer major version",
+        ),
+        (
+            "no_analysis",
+            |v| {
+                v.as_object_mut().unwrap().remove("analysis");
+            },
+            "no analysis",
+        ),
+    ];
+    for (name, edit, want) in cases {
+        let mut v = good.clone();
+        edit(&mut v);
+        let p = dir.join(format!("{name}.json"));
+        std::fs::write(&p, serde_json::to_string(&v).unwrap()).unwrap();
+        let ps = p.display().to_string();
+        // alone (nothing to mismatch), or after a valid shard with an analysis
+        let args: &[&str] = if name == "no_analysis" {
+            &["merge", &jb, &ps, "--fit", "0.5:2", "--out", &ms]
+        } else {
+            &["merge", &ps, "--fit", "0.5:2", "--out", &ms]
+        };
+        let (code, err) = run_bin(args);
+        assert_eq!(code, 2, "{name}: {err}");
+        assert!(err.contains(&ps) && err.contains(want), "{name}: {err}");
+        assert!(!m.exists(), "{name}: output directory created");
+    }
+    // every shard without the record: merged, with a warning
+    let old: Vec<String> = [&ja, &jb]
+        .iter()
+        .enumerate()
+        .map(|(i, j)| {
+            let mut v = json(Path::new(j));
+            v.as_object_mut().unwrap().remove("analysis");
+            let p = dir.join(format!("old{i}.json"));
+            std::fs::write(&p, serde_json::to_string(&v).unwrap()).unwrap();
+            p.display().to_string()
+        })
+        .collect();
+    let (code, err) = run_bin(&["merge", &old[0], &old[1], "--fit", "0.5:2", "--out", &ms]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("warning") && err.contains("cannot be compared"),
+        "{err}"
+    );
+    let s = json(&m.join("spectra.json"));
+    assert_eq!(s["images"], 2);
+    assert!(s["params"]["analysis"].is_null());
+    let w = s["warnings"].as_array().unwrap();
+    assert!(
+        w.iter()
+            .any(|w| w.as_str().unwrap().contains("cannot be compared"))
+    );
+}
+
 /// Without --fit, merge fits 0.5:min(4, octaves of the sums), as analyze.
 #[test]
 fn merge_default_fit_follows_the_octaves_of_the_sums() {

@@ -45,6 +45,27 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         })?;
         let s: PartitionSums = serde_json::from_str(&text)
             .map_err(|e| Error::format(p, format!("not a partition-sums file: {e}")))?;
+        s.check()
+            .map_err(|e| Error::format(p, format!("invalid partition sums: {e}")))?;
+        // a shard of unknown analysis cannot be checked against the others
+        // (the merge keeps the analysis all shards share)
+        if let Some(acc) = &sums
+            && s.analysis.is_some() != acc.analysis.is_some()
+        {
+            let first = args.sums[0].display();
+            let what = if s.analysis.is_some() {
+                format!("records its analysis and {first} does not (sums of an older version)")
+            } else {
+                format!("records no analysis (sums of an older version) and {first} does")
+            };
+            return Err(Error::format(
+                p,
+                format!(
+                    "{what}: cannot check that they come from the same analysis; merge only \
+                     shards without the record, or re-analyse"
+                ),
+            ));
+        }
         match &mut sums {
             None => sums = Some(s),
             Some(acc) => acc.merge(&s).map_err(|e| {
@@ -98,11 +119,21 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     } else {
         Rule::Plain
     };
-    let s = sums.spectra(rule, fit)?;
+    let mut s = sums.spectra(rule, fit)?;
     let o = sums.spectra(other, fit)?;
+    let mut warnings = Vec::new();
+    if sums.analysis.is_none() {
+        warnings.push(
+            "no shard records its analysis (sums of an older version): the shards' analyses \
+             (wavelet, scales, margin, linking) cannot be compared"
+                .to_string(),
+        );
+    }
+    // recorded in spectra.json with the fit's warnings
+    s.warnings.extend(warnings.iter().cloned());
     make_out_dir(&args.out.out)?;
     let curves = theory.map(|m| theory_curves(&m, m.name(), &s.q));
-    // the analysis the shards share (null when a shard predates the record)
+    // the analysis the shards share (null when no shard records it)
     let params = json!({"sums": args.sums, "analysis": sums.analysis, "fit_octaves": fit,
         "rule": rule, "theory": theory});
     write_outputs(
@@ -114,6 +145,9 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         &o,
         curves.as_ref(),
     )?;
+    for w in &warnings {
+        say!("warning: {w}");
+    }
     if !quiet {
         say!(
             "merged {} images from {} files into {}",
