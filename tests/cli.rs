@@ -591,6 +591,62 @@ fn merge_shard(image: &str, out: &Path) -> String {
     out.join("sums.json").display().to_string()
 }
 
+/// `merge` counts no shard or image twice: an --out whose sums.json is an
+/// input, one file named twice, and one image in two shards (same label
+/// and sums) are refused, naming the files, before anything is written.
+/// The same label with other sums is another image.
+#[test]
+fn merge_refuses_to_count_a_shard_or_an_image_twice() {
+    let dir = scratch("merge_twice");
+    let a = fbm_npy(&dir, "a.npy", 128, 2);
+    let b = fbm_npy(&dir, "b.npy", 128, 3);
+    let ja = merge_shard(&a, &dir.join("A"));
+    let jb = merge_shard(&b, &dir.join("B"));
+    let listing = |d: &Path| {
+        let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| {
+                let p = e.unwrap().path();
+                (p.display().to_string(), std::fs::read(&p).unwrap())
+            })
+            .collect();
+        v.sort();
+        v
+    };
+    let before = listing(&dir.join("A"));
+    // --out A itself, and A reached through B/..
+    let via = dir.join("B").join("..").join("A").display().to_string();
+    for out in [dir.join("A").display().to_string(), via] {
+        let (code, err) = run_bin(&["merge", &ja, &jb, "--fit", "0.5:2", "--out", &out]);
+        assert_eq!(code, 2, "{out}: {err}");
+        assert!(err.contains(&ja) && err.contains("overwrite"), "{err}");
+        assert_eq!(listing(&dir.join("A")), before, "{out}: A was modified");
+    }
+    let m = dir.join("m");
+    let ms = m.display().to_string();
+    // one file under two names (refused with the other inputs)
+    let ja2 = dir.join("B").join("..").join("A").join("sums.json");
+    let ja2 = ja2.display().to_string();
+    let (code, err) = run_bin(&["merge", &ja, &jb, &ja2, "--fit", "0.5:2", "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(&ja2) && err.contains("same file"), "{err}");
+    // a copy of a shard: the same images in two files
+    std::fs::create_dir_all(dir.join("C")).unwrap();
+    let jc = dir.join("C").join("sums.json").display().to_string();
+    std::fs::copy(&ja, &jc).unwrap();
+    let (code, err) = run_bin(&["merge", &ja, &jb, &jc, "--fit", "0.5:2", "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(&ja) && err.contains(&jc), "{err}");
+    assert!(err.contains("counted twice"), "{err}");
+    assert!(!m.exists(), "output directory created");
+    // a.npy rewritten with another field: same label, other sums
+    fbm_npy(&dir, "a.npy", 128, 5);
+    let jd = merge_shard(&a, &dir.join("D"));
+    assert_eq!(run(&["merge", &ja, &jd, "--fit", "0.5:2", "--out", &ms]), 0);
+    let s = json(&m.join("spectra.json"));
+    assert_eq!(s["images"], 2);
+}
+
 /// `merge` checks what each shard holds (grids, lengths, cells, version,
 /// the analysis record) and names the file and the problem; shards that
 /// all predate the analysis record merge with a warning.

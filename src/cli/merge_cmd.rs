@@ -3,6 +3,7 @@
 //! recompute the spectra, for any rule and fit range, without redoing the
 //! wavelet transforms.
 
+use std::collections::HashMap;
 use std::path::PathBuf;
 
 use clap::Args;
@@ -13,7 +14,7 @@ use super::common::{make_out_dir, parse_range};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
-use crate::spectra::{PartitionSums, Rule};
+use crate::spectra::{ImagePartial, PartitionSums, Rule};
 
 #[derive(Args, Debug)]
 pub struct MergeArgs {
@@ -37,8 +38,30 @@ pub struct MergeArgs {
 }
 
 pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
+    // writing sums.json over an input would count that shard twice on the
+    // next merge (a file given twice is refused with the other inputs);
+    // the output file may not exist yet
+    if let Ok(dir) = std::fs::canonicalize(&args.out.out) {
+        let target = dir.join("sums.json");
+        if let Some(p) = args
+            .sums
+            .iter()
+            .find(|p| std::fs::canonicalize(p).is_ok_and(|c| c == target))
+        {
+            return Err(Error::param(
+                "out",
+                format!(
+                    "{} would overwrite the input {}",
+                    args.out.out.join("sums.json").display(),
+                    p.display()
+                ),
+            ));
+        }
+    }
     let mut sums: Option<PartitionSums> = None;
-    for p in &args.sums {
+    // the file of each image, in the order merged
+    let mut owner: Vec<usize> = Vec::new();
+    for (f, p) in args.sums.iter().enumerate() {
         let text = std::fs::read_to_string(p).map_err(|source| Error::Read {
             path: p.clone(),
             source,
@@ -66,6 +89,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
                 ),
             ));
         }
+        owner.extend(std::iter::repeat_n(f, s.images.len()));
         match &mut sums {
             None => sums = Some(s),
             Some(acc) => acc.merge(&s).map_err(|e| {
@@ -74,6 +98,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         }
     }
     let sums = sums.expect("at least one file");
+    check_duplicate_images(&args.sums, &owner, &sums)?;
     // the grid's octaves (its last scale is one voice short of them), as
     // `analyze --fit` is checked
     let n = sums.scales.len();
@@ -157,4 +182,29 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         );
     }
     Ok(Outcome::Ok)
+}
+
+/// The same image in two shards (same label and the same sums) would be
+/// counted twice: an error naming both files. Labels alone may repeat
+/// (they are free file names). `owner[i]` is the file of image `i`.
+fn check_duplicate_images(paths: &[PathBuf], owner: &[usize], sums: &PartitionSums) -> Result<()> {
+    let mut seen: HashMap<&str, Vec<(usize, &ImagePartial)>> = HashMap::new();
+    for (&f, im) in owner.iter().zip(&sums.images) {
+        let same = seen.entry(im.label.as_str()).or_default();
+        if let Some((g, _)) = same
+            .iter()
+            .find(|(g, o)| *g != f && o.lines == im.lines && o.plain == im.plain && o.sup == im.sup)
+        {
+            return Err(Error::format(
+                &paths[f],
+                format!(
+                    "image {:?} is also in {} (same label and sums): it would be counted twice",
+                    im.label,
+                    paths[*g].display()
+                ),
+            ));
+        }
+        same.push((f, im));
+    }
+    Ok(())
 }
