@@ -258,6 +258,92 @@ impl PartitionSums {
         Ok(Some(acc))
     }
 
+    /// Checks sums read from a file before they are trusted (a shard may
+    /// be truncated, edited or from a newer version): a non-empty ascending
+    /// finite q grid, positive ascending scales, at least one image, array
+    /// lengths matching the grids, finite cells with non-negative sums.
+    ///
+    /// **Errors** with what is wrong (the caller names the file).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        // lenient: "1", "v1.2", "1.2.3-rc1"; an unreadable version is let
+        // through (it is a record, the content is checked below)
+        let major = |v: &str| {
+            let d: String = v
+                .trim()
+                .trim_start_matches('v')
+                .chars()
+                .take_while(char::is_ascii_digit)
+                .collect();
+            // all digits but too large for u64: newer than any release
+            (!d.is_empty()).then(|| d.parse::<u64>().unwrap_or(u64::MAX))
+        };
+        if let (Some(file), Some(ours)) = (major(&self.version), major(crate::VERSION))
+            && file > ours
+        {
+            return Err(format!(
+                "written by wtmm {}, a newer major version than this {}",
+                self.version,
+                crate::VERSION
+            ));
+        }
+        let ascending = |v: &[f64]| v.windows(2).all(|w| w[0] < w[1]);
+        if self.q.is_empty() || !self.q.iter().all(|x| x.is_finite()) || !ascending(&self.q) {
+            return Err("`q` must be a non-empty list of finite values in ascending order".into());
+        }
+        if self.scales.is_empty()
+            || !self.scales.iter().all(|a| a.is_finite() && *a > 0.0)
+            || !ascending(&self.scales)
+        {
+            return Err(
+                "`scales` must be a non-empty list of finite positive values in ascending order"
+                    .into(),
+            );
+        }
+        if self.images.is_empty() {
+            return Err("no images".into());
+        }
+        let (ns, nc) = (self.scales.len(), self.q.len() * self.scales.len());
+        for (i, im) in self.images.iter().enumerate() {
+            let at = format!("image {i} ({:?})", im.label);
+            if im.lines.len() != ns {
+                return Err(format!(
+                    "{at}: {} line counts for {ns} scales",
+                    im.lines.len()
+                ));
+            }
+            for (name, cells) in [("plain", &im.plain), ("sup", &im.sup)] {
+                if cells.len() != nc {
+                    return Err(format!(
+                        "{at}: {} `{name}` cells for {} q x {ns} scales",
+                        cells.len(),
+                        self.q.len()
+                    ));
+                }
+                // |e| bounded so that exponent differences fit an i32
+                // (an empty cell keeps e = i32::MIN and is skipped)
+                if let Some(k) = cells.iter().position(|c| {
+                    ![c.z, c.zl, c.z2].iter().all(|x| x.is_finite())
+                        || c.z < 0.0
+                        || c.z2 < 0.0
+                        || (!c.is_empty() && c.e.unsigned_abs() > 1 << 30)
+                }) {
+                    let c = &cells[k];
+                    return Err(format!(
+                        "{at}: `{name}` cell {k} (q = {}, a = {} px) is invalid: e = {}, z = {}, \
+                         zl = {}, z2 = {} (need finite sums, z and z2 >= 0, |e| <= 2^30)",
+                        self.q[k / ns],
+                        self.scales[k % ns],
+                        c.e,
+                        c.z,
+                        c.zl,
+                        c.z2
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Annealed ensemble values per cell, leaving out image `skip` if given.
     fn ensemble(&self, rule: Rule, skip: Option<usize>) -> Ensemble {
         let ns = self.scales.len();

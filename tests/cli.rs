@@ -558,6 +558,228 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     }
 }
 
+/// The binary on `args` (quiet): its exit code and what it wrote on stderr.
+fn run_bin(args: &[&str]) -> (i32, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
+        .arg("--quiet")
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+/// A small shard: `analyze IMAGE` over 2 octaves and q = -2..2 into `out`;
+/// returns the path of its sums.json.
+fn merge_shard(image: &str, out: &Path) -> String {
+    let o = out.display().to_string();
+    let args = [
+        "analyze",
+        image,
+        "--octaves",
+        "2",
+        "--fit",
+        "0.5:2",
+        "--q",
+        "-2:2:1",
+        "--out",
+        &o,
+    ];
+    assert_eq!(run(&args), 0);
+    out.join("sums.json").display().to_string()
+}
+
+/// `merge` counts no shard or image twice: an --out whose sums.json is an
+/// input, one file named twice, and one image in two shards (same label
+/// and sums) are refused, naming the files, before anything is written.
+/// The same label with other sums is another image.
+#[test]
+fn merge_refuses_to_count_a_shard_or_an_image_twice() {
+    let dir = scratch("merge_twice");
+    let a = fbm_npy(&dir, "a.npy", 128, 2);
+    let b = fbm_npy(&dir, "b.npy", 128, 3);
+    let ja = merge_shard(&a, &dir.join("A"));
+    let jb = merge_shard(&b, &dir.join("B"));
+    let listing = |d: &Path| {
+        let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| {
+                let p = e.unwrap().path();
+                (p.display().to_string(), std::fs::read(&p).unwrap())
+            })
+            .collect();
+        v.sort();
+        v
+    };
+    let before = listing(&dir.join("A"));
+    // --out A itself, and A reached through B/..
+    let via = dir.join("B").join("..").join("A").display().to_string();
+    for out in [dir.join("A").display().to_string(), via] {
+        let (code, err) = run_bin(&["merge", &ja, &jb, "--fit", "0.5:2", "--out", &out]);
+        assert_eq!(code, 2, "{out}: {err}");
+        assert!(err.contains(&ja) && err.contains("overwrite"), "{err}");
+        assert_eq!(listing(&dir.join("A")), before, "{out}: A was modified");
+    }
+    let m = dir.join("m");
+    let ms = m.display().to_string();
+    // one file under two names (refused with the other inputs)
+    let ja2 = dir.join("B").join("..").join("A").join("sums.json");
+    let ja2 = ja2.display().to_string();
+    let (code, err) = run_bin(&["merge", &ja, &jb, &ja2, "--fit", "0.5:2", "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(&ja2) && err.contains("same file"), "{err}");
+    // a copy of a shard: the same images in two files
+    std::fs::create_dir_all(dir.join("C")).unwrap();
+    let jc = dir.join("C").join("sums.json").display().to_string();
+    std::fs::copy(&ja, &jc).unwrap();
+    let (code, err) = run_bin(&["merge", &ja, &jb, &jc, "--fit", "0.5:2", "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(&ja) && err.contains(&jc), "{err}");
+    assert!(err.contains("counted twice"), "{err}");
+    assert!(!m.exists(), "output directory created");
+    // a.npy rewritten with another field: same label, other sums
+    fbm_npy(&dir, "a.npy", 128, 5);
+    let jd = merge_shard(&a, &dir.join("D"));
+    assert_eq!(run(&["merge", &ja, &jd, "--fit", "0.5:2", "--out", &ms]), 0);
+    let s = json(&m.join("spectra.json"));
+    assert_eq!(s["images"], 2);
+}
+
+/// `merge` checks what each shard holds (grids, lengths, cells, version,
+/// the analysis record) and names the file and the problem; shards that
+/// all predate the analysis record merge with a warning.
+#[test]
+fn merge_checks_the_content_of_each_shard() {
+    let dir = scratch("merge_content");
+    let a = fbm_npy(&dir, "a.npy", 128, 2);
+    let b = fbm_npy(&dir, "b.npy", 128, 3);
+    let ja = merge_shard(&a, &dir.join("A"));
+    let jb = merge_shard(&b, &dir.join("B"));
+    let good = json(Path::new(&ja));
+    let m = dir.join("m");
+    let ms = m.display().to_string();
+    type Edit = fn(&mut Value);
+    let cases: [(&str, Edit, &str); 9] = [
+        ("q_empty", |v| v["q"] = serde_json::json!([]), "`q`"),
+        (
+            "q_descending",
+            |v| v["q"] = serde_json::json!([2.0, 1.0, 0.0, -1.0, -2.0]),
+            "`q`",
+        ),
+        (
+            "scale_negative",
+            |v| v["scales"][0] = (-1.5).into(),
+            "`scales`",
+        ),
+        (
+            "no_images",
+            |v| v["images"] = serde_json::json!([]),
+            "no images",
+        ),
+        (
+            "short_lines",
+            |v| {
+                v["images"][0]["lines"].as_array_mut().unwrap().pop();
+            },
+            "line counts",
+        ),
+        (
+            "short_plain",
+            |v| {
+                v["images"][0]["plain"].as_array_mut().unwrap().pop();
+            },
+            "`plain` cells",
+        ),
+        (
+            "negative_z",
+            |v| v["images"][0]["sup"][3]["z"] = (-1.0).into(),
+            "`sup` cell 3",
+        ),
+        (
+            "newer_version",
+            |v| v["version"] = "99.0.0".into(),
+            "newer major version",
+        ),
+        (
+            "no_analysis",
+            |v| {
+                v.as_object_mut().unwrap().remove("analysis");
+            },
+            "no analysis",
+        ),
+    ];
+    for (name, edit, want) in cases {
+        let mut v = good.clone();
+        edit(&mut v);
+        let p = dir.join(format!("{name}.json"));
+        std::fs::write(&p, serde_json::to_string(&v).unwrap()).unwrap();
+        let ps = p.display().to_string();
+        // alone (nothing to mismatch), or after a valid shard with an analysis
+        let args: &[&str] = if name == "no_analysis" {
+            &["merge", &jb, &ps, "--fit", "0.5:2", "--out", &ms]
+        } else {
+            &["merge", &ps, "--fit", "0.5:2", "--out", &ms]
+        };
+        let (code, err) = run_bin(args);
+        assert_eq!(code, 2, "{name}: {err}");
+        assert!(err.contains(&ps) && err.contains(want), "{name}: {err}");
+        assert!(!m.exists(), "{name}: output directory created");
+    }
+    // every shard without the record: merged, with a warning
+    let old: Vec<String> = [&ja, &jb]
+        .iter()
+        .enumerate()
+        .map(|(i, j)| {
+            let mut v = json(Path::new(j));
+            v.as_object_mut().unwrap().remove("analysis");
+            let p = dir.join(format!("old{i}.json"));
+            std::fs::write(&p, serde_json::to_string(&v).unwrap()).unwrap();
+            p.display().to_string()
+        })
+        .collect();
+    let (code, err) = run_bin(&["merge", &old[0], &old[1], "--fit", "0.5:2", "--out", &ms]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("warning") && err.contains("cannot be compared"),
+        "{err}"
+    );
+    let s = json(&m.join("spectra.json"));
+    assert_eq!(s["images"], 2);
+    assert!(s["params"]["analysis"].is_null());
+    let w = s["warnings"].as_array().unwrap();
+    assert!(
+        w.iter()
+            .any(|w| w.as_str().unwrap().contains("cannot be compared"))
+    );
+}
+
+/// Without --fit, merge fits 0.5:min(4, octaves of the sums), as analyze.
+#[test]
+fn merge_default_fit_follows_the_octaves_of_the_sums() {
+    let dir = scratch("merge_default_fit");
+    let a = fbm_npy(&dir, "a.npy", 128, 2);
+    let o = dir.join("o3").display().to_string();
+    let args = [
+        "analyze",
+        &a,
+        "--octaves",
+        "3",
+        "--q",
+        "-2:2:1",
+        "--out",
+        &o,
+    ];
+    assert_eq!(run(&args), 0);
+    let j = dir.join("o3").join("sums.json").display().to_string();
+    let m = dir.join("m");
+    let (code, err) = run_bin(&["merge", &j, "--out", &m.display().to_string()]);
+    assert_eq!(code, 0, "{err}");
+    let s = json(&m.join("spectra.json"));
+    assert_eq!(s["params"]["fit_octaves"], serde_json::json!([0.5, 3.0]));
+}
+
 /// The theory an analysis is drawn against is recorded with its parameters.
 #[test]
 fn analyze_records_the_theory_parameters() {

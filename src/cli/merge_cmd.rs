@@ -3,26 +3,28 @@
 //! recompute the spectra, for any rule and fit range, without redoing the
 //! wavelet transforms.
 
+use std::collections::HashMap;
 use std::path::PathBuf;
 
 use clap::Args;
 use serde_json::json;
 
-use super::analyze_cmd::{check_fit, theory_curves, write_outputs};
+use super::analyze_cmd::{check_fit, fit_range, theory_curves, write_outputs};
 use super::common::{make_out_dir, parse_range};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
-use crate::spectra::{PartitionSums, Rule};
+use crate::spectra::{ImagePartial, PartitionSums, Rule};
 
 #[derive(Args, Debug)]
 pub struct MergeArgs {
     /// `sums.json` files written by analyze or validate.
     #[arg(required = true)]
     pub sums: Vec<PathBuf>,
-    /// Fit range in octaves above a_min, `LO:HI`.
-    #[arg(long, default_value = "0.5:4", allow_hyphen_values = true)]
-    pub fit: String,
+    /// Fit range in octaves above a_min, `LO:HI`. Default 0.5:4, or
+    /// 0.5:OCTAVES when the sums span fewer than 4 octaves (as analyze).
+    #[arg(long, allow_hyphen_values = true)]
+    pub fit: Option<String>,
     /// Modulus along a maxima line: plain or sup.
     #[arg(long, value_enum, default_value_t = Rule::Plain)]
     pub rule: Rule,
@@ -36,15 +38,58 @@ pub struct MergeArgs {
 }
 
 pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
-    let fit = parse_range("fit", &args.fit)?;
+    // writing sums.json over an input would count that shard twice on the
+    // next merge (a file given twice is refused with the other inputs);
+    // the output file may not exist yet
+    if let Ok(dir) = std::fs::canonicalize(&args.out.out) {
+        let target = dir.join("sums.json");
+        if let Some(p) = args
+            .sums
+            .iter()
+            .find(|p| std::fs::canonicalize(p).is_ok_and(|c| c == target))
+        {
+            return Err(Error::param(
+                "out",
+                format!(
+                    "{} would overwrite the input {}",
+                    args.out.out.join("sums.json").display(),
+                    p.display()
+                ),
+            ));
+        }
+    }
     let mut sums: Option<PartitionSums> = None;
-    for p in &args.sums {
+    // the file of each image, in the order merged
+    let mut owner: Vec<usize> = Vec::new();
+    for (f, p) in args.sums.iter().enumerate() {
         let text = std::fs::read_to_string(p).map_err(|source| Error::Read {
             path: p.clone(),
             source,
         })?;
         let s: PartitionSums = serde_json::from_str(&text)
             .map_err(|e| Error::format(p, format!("not a partition-sums file: {e}")))?;
+        s.check()
+            .map_err(|e| Error::format(p, format!("invalid partition sums: {e}")))?;
+        // a shard of unknown analysis cannot be checked against the others
+        // (the merge keeps the analysis all shards share)
+        if let Some(acc) = &sums
+            && s.analysis.is_some() != acc.analysis.is_some()
+        {
+            let first = args.sums[0].display();
+            let what = if s.analysis.is_some() {
+                format!("records its analysis and {first} does not (sums of an older version)")
+            } else {
+                format!("records no analysis (sums of an older version) and {first} does")
+            };
+            return Err(Error::format(
+                p,
+                format!(
+                    "{what}: cannot check that they come from the same analysis; merge only \
+                     shards without the record, or re-analyse"
+                ),
+            ));
+        }
+        owner.extend(std::iter::repeat_n(f, s.images.len()));
         match &mut sums {
             None => sums = Some(s),
             Some(acc) => acc.merge(&s).map_err(|e| {
@@ -53,6 +98,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         }
     }
     let sums = sums.expect("at least one file");
+    check_duplicate_images(&args.sums, &owner, &sums)?;
     // the grid's octaves (its last scale is one voice short of them), as
     // `analyze --fit` is checked
     let n = sums.scales.len();
@@ -62,6 +108,25 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         0.0
     };
     let span = (sums.scales[n - 1] / sums.scales[0]).log2() + step;
+    let fit = match &args.fit {
+        Some(f) => parse_range("fit", f)?,
+        // analyze's default for the whole octaves and the voices of the sums
+        None => {
+            let octaves = (span + 1e-6).floor() as usize;
+            if octaves == 0 {
+                return Err(Error::param(
+                    "fit",
+                    format!("the sums span {span:.3} octaves, less than one: give the range"),
+                ));
+            }
+            let voices = if step > 0.0 {
+                (1.0 / step).round().max(1.0)
+            } else {
+                1.0
+            };
+            fit_range(None, octaves, voices as usize)?
+        }
+    };
     // older sums.json record no voices: the grid step is the scales' ratio
     check_fit(
         fit,
@@ -79,11 +144,21 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     } else {
         Rule::Plain
     };
-    let s = sums.spectra(rule, fit)?;
+    let mut s = sums.spectra(rule, fit)?;
     let o = sums.spectra(other, fit)?;
+    let mut warnings = Vec::new();
+    if sums.analysis.is_none() {
+        warnings.push(
+            "no shard records its analysis (sums of an older version): the shards' analyses \
+             (wavelet, scales, margin, linking) cannot be compared"
+                .to_string(),
+        );
+    }
+    // recorded in spectra.json with the fit's warnings
+    s.warnings.extend(warnings.iter().cloned());
     make_out_dir(&args.out.out)?;
     let curves = theory.map(|m| theory_curves(&m, m.name(), &s.q));
-    // the analysis the shards share (null when a shard predates the record)
+    // the analysis the shards share (null when no shard records it)
     let params = json!({"sums": args.sums, "analysis": sums.analysis, "fit_octaves": fit,
         "rule": rule, "theory": theory});
     write_outputs(
@@ -95,6 +170,9 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         &o,
         curves.as_ref(),
     )?;
+    for w in &warnings {
+        say!("warning: {w}");
+    }
     if !quiet {
         say!(
             "merged {} images from {} files into {}",
@@ -104,4 +182,29 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         );
     }
     Ok(Outcome::Ok)
+}
+
+/// The same image in two shards (same label and the same sums) would be
+/// counted twice: an error naming both files. Labels alone may repeat
+/// (they are free file names). `owner[i]` is the file of image `i`.
+fn check_duplicate_images(paths: &[PathBuf], owner: &[usize], sums: &PartitionSums) -> Result<()> {
+    let mut seen: HashMap<&str, Vec<(usize, &ImagePartial)>> = HashMap::new();
+    for (&f, im) in owner.iter().zip(&sums.images) {
+        let same = seen.entry(im.label.as_str()).or_default();
+        if let Some((g, _)) = same
+            .iter()
+            .find(|(g, o)| *g != f && o.lines == im.lines && o.plain == im.plain && o.sup == im.sup)
+        {
+            return Err(Error::format(
+                &paths[f],
+                format!(
+                    "image {:?} is also in {} (same label and sums): it would be counted twice",
+                    im.label,
+                    paths[*g].display()
+                ),
+            ));
+        }
+        same.push((f, im));
+    }
+    Ok(())
 }
