@@ -472,6 +472,56 @@ fn inputs_are_checked_before_computing_and_nothing_is_left() {
     assert_eq!(run(&["spectrum", &a, "--out", &a]), 2);
 }
 
+/// Runs the binary: exit code and stderr (where the messages are).
+fn run_bin_stderr(args: &[&str]) -> (i32, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
+        .arg("--quiet")
+        .args(args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    (o.status.code().unwrap_or(-1), err)
+}
+
+/// `kernel` refuses scales of the fit without enough WTMMM (they used to
+/// drop out of the fit silently, or fill kernel_curves.csv with NaN): exit
+/// 2, the input named (file or preset), nothing written. A few WTMMM at
+/// every scale used still give a result, with the warning.
+#[test]
+fn kernel_refuses_scales_without_wtmmm() {
+    let dir = scratch("kernel_empty_scales");
+    // 16x16 on the torus, 2 octaves: no maxima line reaches the top scales
+    let img = fbm_npy(&dir, "img16.npy", 16, 1);
+    let out = dir.join("k");
+    let o = out.display().to_string();
+    let args = ["kernel", &img, "--octaves", "2", "--domain", "torus"];
+    let (code, err) = run_bin_stderr(&[&args[..], &["--out", &o]].concat());
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(&img), "{err}");
+    assert!(err.contains("fewer than 3 WTMMM"), "{err}");
+    assert!(!out.exists());
+    let (code, err) = run_bin_stderr(&[
+        "kernel",
+        "--preset",
+        "paper-fisc",
+        "--count",
+        "2",
+        "--size",
+        "64",
+        "--out",
+        &o,
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--preset paper-fisc"), "{err}");
+    assert!(err.contains("fewer than 3 WTMMM"), "{err}");
+    assert!(!out.exists());
+    // fit, reference and pair scales that all have a few WTMMM
+    let few = ["--fit", "0.5:1.3", "--refs", "1.3", "--pairs", "0.5:1.3"];
+    let (code, err) = run_bin_stderr(&[&args[..], &few, &["--out", &o]].concat());
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("WTMMM at the largest fitted scale"), "{err}");
+}
+
 /// `merge` names the shard that does not match and refuses a fit range
 /// beyond the scales of the sums.
 #[test]

@@ -252,6 +252,41 @@ impl Input {
         Ok(out)
     }
 
+    /// The input in a message: the file, the files, or the generated
+    /// ensemble as `--preset NAME` (or `--theory MODEL`).
+    pub fn describe(&self) -> String {
+        if self.generated() {
+            let model = self.model.map_or("", |m| m.name());
+            let flag = if self.name == model {
+                "--theory"
+            } else {
+                "--preset"
+            };
+            let (n, s) = (self.count, self.size);
+            return format!("{flag} {} ({n} images of {s}x{s})", self.name);
+        }
+        let names: Vec<String> = self
+            .images
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
+        match names.len() {
+            0..=3 => names.join(", "),
+            n => format!("{}, ... ({n} images)", names[..2].join(", ")),
+        }
+    }
+
+    /// A fault of the data ([`Error::Input`]) found in the ensemble as a
+    /// whole (not one image), naming the input: a single file as the file at
+    /// fault, else in the message. Other errors pass unchanged.
+    pub fn blame(&self, e: Error) -> Error {
+        let Error::Input(msg) = e else { return e };
+        match self.images.as_slice() {
+            [one] => Error::format(one, msg),
+            _ => Error::Input(format!("{}: {msg}", self.describe())),
+        }
+    }
+
     /// What goes into `params` of every output.
     pub fn params_json(&self) -> serde_json::Value {
         if self.generated() {
@@ -260,6 +295,15 @@ impl Input {
         } else {
             json!({"images": self.images, "theory": self.model, "periodic": self.periodic})
         }
+    }
+}
+
+/// The message of an error about the data, without the `invalid input: `
+/// prefix (for a message that names the input itself).
+pub fn reason(e: Error) -> String {
+    match e {
+        Error::Input(m) => m,
+        other => other.to_string(),
     }
 }
 
