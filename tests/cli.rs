@@ -522,6 +522,38 @@ fn kernel_refuses_scales_without_wtmmm() {
     assert!(err.contains("WTMMM at the largest fitted scale"), "{err}");
 }
 
+/// `pdf` and `kernel` name the input and the cause: an 8x8 image has no
+/// WTMMM on maxima lines to estimate h0 or the kernel from (it used to say
+/// "invalid parameter `h0`" or "`cumulants`", flags never given), and a
+/// constant image's path is said once.
+#[test]
+fn pdf_and_kernel_name_the_input_and_the_cause() {
+    let dir = scratch("pdf_kernel_messages");
+    let small = dir.join("img8.npy");
+    let f = fbm(FbmParams { hurst: 0.4 }, 16, 16, 1, 0).unwrap();
+    write_npy(&small, &f.slice(ndarray::s![..8, ..8]).to_owned()).unwrap();
+    let small = small.display().to_string();
+    let flat = dir.join("const.npy");
+    write_npy(&flat, &Array2::from_elem((32, 32), 1.0)).unwrap();
+    let flat = flat.display().to_string();
+    let out = dir.join("o");
+    let o = out.display().to_string();
+    for cmd in ["pdf", "kernel"] {
+        let tail = ["--octaves", "1", "--domain", "torus", "--out", &o];
+        let (code, err) = run_bin_stderr(&[&[cmd, &small][..], &tail].concat());
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains(&small), "{cmd}: {err}");
+        assert!(err.contains("WTMMM on maxima lines"), "{cmd}: {err}");
+        assert!(!err.contains("invalid parameter"), "{cmd}: {err}");
+        assert!(!out.exists(), "{cmd}");
+        let (code, err) = run_bin_stderr(&[&[cmd, &flat][..], &tail].concat());
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains("no maxima"), "{cmd}: {err}");
+        assert_eq!(err.matches(&flat).count(), 1, "{cmd}: {err}");
+        assert!(!out.exists(), "{cmd}");
+    }
+}
+
 /// `merge` names the shard that does not match and refuses a fit range
 /// beyond the scales of the sums.
 #[test]

@@ -18,7 +18,9 @@ use serde_json::json;
 
 use super::analyze_cmd::{LineOpts, fit_range};
 use super::common::{f, header, make_out_dir, write_csv, write_json};
-use super::pdf_cmd::{StatsInput, check_octaves, grid_top, octaves_or_default, reason, scales_at};
+use super::pdf_cmd::{
+    StatsInput, check_octaves, grid_top, no_maxima, octaves_or_default, reason, scales_at,
+};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
@@ -160,10 +162,7 @@ fn collect(
         |acc, field, label, par| {
             let w = image_wtmmm(field, cfg, par, true)?;
             if w.all.first().is_none_or(|v| v.is_empty()) {
-                return Err(Error::Input(format!(
-                    "{label}: {}",
-                    super::common::NO_MAXIMA
-                )));
+                return Err(no_maxima(input, label));
             }
             let m = KernelSums::from_points(&scales, kcfg, set, w.set(set), label)?;
             let o = KernelSums::from_points(&scales, kcfg, set.other(), w.set(set.other()), label)?;
