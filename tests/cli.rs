@@ -472,6 +472,88 @@ fn inputs_are_checked_before_computing_and_nothing_is_left() {
     assert_eq!(run(&["spectrum", &a, "--out", &a]), 2);
 }
 
+/// Runs the binary: exit code and stderr (where the messages are).
+fn run_bin_stderr(args: &[&str]) -> (i32, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
+        .arg("--quiet")
+        .args(args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    (o.status.code().unwrap_or(-1), err)
+}
+
+/// `kernel` refuses scales of the fit without enough WTMMM (they used to
+/// drop out of the fit silently, or fill kernel_curves.csv with NaN): exit
+/// 2, the input named (file or preset), nothing written. A few WTMMM at
+/// every scale used still give a result, with the warning.
+#[test]
+fn kernel_refuses_scales_without_wtmmm() {
+    let dir = scratch("kernel_empty_scales");
+    // 16x16 on the torus, 2 octaves: no maxima line reaches the top scales
+    let img = fbm_npy(&dir, "img16.npy", 16, 1);
+    let out = dir.join("k");
+    let o = out.display().to_string();
+    let args = ["kernel", &img, "--octaves", "2", "--domain", "torus"];
+    let (code, err) = run_bin_stderr(&[&args[..], &["--out", &o]].concat());
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(&img), "{err}");
+    assert!(err.contains("fewer than 3 WTMMM"), "{err}");
+    assert!(!out.exists());
+    let (code, err) = run_bin_stderr(&[
+        "kernel",
+        "--preset",
+        "paper-fisc",
+        "--count",
+        "2",
+        "--size",
+        "64",
+        "--out",
+        &o,
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--preset paper-fisc"), "{err}");
+    assert!(err.contains("fewer than 3 WTMMM"), "{err}");
+    assert!(!out.exists());
+    // fit, reference and pair scales that all have a few WTMMM
+    let few = ["--fit", "0.5:1.3", "--refs", "1.3", "--pairs", "0.5:1.3"];
+    let (code, err) = run_bin_stderr(&[&args[..], &few, &["--out", &o]].concat());
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("WTMMM at the largest fitted scale"), "{err}");
+}
+
+/// `pdf` and `kernel` name the input and the cause: an 8x8 image has no
+/// WTMMM on maxima lines to estimate h0 or the kernel from (it used to say
+/// "invalid parameter `h0`" or "`cumulants`", flags never given), and a
+/// constant image's path is said once.
+#[test]
+fn pdf_and_kernel_name_the_input_and_the_cause() {
+    let dir = scratch("pdf_kernel_messages");
+    let small = dir.join("img8.npy");
+    let f = fbm(FbmParams { hurst: 0.4 }, 16, 16, 1, 0).unwrap();
+    write_npy(&small, &f.slice(ndarray::s![..8, ..8]).to_owned()).unwrap();
+    let small = small.display().to_string();
+    let flat = dir.join("const.npy");
+    write_npy(&flat, &Array2::from_elem((32, 32), 1.0)).unwrap();
+    let flat = flat.display().to_string();
+    let out = dir.join("o");
+    let o = out.display().to_string();
+    for cmd in ["pdf", "kernel"] {
+        let tail = ["--octaves", "1", "--domain", "torus", "--out", &o];
+        let (code, err) = run_bin_stderr(&[&[cmd, &small][..], &tail].concat());
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains(&small), "{cmd}: {err}");
+        assert!(err.contains("WTMMM on maxima lines"), "{cmd}: {err}");
+        assert!(!err.contains("invalid parameter"), "{cmd}: {err}");
+        assert!(!out.exists(), "{cmd}");
+        let (code, err) = run_bin_stderr(&[&[cmd, &flat][..], &tail].concat());
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains("no maxima"), "{cmd}: {err}");
+        assert_eq!(err.matches(&flat).count(), 1, "{cmd}: {err}");
+        assert!(!out.exists(), "{cmd}");
+    }
+}
+
 /// `merge` names the shard that does not match and refuses a fit range
 /// beyond the scales of the sums.
 #[test]

@@ -18,14 +18,16 @@ use serde_json::json;
 
 use super::analyze_cmd::{LineOpts, fit_range};
 use super::common::{f, header, make_out_dir, write_csv, write_json};
-use super::pdf_cmd::{StatsInput, check_octaves, grid_top, octaves_or_default, scales_at};
+use super::pdf_cmd::{
+    StatsInput, check_octaves, grid_top, no_maxima, octaves_or_default, reason, scales_at,
+};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::skeleton::AnalysisConfig;
 use crate::stats::kernel::{
-    KernelConfig, KernelOptions, KernelResult, KernelSums, Reconstruction, cwt_grid_sums,
-    kernel_estimates, reconstruct,
+    KernelConfig, KernelOptions, KernelResult, KernelSums, Reconstruction, check_wtmmm_counts,
+    cwt_grid_sums, kernel_estimates, reconstruct,
 };
 use crate::stats::pdf::{PdfConfig, WtmmmHistograms, WtmmmSet, image_wtmmm};
 use crate::synth::wcascade::Law;
@@ -160,10 +162,7 @@ fn collect(
         |acc, field, label, par| {
             let w = image_wtmmm(field, cfg, par, true)?;
             if w.all.first().is_none_or(|v| v.is_empty()) {
-                return Err(Error::Input(format!(
-                    "{label}: {}",
-                    super::common::NO_MAXIMA
-                )));
+                return Err(no_maxima(input, label));
             }
             let m = KernelSums::from_points(&scales, kcfg, set, w.set(set), label)?;
             let o = KernelSums::from_points(&scales, kcfg, set.other(), w.set(set.other()), label)?;
@@ -296,8 +295,18 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     let t0 = std::time::Instant::now();
     let acc = collect(&input, &cfg, kcfg, args.set, args.cwt_grid, quiet)?;
     let wall = t0.elapsed().as_secs_f64();
-    let main = kernel_estimates(acc.main.as_ref().expect("at least one image"), &kopts)?;
-    let alt = kernel_estimates(acc.alt.as_ref().expect("at least one image"), &kopts)?;
+    let (main_sums, alt_sums) = match (&acc.main, &acc.alt) {
+        (Some(m), Some(a)) => (m, a),
+        _ => return Err(Error::Input("no image in the input".into())),
+    };
+    let main = kernel_estimates(main_sums, &kopts)?;
+    // scales short of WTMMM: an error for the set asked, a note on the other
+    check_wtmmm_counts(main_sums, &kopts).map_err(|e| input.blame(e))?;
+    let mut alt = kernel_estimates(alt_sums, &kopts)?;
+    if let Err(e) = check_wtmmm_counts(alt_sums, &kopts) {
+        alt.warnings
+            .push(format!("these c_n are not reliable: {}", reason(e)));
+    }
     let grid = acc
         .grid
         .as_ref()
@@ -305,8 +314,9 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         .transpose()?;
     let rj = scales_at(&scales, &rec);
     let c = main.cumulants.values();
-    let recon2 = reconstruct(&acc.hist, rj[0], &rj[1..], &c[..2])?;
-    let recon3 = reconstruct(&acc.hist, rj[0], &rj[1..], &c)?;
+    // an empty target or source scale is a fault of the data
+    let recon2 = reconstruct(&acc.hist, rj[0], &rj[1..], &c[..2]).map_err(|e| input.blame(e))?;
+    let recon3 = reconstruct(&acc.hist, rj[0], &rj[1..], &c).map_err(|e| input.blame(e))?;
     let out = KernelOutputs {
         main,
         alt,

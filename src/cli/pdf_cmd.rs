@@ -252,6 +252,41 @@ impl Input {
         Ok(out)
     }
 
+    /// The input in a message: the file, the files, or the generated
+    /// ensemble as `--preset NAME` (or `--theory MODEL`).
+    pub fn describe(&self) -> String {
+        if self.generated() {
+            let model = self.model.map_or("", |m| m.name());
+            let flag = if self.name == model {
+                "--theory"
+            } else {
+                "--preset"
+            };
+            let (n, s) = (self.count, self.size);
+            return format!("{flag} {} ({n} images of {s}x{s})", self.name);
+        }
+        let names: Vec<String> = self
+            .images
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
+        match names.len() {
+            0..=3 => names.join(", "),
+            n => format!("{}, ... ({n} images)", names[..2].join(", ")),
+        }
+    }
+
+    /// A fault of the data ([`Error::Input`]) found in the ensemble as a
+    /// whole (not one image), naming the input: a single file as the file at
+    /// fault, else in the message. Other errors pass unchanged.
+    pub fn blame(&self, e: Error) -> Error {
+        let Error::Input(msg) = e else { return e };
+        match self.images.as_slice() {
+            [one] => Error::format(one, msg),
+            _ => Error::Input(format!("{}: {msg}", self.describe())),
+        }
+    }
+
     /// What goes into `params` of every output.
     pub fn params_json(&self) -> serde_json::Value {
         if self.generated() {
@@ -260,6 +295,25 @@ impl Input {
         } else {
             json!({"images": self.images, "theory": self.model, "periodic": self.periodic})
         }
+    }
+}
+
+/// The message of an error about the data, without the `invalid input: `
+/// prefix (for a message that names the input itself).
+pub fn reason(e: Error) -> String {
+    match e {
+        Error::Input(m) => m,
+        other => other.to_string(),
+    }
+}
+
+/// Why an image gave no maxima: [`Input::fold`] names a file itself, a
+/// generated image is named here.
+pub fn no_maxima(input: &Input, label: &str) -> Error {
+    if input.generated() {
+        Error::Input(format!("{label}: {}", super::common::NO_MAXIMA))
+    } else {
+        Error::Input(super::common::NO_MAXIMA.into())
     }
 }
 
@@ -390,10 +444,7 @@ pub fn collect_histograms(
         |acc, field, label, par| {
             let w = image_wtmmm(field, cfg, par, set == WtmmmSet::Lines)?;
             if w.all.first().is_none_or(|v| v.is_empty()) {
-                return Err(Error::Input(format!(
-                    "{label}: {}",
-                    super::common::NO_MAXIMA
-                )));
+                return Err(no_maxima(input, label));
             }
             acc.merge(&WtmmmHistograms::from_points(&scales, pcfg, w.set(set))?)
         },
@@ -404,14 +455,52 @@ pub fn collect_histograms(
     )
 }
 
-/// `h(q=0)` estimate: the slope of `<ln M>` against `ln a` over the fit range.
-pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64)) -> f64 {
+/// `h(q=0)` estimate: the slope of `<ln M>` against `ln a` over the fit
+/// range, from the WTMMM of `set`.
+///
+/// **Errors** ([`Error::Input`]) when a scale of the range has no WTMMM
+/// (the fit would skip it unseen, or have nothing to fit).
+pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64), set: WtmmmSet) -> Result<f64> {
     let oct: Vec<f64> = h.scales.iter().map(|a| (a / h.scales[0]).log2()).collect();
-    let (x, y): (Vec<f64>, Vec<f64>) = (0..h.scales.len())
+    let in_fit: Vec<usize> = (0..h.scales.len())
         .filter(|&j| oct[j] >= fit.0 - 1e-9 && oct[j] <= fit.1 + 1e-9)
-        .map(|j| (h.scales[j].ln(), h.mean_ln_m(j)))
+        .collect();
+    let empty: Vec<usize> = in_fit
+        .iter()
+        .copied()
+        .filter(|&j| h.hist[j].n == 0)
+        .collect();
+    if let (Some(&lo), Some(&hi)) = (empty.first(), empty.last()) {
+        let set = match set {
+            WtmmmSet::Lines => "on maxima lines",
+            WtmmmSet::All => "(all WTMMM)",
+        };
+        return Err(Error::Input(format!(
+            "no WTMMM {set} at {} of the {} scales of the fit range {}:{} octaves (a = {:.2} .. \
+             {:.2} px, {} image(s)) to estimate h0 (the slope of <ln M> against ln a): the \
+             counting domain is too small for these scales (use fewer --octaves, a smaller \
+             --margin, or a lower --fit)",
+            empty.len(),
+            in_fit.len(),
+            fit.0,
+            fit.1,
+            h.scales[lo],
+            h.scales[hi],
+            h.images
+        )));
+    }
+    let (x, y): (Vec<f64>, Vec<f64>) = in_fit
+        .iter()
+        .map(|&j| (h.scales[j].ln(), h.mean_ln_m(j)))
         .unzip();
-    line_fit(&x, &y).map_or(f64::NAN, |l| l.slope)
+    line_fit(&x, &y).map(|l| l.slope).ok_or_else(|| {
+        Error::Input(format!(
+            "h0 cannot be estimated: {} scale(s) in the fit range {}:{} octaves",
+            in_fit.len(),
+            fit.0,
+            fit.1
+        ))
+    })
 }
 
 pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
@@ -438,7 +527,19 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let t0 = std::time::Instant::now();
     let hist = collect_histograms(&input, &cfg, args.set, pcfg, quiet)?;
     let wall = t0.elapsed().as_secs_f64();
-    let h_est = h0_from_histograms(&hist, fit);
+    // the estimate is also recorded when --h0 or the theory gives h0
+    let mut warning = None;
+    let h_est = match h0_from_histograms(&hist, fit, args.set) {
+        Ok(h) => h,
+        Err(e) if args.h0.is_none() && input.model.is_none() => {
+            let m = format!("{}, or give --h0", reason(e));
+            return Err(input.blame(Error::Input(m)));
+        }
+        Err(e) => {
+            warning = Some(reason(e));
+            f64::NAN
+        }
+    };
     let (h0, h0_source) = match (args.h0, input.model) {
         (Some(h), _) => (h, "--h0"),
         (None, Some(m)) => (m.h_of_q0(), "theory h(q=0)"),
@@ -497,6 +598,9 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
             args.set.name(),
             dir.join("pdf.json").display()
         );
+    }
+    if let Some(w) = warning {
+        say!("warning: h0 not estimated from the data (estimate_from_data is null): {w}");
     }
     Ok(Outcome::Ok)
 }

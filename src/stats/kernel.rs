@@ -653,6 +653,74 @@ pub struct KernelResult {
     pub warnings: Vec<String>,
 }
 
+/// Fewest WTMMM (over the ensemble) each scale read by the kernel needs,
+/// see [`check_wtmmm_counts`]: the plug-in `κ_n` of fewer than `n` values is
+/// identically 0 (`κ2` of one value, `κ3` of two), a number the fit would
+/// take for a measurement, and of none it is NaN, which the fit would skip.
+pub const MIN_WTMMM: u64 = 3;
+
+/// Grid indices inside the fit range `fit` (octaves above the smallest scale).
+fn fit_indices(oct: &[f64], fit: (f64, f64)) -> Vec<usize> {
+    (0..oct.len())
+        .filter(|&j| oct[j] >= fit.0 - 1e-9 && oct[j] <= fit.1 + 1e-9)
+        .collect()
+}
+
+/// Checks that every scale [`kernel_estimates`] reads with `opts` (the fit
+/// range, the reference scales, both scales of each pair) holds at least
+/// [`MIN_WTMMM`] WTMMM over the ensemble, as the spectra refuse a fit range
+/// that no maxima line reaches. Call it once `kernel_estimates` accepted
+/// `opts` (octaves are taken at the nearest grid scale here).
+///
+/// **Errors** ([`Error::Input`]) listing the scales short of WTMMM.
+pub fn check_wtmmm_counts(s: &KernelSums, opts: &KernelOptions) -> Result<()> {
+    if s.scales.is_empty() {
+        return Err(Error::param("scales", "no scale given"));
+    }
+    let oct: Vec<f64> = s.scales.iter().map(|a| (a / s.scales[0]).log2()).collect();
+    let mut used = fit_indices(&oct, opts.fit);
+    used.extend(opts.refs.iter().map(|&o| nearest_scale(&s.scales, o)));
+    for &(a, b) in &opts.pairs {
+        used.extend([nearest_scale(&s.scales, a), nearest_scale(&s.scales, b)]);
+    }
+    used.sort_unstable();
+    used.dedup();
+    let count = |j: usize| -> u64 { s.images.iter().map(|im| im.moments[j].n).sum() };
+    let short: Vec<(usize, u64)> = used
+        .into_iter()
+        .map(|j| (j, count(j)))
+        .filter(|&(_, n)| n < MIN_WTMMM)
+        .collect();
+    if short.is_empty() {
+        return Ok(());
+    }
+    // the smallest and the largest such scales say enough
+    let mut list: Vec<String> = short
+        .iter()
+        .map(|&(j, n)| format!("{:.2} px ({n})", s.scales[j]))
+        .collect();
+    if list.len() > 4 {
+        list.drain(2..list.len() - 2);
+        list.insert(2, "...".into());
+    }
+    let set = match s.set {
+        WtmmmSet::Lines => "on maxima lines",
+        WtmmmSet::All => "(all WTMMM)",
+    };
+    Err(Error::Input(format!(
+        "fewer than {MIN_WTMMM} WTMMM {set} at {} of the scales the kernel uses (fit range \
+         {}:{} octaves, references, pairs), over {} image(s): a = {}; c1..c3 need {MIN_WTMMM} \
+         at each (the plug-in variance of one value and third cumulant of two are identically \
+         0); the counting domain is too small for these scales (use fewer --octaves, a \
+         smaller --margin, or a lower --fit)",
+        short.len(),
+        opts.fit.0,
+        opts.fit.1,
+        s.images.len(),
+        list.join(", ")
+    )))
+}
+
 /// Nearest grid index to octave `o` above the smallest scale.
 pub fn nearest_scale(scales: &[f64], o: f64) -> usize {
     let want = scales[0].log2() + o;
@@ -683,7 +751,9 @@ pub fn octave_on_grid(scales: &[f64], o: f64) -> bool {
 /// 57-58; Figs 25-28). See the module doc for the conventions.
 ///
 /// **Errors** if fewer than 3 scales fall in the fit range, an octave is
-/// outside the scales, or a pair is not `a < a'`.
+/// outside the scales, or a pair is not `a < a'`. The WTMMM counts are not
+/// checked (a scale without WTMMM drops out of the fit): see
+/// [`check_wtmmm_counts`].
 pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelResult> {
     let ns = s.scales.len();
     if s.images.is_empty() {
@@ -692,9 +762,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     let oct: Vec<f64> = s.scales.iter().map(|a| (a / s.scales[0]).log2()).collect();
     let top = oct[ns - 1];
     let in_range = |o: f64| octave_on_grid(&s.scales, o);
-    let in_fit: Vec<usize> = (0..ns)
-        .filter(|&j| oct[j] >= opts.fit.0 - 1e-9 && oct[j] <= opts.fit.1 + 1e-9)
-        .collect();
+    let in_fit = fit_indices(&oct, opts.fit);
     if in_fit.len() < 3 {
         return Err(Error::param(
             "fit",
@@ -1102,6 +1170,43 @@ mod tests {
         assert!((c.mean - all.mean).abs() < 1e-13);
         assert!((c.m2 - all.m2).abs() < 1e-11 * all.m2.abs());
         assert!((c.m3 - all.m3).abs() < 1e-10 * all.m2.abs().max(1.0));
+    }
+
+    #[test]
+    fn scales_short_of_wtmmm_are_refused() {
+        // octaves 0..2 in quarters: 3 values per scale, 2 at the top (4 px)
+        let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
+        let vals: Vec<Vec<f64>> = (0..9)
+            .map(|j| [0.1, 0.2, 0.4][..if j == 8 { 2 } else { 3 }].to_vec())
+            .collect();
+        let cfg = KernelConfig::default();
+        let s = KernelSums::from_ln_m(&scales, cfg, WtmmmSet::Lines, &vals, "x").unwrap();
+        let opts = KernelOptions {
+            fit: (0.0, 1.5),
+            refs: vec![1.5],
+            pairs: vec![(0.5, 1.5)],
+        };
+        check_wtmmm_counts(&s, &opts).unwrap();
+        // the top scale in the fit range, as a reference, as a pair's end
+        let bad = [
+            KernelOptions {
+                fit: (0.0, 2.0),
+                ..opts.clone()
+            },
+            KernelOptions {
+                refs: vec![2.0],
+                ..opts.clone()
+            },
+            KernelOptions {
+                pairs: vec![(0.5, 2.0)],
+                ..opts.clone()
+            },
+        ];
+        for o in bad {
+            let e = check_wtmmm_counts(&s, &o).unwrap_err().to_string();
+            assert!(e.contains("fewer than 3 WTMMM on maxima lines"), "{e}");
+            assert!(e.contains("a = 4.00 px (2);"), "{e}");
+        }
     }
 
     #[test]
