@@ -522,17 +522,21 @@ fn kernel_refuses_scales_without_wtmmm() {
     assert!(err.contains("WTMMM at the largest fitted scale"), "{err}");
 }
 
-/// `pdf` and `kernel` name the input and the cause: an 8x8 image has no
-/// WTMMM on maxima lines to estimate h0 or the kernel from (it used to say
-/// "invalid parameter `h0`" or "`cumulants`", flags never given), and a
-/// constant image's path is said once.
+/// `pdf` and `kernel` name the input and the cause: a 10x10 image (just
+/// wider than the gauss wavelet at 1.5 px, 9.6 px) has no WTMMM on maxima
+/// lines to estimate h0 or the kernel from (it used to say "invalid
+/// parameter `h0`" or "`cumulants`", flags never given), an 8x8 one is
+/// narrower than the wavelet, and a constant image's path is said once.
 #[test]
 fn pdf_and_kernel_name_the_input_and_the_cause() {
     let dir = scratch("pdf_kernel_messages");
-    let small = dir.join("img8.npy");
     let f = fbm(FbmParams { hurst: 0.4 }, 16, 16, 1, 0).unwrap();
-    write_npy(&small, &f.slice(ndarray::s![..8, ..8]).to_owned()).unwrap();
+    let small = dir.join("img10.npy");
+    write_npy(&small, &f.slice(ndarray::s![..10, ..10]).to_owned()).unwrap();
     let small = small.display().to_string();
+    let narrow = dir.join("img8.npy");
+    write_npy(&narrow, &f.slice(ndarray::s![..8, ..8]).to_owned()).unwrap();
+    let narrow = narrow.display().to_string();
     let flat = dir.join("const.npy");
     write_npy(&flat, &Array2::from_elem((32, 32), 1.0)).unwrap();
     let flat = flat.display().to_string();
@@ -545,6 +549,14 @@ fn pdf_and_kernel_name_the_input_and_the_cause() {
         assert!(err.contains(&small), "{cmd}: {err}");
         assert!(err.contains("WTMMM on maxima lines"), "{cmd}: {err}");
         assert!(!err.contains("invalid parameter"), "{cmd}: {err}");
+        assert!(!out.exists(), "{cmd}");
+        let (code, err) = run_bin_stderr(&[&[cmd, &narrow][..], &tail].concat());
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains(&narrow), "{cmd}: {err}");
+        assert!(
+            err.contains("smaller than the gauss wavelet"),
+            "{cmd}: {err}"
+        );
         assert!(!out.exists(), "{cmd}");
         let (code, err) = run_bin_stderr(&[&[cmd, &flat][..], &tail].concat());
         assert_eq!(code, 2, "{cmd}: {err}");
@@ -640,19 +652,6 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     }
 }
 
-/// The binary on `args` (quiet): its exit code and what it wrote on stderr.
-fn run_bin(args: &[&str]) -> (i32, String) {
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
-        .arg("--quiet")
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        o.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&o.stderr).into_owned(),
-    )
-}
-
 /// A small shard: `analyze IMAGE` over 2 octaves and q = -2..2 into `out`;
 /// returns the path of its sums.json.
 fn merge_shard(image: &str, out: &Path) -> String {
@@ -699,7 +698,7 @@ fn merge_refuses_to_count_a_shard_or_an_image_twice() {
     // --out A itself, and A reached through B/..
     let via = dir.join("B").join("..").join("A").display().to_string();
     for out in [dir.join("A").display().to_string(), via] {
-        let (code, err) = run_bin(&["merge", &ja, &jb, "--fit", "0.5:2", "--out", &out]);
+        let (code, err) = run_bin_stderr(&["merge", &ja, &jb, "--fit", "0.5:2", "--out", &out]);
         assert_eq!(code, 2, "{out}: {err}");
         assert!(err.contains(&ja) && err.contains("overwrite"), "{err}");
         assert_eq!(listing(&dir.join("A")), before, "{out}: A was modified");
@@ -709,14 +708,14 @@ fn merge_refuses_to_count_a_shard_or_an_image_twice() {
     // one file under two names (refused with the other inputs)
     let ja2 = dir.join("B").join("..").join("A").join("sums.json");
     let ja2 = ja2.display().to_string();
-    let (code, err) = run_bin(&["merge", &ja, &jb, &ja2, "--fit", "0.5:2", "--out", &ms]);
+    let (code, err) = run_bin_stderr(&["merge", &ja, &jb, &ja2, "--fit", "0.5:2", "--out", &ms]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains(&ja2) && err.contains("same file"), "{err}");
     // a copy of a shard: the same images in two files
     std::fs::create_dir_all(dir.join("C")).unwrap();
     let jc = dir.join("C").join("sums.json").display().to_string();
     std::fs::copy(&ja, &jc).unwrap();
-    let (code, err) = run_bin(&["merge", &ja, &jb, &jc, "--fit", "0.5:2", "--out", &ms]);
+    let (code, err) = run_bin_stderr(&["merge", &ja, &jb, &jc, "--fit", "0.5:2", "--out", &ms]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains(&ja) && err.contains(&jc), "{err}");
     assert!(err.contains("counted twice"), "{err}");
@@ -804,7 +803,7 @@ fn merge_checks_the_content_of_each_shard() {
         } else {
             &["merge", &ps, "--fit", "0.5:2", "--out", &ms]
         };
-        let (code, err) = run_bin(args);
+        let (code, err) = run_bin_stderr(args);
         assert_eq!(code, 2, "{name}: {err}");
         assert!(err.contains(&ps) && err.contains(want), "{name}: {err}");
         assert!(!m.exists(), "{name}: output directory created");
@@ -821,7 +820,7 @@ fn merge_checks_the_content_of_each_shard() {
             p.display().to_string()
         })
         .collect();
-    let (code, err) = run_bin(&["merge", &old[0], &old[1], "--fit", "0.5:2", "--out", &ms]);
+    let (code, err) = run_bin_stderr(&["merge", &old[0], &old[1], "--fit", "0.5:2", "--out", &ms]);
     assert_eq!(code, 0, "{err}");
     assert!(
         err.contains("warning") && err.contains("cannot be compared"),
@@ -856,7 +855,7 @@ fn merge_default_fit_follows_the_octaves_of_the_sums() {
     assert_eq!(run(&args), 0);
     let j = dir.join("o3").join("sums.json").display().to_string();
     let m = dir.join("m");
-    let (code, err) = run_bin(&["merge", &j, "--out", &m.display().to_string()]);
+    let (code, err) = run_bin_stderr(&["merge", &j, "--out", &m.display().to_string()]);
     assert_eq!(code, 0, "{err}");
     let s = json(&m.join("spectra.json"));
     assert_eq!(s["params"]["fit_octaves"], serde_json::json!([0.5, 3.0]));
@@ -1696,8 +1695,32 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         [an(&ok), vec![&hard, "--out", &out]].concat(),
         [an(&png), vec!["--out", &out]].concat(),
     ];
-    for args in &cases {
-        assert_eq!(run(args), 2, "{args:?}");
+    // what each message must say (the file is named where there is one)
+    let why = [
+        "big.npy: values up to",
+        "tiny.npy: values vary by only",
+        "overflow",
+        "overflow",
+        "overflow",
+        "must be finite",
+        "beyond |q| = 1000",
+        "beyond |q| = 1000",
+        "Nyquist",
+        "Nyquist",
+        "at most 1000",
+        "flat.npy: constant image",
+        "not on the analysis grid",
+        "of another value",
+        "must be finite",
+        "holds none of the q",
+        "are the same file",
+        "is not the PNG's",
+    ];
+    assert_eq!(why.len(), cases.len());
+    for (args, why) in cases.iter().zip(why) {
+        let (code, err) = run_bin_stderr(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains(why), "{args:?}: `{why}` not in {err}");
         assert!(!o.exists(), "{args:?} left {}", o.display());
     }
     // the same image at a sane amplitude runs, and its sidecar with the

@@ -38,7 +38,7 @@ use crate::stats::correlation::{
     correlation_estimates, cwt_correlation, wtmmm_correlation,
 };
 use crate::stats::kernel::{
-    KernelConfig, KernelOptions, KernelSums, kernel_estimates, nearest_scale,
+    KernelConfig, KernelOptions, KernelSums, check_wtmmm_counts, kernel_estimates, nearest_scale,
 };
 use crate::stats::pdf::{Point, WtmmmSet, image_wtmmm};
 use crate::theory::Model;
@@ -748,7 +748,10 @@ pub fn validation_criteria(
             .filter(|&(_, b)| b <= (sk_scales[top] / sk_scales[0]).log2() + 1e-9)
             .collect(),
     };
-    let main = kernel_estimates(acc.lines.as_ref().expect("count >= 1"), &kopts)?;
+    let lines = acc.lines.as_ref().expect("count >= 1");
+    let main = kernel_estimates(lines, &kopts)?;
+    // as `kernel`: no criterion from scales the fit would drop silently
+    check_wtmmm_counts(lines, &kopts).map_err(|e| input.blame(e))?;
     let alt = kernel_estimates(acc.all.as_ref().expect("count >= 1"), &kopts)?;
     // II tests the kernel of the W-cascades only (Figs 26, 28); for other
     // models with closed-form multiplier cumulants (the FISC's p-model,
