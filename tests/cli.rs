@@ -625,21 +625,7 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
         (&[], "same", 0),
     ];
     for (extra, name, want) in cases {
-        let o = dir.join(name).display().to_string();
-        let mut args = vec![
-            "analyze",
-            &b,
-            "--octaves",
-            "2",
-            "--fit",
-            "0.5:2",
-            "--q",
-            "-2:2:1",
-        ];
-        args.extend_from_slice(extra);
-        args.extend_from_slice(&["--out", &o]);
-        assert_eq!(run(&args), 0);
-        let j = dir.join(name).join("sums.json").display().to_string();
+        let j = merge_shard(&b, &dir.join(name), extra);
         let m = dir.join(format!("m_{name}"));
         let ms = m.display().to_string();
         let code = run(&["merge", &j2, &j, "--fit", "0.5:2", "--out", &ms]);
@@ -652,11 +638,11 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     }
 }
 
-/// A small shard: `analyze IMAGE` over 2 octaves and q = -2..2 into `out`;
-/// returns the path of its sums.json.
-fn merge_shard(image: &str, out: &Path) -> String {
+/// A small shard: `analyze IMAGE` over 2 octaves and q = -2..2 (and the
+/// `extra` options) into `out`; returns the path of its sums.json.
+fn merge_shard(image: &str, out: &Path, extra: &[&str]) -> String {
     let o = out.display().to_string();
-    let args = [
+    let mut args = vec![
         "analyze",
         image,
         "--octaves",
@@ -665,11 +651,22 @@ fn merge_shard(image: &str, out: &Path) -> String {
         "0.5:2",
         "--q",
         "-2:2:1",
-        "--out",
-        &o,
     ];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--out", &o]);
     assert_eq!(run(&args), 0);
     out.join("sums.json").display().to_string()
+}
+
+/// Two shards of one fBm image each (a.npy, b.npy) in `DIR/A` and `DIR/B`:
+/// the scratch directory, a.npy, and the two sums.json.
+fn two_shards(name: &str) -> (PathBuf, String, String, String) {
+    let dir = scratch(name);
+    let a = fbm_npy(&dir, "a.npy", 128, 2);
+    let b = fbm_npy(&dir, "b.npy", 128, 3);
+    let ja = merge_shard(&a, &dir.join("A"), &[]);
+    let jb = merge_shard(&b, &dir.join("B"), &[]);
+    (dir, a, ja, jb)
 }
 
 /// `merge` counts no shard or image twice: an --out whose sums.json is an
@@ -678,11 +675,7 @@ fn merge_shard(image: &str, out: &Path) -> String {
 /// The same label with other sums is another image.
 #[test]
 fn merge_refuses_to_count_a_shard_or_an_image_twice() {
-    let dir = scratch("merge_twice");
-    let a = fbm_npy(&dir, "a.npy", 128, 2);
-    let b = fbm_npy(&dir, "b.npy", 128, 3);
-    let ja = merge_shard(&a, &dir.join("A"));
-    let jb = merge_shard(&b, &dir.join("B"));
+    let (dir, a, ja, jb) = two_shards("merge_twice");
     let listing = |d: &Path| {
         let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(d)
             .unwrap()
@@ -722,7 +715,7 @@ fn merge_refuses_to_count_a_shard_or_an_image_twice() {
     assert!(!m.exists(), "output directory created");
     // a.npy rewritten with another field: same label, other sums
     fbm_npy(&dir, "a.npy", 128, 5);
-    let jd = merge_shard(&a, &dir.join("D"));
+    let jd = merge_shard(&a, &dir.join("D"), &[]);
     assert_eq!(run(&["merge", &ja, &jd, "--fit", "0.5:2", "--out", &ms]), 0);
     let s = json(&m.join("spectra.json"));
     assert_eq!(s["images"], 2);
@@ -733,11 +726,7 @@ fn merge_refuses_to_count_a_shard_or_an_image_twice() {
 /// all predate the analysis record merge with a warning.
 #[test]
 fn merge_checks_the_content_of_each_shard() {
-    let dir = scratch("merge_content");
-    let a = fbm_npy(&dir, "a.npy", 128, 2);
-    let b = fbm_npy(&dir, "b.npy", 128, 3);
-    let ja = merge_shard(&a, &dir.join("A"));
-    let jb = merge_shard(&b, &dir.join("B"));
+    let (dir, _, ja, jb) = two_shards("merge_content");
     let good = json(Path::new(&ja));
     let m = dir.join("m");
     let ms = m.display().to_string();
@@ -1630,6 +1619,15 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
     fn an(img: &str) -> Vec<&str> {
         vec!["analyze", img, "--octaves", "2", "--margin", "0"]
     }
+    fn sk<'a>(img: &'a str, scales: &'a str, out: &'a str) -> Vec<&'a str> {
+        let grid = ["--octaves", "2", "--margin", "0"];
+        [
+            &["skeleton", img][..],
+            &grid,
+            &["--scales", scales, "--out", out],
+        ]
+        .concat()
+    }
     let cases: Vec<Vec<&str>> = vec![
         [an(&big), vec!["--out", &out]].concat(),
         [an(&tiny), vec!["--out", &out]].concat(),
@@ -1650,30 +1648,8 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         vec!["cwt", &ok, "--scales", "0.1", "--out", &out],
         vec!["cwt", &ok, "--scales", "1:3:0.001", "--out", &out],
         vec!["cwt", &flat, "--scales", "2", "--out", &out],
-        vec![
-            "skeleton",
-            &ok,
-            "--octaves",
-            "2",
-            "--margin",
-            "0",
-            "--scales",
-            "1000",
-            "--out",
-            &out,
-        ],
-        vec![
-            "skeleton",
-            &ok,
-            "--octaves",
-            "2",
-            "--margin",
-            "0",
-            "--scales",
-            "3,3.05",
-            "--out",
-            &out,
-        ],
+        sk(&ok, "1000", &out),
+        sk(&ok, "3,3.05", &out),
         vec!["spectrum", &ok, "--theory-beta", "nan", "--out", &out],
         vec![
             "compare",
