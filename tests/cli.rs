@@ -29,6 +29,17 @@ fn run(args: &[&str]) -> i32 {
     run_from(v)
 }
 
+/// `analyze IMAGE --octaves OCTAVES EXTRA... --out OUT`: the exit code.
+fn analyze(image: &str, octaves: &str, extra: &[&str], out: &str) -> i32 {
+    let args = [
+        &["analyze", image, "--octaves", octaves][..],
+        extra,
+        &["--out", out],
+    ]
+    .concat();
+    run(&args)
+}
+
 fn json(path: &Path) -> Value {
     let s = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     serde_json::from_str(&s).unwrap()
@@ -576,18 +587,7 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     let s3 = dir.join("o3");
     for (oct, fit, out) in [("2", "0.5:2", &s2), ("3", "0.5:2.9", &s3)] {
         let o = out.display().to_string();
-        let code = run(&[
-            "analyze",
-            &a,
-            "--octaves",
-            oct,
-            "--fit",
-            fit,
-            "--q",
-            "-2:2:1",
-            "--out",
-            &o,
-        ]);
+        let code = analyze(&a, oct, &["--fit", fit, "--q", "-2:2:1"], &o);
         assert_eq!(code, 0);
     }
     let j2 = s2.join("sums.json").display().to_string();
@@ -600,16 +600,7 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
     assert_eq!(run(&["merge", &j2, "--fit", "0.55:2", "--out", &m]), 2);
     assert!(!dir.join("m").exists());
     let bad = dir.join("bad_fit").display().to_string();
-    let code = run(&[
-        "analyze",
-        &a,
-        "--octaves",
-        "2",
-        "--fit",
-        "0.5:1.95",
-        "--out",
-        &bad,
-    ]);
+    let code = analyze(&a, "2", &["--fit", "0.5:1.95"], &bad);
     assert_eq!(code, 2);
     assert!(!dir.join("bad_fit").exists());
     assert_eq!(run(&["merge", &j2, "--fit", "0:2", "--out", &m]), 0);
@@ -642,19 +633,8 @@ fn merge_names_the_mismatched_file_and_checks_the_fit() {
 /// `extra` options) into `out`; returns the path of its sums.json.
 fn merge_shard(image: &str, out: &Path, extra: &[&str]) -> String {
     let o = out.display().to_string();
-    let mut args = vec![
-        "analyze",
-        image,
-        "--octaves",
-        "2",
-        "--fit",
-        "0.5:2",
-        "--q",
-        "-2:2:1",
-    ];
-    args.extend_from_slice(extra);
-    args.extend_from_slice(&["--out", &o]);
-    assert_eq!(run(&args), 0);
+    let opts = [&["--fit", "0.5:2", "--q", "-2:2:1"][..], extra].concat();
+    assert_eq!(analyze(image, "2", &opts, &o), 0);
     out.join("sums.json").display().to_string()
 }
 
@@ -831,17 +811,7 @@ fn merge_default_fit_follows_the_octaves_of_the_sums() {
     let dir = scratch("merge_default_fit");
     let a = fbm_npy(&dir, "a.npy", 128, 2);
     let o = dir.join("o3").display().to_string();
-    let args = [
-        "analyze",
-        &a,
-        "--octaves",
-        "3",
-        "--q",
-        "-2:2:1",
-        "--out",
-        &o,
-    ];
-    assert_eq!(run(&args), 0);
+    assert_eq!(analyze(&a, "3", &["--q", "-2:2:1"], &o), 0);
     let j = dir.join("o3").join("sums.json").display().to_string();
     let m = dir.join("m");
     let (code, err) = run_bin_stderr(&["merge", &j, "--out", &m.display().to_string()]);
@@ -856,18 +826,7 @@ fn analyze_records_the_theory_parameters() {
     let dir = scratch("theory");
     let a = fbm_npy(&dir, "a.npy", 128, 3);
     let o = dir.join("o").display().to_string();
-    let code = run(&[
-        "analyze",
-        &a,
-        "--octaves",
-        "2",
-        "--theory",
-        "fbm",
-        "--hurst",
-        "0.4",
-        "--out",
-        &o,
-    ]);
+    let code = analyze(&a, "2", &["--theory", "fbm", "--hurst", "0.4"], &o);
     assert_eq!(code, 0);
     let s = json(&dir.join("o").join("spectra.json"));
     assert_eq!(s["params"]["theory"]["model"]["hurst"].as_f64(), Some(0.4));
@@ -1539,16 +1498,12 @@ fn missing_pixels_are_counted_and_reported() {
     let p = dir.join("holes.npy");
     write_npy(&p, &f).unwrap();
     let o = dir.join("o");
-    let code = run(&[
-        "analyze",
+    let code = analyze(
         p.to_str().unwrap(),
-        "--octaves",
         "3",
-        "--margin",
-        "20",
-        "--out",
+        &["--margin", "20"],
         o.to_str().unwrap(),
-    ]);
+    );
     assert_eq!(code, 0);
     assert_eq!(json(&o.join("sums.json"))["images"][0]["missing"], 101);
     let s = json(&o.join("spectra.json"));
