@@ -577,6 +577,42 @@ fn pdf_and_kernel_name_the_input_and_the_cause() {
     }
 }
 
+/// `pdf` refuses a shown scale without WTMMM (it drew empty curves, or
+/// failed in the plot over an empty axis) and flags one with few.
+#[test]
+fn pdf_refuses_a_shown_scale_without_wtmmm() {
+    let dir = scratch("pdf_empty_scale");
+    let f = fbm(FbmParams { hurst: 0.4 }, 64, 64, 1, 0).unwrap();
+    let img = dir.join("img64.npy");
+    write_npy(&img, &f).unwrap();
+    let img = img.display().to_string();
+    let out = dir.join("o");
+    let o = out.display().to_string();
+    // on a 64 px torus the top octave (24 px) has no line left
+    let tail = ["--domain", "torus", "--h0", "0.4", "--out", &o];
+    let (code, err) = run_bin_stderr(&[&["pdf", &img, "--show", "4"][..], &tail].concat());
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(&img), "{err}");
+    assert!(
+        err.contains("no WTMMM on maxima lines at a = 24.00 px (0)"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    // at 12 px a handful remain: drawn, flagged on stderr and in pdf.json
+    let (code, err) = run_bin_stderr(&[&["pdf", &img, "--show", "3"][..], &tail].concat());
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("WTMMM on maxima lines at a = "), "{err}");
+    assert!(err.contains("12.00 px ("), "{err}");
+    let written = json(&out.join("pdf.json"));
+    let warnings = written["warnings"].as_array().unwrap();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("few spikes")),
+        "{warnings:?}"
+    );
+}
+
 /// `merge` names the shard that does not match and refuses a fit range
 /// beyond the scales of the sums.
 #[test]

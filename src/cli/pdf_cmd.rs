@@ -547,6 +547,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     };
     let show = scales_at(&scales, &show_oct);
     let sec = scales_at(&scales, &sec_oct);
+    let few = check_shown_counts(&hist, &show, &sec, args.set).map_err(|e| input.blame(e))?;
     let mut all: Vec<usize> = show.iter().chain(&sec).copied().collect();
     all.sort_unstable();
     all.dedup();
@@ -582,6 +583,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
             .collect::<Vec<_>>()
     );
     body["wall_seconds"] = json!(wall);
+    body["warnings"] = json!(warning.iter().chain(&few).collect::<Vec<_>>());
     write_json(&dir.join("pdf.json"), &body)?;
     write_pdf_csvs(dir, &show.iter().map(|&j| get(j)).collect::<Vec<_>>())?;
     plot_pdfs(
@@ -602,7 +604,60 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     if let Some(w) = warning {
         say!("warning: h0 not estimated from the data (estimate_from_data is null): {w}");
     }
+    if let Some(w) = few {
+        say!("warning: {}: {w}", input.describe());
+    }
     Ok(Outcome::Ok)
+}
+
+/// Below this many WTMMM a pdf is a handful of spikes: drawn, but flagged.
+pub const FEW_WTMMM: u64 = 100;
+
+/// The scales a pdf is drawn at (`--show`, `--sectors-at`) need WTMMM: an
+/// empty histogram has no density (it drew empty curves, or failed in the
+/// plot with a message about an axis range).
+///
+/// **Errors** ([`Error::Input`]) when one of them has none; returns a
+/// warning when one has fewer than [`FEW_WTMMM`].
+pub fn check_shown_counts(
+    h: &WtmmmHistograms,
+    show: &[usize],
+    sec: &[usize],
+    set: WtmmmSet,
+) -> Result<Option<String>> {
+    let mut used: Vec<usize> = show.iter().chain(sec).copied().collect();
+    used.sort_unstable();
+    used.dedup();
+    let set = match set {
+        WtmmmSet::Lines => "on maxima lines",
+        WtmmmSet::All => "(all WTMMM)",
+    };
+    let at = |js: &[usize]| -> String {
+        js.iter()
+            .map(|&j| format!("{:.2} px ({})", h.scales[j], h.hist[j].n))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let empty: Vec<usize> = used.iter().copied().filter(|&j| h.hist[j].n == 0).collect();
+    if !empty.is_empty() {
+        return Err(Error::Input(format!(
+            "no WTMMM {set} at a = {} (--show / --sectors-at), over {} image(s): there is no pdf \
+             to draw; the counting domain is too small for these scales (show smaller scales, \
+             use a smaller --margin or larger images)",
+            at(&empty),
+            h.images
+        )));
+    }
+    let few: Vec<usize> = used
+        .into_iter()
+        .filter(|&j| h.hist[j].n < FEW_WTMMM)
+        .collect();
+    Ok((!few.is_empty()).then(|| {
+        format!(
+            "fewer than {FEW_WTMMM} WTMMM {set} at a = {}: those pdfs are a few spikes",
+            at(&few)
+        )
+    }))
 }
 
 fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf]) -> Result<()> {
