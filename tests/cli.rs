@@ -841,19 +841,26 @@ fn merge_checks_the_content_of_each_shard() {
     );
 }
 
-/// Without --fit, merge fits 0.5:min(4, octaves of the sums), as analyze.
+/// Without --fit, merge fits 0.5:min(4, octaves of the sums), as analyze,
+/// and prints the fit's warnings as analyze does.
 #[test]
 fn merge_default_fit_follows_the_octaves_of_the_sums() {
     let dir = scratch("merge_default_fit");
     let a = fbm_npy(&dir, "a.npy", 128, 2);
     let o = dir.join("o3").display().to_string();
-    assert_eq!(analyze(&a, "3", &["--q", "-2:2:1"], &o), 0);
+    assert_eq!(analyze(&a, "3", &["--q", "-6:2:2"], &o), 0);
     let j = dir.join("o3").join("sums.json").display().to_string();
     let m = dir.join("m");
     let (code, err) = run_bin_stderr(&["merge", &j, "--out", &m.display().to_string()]);
     assert_eq!(code, 0, "{err}");
     let s = json(&m.join("spectra.json"));
     assert_eq!(s["params"]["fit_octaves"], serde_json::json!([0.5, 3.0]));
+    // one image at q = -6: few lines dominate, and the fit says so
+    let warnings = s["warnings"].as_array().unwrap();
+    assert!(!warnings.is_empty());
+    for w in warnings {
+        assert!(err.contains(w.as_str().unwrap()), "{w} not in {err}");
+    }
 }
 
 /// The theory an analysis is drawn against is recorded with its parameters.

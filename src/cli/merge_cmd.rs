@@ -155,7 +155,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         );
     }
     // recorded in spectra.json with the fit's warnings
-    s.warnings.extend(warnings.iter().cloned());
+    s.warnings.extend(warnings);
     make_out_dir(&args.out.out)?;
     let curves = theory.map(|m| theory_curves(&m, m.name(), &s.q));
     // the analysis the shards share (null when no shard records it)
@@ -170,7 +170,8 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         &o,
         curves.as_ref(),
     )?;
-    for w in &warnings {
+    // the fit's warnings too (poor fits, too few lines), as analyze prints them
+    for w in &s.warnings {
         say!("warning: {w}");
     }
     if !quiet {
