@@ -1588,7 +1588,8 @@ fn missing_pixels_are_counted_and_reported() {
 /// * a constant image for `cwt`; skeleton scales off the grid or two on one
 ///   grid scale; a NaN `--theory-beta`; a `--summary-q` holding no q;
 /// * the same file twice through a hard link;
-/// * a PNG sidecar of another shape (a stale sidecar beside a new PNG).
+/// * a PNG sidecar of another shape (a stale sidecar beside a new PNG);
+/// * more images than four-digit file names hold (`synth --count 10001`).
 #[test]
 fn hostile_inputs_are_refused_and_nothing_is_written() {
     let dir = scratch("hostile");
@@ -1668,6 +1669,9 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         ],
         [an(&ok), vec![&hard, "--out", &out]].concat(),
         [an(&png), vec!["--out", &out]].concat(),
+        vec![
+            "synth", "fbm", "--hurst", "0.4", "--size", "16", "--count", "10001", "--out", &out,
+        ],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -1689,6 +1693,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "holds none of the q",
         "are the same file",
         "is not the PNG's",
+        "must be at most 10000",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {

@@ -30,7 +30,7 @@ pub struct SynthCommon {
     /// Image side in pixels.
     #[arg(long)]
     pub size: usize,
-    /// Number of images.
+    /// Number of images (at most 10000).
     #[arg(long, default_value_t = 1)]
     pub count: usize,
     /// Seed of the ensemble (image i uses a seed derived from it).
@@ -89,6 +89,9 @@ pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
     })
 }
 
+/// Most images one `synth` writes: their names carry four digits.
+pub const MAX_COUNT: usize = 10_000;
+
 fn check_common(c: &SynthCommon) -> Result<()> {
     if c.size < 16 || c.size > 1 << 15 {
         return Err(Error::param(
@@ -98,6 +101,17 @@ fn check_common(c: &SynthCommon) -> Result<()> {
     }
     if c.count == 0 {
         return Err(Error::param("count", "must be >= 1"));
+    }
+    if c.count > MAX_COUNT {
+        return Err(Error::param(
+            "count",
+            format!(
+                "must be at most {MAX_COUNT}, got {}: the files are numbered with four digits \
+                 (`{{stem}}_NNNN`, which the stale-file check reads); write a larger ensemble \
+                 as several directories with different --seed",
+                c.count
+            ),
+        ));
     }
     // an allocation beyond the machine aborts the process (no message, and
     // the directory left behind): estimate first. The fBm is drawn on a
