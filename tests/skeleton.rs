@@ -678,3 +678,87 @@ fn step_edge_modulus_is_calibrated() {
         }
     }
 }
+
+/// Diagnostic behind the README's "Not spurious chain maxima" (not a check;
+/// `cargo test --release --test skeleton experiment_chain_maxima_spacing --
+/// --ignored --nocapture`, env PRESET (default paper-fisc), WAVELET = gauss
+/// | mexican (default: the preset's), N images of 1024^2 (default 2)). At
+/// every fifth scale, over the chains of the whole torus: the number of
+/// WTMMM, the chains' length in pixels times a (constant for a
+/// self-similar field), the distance along the chain between neighbouring
+/// WTMMM in units of a (quantiles, and the share below 0.5 a), and the
+/// share whose dip between them is below 0.1 % of the lower one.
+#[test]
+#[ignore]
+fn experiment_chain_maxima_spacing() {
+    use wtmm::cwt::CwtPlan;
+    use wtmm::skeleton::maxima::{DetectScratch, detect, for_each_chain_max};
+    use wtmm::theory::Model;
+    let name = std::env::var("PRESET").unwrap_or_else(|_| "paper-fisc".into());
+    let preset = Model::preset(&name).unwrap();
+    let wavelet = match std::env::var("WAVELET").as_deref() {
+        Ok("gauss") => Wavelet::Gauss,
+        Ok("mexican") => Wavelet::Mexican,
+        _ => preset.wavelet,
+    };
+    let n: u64 = std::env::var("N").map(|s| s.parse().unwrap()).unwrap_or(2);
+    let size = 1024;
+    let c = cfg(wavelet, 5, 0);
+    let scales = c.scale_list();
+    let plan = CwtPlan::new(size, size, wavelet, &scales).unwrap();
+    let images: Vec<Field> = (0..n)
+        .map(|i| Field::new(preset.model.synthesize(size, 1, i).unwrap()))
+        .collect();
+    println!("{name}, {wavelet:?}, {n} x {size}^2");
+    println!("     a  WTMMM  chain px * a | gap / a: q10  q25  q50  < 0.5 | dip < 0.1 %");
+    for j in (5..scales.len()).step_by(5) {
+        let a = scales[j];
+        let (mut count, mut len) = (0usize, 0usize);
+        let (mut gaps, mut dips) = (Vec::new(), Vec::new());
+        for field in &images {
+            let domain = c.domain(field).unwrap();
+            let fi = plan.forward(field.filled().unwrap().view()).unwrap();
+            let mut ws = plan.workspace();
+            let t = plan.scale(&fi, j, &mut ws).to_owned();
+            let sm = detect(
+                &t,
+                j,
+                a,
+                &domain,
+                c.eps,
+                true,
+                &mut DetectScratch::default(),
+            );
+            count += sm.wtmmm.len();
+            for ch in &sm.chains {
+                len += ch.pixels.len();
+                let m: Vec<f64> = ch
+                    .pixels
+                    .iter()
+                    .map(|&(x, y)| t[[y as usize, x as usize]].norm())
+                    .collect();
+                let mut idx = Vec::new();
+                for_each_chain_max(&m, ch.closed, |k| idx.push(k));
+                for w in idx.windows(2) {
+                    gaps.push((w[1] - w[0]) as f64 / a);
+                    let low = m[w[0]..=w[1]].iter().copied().fold(f64::INFINITY, f64::min);
+                    let top = m[w[0]].min(m[w[1]]);
+                    dips.push((top - low) / top);
+                }
+            }
+        }
+        gaps.sort_by(f64::total_cmp);
+        let q = |f: f64| gaps[((gaps.len() - 1) as f64 * f) as usize];
+        let share =
+            |v: &[f64], t: f64| v.iter().filter(|&&x| x < t).count() as f64 / v.len() as f64;
+        println!(
+            "{a:6.2} {count:6} {:13.0} |        {:.2} {:.2} {:.2} {:.2}  | {:.2}",
+            len as f64 * a,
+            q(0.1),
+            q(0.25),
+            q(0.5),
+            share(&gaps, 0.5),
+            share(&dips, 0.001)
+        );
+    }
+}
