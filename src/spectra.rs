@@ -711,17 +711,23 @@ impl Estimates {
 }
 
 /// Legendre transform of a sampled τ(q): `h = dτ/dq` by finite differences
-/// (second-order on non-uniform grids, one-sided at the ends),
-/// `D = q h - τ` (SPEC §4).
+/// (the slope of the parabola through three neighbouring points, one-sided
+/// at the ends, so second-order everywhere on non-uniform grids; two
+/// points give their chord), `D = q h - τ` (SPEC §4).
 pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {
     let n = q.len();
     let mut h = vec![f64::NAN; n];
-    if n >= 2 {
+    if n == 2 {
+        let c = (tau[1] - tau[0]) / (q[1] - q[0]);
+        h = vec![c, c];
+    } else if n >= 3 {
         for i in 0..n {
             h[i] = if i == 0 {
-                (tau[1] - tau[0]) / (q[1] - q[0])
+                // a chord would be off by τ'' dq / 2 (0.01 in h, 0.04 in D
+                // at the ends of -4:6:0.5 for the paper cascades)
+                parabola_slope(&q[..3], &tau[..3], q[0])
             } else if i == n - 1 {
-                (tau[n - 1] - tau[n - 2]) / (q[n - 1] - q[n - 2])
+                parabola_slope(&q[n - 3..], &tau[n - 3..], q[n - 1])
             } else {
                 // derivative of the parabola through three points
                 let (h1, h2) = (q[i] - q[i - 1], q[i + 1] - q[i]);
@@ -732,6 +738,17 @@ pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {
     }
     let d = (0..n).map(|i| q[i] * h[i] - tau[i]).collect();
     (h, d)
+}
+
+/// Slope at `t` of the parabola through three points (`x` distinct): the
+/// derivative of the Lagrange interpolant.
+fn parabola_slope(x: &[f64], y: &[f64], t: f64) -> f64 {
+    (0..3)
+        .map(|k| {
+            let (l, m) = ((k + 1) % 3, (k + 2) % 3);
+            y[k] * ((t - x[l]) + (t - x[m])) / ((x[k] - x[l]) * (x[k] - x[m]))
+        })
+        .sum()
 }
 
 /// The spectra of an ensemble, ready for output (SPEC §13 `spectra.json`).
@@ -884,11 +901,15 @@ mod tests {
         let q = [-3.0, -2.0, -0.5, 0.0, 1.0, 2.5, 3.0, 4.0];
         let tau: Vec<f64> = q.iter().map(|&x| -2.0 + 0.4 * x - 0.05 * x * x).collect();
         let (h, d) = legendre(&q, &tau);
-        for i in 1..q.len() - 1 {
+        // the ends too: one-sided three-point slopes
+        for i in 0..q.len() {
             let hx = 0.4 - 0.1 * q[i];
             assert!((h[i] - hx).abs() < 1e-12, "{i}: {} vs {hx}", h[i]);
             assert!((d[i] - (q[i] * hx - tau[i])).abs() < 1e-12);
         }
+        // two points: their chord
+        let (h, _) = legendre(&q[..2], &tau[..2]);
+        assert!((h[0] - (tau[1] - tau[0])).abs() < 1e-12 && h[0] == h[1]);
     }
 
     #[test]

@@ -117,7 +117,8 @@ pub enum Magnitude {
     #[default]
     Lnm,
     /// `½ ln ε²(x, a)`, `ε²` the box average of `|T|²` over a window of
-    /// side `2 floor(a/2) + 1` px (II eqs 65, 67).
+    /// side `2 floor(a/2) + 1` px (II eqs 65, 67; SPEC §6's "size a", made
+    /// odd so that the box is centred on its pixel).
     Energy,
 }
 
@@ -952,11 +953,12 @@ struct ScaleFields {
 pub struct PairSums {
     /// `Σ w̃1(x) w̃2(x + d)`.
     pub ww: Vec<f64>,
-    /// `Σ w̃1(x) m2(x + d)` and `Σ m1(x) w̃2(x + d)` (ensemble centring).
+    /// `Σ w̃1(x) m2(x + d)` (a cross term of the ensemble centring; `mw`
+    /// is the other).
     pub wm: Vec<f64>,
     /// `Σ m1(x) w̃2(x + d)`.
     pub mw: Vec<f64>,
-    /// Number of pairs `Σ m1(x) m2(x + d)`, and weighted by `log2 |d|`.
+    /// Number of pairs `Σ m1(x) m2(x + d)`.
     pub count: Vec<f64>,
     /// `Σ m1(x) m2(x + d) log2 |d|` (for the pair-weighted mean lag of a bin).
     pub lcount: Vec<f64>,
@@ -1425,7 +1427,7 @@ pub struct PairCorrelation {
     pub c_ensemble_stderr: Vec<f64>,
     /// Number of pairs per bin (all images).
     pub pairs: Vec<f64>,
-    /// Covariance at `Δx = 0` (per-image and ensemble centring).
+    /// Covariance at `Δx = 0`, per-image centring.
     pub c0: f64,
     /// Covariance at `Δx = 0`, ensemble centring.
     pub c0_ensemble: f64,

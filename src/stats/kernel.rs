@@ -792,13 +792,30 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     }
     let order = s.canonical();
     let ens = s.ensemble_moments(&order, None);
-    let kappa: Vec<[f64; 3]> = ens.iter().map(|m| m.cumulants()).collect();
+    // fewer than MIN_WTMMM values have no cumulants (the plug-in variance of
+    // one value and the third cumulant of two are identically 0): NaN, so
+    // that no fit takes them for data, in the leave-one-out samples too
+    let cumulants_of = |m: &[Moments]| -> Vec<[f64; 3]> {
+        m.iter()
+            .map(|mm| {
+                if mm.n < MIN_WTMMM {
+                    [f64::NAN; 3]
+                } else {
+                    mm.cumulants()
+                }
+            })
+            .collect()
+    };
+    let kappa = cumulants_of(&ens);
     let ln_a: Vec<f64> = s.scales.iter().map(|a| a.ln()).collect();
     let fit_c = |kap: &[[f64; 3]]| -> [(f64, f64, f64); 3] {
         let x: Vec<f64> = in_fit.iter().map(|&j| ln_a[j]).collect();
         let mut out = [(f64::NAN, f64::NAN, f64::NAN); 3];
         for (n, o) in out.iter_mut().enumerate() {
             let y: Vec<f64> = in_fit.iter().map(|&j| kap[j][n]).collect();
+            if y.iter().any(|v| !v.is_finite()) {
+                continue; // a scale without cumulants: not estimable
+            }
             if let Some(f) = line_fit(&x, &y) {
                 // C_n(a, a') = κ_n(a) - κ_n(a') = c_n ln(a'/a)  =>  c_n = -dκ_n/d ln a
                 *o = (-f.slope, f.slope_stderr, f.r2);
@@ -813,8 +830,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     if n_img >= 3 {
         // in the canonical order, so that the errors do not depend on merges
         for &i in &order {
-            let m = s.ensemble_moments(&order, Some(i));
-            reps.push(m.iter().map(|mm| mm.cumulants()).collect());
+            reps.push(cumulants_of(&s.ensemble_moments(&order, Some(i))));
         }
     }
     let jk = |vals: &[f64]| -> f64 {
@@ -1207,6 +1223,60 @@ mod tests {
             assert!(e.contains("fewer than 3 WTMMM on maxima lines"), "{e}");
             assert!(e.contains("a = 4.00 px (2);"), "{e}");
         }
+    }
+
+    /// Three images hold 2, 1 and 1 WTMMM at the top scale: 4 over the
+    /// ensemble passes the count check, but leaving out the first leaves 2,
+    /// whose plug-in κ3 is 0. That replicate is not estimable: the errors
+    /// fall back to the regression's, with the label and a warning.
+    #[test]
+    fn leave_one_out_samples_short_of_wtmmm_are_not_fitted() {
+        let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
+        let cfg = KernelConfig::default();
+        let top = [2usize, 1, 1];
+        let mut s: Option<KernelSums> = None;
+        for (i, &k) in top.iter().enumerate() {
+            // ln M spreading more at small scales, different in each image
+            let vals: Vec<Vec<f64>> = (0..9)
+                .map(|j| {
+                    let n = if j == 8 { k } else { 40 };
+                    (0..n)
+                        .map(|t| {
+                            ((t * 37 + i * 11 + j * 5) % 23) as f64 * (0.05 - 0.004 * j as f64)
+                        })
+                        .collect()
+                })
+                .collect();
+            let one = KernelSums::from_ln_m(&scales, cfg, WtmmmSet::Lines, &vals, format!("{i}"))
+                .unwrap();
+            match s.as_mut() {
+                None => s = Some(one),
+                Some(acc) => acc.merge(&one).unwrap(),
+            }
+        }
+        let s = s.unwrap();
+        let opts = KernelOptions {
+            fit: (0.0, 2.0),
+            refs: vec![1.0],
+            pairs: vec![(0.0, 1.0)],
+        };
+        check_wtmmm_counts(&s, &opts).unwrap();
+        let r = kernel_estimates(&s, &opts).unwrap();
+        for c in [&r.cumulants.c1, &r.cumulants.c2, &r.cumulants.c3] {
+            assert!(c.value.is_finite() && c.stderr.is_finite() && c.stderr > 0.0);
+        }
+        assert_eq!(
+            r.stderr_method,
+            "jackknife over images; regression for c1, c2, c3"
+        );
+        assert!(r.warnings.iter().any(|w| w.contains("not finite")));
+        // with the top scale left out of the fit every replicate is estimable
+        let opts = KernelOptions {
+            fit: (0.0, 1.75),
+            ..opts
+        };
+        let r = kernel_estimates(&s, &opts).unwrap();
+        assert_eq!(r.stderr_method, "jackknife over images");
     }
 
     #[test]
