@@ -356,24 +356,8 @@ fn one_chain_scale(
 }
 
 fn point_scale(j: usize, a: f64, pts: &[(u32, f64)]) -> ScaleMaxima {
-    ScaleMaxima {
-        j,
-        a,
-        n_wtmm: pts.len(),
-        n_chains: pts.len(),
-        wtmmm: pts
-            .iter()
-            .enumerate()
-            .map(|(c, &(x, m))| Wtmmm {
-                x,
-                y: 50,
-                m,
-                arg: 0.0,
-                chain: c as u32,
-            })
-            .collect(),
-        chains: Vec::new(),
-    }
+    let pts: Vec<(u32, u32, f64)> = pts.iter().map(|&(x, m)| (x, 50, m)).collect();
+    ScaleMaxima::from_points(j, a, &pts)
 }
 
 /// The maximum of a chain slides along it, 40 px between two voices (far

@@ -612,28 +612,10 @@ impl Linker {
 mod tests {
     //! The linking rules of SPEC §3 on hand-made scales.
     use super::*;
-    use crate::skeleton::maxima::Wtmmm;
 
     /// A scale holding WTMMM at `(x, y, M)`.
     fn scale(j: usize, a: f64, pts: &[(u32, u32, f64)]) -> ScaleMaxima {
-        ScaleMaxima {
-            j,
-            a,
-            n_wtmm: pts.len(),
-            n_chains: pts.len(),
-            wtmmm: pts
-                .iter()
-                .enumerate()
-                .map(|(c, &(x, y, m))| Wtmmm {
-                    x,
-                    y,
-                    m,
-                    arg: 0.0,
-                    chain: c as u32,
-                })
-                .collect(),
-            chains: Vec::new(),
-        }
+        ScaleMaxima::from_points(j, a, pts)
     }
 
     fn link(params: LinkParams, scales: &[ScaleMaxima]) -> (Vec<MaximaLine>, Vec<Endings>) {

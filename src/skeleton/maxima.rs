@@ -49,6 +49,32 @@ pub struct ScaleMaxima {
     pub chains: Vec<Chain>,
 }
 
+impl ScaleMaxima {
+    /// A scale `j` (scale `a` px) holding WTMMM at `(x, y, M)`, each on a
+    /// chain of its own, with argument 0: maxima found elsewhere, to be
+    /// linked by a [`crate::skeleton::Linker`] (and the linking tests).
+    pub fn from_points(j: usize, a: f64, pts: &[(u32, u32, f64)]) -> Self {
+        ScaleMaxima {
+            j,
+            a,
+            n_wtmm: pts.len(),
+            n_chains: pts.len(),
+            wtmmm: pts
+                .iter()
+                .enumerate()
+                .map(|(c, &(x, y, m))| Wtmmm {
+                    x,
+                    y,
+                    m,
+                    arg: 0.0,
+                    chain: c as u32,
+                })
+                .collect(),
+            chains: Vec::new(),
+        }
+    }
+}
+
 /// Where maxima are counted: the interior rectangle `[y0, y1) x [x0, x1)`
 /// (SPEC §1 margin, the same at every scale), minus the pixels too close to a
 /// masked pixel. With `guard` set, chains are traced (and lines linked) over
