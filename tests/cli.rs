@@ -917,24 +917,35 @@ fn cwt_is_nan_where_the_wavelet_reaches_missing_pixels() {
     }
 }
 
+/// `validate --preset P --count C --size N --octaves 3` and `extra`.
+fn validate_args<'a>(
+    preset: &'a str,
+    count: &'a str,
+    size: &'a str,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
+    let mut v = vec![
+        "validate",
+        "--preset",
+        preset,
+        "--count",
+        count,
+        "--size",
+        size,
+        "--octaves",
+        "3",
+    ];
+    v.extend_from_slice(extra);
+    v
+}
+
 /// paper-fbm's published range is the core range [-4, 6]: one criterion.
 #[test]
 fn validate_judges_the_fbm_range_once() {
     let dir = scratch("validate");
     let o = dir.join("o");
-    let code = run(&[
-        "validate",
-        "--preset",
-        "paper-fbm",
-        "--count",
-        "1",
-        "--size",
-        "512",
-        "--octaves",
-        "3",
-        "--out",
-        &o.display().to_string(),
-    ]);
+    let out = o.display().to_string();
+    let code = run(&validate_args("paper-fbm", "1", "512", &["--out", &out]));
     assert_eq!(code, 0);
     let v = json(&o.join("validation.json"));
     let n = v["criteria"]
@@ -965,21 +976,7 @@ fn validate_uses_the_torus_on_periodic_models() {
     let dir = scratch("validate-torus");
     for (margin, want) in [(None, 0), (Some("40"), 40)] {
         let o = dir.join(format!("o{want}")).display().to_string();
-        let mut args = vec![
-            "validate",
-            "--preset",
-            "paper-lognormal",
-            "--count",
-            "1",
-            "--size",
-            "256",
-            "--octaves",
-            "3",
-            "--q",
-            "0",
-            "--out",
-            &o,
-        ];
+        let mut args = validate_args("paper-lognormal", "1", "256", &["--q", "0", "--out", &o]);
         if let Some(m) = margin {
             args.extend(["--margin", m]);
         }
@@ -1191,23 +1188,12 @@ fn mixed_sizes_are_recorded() {
 fn validate_replicates_summarise_independent_ensembles() {
     let dir = scratch("replicates");
     let o = dir.join("o").display().to_string();
-    let base = [
-        "validate",
-        "--preset",
+    let base = validate_args(
         "paper-lognormal",
-        "--count",
         "2",
-        "--size",
         "256",
-        "--octaves",
-        "3",
-        "--q",
-        "0,2",
-        "--seed",
-        "5",
-        "--out",
-        &o,
-    ];
+        &["--q", "0,2", "--seed", "5", "--out", &o],
+    );
     let mut args = base.to_vec();
     args.extend(["--replicates", "0"]);
     assert_eq!(run(&args), 2);
@@ -1347,19 +1333,7 @@ fn validate_check_exits_1_when_a_criterion_fails() {
         o.display().to_string(),
         dir.join("o2").display().to_string(),
     );
-    let base = [
-        "validate",
-        "--preset",
-        "paper-fisc",
-        "--wavelet",
-        "gauss",
-        "--count",
-        "2",
-        "--size",
-        "256",
-        "--octaves",
-        "3",
-    ];
+    let base = validate_args("paper-fisc", "2", "256", &["--wavelet", "gauss"]);
     let mut with_check = base.to_vec();
     with_check.extend_from_slice(&["--check", "--out", out.as_str()]);
     let code = run(&with_check);
