@@ -486,6 +486,32 @@ impl PartitionSums {
                 ));
             }
         }
+        // II §3.1: a wavelet with n vanishing moments measures exponents
+        // below n; where the lines grow like a^n or faster the estimate is
+        // not a Hölder exponent (smooth or quantised parts, or too low an order)
+        if let Some(w) = self.analysis.as_ref().map(|a| a.wavelet) {
+            let order = f64::from(w.order());
+            let at: Vec<usize> = (0..nq).filter(|&qi| est.h[qi] >= order).collect();
+            if let (Some(&first), Some(&last)) = (at.first(), at.last()) {
+                let top = at.iter().map(|&qi| est.h[qi]).fold(f64::MIN, f64::max);
+                let moments = if order == 1.0 { "moment" } else { "moments" };
+                warnings.push(format!(
+                    "h(q) >= {order} at {} of the q (q = {} .. {}, up to h = {top:.3}): the {} \
+                     wavelet has {order} vanishing {moments} and cannot measure exponents of \
+                     {order} or more, so these are not Hölder exponents (smooth or quantised \
+                     parts of the image, or a wavelet of too low an order{})",
+                    at.len(),
+                    self.q[first],
+                    self.q[last],
+                    w.name(),
+                    if w == crate::cwt::Wavelet::Gauss {
+                        ": try --wavelet mexican"
+                    } else {
+                        ""
+                    }
+                ));
+            }
+        }
         let holed: Vec<u64> = self
             .images
             .iter()
@@ -894,6 +920,54 @@ fn config_difference(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Lines whose modulus grows like a^h at every q; the sums say which
+    /// wavelet made them.
+    fn power_law_sums(h: f64, wavelet: crate::cwt::Wavelet) -> PartitionSums {
+        let scales: Vec<f64> = (0..41).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+        let values: Vec<Vec<f64>> = scales
+            .iter()
+            .map(|&a| {
+                // whole cycles of the 7 offsets: the same spread at every scale
+                let n = 7 * (600.0 / (a / 1.5).powi(2)).ceil() as usize;
+                (0..n)
+                    .map(|k| h * a.log2() + ((k % 7) as f64 - 3.0) * 0.1)
+                    .collect()
+            })
+            .collect();
+        let q: Vec<f64> = (-4..=4).map(f64::from).collect();
+        let mut s = PartitionSums::from_log2_values(&scales, &values, &q, "x").unwrap();
+        s.analysis = Some(crate::skeleton::AnalysisConfig {
+            wavelet,
+            ..Default::default()
+        });
+        s
+    }
+
+    #[test]
+    fn exponents_at_the_wavelet_order_are_flagged() {
+        use crate::cwt::Wavelet;
+        let flagged = |h: f64, w: Wavelet| {
+            let sp = power_law_sums(h, w)
+                .spectra(Rule::Plain, (0.5, 4.0))
+                .unwrap();
+            assert!(sp.h.iter().all(|x| (x - h).abs() < 1e-9), "{:?}", sp.h);
+            sp.warnings.iter().any(|m| m.starts_with("h(q) >= "))
+        };
+        assert!(flagged(1.2, Wavelet::Gauss));
+        assert!(!flagged(0.8, Wavelet::Gauss));
+        assert!(!flagged(1.2, Wavelet::Mexican));
+        assert!(flagged(3.0, Wavelet::Mexican));
+        let sp = power_law_sums(1.2, Wavelet::Gauss)
+            .spectra(Rule::Plain, (0.5, 4.0))
+            .unwrap();
+        let w = sp.warnings.iter().find(|m| m.starts_with("h(q)")).unwrap();
+        assert!(
+            w.contains("at 9 of the q (q = -4 .. 4, up to h = 1.200)"),
+            "{w}"
+        );
+        assert!(w.contains("try --wavelet mexican"), "{w}");
+    }
 
     #[test]
     fn legendre_of_a_parabola_is_exact() {
