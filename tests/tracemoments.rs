@@ -86,9 +86,15 @@ fn lognormal_cascade_recovers_k_alpha_c1() {
     let c1 = 0.1;
     let s = (c1 * 2.0 * std::f64::consts::LN_2).sqrt();
     let n_img = 16;
+    // the DTM at the default q = 1.5 (the headline) and at q = 0.5, where
+    // K(q, eta) < 0
+    let config = TraceMomentConfig {
+        dtm_q: vec![1.5, 0.5],
+        ..Default::default()
+    };
     let accs: Vec<TraceMomentAccumulator> = (0..n_img)
         .map(|i| {
-            let mut acc = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+            let mut acc = TraceMomentAccumulator::new(config.clone()).unwrap();
             acc.add_flux(cascade(8, s, 11, i).view(), None).unwrap();
             acc
         })
@@ -176,6 +182,19 @@ fn lognormal_cascade_recovers_k_alpha_c1() {
     check("C1", res.c1, c1, (-0.00115, 0.00035, 0.00197));
     check("DTM alpha", res.dtm_alpha, 2.0, (-0.0154, 0.0046, 0.0258));
     check("DTM C1", res.dtm_c1, c1, (-0.00216, 0.00042, 0.00235));
+    assert_eq!((res.dtm_alpha, res.dtm[0].q), (res.dtm[0].alpha, 1.5));
+    check(
+        "DTM alpha, q = 0.5",
+        res.dtm[1].alpha,
+        2.0,
+        (-0.00609, 0.00123, 0.00694),
+    );
+    check(
+        "DTM C1, q = 0.5",
+        res.dtm[1].c1,
+        c1,
+        (-0.00199, 0.00031, 0.00178),
+    );
     // q_s = ((2 + ln 16 / ln 256)/C1)^(1/α) = 5 at the true α, C1
     check("q_s", res.q_s, 5.0, (0.212, 0.043, 0.245));
     // the moment at q = 1 is exactly 1 at every scale (box averages preserve the mean)
@@ -561,6 +580,13 @@ fn rejects_bad_input() {
             .to_string()
             .contains("q")
     );
+    // K(1, eta) = 0 for every eta: no double trace moment at q = 1
+    let bad = TraceMomentConfig {
+        dtm_q: vec![1.5, 1.0],
+        ..Default::default()
+    };
+    let e = TraceMomentAccumulator::new(bad).unwrap_err().to_string();
+    assert!(e.contains("dtm-q") && e.contains("conserved"), "{e}");
     let flat = Field::new(Array2::from_elem((32, 32), 3.0));
     // a constant field has no H = ξ(1) to differentiate by (default flux) ...
     let mut acc = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
@@ -987,13 +1013,17 @@ fn experiment_cascade_bias() {
         universal: UniversalWeighting::Ols,
         ..Default::default()
     };
-    let runs: Vec<[f64; 8]> = (0..r)
+    // the DTM at q = 1.5 (the default, first: the headline) and q = 0.5
+    let config = TraceMomentConfig {
+        dtm_q: vec![1.5, 0.5],
+        ..Default::default()
+    };
+    let runs: Vec<[f64; 10]> = (0..r)
         .into_par_iter()
         .map(|k| {
             let accs: Vec<TraceMomentAccumulator> = (0..n)
                 .map(|i| {
-                    let mut acc =
-                        TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+                    let mut acc = TraceMomentAccumulator::new(config.clone()).unwrap();
                     acc.add_flux(cascade(levels, s, seed + k, i).view(), None)
                         .unwrap();
                     acc
@@ -1013,6 +1043,8 @@ fn experiment_cascade_bias() {
                 gls.alpha - 2.0,
                 gls.c1 - c1,
                 res_ols.alpha - 2.0,
+                res.dtm[1].alpha - 2.0,
+                res.dtm[1].c1 - c1,
             ]
         })
         .collect();
@@ -1026,6 +1058,8 @@ fn experiment_cascade_bias() {
         "GLS alpha - 2 (finish_ensemble)",
         "GLS C1 - 0.1 (finish_ensemble)",
         "OLS alpha - 2 (finish_ensemble)",
+        "DTM alpha - 2 at q = 0.5",
+        "DTM C1 - 0.1 at q = 0.5",
     ]
     .iter()
     .enumerate()

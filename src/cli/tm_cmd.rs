@@ -371,6 +371,19 @@ fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
                 .to_string(),
         );
     }
+    for d in res.dtm.iter().filter(|d| d.n < 3) {
+        w.push(format!(
+            "DTM at q = {}: {} usable eta value(s) (K(q, eta) of the sign of K(q), eta in the \
+             fit range, q eta <= q_s): {}",
+            d.q,
+            d.n,
+            if d.n < 2 {
+                "no fit"
+            } else {
+                "a line through two points, no error"
+            }
+        ));
+    }
     if res.dtm_alpha.is_finite() && !(res.dtm_alpha >= 0.0 && res.dtm_alpha <= 2.0) {
         w.push(format!(
             "DTM alpha = {:.3} lies outside [0, 2]: too few scales or images",

@@ -15,8 +15,8 @@
 //!    divergent moments of `e^Γ` of every order `q > 0` when α < 2.
 //! 3. Flux `φ = exp(Γ)`.
 //! 4. Field: fractional integration of order H of the flux,
-//!    `f̂(k) = |k|^-H φ̂(k)` (k in rad/px, `k = 0` set to 0); `H < 0` is a
-//!    fractional differentiation.
+//!    `f̂(k) = |k|^-H φ̂(k)` (k in rad/px, `k = 0` set to 0), `0 <= H < 3`
+//!    (H = 0 leaves the flux as it is).
 //!
 //! # Normalisation (exact, not asymptotic)
 //! `Γ(x)` is a weighted sum of independent stable variables with positive
@@ -104,7 +104,7 @@ pub struct FifParams {
     pub alpha: f64,
     /// Codimension of the mean, `0 <= C1 < D = 2`.
     pub c1: f64,
-    /// Degree of fractional integration H (finite; negative = differentiation).
+    /// Degree of fractional integration H, `0 <= H < 3`.
     pub hurst: f64,
 }
 

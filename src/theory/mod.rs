@@ -192,7 +192,7 @@ pub struct Preset {
     /// The generator and its parameters.
     pub model: Model,
     /// gauss for fBm, the W-cascades and topo-fif (h in (-0.1, 0.85)); mexican
-    /// for FISC, whose `h_max = 1.30 > 1` needs more than one vanishing
+    /// for FISC, whose `h_max = 1.28 > 1` needs more than one vanishing
     /// moment (II §3.1).
     pub wavelet: Wavelet,
     /// Where the numbers come from.

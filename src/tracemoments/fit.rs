@@ -94,9 +94,10 @@ pub struct UniversalFit {
     pub n: usize,
 }
 
-/// Fits `(α, C1)` to the points `(q, K)` (unweighted least squares: the
-/// regression errors of K(q) at neighbouring q are strongly correlated, so
-/// weights would only pretend to a precision the data do not have). α is
+/// Fits `(α, C1)` to the points `(q, K)` by unweighted least squares (the
+/// OLS fit; [`fit_universal_gls`] weights the points with the covariance of
+/// K(q) over the images, which are strongly correlated between
+/// neighbouring q, and is the default of an ensemble with images). α is
 /// searched in `[0.02, 3]` (values above 2 are not a valid Lévy index but are
 /// reported as fitted, not clamped, so the estimator is not biased at 2).
 /// For each α the best C1 is linear: `C1 = Σ K f / Σ f²`. Standard errors by

@@ -233,6 +233,13 @@ impl TraceMomentConfig {
                 "double-trace-moment orders must be > 0",
             ));
         }
+        if self.dtm_q.contains(&1.0) {
+            // conservation: K(1, η) = η^α K(1) = 0 for every η, nothing to fit
+            return Err(Error::param(
+                "dtm-q",
+                "q = 1 has K(1, η) = 0 for every η (the flux is conserved): give q != 1",
+            ));
+        }
         if self.sf_q.iter().any(|q| !(q.is_finite() && *q > 0.0)) {
             return Err(Error::param(
                 "sf-q",
@@ -809,10 +816,13 @@ impl TraceMomentAccumulator {
                         && **e <= fc.eta.1 + 1e-12
                         && qq * **e <= q_s
                         && **e <= q_s
+                        // K(q, η) has the sign of K(q): negative for q < 1
+                        // (conservation makes K(1) = 0); a value of the
+                        // other sign is noise, not a point of the power law
                         && k.is_finite()
-                        && **k > 0.0
+                        && **k * (qq - 1.0) > 0.0
                 })
-                .map(|(e, k)| (e.ln(), k.ln()))
+                .map(|(e, k)| (e.ln(), k.abs().ln()))
                 .unzip();
             let f = line_fit(&xs, &ys);
             dtm.push(match f {
@@ -1006,7 +1016,7 @@ fn linear_onset(q: &[f64], k: &[f64], u: &UniversalFit) -> Option<f64> {
 pub struct DtmFit {
     /// The moment order q.
     pub q: f64,
-    /// α: slope of `ln K(q, η)` against `ln η` over the η range (NaN if no fit).
+    /// α: slope of `ln |K(q, η)|` against `ln η` over the η range (NaN if no fit).
     pub alpha: f64,
     /// Its standard error: regression, or jackknife over the parts
     /// ([`finish_ensemble`]).
