@@ -202,6 +202,29 @@ fn synth_fif_then_tm() {
         "the gradient flux smooths: {c_grad} vs {c_diff}"
     );
     assert!(a_grad > alpha - 0.3 && a_grad < 2.5, "alpha {a_grad}");
+    // a DTM order beyond q_s / 0.3 keeps no eta (q eta <= q_s): no fit, said;
+    // an order below 1 (K(q, eta) < 0) fits
+    let out = dir.join("tm_dtm");
+    let mut args = vec!["tm"];
+    args.extend(files.iter().map(String::as_str));
+    args.extend_from_slice(&["--dtm-q", "0.5,40", "--out", out.to_str().unwrap()]);
+    assert_eq!(run(&args), 0, "{args:?}");
+    let tm = json(&out.join("tm.json"));
+    let dtm = tm["dtm"].as_array().unwrap();
+    assert!(num(&dtm[0], "alpha").is_finite() && dtm[0]["n"].as_u64() >= Some(3));
+    assert!(
+        dtm[1]["alpha"].is_null() && dtm[1]["n"] == 0,
+        "{:?}",
+        dtm[1]
+    );
+    assert!(
+        tm["warnings"].as_array().unwrap().iter().any(|w| w
+            .as_str()
+            .unwrap()
+            .starts_with("DTM at q = 40: 0 usable eta")),
+        "{:?}",
+        tm["warnings"]
+    );
 }
 
 /// Bad input: exit status 2 and no output directory.

@@ -380,7 +380,7 @@ fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
             if d.n < 2 {
                 "no fit"
             } else {
-                "a line through two points, no error"
+                "a line through two points"
             }
         ));
     }
