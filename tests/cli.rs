@@ -1205,6 +1205,45 @@ fn mixed_sizes_are_recorded() {
     );
 }
 
+/// `validate` judges each tau criterion over its whole range: whatever the
+/// --q grid, every half integer of the published range is added (0 among
+/// them, where h and D are read); tau(2) + 4 is shown, not judged.
+#[test]
+fn validate_fills_the_published_q_range() {
+    let dir = scratch("validate-qgrid");
+    let o = dir.join("o").display().to_string();
+    let args = validate_args(
+        "paper-lognormal",
+        "1",
+        "256",
+        &["--q", "0.3,1.1", "--out", &o],
+    );
+    assert_eq!(run(&args), 0);
+    let v = json(&Path::new(&o).join("validation.json"));
+    let q: Vec<f64> = v["estimates"]["q"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let mut want: Vec<f64> = (-12..=16).map(|k| k as f64 / 2.0).collect();
+    want.extend([0.3, 1.1]);
+    want.sort_by(f64::total_cmp);
+    assert_eq!(q, want);
+    let crit = v["criteria"].as_array().unwrap();
+    let wtmm_beta = crit
+        .iter()
+        .find(|c| c["name"] == "tau(2) + 4 (WTMM beta)")
+        .unwrap();
+    assert_eq!(wtmm_beta["informational"], true);
+    // the one-sided criterion only for log-Poisson: log-normal c3 is |c3| <= 0.005
+    let c3 = crit
+        .iter()
+        .find(|c| c["name"] == "kernel c3 (maxima lines)")
+        .unwrap();
+    assert!(c3.get("below").is_none(), "{c3}");
+}
+
 /// `validate --replicates`: one directory per seed, and a summary whose
 /// means, pass counts and averaged tau(q) come from those runs.
 #[test]

@@ -64,18 +64,50 @@ pub struct Criterion {
     /// whose p-model values II does not test).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub informational: bool,
+    /// One-sided criterion: passes when the value is below this bound (the
+    /// log-Poisson c3 < 0); `target` is then the theory, shown, and
+    /// `tolerance` is not used.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub below: Option<f64>,
+}
+
+impl Criterion {
+    /// Whether `value` passes: within `tolerance` of `target`, or below
+    /// `below` for a one-sided criterion.
+    pub fn judge(&self, value: f64) -> bool {
+        value.is_finite()
+            && match self.below {
+                Some(b) => value < b,
+                None => (value - self.target).abs() <= self.tolerance,
+            }
+    }
+
+    /// The tolerance column of the tables.
+    fn tolerance_text(&self) -> String {
+        tolerance_text(self.below, self.tolerance)
+    }
+}
+
+fn tolerance_text(below: Option<f64>, tolerance: f64) -> String {
+    match below {
+        Some(b) => format!("< {b}"),
+        None => format!("{tolerance:.4}"),
+    }
 }
 
 fn criterion(name: &str, value: f64, target: f64, tolerance: f64, note: &str) -> Criterion {
-    Criterion {
+    let mut c = Criterion {
         name: name.into(),
         value,
         target,
         tolerance,
-        pass: value.is_finite() && (value - target).abs() <= tolerance,
+        pass: false,
         note: note.into(),
         informational: false,
-    }
+        below: None,
+    };
+    c.pass = c.judge(value);
+    c
 }
 
 /// The published q range over which τ(q) lies on the theory (II §3; SPEC §11).
@@ -209,6 +241,9 @@ struct ReplicatedCriterion {
     pass_mean: bool,
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     informational: bool,
+    /// As [`Criterion::below`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    below: Option<f64>,
 }
 
 fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
@@ -254,8 +289,9 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
                 stderr: sd / (n as f64).sqrt(),
                 passes: runs.iter().filter(|r| r.criteria[i].pass).count(),
                 max_dev_of_mean_tau: of_mean,
-                pass_mean: judged.is_finite() && (judged - c.target).abs() <= c.tolerance,
+                pass_mean: c.judge(judged),
                 informational: c.informational,
+                below: c.below,
                 values,
             }
         })
@@ -275,12 +311,12 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     for c in &summary {
         let _ = writeln!(
             t,
-            "{:<52} {:>9.4} {:>8.4} {:>9.4} {:>9.4} {:>3}/{:<3}  {}",
+            "{:<52} {:>9.4} {:>8.4} {:>9.4} {:>9} {:>3}/{:<3}  {}",
             c.name,
             c.mean,
             c.stderr,
             c.target,
-            c.tolerance,
+            tolerance_text(c.below, c.tolerance),
             c.passes,
             n,
             verdict(c.informational, c.pass_mean)
@@ -352,9 +388,12 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let cfg = opts.analysis()?;
     let fit = opts.fit()?;
     let (pq_lo, pq_hi) = published_q_range(&r.model);
-    // the q grid covers the published range and the core range [-4, 6]
+    // the q grid covers the published range (which holds the core range
+    // [-4, 6] and q = 0) at least at every half integer, as the paper's
+    // figures, so that every criterion is judged over its whole range
     let mut q = opts.q()?;
-    for extra in [pq_lo, pq_hi] {
+    let halves = (2.0 * pq_lo).round() as i64..=(2.0 * pq_hi).round() as i64;
+    for extra in halves.map(|k| k as f64 / 2.0) {
         if !q.iter().any(|&x| (x - extra).abs() < 1e-12) {
             q.push(extra);
         }
@@ -474,7 +513,10 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let (core_lo, core_hi) = (pq_lo.max(-4.0), pq_hi.min(6.0));
     let (d_core, q_core) = dev(core_lo, core_hi);
     let (d_pub, q_pub) = dev(pq_lo, pq_hi);
-    let i0 = s.q_index(0.0).expect("q grid contains 0");
+    let i0 = s
+        .q_index(0.0)
+        .filter(|&i| s.q[i] == 0.0)
+        .expect("the q grid holds the published range's half integers, 0 among them");
     let mut crit = vec![
         criterion(
             &format!("max |tau - theory|, q in [{core_lo}, {core_hi}]"),
@@ -535,13 +577,16 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     // τ(2) + 4 is the WTMM's own estimate of beta
     let i2 = s.q_index(2.0).filter(|&i| s.q[i] == 2.0);
     if let Some(i2) = i2 {
-        crit.push(criterion(
+        let mut c = criterion(
             "tau(2) + 4 (WTMM beta)",
             s.tau[i2] + 4.0,
             th.beta,
             0.1,
             "isotropic spectral exponent from the partition function",
-        ));
+        );
+        // a consistency check, not one of the published criteria
+        c.informational = true;
+        crit.push(c);
     }
     // kernel cumulants and magnitude correlation (SPEC §5-§6, §11): one more streamed pass
     crit.extend(super::correlate_cmd::validation_criteria(
@@ -650,11 +695,11 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     for c in &crit {
         let _ = writeln!(
             t,
-            "{:<52} {:>9.4} {:>9.4} {:>9.4}  {}",
+            "{:<52} {:>9.4} {:>9.4} {:>9}  {}",
             c.name,
             c.value,
             c.target,
-            c.tolerance,
+            c.tolerance_text(),
             verdict(c.informational, c.pass)
         );
     }
@@ -710,7 +755,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
 
 #[cfg(test)]
 mod tests {
-    use super::max_dev;
+    use super::{Criterion, criterion, max_dev};
 
     #[test]
     fn max_dev_finds_the_worst_q_and_fails_on_a_missing_value() {
@@ -732,5 +777,21 @@ mod tests {
         );
         // no q in the range
         assert_eq!(max_dev(&q, &tau, &th, (3.0, 5.0)), (0.0, None));
+    }
+
+    #[test]
+    fn one_sided_and_two_sided_criteria() {
+        let two = criterion("c3", 0.004, 0.0, 0.005, "");
+        assert!(two.pass && two.judge(-0.005) && !two.judge(0.0051) && !two.judge(f64::NAN));
+        assert_eq!(two.tolerance_text(), "0.0050");
+        // log-Poisson c3 < 0 (theory -0.0049): a strongly negative value
+        // passes, a positive one does not, whatever the distance to -0.0049
+        let one = Criterion {
+            below: Some(0.0),
+            ..criterion("c3", -0.0118, -0.0049, 0.005, "")
+        };
+        assert!(one.judge(-0.0118) && one.judge(-1e-6));
+        assert!(!one.judge(0.00006) && !one.judge(0.0) && !one.judge(f64::NAN));
+        assert_eq!(one.tolerance_text(), "< 0");
     }
 }
