@@ -1242,6 +1242,20 @@ fn validate_fills_the_published_q_range() {
         .find(|c| c["name"] == "kernel c3 (maxima lines)")
         .unwrap();
     assert!(c3.get("below").is_none(), "{c3}");
+    // the kernel's figures follow `kernel`'s defaults on this 3-octave grid
+    // (pairs lowered onto its top); no pdfs, so no reconstruction file
+    let k = json(&Path::new(&o).join("kernel").join("kernel.json"));
+    assert_eq!(
+        k["params"]["options"]["pairs"],
+        serde_json::json!([[0.5, 2.9], [1.0, 2.9], [1.5, 2.9]])
+    );
+    assert!(k["reconstruction"].is_null());
+    assert!(
+        !Path::new(&o)
+            .join("kernel")
+            .join("reconstruction.csv")
+            .exists()
+    );
 }
 
 /// `validate --replicates`: one directory per seed, and a summary whose

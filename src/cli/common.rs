@@ -161,13 +161,26 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 
 /// CSV from a header and rows, written atomically.
 pub fn write_csv(path: &Path, header: &[&str], rows: &[Vec<String>]) -> Result<()> {
-    let mut s = header.join(",");
+    let line = |fields: &mut dyn Iterator<Item = &str>| -> String {
+        fields.map(csv_field).collect::<Vec<_>>().join(",")
+    };
+    let mut s = line(&mut header.iter().copied());
     s.push('\n');
     for r in rows {
-        s.push_str(&r.join(","));
+        s.push_str(&line(&mut r.iter().map(String::as_str)));
         s.push('\n');
     }
     write_atomic(path, s.as_bytes())
+}
+
+/// A CSV field, quoted as RFC 4180 says when it holds a comma, a quote or a
+/// line break (column names like `K(q=1.5,eta)`, file names).
+fn csv_field(v: &str) -> std::borrow::Cow<'_, str> {
+    if v.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", v.replace('"', "\"\"")).into()
+    } else {
+        v.into()
+    }
 }
 
 /// Formats a float for CSV (full precision, `nan` for NaN).
@@ -246,6 +259,21 @@ mod tests {
                 .to_string()
                 .contains("1 is given twice")
         );
+    }
+
+    #[test]
+    fn csv_fields_with_commas_or_quotes_are_quoted() {
+        assert_eq!(csv_field("K(q=1.5,eta)"), "\"K(q=1.5,eta)\"");
+        assert_eq!(csv_field("a \"b\""), "\"a \"\"b\"\"\"");
+        assert_eq!(csv_field("lnM"), "lnM");
+        let dir = std::env::temp_dir().join(format!("wtmm-csv-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("t.csv");
+        let rows = vec![vec!["1".to_string(), "x,y.npy".to_string()]];
+        write_csv(&p, &["eta", "K(q=0.5,eta)"], &rows).unwrap();
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert_eq!(text, "eta,\"K(q=0.5,eta)\"\n1,\"x,y.npy\"\n");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

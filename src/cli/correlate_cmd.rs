@@ -24,7 +24,9 @@ use serde_json::json;
 
 use super::analyze_cmd::LineOpts;
 use super::common::{f, header, make_out_dir, progress, write_csv, write_json};
-use super::kernel_cmd::{KernelOutputs, pairs_or_default, write_kernel_outputs};
+use super::kernel_cmd::{
+    KernelOutputs, default_pairs, default_refs, pairs_or_default, write_kernel_outputs,
+};
 use super::pdf_cmd::{Input, ShapeCache};
 use super::validate_cmd::Criterion;
 use super::{OutDir, Outcome};
@@ -737,16 +739,11 @@ pub fn validation_criteria(
     let mut crit = Vec::new();
     let name = input.name.clone();
     // kernel
+    // the defaults of `kernel` (pairs lowered onto a short grid's top)
     let kopts = KernelOptions {
         fit,
-        refs: vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5]
-            .into_iter()
-            .filter(|&o| o <= (sk_scales[top] / sk_scales[0]).log2() + 1e-9)
-            .collect(),
-        pairs: vec![(0.5, 3.5), (1.0, 3.5), (1.0, 3.0), (1.5, 3.0)]
-            .into_iter()
-            .filter(|&(_, b)| b <= (sk_scales[top] / sk_scales[0]).log2() + 1e-9)
-            .collect(),
+        refs: default_refs(&sk_scales, fit)?,
+        pairs: default_pairs(&sk_scales)?,
     };
     let lines = acc.lines.as_ref().expect("count >= 1");
     let main = kernel_estimates(lines, &kopts)?;

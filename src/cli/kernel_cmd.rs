@@ -95,6 +95,29 @@ pub fn parse_pairs(flag: &str, s: &str) -> Result<Vec<(f64, f64)>> {
 /// duplicates dropped.
 ///
 /// **Errors** when a given octave is off the grid.
+/// Reference scales of II Fig 26, in octaves above a_min.
+pub const DEFAULT_REFS: &str = "0.5,1,1.5,2,2.5,3,3.5";
+/// Scale pairs of II Fig 25.
+pub const DEFAULT_PAIRS: &str = "0.5:3.5,1:3.5,1:3,1.5:3";
+
+/// The default reference scales on this grid: a reference needs smaller
+/// scales in the fit range (C_n(a, a') has a < a'), so the paper's 0.5 is
+/// kept with its --fit 0:3.5 and dropped from the default 0.5:4, where its
+/// table would be empty.
+pub fn default_refs(scales: &[f64], fit: (f64, f64)) -> Result<Vec<f64>> {
+    let mut refs = octaves_or_default("refs", None, DEFAULT_REFS, scales)?;
+    refs.retain(|&r| r > fit.0 + 1e-9);
+    Ok(refs)
+}
+
+/// The default pairs on this grid, their ends lowered onto a shorter grid's
+/// top; a pair that collapses there is dropped.
+pub fn default_pairs(scales: &[f64]) -> Result<Vec<(f64, f64)>> {
+    let mut pairs = pairs_or_default("pairs", None, DEFAULT_PAIRS, scales)?;
+    pairs.retain(|&(a, b)| a < b);
+    Ok(pairs)
+}
+
 pub fn pairs_or_default(
     flag: &str,
     given: Option<&str>,
@@ -232,19 +255,11 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         args.opts.cwt.voices,
     )?;
     let scales = cfg.scale_list();
-    let refs = octaves_or_default(
-        "refs",
-        args.refs.as_deref(),
-        "0.5,1,1.5,2,2.5,3,3.5",
-        &scales,
-    )?;
-    // a reference scale needs smaller scales in the fit range (C_n(a, a')
-    // has a < a'): the paper's 0.5 is kept with its --fit 0:3.5 and dropped
-    // from the default 0.5:4, where its table would be empty
-    let mut refs = refs;
-    if args.refs.is_none() {
-        refs.retain(|&r| r > fit.0 + 1e-9);
-    } else if let Some(r) = refs.iter().find(|&&r| r <= fit.0 + 1e-9) {
+    let refs = match args.refs.as_deref() {
+        None => default_refs(&scales, fit)?,
+        given => octaves_or_default("refs", given, DEFAULT_REFS, &scales)?,
+    };
+    if let Some(r) = refs.iter().find(|&&r| r <= fit.0 + 1e-9) {
         return Err(Error::param(
             "refs",
             format!(
@@ -253,17 +268,10 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
             ),
         ));
     }
-    let pairs = pairs_or_default(
-        "pairs",
-        args.pairs.as_deref(),
-        "0.5:3.5,1:3.5,1:3,1.5:3",
-        &scales,
-    )?;
-    let mut pairs = pairs;
-    if args.pairs.is_none() {
-        // a default pair lowered onto the top of a short grid may collapse
-        pairs.retain(|&(a, b)| a < b);
-    }
+    let pairs = match args.pairs.as_deref() {
+        None => default_pairs(&scales)?,
+        given => pairs_or_default("pairs", given, DEFAULT_PAIRS, &scales)?,
+    };
     for &(a, b) in &pairs {
         if !(a < b) {
             return Err(Error::param("pairs", format!("{a}:{b}: need a < a'")));
@@ -423,7 +431,13 @@ pub fn write_kernel_outputs(
             .map(|x| json!({"a_from": x.a_from, "a_to": x.a_to, "ln_ratio": x.ln_ratio, "c": x.c, "l1": x.l1}))
             .collect::<Vec<_>>())
     };
-    body["reconstruction"] = json!({"gaussian_c1_c2": rec(&o.recon2), "with_c3": rec(&o.recon3)});
+    // validate's kernel pass has no pdfs to push through the kernel
+    let reconstructed = !(o.recon2.is_empty() && o.recon3.is_empty());
+    body["reconstruction"] = if reconstructed {
+        json!({"gaussian_c1_c2": rec(&o.recon2), "with_c3": rec(&o.recon3)})
+    } else {
+        serde_json::Value::Null
+    };
     body["warnings"] = json!(k.warnings);
     body["wall_seconds"] = json!(wall);
     write_json(&dir.join("kernel.json"), &body)?;
@@ -531,33 +545,35 @@ pub fn write_kernel_outputs(
         ],
         &rows,
     )?;
-    let mut rows = Vec::new();
-    for (kind, rs) in [("c1_c2", &o.recon2), ("c1_c2_c3", &o.recon3)] {
-        for r in rs {
-            for i in 0..r.ln_m.len() {
-                rows.push(vec![
-                    kind.to_string(),
-                    f(r.a_from),
-                    f(r.a_to),
-                    f(r.ln_m[i]),
-                    f(r.measured[i]),
-                    f(r.predicted[i]),
-                ]);
+    if reconstructed {
+        let mut rows = Vec::new();
+        for (kind, rs) in [("c1_c2", &o.recon2), ("c1_c2_c3", &o.recon3)] {
+            for r in rs {
+                for i in 0..r.ln_m.len() {
+                    rows.push(vec![
+                        kind.to_string(),
+                        f(r.a_from),
+                        f(r.a_to),
+                        f(r.ln_m[i]),
+                        f(r.measured[i]),
+                        f(r.predicted[i]),
+                    ]);
+                }
             }
         }
+        write_csv(
+            &dir.join("reconstruction.csv"),
+            &[
+                "kernel",
+                "a_from",
+                "a_to",
+                "lnM",
+                "P_lnM_measured",
+                "P_lnM_predicted",
+            ],
+            &rows,
+        )?;
     }
-    write_csv(
-        &dir.join("reconstruction.csv"),
-        &[
-            "kernel",
-            "a_from",
-            "a_to",
-            "lnM",
-            "P_lnM_measured",
-            "P_lnM_predicted",
-        ],
-        &rows,
-    )?;
     plot_kernel(dir, o, model, name)
 }
 
