@@ -220,7 +220,8 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         return Err(Error::param(
             "groups",
             format!(
-                "must be in 1..={} (the image count), got {}",
+                "must be in 1..={} (the image count), got {} (the default is 4: give \
+                 --groups with fewer than 4 images)",
                 args.count, args.groups
             ),
         ));
