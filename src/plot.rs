@@ -639,6 +639,7 @@ pub fn save_chart(chart: &Chart, path: &Path) -> Result<()> {
                 chart,
             )
             .map_err(fail)?;
+            tag_svg(&mut s);
             write_atomic(path, s.as_bytes())
         }
         _ => Err(Error::format(path, "plots are written as .png or .svg")),
@@ -651,6 +652,9 @@ fn encode_png_rgb8(buf: &[u8], w: u32, h: u32) -> Vec<u8> {
         let mut enc = png::Encoder::new(&mut out, w, h);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
+        // what made the picture (the JSON beside it holds the parameters)
+        enc.add_text_chunk("Software".into(), format!("wtmm {}", crate::VERSION))
+            .expect("a Latin-1 keyword and text");
         let mut wr = enc.write_header().expect("in-memory PNG header");
         wr.write_image_data(buf).expect("in-memory PNG data");
     }
@@ -1149,7 +1153,18 @@ pub fn save_raster_chart(raster: &Raster, spec: &RasterChart, path: &Path) -> Re
         })
         .ok_or_else(|| fail("no place for the raster in the SVG".into()))?;
     s.replace_range(at, &image);
+    tag_svg(&mut s);
     write_atomic(path, s.as_bytes())
+}
+
+/// What made the picture, as a comment after the XML declaration (if any);
+/// the JSON beside it holds the parameters.
+fn tag_svg(s: &mut String) {
+    let tag = format!("<!-- wtmm {} -->", crate::VERSION);
+    match s.find("?>") {
+        Some(i) => s.insert_str(i + 2, &format!("\n{tag}")),
+        None => s.insert_str(0, &format!("{tag}\n")),
+    }
 }
 
 #[cfg(test)]

@@ -238,6 +238,24 @@ fn raster_chart_png_and_svg_of_the_requested_size() {
     assert_eq!(s.matches("<image ").count(), 1, "the raster, embedded once");
     assert!(s.contains("href=\"data:image/png;base64,iVBORw0KGgo"));
     assert!(s.trim_end().ends_with("</svg>"));
+    // the version that drew them: a PNG text chunk, an SVG comment
+    let version = format!("wtmm {}", env!("CARGO_PKG_VERSION"));
+    let bytes = std::fs::read(&png).unwrap();
+    let reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .unwrap();
+    let texts = &reader.info().uncompressed_latin1_text;
+    assert!(
+        texts
+            .iter()
+            .any(|t| t.keyword == "Software" && t.text == version),
+        "{texts:?}"
+    );
+    assert!(s.contains(&format!("<!-- {version} -->")));
+    let chart_svg = d.join("fan.svg");
+    save_chart(&fan_chart(), &chart_svg).unwrap();
+    let c = std::fs::read_to_string(&chart_svg).unwrap();
+    assert!(c.contains(&format!("<!-- {version} -->")) && c.trim_end().ends_with("</svg>"));
     // automatic size: the axes around an integer zoom of the raster
     let sk = d.join("skeleton.png");
     save_raster_chart(&skeleton_raster(256, 192), &skeleton_spec(), &sk).unwrap();
