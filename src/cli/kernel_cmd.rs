@@ -545,22 +545,22 @@ pub fn write_kernel_outputs(
         ],
         &rows,
     )?;
-    if reconstructed {
-        let mut rows = Vec::new();
-        for (kind, rs) in [("c1_c2", &o.recon2), ("c1_c2_c3", &o.recon3)] {
-            for r in rs {
-                for i in 0..r.ln_m.len() {
-                    rows.push(vec![
-                        kind.to_string(),
-                        f(r.a_from),
-                        f(r.a_to),
-                        f(r.ln_m[i]),
-                        f(r.measured[i]),
-                        f(r.predicted[i]),
-                    ]);
-                }
+    let mut rows = Vec::new();
+    for (kind, rs) in [("c1_c2", &o.recon2), ("c1_c2_c3", &o.recon3)] {
+        for r in rs {
+            for i in 0..r.ln_m.len() {
+                rows.push(vec![
+                    kind.to_string(),
+                    f(r.a_from),
+                    f(r.a_to),
+                    f(r.ln_m[i]),
+                    f(r.measured[i]),
+                    f(r.predicted[i]),
+                ]);
             }
         }
+    }
+    if reconstructed {
         write_csv(
             &dir.join("reconstruction.csv"),
             &[
