@@ -70,6 +70,10 @@ pub enum Command {
     /// Closed-form spectra of a model or preset (JSON on stdout).
     Theory(theory_cmd::TheoryArgs),
     /// Generate an ensemble of a model, analyse it, check against the theory.
+    ///
+    /// The q grid (--q) gets every half integer of the model's published q
+    /// range added, so that each tau criterion is judged over its whole range
+    /// and h, D at q = 0 exactly.
     Validate(validate_cmd::ValidateArgs),
     /// Generate a small ensemble with a known spectrum, analyse it, compare with theory.
     Demo(demo_cmd::DemoArgs),
