@@ -471,10 +471,7 @@ pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64), set: WtmmmSet) -
         .filter(|&j| h.hist[j].n == 0)
         .collect();
     if let (Some(&lo), Some(&hi)) = (empty.first(), empty.last()) {
-        let set = match set {
-            WtmmmSet::Lines => "on maxima lines",
-            WtmmmSet::All => "(all WTMMM)",
-        };
+        let set = set.phrase();
         return Err(Error::Input(format!(
             "no WTMMM {set} at {} of the {} scales of the fit range {}:{} octaves (a = {:.2} .. \
              {:.2} px, {} image(s)) to estimate h0 (the slope of <ln M> against ln a): the \
@@ -628,10 +625,7 @@ pub fn check_shown_counts(
     let mut used: Vec<usize> = show.iter().chain(sec).copied().collect();
     used.sort_unstable();
     used.dedup();
-    let set = match set {
-        WtmmmSet::Lines => "on maxima lines",
-        WtmmmSet::All => "(all WTMMM)",
-    };
+    let set = set.phrase();
     let at = |js: &[usize]| -> String {
         js.iter()
             .map(|&j| format!("{:.2} px ({})", h.scales[j], h.hist[j].n))

@@ -703,10 +703,7 @@ pub fn check_wtmmm_counts(s: &KernelSums, opts: &KernelOptions) -> Result<()> {
         list.drain(2..list.len() - 2);
         list.insert(2, "...".into());
     }
-    let set = match s.set {
-        WtmmmSet::Lines => "on maxima lines",
-        WtmmmSet::All => "(all WTMMM)",
-    };
+    let set = s.set.phrase();
     Err(Error::Input(format!(
         "fewer than {MIN_WTMMM} WTMMM {set} at {} of the scales the kernel uses (fit range \
          {}:{} octaves, references, pairs), over {} image(s): a = {}; c1..c3 need {MIN_WTMMM} \

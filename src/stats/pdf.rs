@@ -68,6 +68,15 @@ impl WtmmmSet {
         }
     }
 
+    /// The set as messages say it after "WTMMM": `on maxima lines`,
+    /// `(all WTMMM)`.
+    pub fn phrase(self) -> &'static str {
+        match self {
+            WtmmmSet::Lines => "on maxima lines",
+            WtmmmSet::All => "(all WTMMM)",
+        }
+    }
+
     /// The other set.
     pub fn other(self) -> Self {
         match self {
