@@ -662,6 +662,7 @@ fn seeding_is_reproducible_and_thread_independent() {
         preset("paper-fisc"),
         preset("paper-lognormal"),
         preset("paper-logpoisson"),
+        preset("topo-fif"),
         Model::Fbm(FbmParams { hurst: 0.3 }),
     ];
     for m in models {
