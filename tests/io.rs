@@ -143,6 +143,16 @@ fn small_pgm_and_tiff_files() {
         read("p5_8bit.pgm").data,
         array![[0., 50., 100., 150.], [200., 0., 1., 2.]]
     );
+    // a comment after maxval (netpbm allows one before the delimiting
+    // whitespace; its own newline does not delimit the raster)
+    let dir = scratch("pgm_comment");
+    let mut bytes = b"P5 3 2 255#a comment\n\n".to_vec();
+    bytes.extend([1u8, 2, 3, 10, 35, 32]);
+    std::fs::write(dir.join("c.pgm"), &bytes).unwrap();
+    let (c, info) = read_field_with_info(&dir.join("c.pgm")).unwrap();
+    assert_eq!(c.data, array![[1., 2., 3.], [10., 35., 32.]]);
+    assert!(info.warnings.is_empty(), "{:?}", info.warnings);
+
     let i32 = read("i32.tif");
     assert_eq!(i32.data, array![[-2e9, 0., 7.], [1., 2., 2e9]]);
 
@@ -375,6 +385,52 @@ fn nothing_half_written() {
     assert_eq!(left, vec!["b.png".to_string()], "left behind: {left:?}");
 }
 
+/// ESRI ASCII grids: values are one stream (wrapped rows are fine), but a
+/// data line across the end of a row is named; a byte-order mark is skipped;
+/// a data line that does not start with a number is not taken as a header.
+#[test]
+fn asc_rows_and_headers() {
+    let dir = scratch("asc_rows");
+    let read_asc = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        read_field_with_info(&p)
+    };
+    let want = array![[1., 2., 3., 4.], [5., 6., 7., 8.], [9., 10., 11., 12.]];
+    let head = "ncols 4\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 1\n";
+    for (name, body, warns) in [
+        ("rows.asc", "1 2 3 4\n5 6 7 8\n9 10 11 12\n", false),
+        ("wrapped.asc", "1 2 3\n4\n5 6 7\n8\n9 10 11\n12\n", false),
+        ("one_line.asc", "1 2 3 4 5 6 7 8 9 10 11 12\n", false),
+        ("swapped.asc", "1 2 3\n4 5 6\n7 8 9\n10 11 12\n", true),
+        ("ragged.asc", "1 2 3 4 5\n6 7 8\n9 10 11 12\n", true),
+    ] {
+        let (f, info) = read_asc(name, &format!("{head}{body}")).unwrap();
+        assert_eq!(f.data, want, "{name}");
+        let named = info
+            .warnings
+            .iter()
+            .any(|w| w.contains("across the end of a row"));
+        assert_eq!(named, warns, "{name}: {:?}", info.warnings);
+    }
+    let (f, _) = read_asc(
+        "bom.asc",
+        &format!("\u{feff}{head}1 2 3 4\n5 6 7 8\n9 10 11 12\n"),
+    )
+    .unwrap();
+    assert_eq!(f.data, want);
+    let err = read_asc(
+        "comma.asc",
+        &format!("{head}1,5 2 3 4\n5 6 7 8\n9 10 11 12\n"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("comma.asc") && err.contains("value 1 is not a number: `1,5`"),
+        "{err}"
+    );
+}
+
 #[test]
 fn png_sidecar_rules() {
     let dir = scratch("sidecar");
@@ -396,6 +452,24 @@ fn png_sidecar_rules() {
     assert_eq!(f.data[[0, 0]], 65535.0);
     assert!(
         info.warnings[0].contains("no `scale`"),
+        "{:?}",
+        info.warnings
+    );
+
+    // nodata alone masks, values stay raw
+    std::fs::write(dir.join("s.json"), r#"{"nodata": 65535, "units": "m"}"#).unwrap();
+    let (f, info) = read_field_with_info(&png).unwrap();
+    assert!(f.is_masked(0, 0), "nodata alone must mask");
+    assert_eq!(f.mask, read("dem_f8.npy").mask);
+    assert!(info.warnings.is_empty(), "{:?}", info.warnings);
+
+    // a near miss of a key that changes the values is named
+    std::fs::write(dir.join("s.json"), r#"{"scale": 0.5, "offest": 100}"#).unwrap();
+    let (_, info) = read_field_with_info(&png).unwrap();
+    assert!(
+        info.warnings
+            .iter()
+            .any(|w| w.contains("`offest`") && w.contains("`offset`")),
         "{:?}",
         info.warnings
     );

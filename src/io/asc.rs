@@ -24,9 +24,11 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let bytes = read_bytes(path)?;
     let bad = |reason: String| Error::format(path, format!("ESRI ASCII grid: {reason}"));
     let text = std::str::from_utf8(&bytes).map_err(|_| bad("not a text file".into()))?;
+    // some Windows editors start UTF-8 files with a byte-order mark
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut info = ReadInfo::new(ImageFormat::Asc, "text");
 
-    // Header: lines whose first token is not a number.
+    // Header: lines whose first token is a key (starts with a letter).
     let mut lines = text.lines().peekable();
     let (mut ncols, mut nrows, mut nodata) = (None, None, None);
     while let Some(line) = lines.peek() {
@@ -35,7 +37,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
             lines.next();
             continue;
         };
-        if key.parse::<f64>().is_ok() {
+        if !key.starts_with(|c: char| c.is_ascii_alphabetic()) || key.parse::<f64>().is_ok() {
             break;
         }
         let key = key.to_ascii_lowercase();
@@ -84,19 +86,40 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
         .ok_or_else(|| bad(format!("size {ny} x {nx} is too large")))?;
 
     let mut values = Vec::with_capacity(n.min(bytes.len() / 2 + 1));
-    for tok in lines.flat_map(str::split_whitespace) {
-        if values.len() == n {
-            return Err(bad(format!(
-                "wrong value count: expected {n} ({ny} rows x {nx} cols), found more"
-            )));
+    // Values are read as one stream (as GDAL does: writers may wrap long
+    // rows), but a data line that runs across the end of a row, when there
+    // are several lines, means the rows are ragged or ncols and nrows
+    // disagree with them.
+    let (mut data_lines, mut misaligned) = (0usize, None);
+    for line in lines {
+        let first = values.len();
+        for tok in line.split_whitespace() {
+            if values.len() == n {
+                return Err(bad(format!(
+                    "wrong value count: expected {n} ({ny} rows x {nx} cols), found more"
+                )));
+            }
+            let v = tok.parse::<f64>().map_err(|_| {
+                bad(format!(
+                    "value {} is not a number: `{tok}`",
+                    values.len() + 1
+                ))
+            })?;
+            values.push(v);
         }
-        let v = tok.parse::<f64>().map_err(|_| {
-            bad(format!(
-                "value {} is not a number: `{tok}`",
-                values.len() + 1
-            ))
-        })?;
-        values.push(v);
+        if values.len() > first {
+            data_lines += 1;
+            let spans = first / nx != (values.len() - 1) / nx;
+            if spans && misaligned.is_none() {
+                misaligned = Some(data_lines);
+            }
+        }
+    }
+    if let Some(line) = misaligned.filter(|_| data_lines > 1) {
+        info.warnings.push(format!(
+            "data line {line} runs across the end of a row (ncols = {nx}): rows are ragged \
+             or ncols/nrows do not describe them; read as one stream in row order"
+        ));
     }
     if values.len() != n {
         return Err(bad(format!(

@@ -47,8 +47,22 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let mut info = ReadInfo::new(ImageFormat::Pgm, if maxval > 255 { "u16" } else { "u8" });
     let mut values = Vec::with_capacity(n.min(bytes.len()));
     if binary {
-        // Exactly one whitespace byte separates maxval from the raster.
-        let start = t.i + 1;
+        // After maxval: comments (`#` through the end of their line), then
+        // exactly one whitespace byte before the raster (netpbm pgm(5): the
+        // newline ending a comment does not delimit the raster).
+        let mut i = t.i;
+        while bytes.get(i) == Some(&b'#') {
+            while i < bytes.len() && bytes[i] != b'\n' && bytes[i] != b'\r' {
+                i += 1;
+            }
+            i += 1;
+        }
+        if !bytes.get(i).is_some_and(u8::is_ascii_whitespace) {
+            return Err(bad(
+                "no whitespace between maxval (or a comment after it) and the raster".into(),
+            ));
+        }
+        let start = i + 1;
         let bps = if maxval > 255 { 2 } else { 1 };
         let need = n.checked_mul(bps).ok_or_else(|| bad("too large".into()))?;
         let avail = bytes.len().saturating_sub(start);

@@ -226,12 +226,19 @@ fn sidecar(
             _ => return Err(bad("`shape` is not [rows, cols]".into())),
         }
     }
-    if scale.is_none() && offset.is_none() {
-        info.warnings.push(format!(
-            "{} has no `scale` or `offset`; raw PNG values used",
-            path.display()
-        ));
-        return Ok(None);
+    // provenance keys (source, units, ...) are free; a near miss of a key
+    // that changes the values (`offest`) is a typo worth a word
+    const READ: [&str; 5] = ["scale", "offset", "nodata", "png_decode", "shape"];
+    for key in obj.keys().filter(|k| !READ.contains(&k.as_str())) {
+        if let Some(meant) = ["scale", "offset", "nodata"]
+            .into_iter()
+            .find(|k| edit_distance(key, k) <= 2)
+        {
+            info.warnings.push(format!(
+                "{}: key `{key}` ignored (did you mean `{meant}`?)",
+                path.display()
+            ));
+        }
     }
     let nodata = match number("nodata")? {
         Some(n) => Some(n),
@@ -240,12 +247,38 @@ fn sidecar(
             .and_then(|v| v.as_str())
             .and_then(nodata_from_text),
     };
+    if scale.is_none() && offset.is_none() && nodata.is_none() {
+        info.warnings.push(format!(
+            "{} has no `scale`, `offset` or `nodata`; raw PNG values used",
+            path.display()
+        ));
+        return Ok(None);
+    }
     info.sidecar = Some(path.clone());
     Ok(Some(Sidecar {
         scale: scale.unwrap_or(1.0),
         offset: offset.unwrap_or(0.0),
         nodata,
     }))
+}
+
+/// Levenshtein distance of two short ASCII keys (a dozen characters: a
+/// crate would be more than the job needs).
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut prev: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut cur = vec![i + 1];
+        for (j, &cb) in b.iter().enumerate() {
+            cur.push(
+                (prev[j] + usize::from(ca != cb))
+                    .min(prev[j + 1] + 1)
+                    .min(cur[j] + 1),
+            );
+        }
+        prev = cur;
+    }
+    prev[b.len()]
 }
 
 /// `"value = png*scale + offset; png==65535 -> NaN"` -> `Some(65535.0)`.
