@@ -377,9 +377,13 @@ impl Assembler<'_> {
     }
 }
 
-/// Exact Euclidean distance from each pixel to the nearest masked pixel
-/// (Felzenszwalb & Huttenlocher 2012, two passes of the 1D squared-distance
-/// transform). Written by hand: no maintained crate offers it for ndarray.
+/// Exact Euclidean distance from each pixel to the nearest masked pixel on
+/// the torus (the FFT transform is periodic, so a wavelet near one edge
+/// reaches pixels at the other), by Felzenszwalb & Huttenlocher (2012): two
+/// passes of the 1D squared-distance transform, each over the line repeated
+/// three times. On an interior domain whose margin exceeds the wavelet's
+/// support this decides as the plane distance would. Written by hand: no
+/// maintained crate offers it for ndarray.
 pub fn distance_to_mask(mask: &Array2<bool>) -> Array2<f32> {
     let (ny, nx) = mask.dim();
     let inf = 1e20f64;
@@ -389,26 +393,27 @@ pub fn distance_to_mask(mask: &Array2<bool>) -> Array2<f32> {
             g[[y, x]] = 0.0;
         }
     }
-    let mut f = vec![0.0; ny.max(nx)];
-    let mut d = vec![0.0; ny.max(nx)];
-    let mut v = vec![0usize; ny.max(nx)];
-    let mut z = vec![0.0; ny.max(nx) + 1];
+    let len = 3 * ny.max(nx);
+    let mut f = vec![0.0; len];
+    let mut d = vec![0.0; len];
+    let mut v = vec![0usize; len];
+    let mut z = vec![0.0; len + 1];
     for x in 0..nx {
-        for y in 0..ny {
-            f[y] = g[[y, x]];
+        for i in 0..3 * ny {
+            f[i] = g[[i % ny, x]];
         }
-        dt1d(&f[..ny], &mut d[..ny], &mut v, &mut z);
+        dt1d(&f[..3 * ny], &mut d[..3 * ny], &mut v, &mut z);
         for y in 0..ny {
-            g[[y, x]] = d[y];
+            g[[y, x]] = d[ny + y];
         }
     }
     for y in 0..ny {
-        for x in 0..nx {
-            f[x] = g[[y, x]];
+        for i in 0..3 * nx {
+            f[i] = g[[y, i % nx]];
         }
-        dt1d(&f[..nx], &mut d[..nx], &mut v, &mut z);
+        dt1d(&f[..3 * nx], &mut d[..3 * nx], &mut v, &mut z);
         for x in 0..nx {
-            g[[y, x]] = d[x];
+            g[[y, x]] = d[nx + x];
         }
     }
     g.mapv(|s| s.sqrt() as f32)
@@ -458,17 +463,23 @@ mod tests {
     #[test]
     fn distance_transform_matches_brute_force() {
         let (ny, nx) = (23, 31);
+        // sparse points, a segment near one edge, and one pixel in the far
+        // corner whose nearest pixels lie across the edges
         let mask = Array2::from_shape_fn((ny, nx), |(y, x)| {
-            (x * 7 + y * 13) % 29 == 0 || (x == 5 && y > 10)
+            (x * 7 + y * 13) % 29 == 0 && x < 20 || (x == 5 && y > 10) || (y, x) == (22, 30)
         });
         let d = distance_to_mask(&mask);
         for y in 0..ny {
             for x in 0..nx {
+                // on the torus: the shortest wrapped offset
+                let wrapped = |a: usize, b: usize, n: usize| {
+                    let d = a.abs_diff(b);
+                    d.min(n - d) as f64
+                };
                 let mut best = f64::INFINITY;
                 for ((yy, xx), &m) in mask.indexed_iter() {
                     if m {
-                        let dd = ((yy as f64 - y as f64).powi(2) + (xx as f64 - x as f64).powi(2))
-                            .sqrt();
+                        let dd = (wrapped(yy, y, ny).powi(2) + wrapped(xx, x, nx).powi(2)).sqrt();
                         best = best.min(dd);
                     }
                 }
