@@ -431,6 +431,160 @@ fn asc_rows_and_headers() {
     );
 }
 
+/// A one-strip, uncompressed, one-band classic TIFF written by hand
+/// (independent of the `tiff` crate): `data` holds the samples as stored.
+fn tiff_by_hand(
+    le: bool,
+    (w, h): (u32, u32),
+    photometric: u16,
+    bits: u16,
+    format: u16,
+    data: &[u8],
+    nodata: Option<&str>,
+) -> Vec<u8> {
+    let u16b = |v: u16| if le { v.to_le_bytes() } else { v.to_be_bytes() };
+    let u32b = |v: u32| if le { v.to_le_bytes() } else { v.to_be_bytes() };
+    let mut out = if le { b"II".to_vec() } else { b"MM".to_vec() };
+    out.extend(u16b(42));
+    out.extend(u32b(8));
+    let nodata = nodata.map(|t| format!("{t}\0"));
+    let mut entries: Vec<(u16, u16, u32, u32)> = vec![
+        (256, 4, 1, w),
+        (257, 4, 1, h),
+        (258, 3, 1, bits as u32),
+        (259, 3, 1, 1),
+        (262, 3, 1, photometric as u32),
+        (273, 4, 1, 0), // strip offset, filled below
+        (277, 3, 1, 1),
+        (278, 4, 1, h),
+        (279, 4, 1, data.len() as u32),
+        (339, 3, 1, format as u32),
+    ];
+    if let Some(t) = &nodata {
+        entries.push((42113, 2, t.len() as u32, 0)); // text, offset filled below
+    }
+    let ifd_len = 2 + 12 * entries.len() + 4;
+    let text_at = 8 + ifd_len;
+    let text_len = nodata
+        .as_ref()
+        .map_or(0, |t| if t.len() > 4 { t.len() } else { 0 });
+    let data_at = text_at + text_len;
+    for e in &mut entries {
+        match e.0 {
+            273 => e.3 = data_at as u32,
+            42113 => e.3 = text_at as u32,
+            _ => {}
+        }
+    }
+    out.extend(u16b(entries.len() as u16));
+    for (tag, typ, count, value) in entries {
+        out.extend(u16b(tag));
+        out.extend(u16b(typ));
+        out.extend(u32b(count));
+        if typ == 3 && count == 1 {
+            out.extend(u16b(value as u16));
+            out.extend([0, 0]);
+        } else if typ == 2 && count <= 4 {
+            // a text of up to 4 bytes sits in the entry itself
+            let mut v = [0u8; 4];
+            let t = nodata.as_ref().unwrap().as_bytes();
+            v[..t.len()].copy_from_slice(t);
+            out.extend(v);
+        } else {
+            out.extend(u32b(value));
+        }
+    }
+    out.extend(u32b(0));
+    if let Some(t) = nodata.as_ref().filter(|t| t.len() > 4) {
+        out.extend(t.as_bytes());
+    }
+    out.extend(data);
+    out
+}
+
+/// WhiteIsZero TIFFs are read as stored (the decoder would invert them,
+/// and refuse signed ones); a 16-bit float file's nodata is matched at
+/// 16-bit precision; a small file declaring a huge image is refused before
+/// decoding.
+#[test]
+fn tiff_photometric_nodata_and_size() {
+    let dir = scratch("tiff_by_hand");
+    let read_tiff = |name: &str, bytes: Vec<u8>| {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        read_field_with_info(&p)
+    };
+    for le in [true, false] {
+        let (u8f, info) = read_tiff(
+            "wiz_u8.tif",
+            tiff_by_hand(le, (3, 2), 0, 8, 1, &[0, 1, 2, 250, 254, 255], Some("0")),
+        )
+        .unwrap();
+        assert_eq!(
+            u8f.data.as_slice().unwrap()[1..],
+            [1., 2., 250., 254., 255.],
+            "le {le}"
+        );
+        assert!(u8f.is_masked(0, 0), "nodata 0 is the stored 0");
+        assert!(
+            info.warnings.iter().any(|w| w.contains("WhiteIsZero")),
+            "{:?}",
+            info.warnings
+        );
+
+        let i16s: Vec<u8> = [-300i16, -1, 0, 7, 1000, i16::MIN]
+            .iter()
+            .flat_map(|v| if le { v.to_le_bytes() } else { v.to_be_bytes() })
+            .collect();
+        let (i16f, _) = read_tiff(
+            "wiz_i16.tif",
+            tiff_by_hand(le, (3, 2), 0, 16, 2, &i16s, None),
+        )
+        .unwrap();
+        assert_eq!(i16f.data, array![[-300., -1., 0.], [7., 1000., -32768.]]);
+
+        let f32s: Vec<u8> = [1234.567f32, -0.001, 0.0, 1e-30, -9999.0, 3.0]
+            .iter()
+            .flat_map(|v| if le { v.to_le_bytes() } else { v.to_be_bytes() })
+            .collect();
+        let (f32f, _) = read_tiff(
+            "wiz_f32.tif",
+            tiff_by_hand(le, (3, 2), 0, 32, 3, &f32s, Some("-9999")),
+        )
+        .unwrap();
+        let want = [1234.567f32 as f64, -0.001f32 as f64, 0.0, 1e-30f32 as f64];
+        assert_eq!(f32f.data.as_slice().unwrap()[..4], want);
+        assert!(f32f.is_masked(1, 1));
+
+        // f16: -9999 is stored as -10000 (11 significant bits)
+        let f16s: Vec<u8> = [0x3c00u16, 0xf0e2, 0x0000, 0x4000, 0xf0e2, 0x3c00]
+            .iter()
+            .flat_map(|v| if le { v.to_le_bytes() } else { v.to_be_bytes() })
+            .collect();
+        let (f16f, _) = read_tiff(
+            "nodata_f16.tif",
+            tiff_by_hand(le, (3, 2), 1, 16, 3, &f16s, Some("-9999")),
+        )
+        .unwrap();
+        assert_eq!(f16f.data[[0, 0]], 1.0);
+        assert_eq!(f16f.data[[1, 0]], 2.0);
+        assert!(f16f.is_masked(0, 1) && f16f.is_masked(1, 1), "-9999 as f16");
+        assert_eq!(f16f.valid_count(), 4);
+
+        // 30000^2 declared, 6 bytes given: refused by size, before decoding
+        let err = read_tiff(
+            "huge.tif",
+            tiff_by_hand(le, (30000, 30000), 1, 8, 1, &[0; 6], None),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("huge.tif") && err.contains("too large: over the limit"),
+            "{err}"
+        );
+    }
+}
+
 #[test]
 fn png_sidecar_rules() {
     let dir = scratch("sidecar");

@@ -226,6 +226,28 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>> {
     })
 }
 
+/// The most pixels a compressed image (PNG, TIFF) may declare: 2^28, a
+/// 16384^2 DEM, whose f64 field alone is 2 GiB. A small file can declare
+/// far more (a 30000^2 block of zeros deflates to under 1 MB), and the
+/// decoders' byte limits count 1-byte samples, not the f64 field.
+pub(crate) const MAX_PIXELS: usize = 1 << 28;
+
+/// An error naming `path` when a `ny x nx` image exceeds [`MAX_PIXELS`].
+fn check_pixels(path: &Path, ny: usize, nx: usize) -> Result<()> {
+    match ny.checked_mul(nx) {
+        Some(n) if n <= MAX_PIXELS => Ok(()),
+        _ => Err(Error::format(
+            path,
+            format!(
+                "image {ny} x {nx} is too large: over the limit of {} M pixels (2^28, a 16384^2 image; \
+                 its f64 field alone would need {:.1} GiB)",
+                MAX_PIXELS >> 20,
+                ny as f64 * nx as f64 * 8.0 / (1u64 << 30) as f64
+            ),
+        )),
+    }
+}
+
 /// Builds a field from row-major values, masking non-finite values and
 /// those equal to `nodata`.
 fn field_from(

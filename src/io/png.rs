@@ -9,7 +9,7 @@ use ndarray::Array2;
 use png::{BitDepth, ColorType, Decoder, Transformations};
 use serde::{Deserialize, Serialize};
 
-use super::{ImageFormat, ReadInfo, read_bytes};
+use super::{ImageFormat, ReadInfo, check_pixels, read_bytes};
 use crate::error::{Error, Result};
 use crate::field::Field;
 
@@ -66,6 +66,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
         .map_err(|e| bad(format!("corrupt or unsupported: {e}")))?;
     let (src_color, src_depth) = {
         let i = reader.info();
+        check_pixels(path, i.height as usize, i.width as usize)?;
         (i.color_type, i.bit_depth)
     };
     // A tiny file can declare a huge image; refuse before allocating.

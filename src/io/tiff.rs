@@ -9,7 +9,7 @@ use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::encoder::{TiffEncoder, colortype};
 use tiff::tags::Tag;
 
-use super::{ImageFormat, ReadInfo, field_from, read_bytes};
+use super::{ImageFormat, ReadInfo, check_pixels, field_from, read_bytes};
 use crate::error::{Error, Result};
 use crate::field::Field;
 
@@ -18,7 +18,12 @@ use crate::field::Field;
 const MAX_DECODE_BYTES: usize = 1 << 30;
 
 pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
-    let bytes = read_bytes(path)?;
+    let mut bytes = read_bytes(path)?;
+    // The decoder inverts WhiteIsZero samples (255 - v, 1 - v for floats,
+    // an error for signed ones) as if they were grey levels; a DEM's values
+    // are meant as stored (as GDAL reads them), so the tag is read as
+    // BlackIsZero instead.
+    let white_is_zero = patch_white_is_zero(&mut bytes);
     let bad = |reason: String| Error::format(path, format!("TIFF: {reason}"));
     let tiff_err = |e: tiff::TiffError| bad(format!("corrupt or unsupported: {e}"));
     let limits = {
@@ -53,6 +58,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     if nx == 0 || ny == 0 {
         return Err(bad(format!("empty image ({ny} x {nx})")));
     }
+    check_pixels(path, ny, nx)?;
     let bits: u16 = dec
         .find_tag_unsigned(Tag::BitsPerSample)
         .map_err(tiff_err)?
@@ -96,19 +102,79 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     if let Some(text) = nodata_text {
         let t = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
         match t.parse::<f64>() {
-            // A float32 file stores the nodata rounded to float32.
+            // A float file stores the nodata rounded to its precision.
             Ok(v) if dtype == "f32" => nodata = Some(v as f32 as f64),
+            Ok(v) if dtype == "f16" => nodata = Some(half::f16::from_f64(v).to_f64()),
             Ok(v) => nodata = Some(v),
             Err(_) => info
                 .warnings
                 .push(format!("GDAL nodata tag `{t}` is not a number; ignored")),
         }
     }
+    if white_is_zero {
+        info.warnings.push(
+            "photometric interpretation WhiteIsZero: values read as stored, not inverted".into(),
+        );
+    }
     if more_images {
         info.warnings
             .push("the file holds more than one image; only the first was read".into());
     }
     Ok((field_from(path, ny, nx, values, nodata)?, info))
+}
+
+/// Rewrites a PhotometricInterpretation of 0 (WhiteIsZero) in the first
+/// IFD to 1 (BlackIsZero), in place; true if it did. The decoder offers no
+/// switch for its inversion and no tag offsets, so the IFD is walked here
+/// (classic and BigTIFF, either byte order); anything out of bounds leaves
+/// the bytes alone for the decoder to report.
+fn patch_white_is_zero(b: &mut [u8]) -> bool {
+    let le = match b.get(..2) {
+        Some(b"II") => true,
+        Some(b"MM") => false,
+        _ => return false,
+    };
+    let uint = |b: &[u8], at: usize, n: usize| -> Option<u64> {
+        let s = b.get(at..at.checked_add(n)?)?;
+        let mut v = 0u64;
+        for i in 0..n {
+            let byte = if le { s[n - 1 - i] } else { s[i] };
+            v = v << 8 | byte as u64;
+        }
+        Some(v)
+    };
+    // classic: the first IFD's offset (4 bytes) at byte 4, a 2-byte entry
+    // count, 12-byte entries with the value at byte 8; BigTIFF: 8 bytes at
+    // byte 8, an 8-byte count, 20-byte entries with the value at byte 12
+    let (ifd_at, off_w, count_w, entry, value_at) = match uint(b, 2, 2) {
+        Some(42) => (4, 4, 2, 12, 8),
+        Some(43) => (8, 8, 8, 20, 12),
+        _ => return false,
+    };
+    let Some(ifd) = uint(b, ifd_at, off_w).and_then(|v| usize::try_from(v).ok()) else {
+        return false;
+    };
+    let Some(n) = uint(b, ifd, count_w).and_then(|v| usize::try_from(v).ok()) else {
+        return false;
+    };
+    for i in 0..n.min(4096) {
+        let Some(e) = (i * entry).checked_add(ifd + count_w) else {
+            return false;
+        };
+        let Some(tag) = uint(b, e, 2) else {
+            return false;
+        };
+        // tag 262 of type SHORT (3): its value sits in the entry itself
+        if tag == 262 && uint(b, e + 2, 2) == Some(3) {
+            if uint(b, e + value_at, 2) == Some(0) {
+                let one = if le { [1, 0] } else { [0, 1] };
+                b[e + value_at..e + value_at + 2].copy_from_slice(&one);
+                return true;
+            }
+            return false;
+        }
+    }
+    false
 }
 
 /// Encodes a one-band float32 TIFF in memory.
