@@ -54,7 +54,8 @@ pub enum Style {
 pub struct Series {
     /// Legend label; an empty name keeps the series out of the legend.
     pub name: String,
-    /// The `(x, y)` points in data coordinates; non-finite ones are skipped.
+    /// The `(x, y)` points in data coordinates; a non-finite one is not
+    /// drawn and breaks the line there (an empty bin, an undefined log).
     pub points: Vec<(f64, f64)>,
     /// Optional symmetric error bar per point (same length as `points`).
     pub y_err: Option<Vec<f64>>,
@@ -122,6 +123,15 @@ impl Series {
             .iter()
             .cloned()
             .filter(|p| p.0.is_finite() && p.1.is_finite())
+            .collect()
+    }
+
+    /// The line's pieces: runs of consecutive finite points (a non-finite
+    /// point ends a run, so no line bridges a gap in the data).
+    fn runs(&self) -> Vec<&[(f64, f64)]> {
+        self.points
+            .split(|p| !(p.0.is_finite() && p.1.is_finite()))
+            .filter(|r| !r.is_empty())
             .collect()
     }
 }
@@ -345,7 +355,7 @@ fn ink<DB: DrawingBackend>(ctx: &Ctx<DB>, chart: &Chart) -> Vec<(f64, f64)> {
     for s in &chart.series {
         let pts = s.finite_points();
         if s.style != Style::Markers {
-            for w in pts.windows(2) {
+            for w in s.runs().iter().flat_map(|r| r.windows(2)) {
                 segment(w[0], w[1], &mut out);
             }
         }
@@ -542,6 +552,16 @@ fn draw_legend<DB: DrawingBackend>(
     Ok(())
 }
 
+/// A tick label as plotters writes it, without the sign of a zero (a key
+/// point a rounding step below 0 printed as "-0.0").
+fn tick(v: &f64) -> String {
+    let s = <RangedCoordf64 as ValueFormatter<f64>>::format(v);
+    match s.strip_prefix('-') {
+        Some(rest) if rest.parse::<f64>() == Ok(0.0) => rest.to_string(),
+        _ => s,
+    }
+}
+
 fn draw<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     chart: &Chart,
@@ -557,6 +577,8 @@ where
     ctx.configure_mesh()
         .x_desc(&chart.x_label)
         .y_desc(&chart.y_label)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick)
         .label_style(("sans-serif", 15))
         .axis_desc_style(("sans-serif", 17))
         .light_line_style(RGBColor(235, 235, 235))
@@ -566,14 +588,27 @@ where
         let c = palette(s.color);
         let pts = s.finite_points();
         match s.style {
+            // one two-point path per segment: plotters joins a thick
+            // polyline with mitres, which shoot far past the data at sharp
+            // turns (a noisy pdf tail drew spikes off the plot)
             Style::Line | Style::LineMarkers => ctx
-                .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
+                .draw_series(
+                    s.runs()
+                        .into_iter()
+                        .flat_map(|r| r.windows(2))
+                        .map(|w| PathElement::new(vec![w[0], w[1]], c.stroke_width(2))),
+                )
+                .map(|_| ())
                 .map_err(|x| e(&x))?,
-            Style::Dashed => ctx
-                .draw_series(DashedLineSeries::new(pts.clone(), 8, 5, c.stroke_width(2)))
-                .map_err(|x| e(&x))?,
+            Style::Dashed => {
+                for r in s.runs() {
+                    ctx.draw_series(DashedLineSeries::new(r.to_vec(), 8, 5, c.stroke_width(2)))
+                        .map_err(|x| e(&x))?;
+                }
+            }
             Style::Markers => ctx
                 .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
+                .map(|_| ())
                 .map_err(|x| e(&x))?,
         };
         if s.style == Style::LineMarkers {
@@ -1294,6 +1329,34 @@ mod tests {
         let (bx, _) = data_range(&bare);
         assert!(bx.0 > 0.4 && bx.1 < 0.8, "{bx:?}");
         assert!(x.0 < bx.0 - 0.1, "the horizontal bar widens the range");
+    }
+
+    /// A non-finite point breaks a line (no segment bridges an empty bin);
+    /// a tick at a rounding step below zero reads "0".
+    #[test]
+    fn gaps_break_lines_and_zero_has_no_sign() {
+        let nan = f64::NAN;
+        let s = Series::new(
+            "",
+            vec![
+                (0.0, 1.0),
+                (1.0, 2.0),
+                (2.0, nan),
+                (3.0, 1.0),
+                (nan, 0.0),
+                (5.0, 1.0),
+                (6.0, 2.0),
+            ],
+            Style::Line,
+            0,
+        );
+        let runs = s.runs();
+        assert_eq!(runs.len(), 3);
+        assert_eq!(runs.iter().map(|r| r.len()).collect::<Vec<_>>(), [2, 1, 2]);
+        assert_eq!(runs[2], [(5.0, 1.0), (6.0, 2.0)]);
+        assert_eq!(tick(&-1e-17), tick(&0.0));
+        assert!(!tick(&-1e-17).starts_with('-'), "{}", tick(&-1e-17));
+        assert!(tick(&-0.5).starts_with('-'));
     }
 
     #[test]

@@ -374,21 +374,38 @@ pub fn write_outputs(
                 .collect();
         write_csv(&dir.join(name), &hdr_ref, &rows)?;
     }
-    plot_spectra(dir, s, theory)
+    plot_spectra(dir, s, &describe(s, sums), theory)
+}
+
+/// What the figures show, for their titles: images and sizes, wavelet, rule.
+fn describe(s: &Spectra, sums: &PartitionSums) -> String {
+    let sizes = match s.image_shapes.as_slice() {
+        [one] if one.ny == one.nx => format!("{}^2", one.nx),
+        [one] => format!("{}x{}", one.ny, one.nx),
+        _ => "mixed sizes".into(),
+    };
+    let wavelet = sums
+        .analysis
+        .as_ref()
+        .map_or(String::new(), |a| format!(", {}", a.wavelet.name()));
+    let rule = format!("{:?}", s.rule).to_lowercase();
+    format!("{} x {sizes}{wavelet}, {rule} rule", s.images)
 }
 
 /// II Fig 10: (a) log2 Z vs log2 a, (b) h(q, a) vs log2 a, (c) tau(q), (d) D(h).
-pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> Result<()> {
+pub fn plot_spectra(
+    dir: &Path,
+    s: &Spectra,
+    what: &str,
+    theory: Option<&TheoryCurves>,
+) -> Result<()> {
     let nq = s.q.len();
     // a readable subset of q: about 9 curves
     let step = nq.div_ceil(9).max(1);
     let shown: Vec<usize> = (0..nq).step_by(step).collect();
     let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
     let mut za = Chart {
-        title: format!(
-            "(a) partition functions, {} image(s), {:?} rule",
-            s.images, s.rule
-        ),
+        title: format!("(a) partition functions: {what}"),
         x_label: "log2 a".into(),
         y_label: "log2 Z(q, a)".into(),
         ..Default::default()
@@ -396,7 +413,7 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
     let mut hb = Chart {
         // the level is a weighted mean of log2 M, not an exponent: the
         // slope is h(q) (SPEC §4), as tau(q) is that of log2 Z
-        title: "(b) h(q, a): the slopes are h(q)".into(),
+        title: format!("(b) h(q, a), slopes h(q): {what}"),
         x_label: "log2 a".into(),
         y_label: "h(q, a) = Σ W log2 M".into(),
         ..Default::default()
@@ -456,7 +473,7 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
     save_chart(&hb, &dir.join("hqa.png"))?;
     let mut tc = Chart {
         title: format!(
-            "(c) tau(q), fit {:.1}-{:.1} px",
+            "(c) tau(q), fit {:.1}-{:.1} px: {what}",
             s.fit_scales.0, s.fit_scales.1
         ),
         x_label: "q".into(),
@@ -473,7 +490,7 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
         .with_errors(s.tau_stderr.clone()),
     );
     let mut dc = Chart {
-        title: "(d) D(h)".into(),
+        title: format!("(d) D(h): {what}"),
         x_label: "h".into(),
         y_label: "D(h)".into(),
         ..Default::default()
@@ -489,6 +506,7 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
         .with_errors(s.d_stderr.clone())
         .with_x_errors(s.h_stderr.clone()),
     );
+    // a line, so that it hides neither the canonical points nor their bars
     dc.series.push(Series::new(
         "Legendre of tau(q)",
         s.legendre_h
@@ -496,7 +514,7 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
             .cloned()
             .zip(s.legendre_d.iter().cloned())
             .collect(),
-        Style::Markers,
+        Style::Line,
         3,
     ));
     if let Some(t) = theory {
@@ -524,11 +542,14 @@ pub fn plot_spectra(dir: &Path, s: &Spectra, theory: Option<&TheoryCurves>) -> R
             tc.series.push(Series::new(
                 "images' own cascades",
                 pts.clone(),
-                Style::Markers,
+                Style::Dashed,
                 2,
             ));
         }
     }
+    // the estimates last, on top of the curves
+    tc.series.rotate_left(1);
+    dc.series.rotate_left(1);
     save_chart(&tc, &dir.join("tau.png"))?;
     save_chart(&dc, &dir.join("dh.png"))
 }

@@ -598,7 +598,7 @@ fn write_correlation_outputs(
                 c.series.push(
                     Series::new(
                         format!(
-                            "a1 = 2^{:.0}, a2 = 2^{:.0} ({:.1}, {:.1} px)",
+                            "a1 = 2^{:.1} a_min, a2 = 2^{:.1} a_min ({:.1}, {:.1} px)",
                             (p.a1 / a_min).log2(),
                             (p.a2 / a_min).log2(),
                             p.a1,
@@ -619,7 +619,12 @@ fn write_correlation_outputs(
                     })
                     .collect();
                 if !pts.is_empty() {
-                    c.series.push(Series::new("II eq 76", pts, Style::Line, 9));
+                    let name = if matches!(m, Model::Fbm(_)) {
+                        "theory: C = 0 (II Fig 30b)"
+                    } else {
+                        "II eq 76"
+                    };
+                    c.series.push(Series::new(name, pts, Style::Line, 9));
                 }
             }
             let path = dir.join(file.replace(".png", &format!("{suffix}.png")));

@@ -644,19 +644,25 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                     .map(|&p| (p, theory_log_kernel(m, p).expect("checked")))
                     .collect();
             let r = kc.ln_ratio;
+            // one legend line says what the dashed curves are
+            let name = if c == 0 {
+                "theory, dashed (each pair's colour)"
+            } else {
+                ""
+            };
             charts[0].1.series.push(Series::new(
-                "",
+                name,
                 th.iter().map(|(p, z)| (*p, z.re * r)).collect(),
                 Style::Dashed,
                 c,
             ));
             charts[2].1.series.push(Series::new(
-                "",
+                name,
                 th.iter().map(|(p, z)| (*p, z.im * r)).collect(),
                 Style::Dashed,
                 c,
             ));
-            if c == 0 {
+            if c + 1 == k.kernels.len() {
                 charts[1].1.series.push(Series::new(
                     "theory",
                     th.iter().map(|(p, z)| (*p, z.re)).collect(),
@@ -686,7 +692,7 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
     for n in 0..3 {
         let mut c = Chart {
             title: title(&format!(
-                "C{}(a, a') vs ln(a'/a): c{} = {:.4} +- {:.4} (II Fig 26{})",
+                "C{}(a, a'): c{} = {:.4} +- {:.4} (II Fig 26{})",
                 n + 1,
                 n + 1,
                 est[n],
@@ -701,12 +707,15 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         for (i, t) in k.tables.iter().enumerate() {
             let pts: Vec<(f64, f64)> = t.rows.iter().map(|r| (r.ln_ratio, r.c[n])).collect();
             xmax = pts.iter().map(|p| p.0).fold(xmax, f64::max);
-            c.series.push(Series::new(
-                format!("a' = 2^{:.1}", t.octave_ref),
-                pts,
-                Style::Markers,
-                i,
-            ));
+            c.series.push(
+                Series::new(
+                    format!("a' = 2^{:.1} a_min ({:.1} px)", t.octave_ref, t.a_ref),
+                    pts,
+                    Style::Markers,
+                    i,
+                )
+                .with_errors(t.rows.iter().map(|r| r.c_stderr[n]).collect()),
+            );
         }
         c.series.push(Series::new(
             format!("fit: {:.4}", est[n]),
@@ -742,10 +751,14 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         };
         let to_m = |u: &[f64], p: &[f64]| -> Vec<(f64, f64)> {
             let peak = p.iter().cloned().fold(0.0, f64::max);
+            // below 1e-4 of the peak (or a negative predicted density): a
+            // gap in the curve, not a line across it
             u.iter()
                 .zip(p)
-                .filter(|(_, v)| **v > 1e-4 * peak)
-                .map(|(x, v)| (x.exp(), (v / x.exp()).ln()))
+                .map(|(x, &v)| match v > 1e-4 * peak {
+                    true => (x.exp(), (v / x.exp()).ln()),
+                    false => (x.exp(), f64::NAN),
+                })
                 .collect()
         };
         c.series.push(Series::new(

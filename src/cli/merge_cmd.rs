@@ -134,10 +134,11 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         step,
         ", the scales of these sums",
     )?;
+    // the preset's name when one is given, as analyze labels it
     let theory = args
         .model_opts
         .resolve_optional(args.theory)?
-        .map(|r| r.model);
+        .map(|r| (r.model, r.preset.unwrap_or(r.model.name())));
     let rule = args.rule;
     let other = if rule == Rule::Plain {
         Rule::Sup
@@ -157,10 +158,10 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     // recorded in spectra.json with the fit's warnings
     s.warnings.extend(warnings);
     make_out_dir(&args.out.out)?;
-    let curves = theory.map(|m| theory_curves(&m, m.name(), &s.q));
+    let curves = theory.map(|(m, name)| theory_curves(&m, name, &s.q));
     // the analysis the shards share (null when no shard records it)
     let params = json!({"sums": args.sums, "analysis": sums.analysis, "fit_octaves": fit,
-        "rule": rule, "theory": theory});
+        "rule": rule, "theory": theory.map(|(m, _)| m)});
     write_outputs(
         &args.out.out,
         "merge",
