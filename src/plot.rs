@@ -697,7 +697,7 @@ fn encode_png_rgb8(buf: &[u8], w: u32, h: u32) -> Vec<u8> {
 }
 
 /// Writes a grey-level PNG of a field, linearly mapped from its finite
-/// min..max to 0..255 (NaN black). For eyes, not for data.
+/// min..max to 0..255 (NaN in [`NO_VALUE`]). For eyes, not for data.
 pub fn save_grey(img: ArrayView2<f64>, path: &Path) -> Result<()> {
     Raster::grey(img, (0, 255)).save(path)
 }
@@ -714,9 +714,14 @@ pub struct Raster {
     pub rgb: Vec<u8>,
 }
 
+/// The colour of a pixel without a value in a grey raster: teal, apart
+/// from the greys and from the skeleton's red, green, blue and yellow.
+pub const NO_VALUE: [u8; 3] = [0, 128, 128];
+
 impl Raster {
     /// A field's finite min..max mapped linearly to the grey levels
-    /// `levels.0..=levels.1` (NaN black).
+    /// `levels.0..=levels.1`; a non-finite value (a missing pixel) in
+    /// [`NO_VALUE`], which no grey level and no mark uses.
     pub fn grey(img: ArrayView2<f64>, levels: (u8, u8)) -> Self {
         let (ny, nx) = img.dim();
         let (lo, hi) = crate::field::finite_range(img.iter()).unwrap_or((0.0, 0.0));
@@ -724,12 +729,12 @@ impl Raster {
         let (g0, span) = (levels.0 as f64, levels.1 as f64 - levels.0 as f64);
         let mut rgb = Vec::with_capacity(nx * ny * 3);
         for &v in img.iter() {
-            let g = if v.is_finite() {
-                (g0 + span * (v - lo) / d).round() as u8
+            if v.is_finite() {
+                let g = (g0 + span * (v - lo) / d).round() as u8;
+                rgb.extend_from_slice(&[g, g, g]);
             } else {
-                0
-            };
-            rgb.extend_from_slice(&[g, g, g]);
+                rgb.extend_from_slice(&NO_VALUE);
+            }
         }
         Raster {
             width: nx,

@@ -694,7 +694,7 @@ fn plot_tau(
         .collect();
     let pts = |v: &[f64]| -> Vec<(f64, f64)> { q.iter().copied().zip(v.iter().copied()).collect() };
     let mut c = Chart {
-        title: format!("tau(q): {name}"),
+        title: format!("tau(q): {name} (bars: se from sub-ensembles)"),
         x_label: "q".into(),
         y_label: "tau(q)".into(),
         ..Default::default()

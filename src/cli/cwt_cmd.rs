@@ -119,7 +119,8 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
 }
 
 /// The modulus at one scale as a grey picture inside pixel axes, with a
-/// grey bar giving the values (white = the largest M; NaN black).
+/// grey bar giving the values (white = the largest M; NaN teal, named in
+/// the axis label when there is any).
 fn save_modulus_png(
     m: ndarray::ArrayView2<f64>,
     a: f64,
@@ -140,7 +141,11 @@ fn save_modulus_png(
         &Raster::grey(m, (0, 255)),
         &RasterChart {
             title: format!("modulus M(b, a), a = {a:.2} px, {} wavelet", wavelet.name()),
-            x_label: "x (px)".into(),
+            x_label: if m.iter().any(|v| v.is_nan()) {
+                "x (px)   teal: no value (the wavelet reaches a missing pixel)".into()
+            } else {
+                "x (px)".into()
+            },
             y_label: "y (px)".into(),
             x_range: (0.0, nx as f64),
             y_range: (0.0, ny as f64),

@@ -748,7 +748,15 @@ fn pts(x: &[f64], y: &[f64], log: bool) -> Vec<(f64, f64)> {
 }
 
 fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: f64) -> Result<()> {
-    let label = |s: &ScalePdf| format!("a = 2^{:.1} a_min ({:.1} px)", s.octave, s.a);
+    // a scale with few WTMMM says so in the figure too (not only on stderr)
+    let label = |s: &ScalePdf| {
+        let few = if s.n < 100 {
+            format!(", only {} WTMMM", s.n)
+        } else {
+            String::new()
+        };
+        format!("a = 2^{:.1} a_min ({:.1} px){few}", s.octave, s.a)
+    };
     let title = |t: &str| {
         if name.is_empty() {
             t.to_string()
@@ -793,10 +801,10 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
     };
     let mut cr = Chart {
         title: title(&format!(
-            "ln P_a(M) vs M / a^h, h = {h0:.3} (II eq 39, Fig 20b)"
+            "ln P_a(M) vs M / (a/a_min)^h, h = {h0:.3} (II eq 39, Fig 20b)"
         )),
         x_label: "M / (a/a_min)^h".into(),
-        y_label: "ln P".into(),
+        y_label: "ln P_a(M)".into(),
         ..Default::default()
     };
     for (k, s) in show.iter().enumerate() {
@@ -858,7 +866,7 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
         joint_picture(
             s,
             title(&format!(
-                "joint density of (T1, T2), {} (II Fig 19)",
+                "joint density of (T1, T2), central 99 %, {} (II Fig 19)",
                 label(s)
             )),
             &dir.join(format!("joint_T_{n}.png")),

@@ -183,8 +183,14 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
         save_raster_chart(
             &r,
             &RasterChart {
-                title: format!("maxima chains and WTMMM, a = {:.2} px (II Fig 15)", sm.a),
-                x_label: "x (px)".into(),
+                title: format!(
+                    "chains and WTMMM, a = {:.2} px, {} (II Figs 9, 15)",
+                    sm.a,
+                    cfg.wavelet.name()
+                ),
+                // the colour key in the picture, not only in skeleton.json
+                x_label: "x (px)   red: chains, green: WTMMM, blue: M along A, yellow: domain"
+                    .into(),
                 y_label: "y (px)".into(),
                 x_range: (0.0, nx as f64),
                 y_range: (0.0, ny as f64),

@@ -538,7 +538,7 @@ fn shown_q(q: &[f64]) -> Vec<usize> {
 fn plot_moments(dir: &Path, r: &TraceMomentResult) -> Result<()> {
     let mut c = Chart {
         title: format!(
-            "trace moments, {} image(s), fit log2 λ {}:{}",
+            "trace moments, {} image(s), fit λ = 2^{}..2^{}",
             r.images, r.fit_log2_lambda.0, r.fit_log2_lambda.1
         ),
         x_label: "log10 λ  (λ = L / l)".into(),
@@ -709,7 +709,8 @@ fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum) -> Resul
     let pts = ps.points();
     let mut c = Chart {
         title: format!(
-            "spectrum: beta = {} (angle-integrated), H = {}",
+            "angle-averaged spectrum: beta = {} (angle-integrated: {}), H = {}",
+            r.beta_averaged.map_or("n/a".into(), |b| format!("{b:.3}")),
             r.beta.map_or("n/a".into(), |b| format!("{b:.3}")),
             r.h.map_or("n/a".into(), |h| format!("{h:.3}"))
         ),
@@ -737,7 +738,7 @@ fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum) -> Resul
             let my = sel.iter().map(|p| p.1).sum::<f64>() / sel.len() as f64;
             let (x0, x1) = (k0.log2(), k1.log2());
             c.series.push(Series::new(
-                format!("fit: beta_averaged = {b:.3}"),
+                format!("fit: beta = {b:.3}"),
                 vec![(x0, my - b * (x0 - mx)), (x1, my - b * (x1 - mx))],
                 Style::Line,
                 1,
