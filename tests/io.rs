@@ -502,6 +502,20 @@ fn tiff_by_hand(
     out
 }
 
+/// The samples `words` (each little-endian) in the byte order `le` says.
+fn ordered<const N: usize>(le: bool, words: &[[u8; N]]) -> Vec<u8> {
+    words
+        .iter()
+        .flat_map(|w| {
+            let mut w = *w;
+            if !le {
+                w.reverse();
+            }
+            w
+        })
+        .collect()
+}
+
 /// WhiteIsZero TIFFs are read as stored (the decoder would invert them,
 /// and refuse signed ones); a 16-bit float file's nodata is matched at
 /// 16-bit precision; a small file declaring a huge image is refused before
@@ -532,10 +546,10 @@ fn tiff_photometric_nodata_and_size() {
             info.warnings
         );
 
-        let i16s: Vec<u8> = [-300i16, -1, 0, 7, 1000, i16::MIN]
-            .iter()
-            .flat_map(|v| if le { v.to_le_bytes() } else { v.to_be_bytes() })
-            .collect();
+        let i16s = ordered(
+            le,
+            &[-300i16, -1, 0, 7, 1000, i16::MIN].map(i16::to_le_bytes),
+        );
         let (i16f, _) = read_tiff(
             "wiz_i16.tif",
             tiff_by_hand(le, (3, 2), 0, 16, 2, &i16s, None),
@@ -543,10 +557,10 @@ fn tiff_photometric_nodata_and_size() {
         .unwrap();
         assert_eq!(i16f.data, array![[-300., -1., 0.], [7., 1000., -32768.]]);
 
-        let f32s: Vec<u8> = [1234.567f32, -0.001, 0.0, 1e-30, -9999.0, 3.0]
-            .iter()
-            .flat_map(|v| if le { v.to_le_bytes() } else { v.to_be_bytes() })
-            .collect();
+        let f32s = ordered(
+            le,
+            &[1234.567f32, -0.001, 0.0, 1e-30, -9999.0, 3.0].map(f32::to_le_bytes),
+        );
         let (f32f, _) = read_tiff(
             "wiz_f32.tif",
             tiff_by_hand(le, (3, 2), 0, 32, 3, &f32s, Some("-9999")),
@@ -557,10 +571,10 @@ fn tiff_photometric_nodata_and_size() {
         assert!(f32f.is_masked(1, 1));
 
         // f16: -9999 is stored as -10000 (11 significant bits)
-        let f16s: Vec<u8> = [0x3c00u16, 0xf0e2, 0x0000, 0x4000, 0xf0e2, 0x3c00]
-            .iter()
-            .flat_map(|v| if le { v.to_le_bytes() } else { v.to_be_bytes() })
-            .collect();
+        let f16s = ordered(
+            le,
+            &[0x3c00u16, 0xf0e2, 0x0000, 0x4000, 0xf0e2, 0x3c00].map(u16::to_le_bytes),
+        );
         let (f16f, _) = read_tiff(
             "nodata_f16.tif",
             tiff_by_hand(le, (3, 2), 1, 16, 3, &f16s, Some("-9999")),
