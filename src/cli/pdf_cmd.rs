@@ -731,8 +731,6 @@ fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf]) -> Result<()> {
     )
 }
 
-/// Keeps the points of a density worth drawing (positive, and in the log
-/// plots above 1e-4 of the peak).
 /// Plot points of a density: an empty bin is 0 on a linear axis; on a log
 /// axis it (or a bin below 1e-4 of the peak) is a gap, not a line across.
 fn pts(x: &[f64], y: &[f64], log: bool) -> Vec<(f64, f64)> {
