@@ -1,8 +1,9 @@
 //! Linking WTMMM across scales into maxima lines (SPEC §3).
 //!
 //! From `a_min` upward, each line alive at `a_j` looks for the WTMMM of
-//! `a_{j+1}` inside a search box and a modulus-ratio window, takes the
-//! nearest; links are one-to-one and when two lines want the same candidate
+//! `a_{j+1}` inside a search box (its half-width evaluated at `a_{j+1}`,
+//! the scale looked at; SPEC §3 does not say which) and a modulus-ratio
+//! window, takes the nearest; links are one-to-one and when two lines want the same candidate
 //! the nearer wins (ties: the lower line id) and the other line ends. Lines
 //! are born only at `a_min`. Only the previous scale's line ends and the
 //! current scale's WTMMM are needed, so linking streams with the CWT.
