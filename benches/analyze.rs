@@ -28,7 +28,7 @@ fn main() {
                 let s = image_sums(&field, &cfg, &q, "bench").unwrap();
                 std::hint::black_box(s.spectra(Rule::Plain, (0.5, 4.0)).unwrap());
             },
-            || floor.run_serial(ns),
+            floor.serial_runner(ns),
         )
     });
     println!(

@@ -29,14 +29,14 @@ fn main() {
                 })
                 .unwrap()
             });
-            let f = median_secs(reps, || floor.run_serial(ns));
+            let f = median_secs(reps, floor.serial_runner(ns));
             (c, f)
         });
         let t_cwtn = median_secs(reps, || {
             plan.par_map_scales(img.view(), |_, _, t| std::hint::black_box(t[[0, 0]]))
                 .unwrap();
         });
-        let t_fftn = median_secs(reps, || floor.run_parallel(ns));
+        let t_fftn = median_secs(reps, floor.parallel_runner(ns));
         println!(
             "{wavelet:>8} 1 thread : CWT {:7.1} ms | FFT floor {:7.1} ms | ratio {:.3}",
             1e3 * t_cwt1,

@@ -52,14 +52,14 @@ fn main() {
                     .lines
                     .len();
             },
-            || floor.run_serial(ns),
+            floor.serial_runner(ns),
         );
         (c, r, s, f, ratio, lines)
     });
     let t_skn = median_secs(reps, || {
         std::hint::black_box(skeleton_with(&field, &cfg, Parallelism::Scales, &[]).unwrap());
     });
-    let t_fftn = median_secs(reps, || floor.run_parallel(ns));
+    let t_fftn = median_secs(reps, floor.parallel_runner(ns));
     println!("lines born at a_min: {lines}");
     println!(
         "1 thread : FFT floor {:7.1} ms | CWT {:7.1} ms ({:.3}x), in row blocks {:7.1} ms ({:.3}x) | skeleton {:7.1} ms (median ratio of 7 interleaved pairs {:.3}x)",

@@ -535,6 +535,25 @@ impl NmsStream {
 
 /// Threshold, chains and WTMMM from the candidates in `s.cand`.
 fn finish(
+    out: ScaleMaxima,
+    mmax: f64,
+    domain: &Domain,
+    eps: f64,
+    a: f64,
+    keep_chains: bool,
+    s: &mut DetectScratch,
+) -> ScaleMaxima {
+    // compiled twice: with the torus's wrapped neighbours folded away the
+    // tracing closures inline again (the wrap cost ~10 % of a skeleton on
+    // images that never wrap)
+    if domain.is_torus() {
+        finish_on::<true>(out, mmax, domain, eps, a, keep_chains, s)
+    } else {
+        finish_on::<false>(out, mmax, domain, eps, a, keep_chains, s)
+    }
+}
+
+fn finish_on<const TORUS: bool>(
     mut out: ScaleMaxima,
     mmax: f64,
     domain: &Domain,
@@ -592,7 +611,6 @@ fn finish(
     s.nmask.clear();
     // on the torus the neighbours of edge pixels wrap around (the bit grid
     // keeps its zero padding, so ranks count real pixels only)
-    let torus = domain.is_torus();
     let bit_at = {
         let bits = &s.bits;
         move |x: usize, y: usize| -> bool {
@@ -607,7 +625,7 @@ fn finish(
         (x + 1, y + 1)
     };
     let on_edge =
-        move |c: u32, r: u32| torus && (c == 1 || c == nx as u32 || r == 1 || r == ny as u32);
+        move |c: u32, r: u32| TORUS && (c == 1 || c == nx as u32 || r == 1 || r == ny as u32);
     {
         let bits = &s.bits;
         // bits c-1, c, c+1 of padded row r (bit 0 = c-1)
@@ -757,7 +775,7 @@ fn finish(
                 && adjacent(
                     unpad(s.order[0]),
                     unpad(s.order[n - 1]),
-                    torus.then_some((nx as u32, ny as u32)),
+                    TORUS.then_some((nx as u32, ny as u32)),
                 );
             first_walk = false;
             let chain_id = out.n_chains as u32;
