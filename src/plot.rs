@@ -1070,11 +1070,13 @@ where
         ))
         .map_err(|x| e(&x))?;
     }
-    let fmt_y = |v: &f64| <RangedCoordf64 as ValueFormatter<f64>>::format(&(sign * v + 0.0));
+    // ticks as the charts write them (no signed zero); y flipped when down
+    let fmt_y = |v: &f64| tick(&(sign * v));
     ctx.configure_mesh()
         .disable_mesh()
         .x_desc(&spec.x_label)
         .y_desc(&spec.y_label)
+        .x_label_formatter(&tick)
         .y_label_formatter(&fmt_y)
         .label_style(("sans-serif", 15))
         .axis_desc_style(("sans-serif", 17))
