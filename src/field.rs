@@ -68,7 +68,10 @@ impl Field {
 
     /// The values with masked pixels replaced by the mean of the valid ones,
     /// ready for the FFT. (The maxima code later drops any WTMM whose wavelet
-    /// support touches a masked pixel, so the fill value never reaches a result.)
+    /// support, radius `R a`, touches a masked pixel; what the Gaussian's
+    /// tail carries beyond it is negligible: a holed fBm ensemble gives the
+    /// τ(q) of the unholed one counted on the same domain within 0.003,
+    /// `tests/spectra.rs`.)
     ///
     /// **Errors** if no pixel is valid.
     pub fn filled(&self) -> Result<Array2<f64>> {

@@ -74,8 +74,9 @@ pub struct ImagePartial {
     /// in `sums.json` files written before it was recorded).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shape: Option<[usize; 2]>,
-    /// Missing pixels (NaN, ±inf or nodata in the file); maxima whose
-    /// wavelet reaches one are left out.
+    /// Missing pixels (NaN, ±inf or nodata in the file); maxima count only
+    /// farther from them than the wavelet's support at the largest scale
+    /// ([`Skeleton::counts`](crate::skeleton::Skeleton::counts)).
     #[serde(default)]
     pub missing: u64,
     /// Lines alive per scale.
@@ -520,8 +521,8 @@ impl PartitionSums {
             .collect();
         if !holed.is_empty() {
             warnings.push(format!(
-                "{} image(s) with missing pixels (NaN, inf or nodata; {} in all): the maxima \
-                 whose wavelet reaches one are left out",
+                "{} image(s) with missing pixels (NaN, inf or nodata; {} in all): maxima count \
+                 only farther from them than the wavelet's support at the largest scale",
                 holed.len(),
                 holed.iter().sum::<u64>()
             ));
