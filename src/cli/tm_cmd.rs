@@ -215,8 +215,8 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
             extra.push(format!(
-                "{}: {n} missing pixels: left out of the flux, filled with the image mean for \
-                 the spectrum (beta, H)",
+                "{}: {n} missing pixels: left out of the flux (filled harmonically before a \
+                 fractional derivative), filled with the image mean for the spectrum (beta, H)",
                 p.display()
             ));
         }

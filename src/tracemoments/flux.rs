@@ -111,10 +111,12 @@ fn mirror(f: ArrayView2<f64>) -> Array2<f64> {
 }
 
 /// Fractional integration of order `order` of a non-periodic field: masked
-/// pixels filled with the mean, mirror extension to twice the size (no
+/// pixels filled harmonically ([`Field::filled_harmonic`]; a mean fill
+/// puts a step along every hole's rim, which the filter spreads far into
+/// the valid flux), mirror extension to twice the size (no
 /// border jump for the periodic FFT filter), filter `|k|^-order`, crop.
 pub(crate) fn smooth(field: &Field, order: f64) -> Result<Array2<f64>> {
-    let filled = field.filled()?;
+    let filled = field.filled_harmonic()?;
     let (ny, nx) = filled.dim();
     let ext = mirror(filled.view());
     let out = fractional_integrate(ext.view(), order)?;
@@ -244,6 +246,48 @@ impl Pyramid {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The fractional derivative of the flux sees a hole through its fill.
+    /// A tilted fBm surface (a DEM's trend: 10 standard deviations across)
+    /// with a 40 x 60 lake: beyond 4 px from the lake, the order-0.5
+    /// derivative of the holed field departs from that of the whole field
+    /// by 0.045 of the latter's standard deviation (rms) with the mean fill
+    /// (a step along the rim, whose response decays like a power of the
+    /// distance), 0.0015 with the harmonic fill. Asserted: the harmonic
+    /// fill leaves less than a third of the mean fill's contamination.
+    #[test]
+    fn harmonic_fill_keeps_the_hole_out_of_the_derivative() {
+        let n = 256;
+        let mut f = crate::synth::fbm::fbm(crate::synth::fbm::FbmParams { hurst: 0.6 }, n, n, 3, 0)
+            .unwrap();
+        let sd = f.std(0.0);
+        for ((y, x), v) in f.indexed_iter_mut() {
+            *v += 10.0 * sd * (x as f64 + 0.5 * y as f64) / n as f64;
+        }
+        let hole = |y: usize, x: usize| (100..140).contains(&y) && (90..150).contains(&x);
+        let mask = Array2::from_shape_fn((n, n), |(y, x)| hole(y, x));
+        let whole = smooth(&Field::new(f.clone()), -0.5).unwrap();
+        let holed = Field::with_mask(f.clone(), mask);
+        let far = |y: usize, x: usize| !((96..144).contains(&y) && (86..154).contains(&x));
+        let rms = |g: &Array2<f64>| {
+            let (mut s, mut k) = (0.0, 0.0);
+            for ((y, x), v) in g.indexed_iter() {
+                if far(y, x) {
+                    s += (v - whole[[y, x]]).powi(2);
+                    k += 1.0;
+                }
+            }
+            (s / k).sqrt() / whole.std(0.0)
+        };
+        let harmonic = rms(&smooth(&holed, -0.5).unwrap());
+        let mean_fill = {
+            let ext = mirror(holed.filled().unwrap().view());
+            let out = fractional_integrate(ext.view(), -0.5).unwrap();
+            rms(&out.slice(ndarray::s![0..n, 0..n]).to_owned())
+        };
+        eprintln!("contamination (rms / sd): mean fill {mean_fill:.4}, harmonic {harmonic:.4}");
+        assert!(harmonic < mean_fill / 3.0, "{harmonic} vs {mean_fill}");
+    }
 
     #[test]
     fn gradient_of_a_plane() {

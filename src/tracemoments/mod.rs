@@ -51,7 +51,15 @@
 //! Masked pixels never enter a box average: a box averages its valid flux
 //! pixels and is dropped when fewer than half of them are valid (a flux pixel
 //! is valid when every pixel of its stencil is; the last row and column have
-//! no forward neighbour and are invalid). Ensembles are annealed: the
+//! no forward neighbour and are invalid). Before a fractional derivative
+//! (`--diff-order`, `--frac-int`) masked pixels are filled harmonically
+//! ([`Field::filled_harmonic`]): the Fourier filter has long tails, and a
+//! mean fill's step along a hole's rim reached far into the valid flux (on
+//! the Jacksboro DEM with a 40 x 60 lake cut out, alpha read 2.27 against
+//! 1.61 for the whole DEM; 1.66 with the harmonic fill). The spectrum
+//! (beta, hence H) still sees holes filled with the mean: a harmonic fill
+//! is smoother than the terrain and steepened beta there (3.50 against
+//! 3.38 whole, 3.40 mean-filled). Ensembles are annealed: the
 //! accumulator adds `Σ_boxes φ_λ^q` over images before any logarithm
 //! ([`TraceMomentAccumulator::merge`]), and the normalisation by the ensemble
 //! mean is exact afterwards because box averages are linear in `φ`.
