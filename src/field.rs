@@ -33,6 +33,8 @@ impl Field {
     }
 
     /// Wraps an array with an explicit mask (`true` = missing); masked values become NaN.
+    ///
+    /// **Panics** if `data` and `mask` differ in shape.
     pub fn with_mask(mut data: Array2<f64>, mut mask: Array2<bool>) -> Self {
         assert_eq!(data.dim(), mask.dim(), "data and mask shapes differ");
         mask.zip_mut_with(&data, |m, v| *m |= !v.is_finite());

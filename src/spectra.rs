@@ -406,12 +406,34 @@ impl PartitionSums {
     /// Exponents over the fit range `fit = (lo, hi)` in octaves above the
     /// smallest scale (SPEC §13 `--fit`), for the rule `rule`.
     ///
-    /// **Errors** if fewer than 3 scales fall in the fit range.
+    /// **Errors** if the sums fail [`PartitionSums::check`] (e.g. a q grid
+    /// with NaN or duplicates, no scales), if the fit range is not within
+    /// the scales (`0 <= lo < hi <= ` the octaves they span, the last scale
+    /// plus one step: 4 for a grid of 4 octaves), or if fewer than 3
+    /// scales fall in it.
     pub fn spectra(&self, rule: Rule, fit: (f64, f64)) -> Result<Spectra> {
+        self.check().map_err(|e| Error::param("sums", e))?;
         let ns = self.scales.len();
         let nq = self.q.len();
         let log2_a: Vec<f64> = self.scales.iter().map(|a| a.log2()).collect();
         let oct0 = log2_a[0];
+        // the top of a grid of `octaves` octaves is one voice below
+        // `octaves`, which the CLI accepts as the fit's end
+        let top = log2_a[ns - 1] - oct0
+            + if ns > 1 {
+                log2_a[ns - 1] - log2_a[ns - 2]
+            } else {
+                0.0
+            };
+        if !(fit.0 >= -1e-9 && fit.0 < fit.1 && fit.1 <= top + 1e-6) {
+            return Err(Error::param(
+                "fit",
+                format!(
+                    "{}:{} octaves must satisfy 0 <= lo < hi <= {top:.2}, the octaves the scales span",
+                    fit.0, fit.1
+                ),
+            ));
+        }
         let in_fit: Vec<usize> = (0..ns)
             .filter(|&j| {
                 let o = log2_a[j] - oct0;
@@ -741,6 +763,8 @@ impl Estimates {
 /// (the slope of the parabola through three neighbouring points, one-sided
 /// at the ends, so second-order everywhere on non-uniform grids; two
 /// points give their chord), `D = q h - τ` (SPEC §4).
+///
+/// **Panics** if `q` and `tau` differ in length.
 pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {
     let n = q.len();
     let mut h = vec![f64::NAN; n];

@@ -187,7 +187,7 @@ fn check_against_expectation(
         let mut e = PowerSpectrum::default();
         for (i, s) in spectra.iter().enumerate() {
             if Some(i) != skip {
-                e.merge(s);
+                e.merge(s).unwrap();
             }
         }
         e.fit(lo, hi).unwrap().beta

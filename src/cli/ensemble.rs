@@ -46,7 +46,7 @@ where
     let mut spectra = Vec::with_capacity(count);
     let mut sums = Vec::with_capacity(count);
     for (s, p) in parts {
-        spectrum.merge(&p);
+        spectrum.merge(&p)?;
         spectra.push(p);
         sums.push(s);
     }

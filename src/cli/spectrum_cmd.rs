@@ -110,7 +110,7 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         .collect::<Result<_>>()?;
     let mut ens = PowerSpectrum::default();
     for s in &spectra {
-        ens.merge(s);
+        ens.merge(s)?;
     }
     let fit = ens.fit(k_lo, k_hi)?;
     let per_image: Vec<f64> = spectra

@@ -139,30 +139,16 @@ impl TmOpts {
     pub fn fit(&self) -> Result<TraceMomentFitConfig> {
         let opt =
             |flag: &str, s: &Option<String>| s.as_deref().map(|v| parse_range(flag, v)).transpose();
-        let eta = parse_range("eta-fit", &self.eta_fit)?;
-        if eta.0 <= 0.0 {
-            return Err(Error::param("eta-fit", "η must be > 0"));
-        }
-        let k_range = opt("k-range", &self.k_range)?;
-        if k_range.is_some_and(|(lo, hi)| lo <= 0.0 || hi > std::f64::consts::PI) {
-            return Err(Error::param(
-                "k-range",
-                "need 0 < LO < HI <= pi rad/px (the Nyquist wavenumber)",
-            ));
-        }
-        if let Some(q) = self.q_fit_max
-            && !(q.is_finite() && q > 0.0)
-        {
-            return Err(Error::param("q-fit-max", format!("must be > 0, got {q}")));
-        }
-        Ok(TraceMomentFitConfig {
+        let fc = TraceMomentFitConfig {
             log2_lambda: opt("lambda-fit", &self.lambda_fit)?,
-            eta,
+            eta: parse_range("eta-fit", &self.eta_fit)?,
             log2_lag: opt("lag-fit", &self.lag_fit)?,
-            k_range,
+            k_range: opt("k-range", &self.k_range)?,
             q_fit_max: self.q_fit_max,
             universal: self.universal_fit.unwrap_or_default(),
-        })
+        };
+        fc.validate()?;
+        Ok(fc)
     }
 }
 

@@ -148,7 +148,9 @@ impl AnalysisConfig {
                     "the search-box cap must be >= 1 px",
                 ));
             }
-            SearchRadius::Proportional { factor, min } if !(factor > 0.0 && min >= 1.0) => {
+            SearchRadius::Proportional { factor, min }
+                if !(factor > 0.0 && factor.is_finite() && min >= 1.0 && min.is_finite()) =>
+            {
                 return Err(Error::param("radius", "need factor > 0 and min >= 1 px"));
             }
             _ => {}

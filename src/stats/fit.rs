@@ -78,6 +78,8 @@ pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<Strin
 
 /// Least-squares fit over the points where both `x` and `y` are finite.
 /// Returns `None` with fewer than 2 usable points or when all `x` coincide.
+///
+/// **Panics** if `x` and `y` differ in length.
 pub fn line_fit(x: &[f64], y: &[f64]) -> Option<LineFit> {
     assert_eq!(x.len(), y.len(), "line_fit: x and y lengths differ");
     let pts: Vec<(f64, f64)> = x

@@ -508,11 +508,14 @@ pub struct KernelOptions {
     pub pairs: Vec<(f64, f64)>,
 }
 
+/// The CLI's defaults (`wtmm kernel` on a 5-octave grid): fit 0.5:4 as for
+/// the spectra, the reference scales of II Fig 26 above the fit's start
+/// (the paper's 0.5 needs its `fit: (0.0, 3.5)`), the pairs of II Fig 25.
 impl Default for KernelOptions {
     fn default() -> Self {
         KernelOptions {
-            fit: (0.0, 4.0),
-            refs: vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5],
+            fit: (0.5, 4.0),
+            refs: vec![1.0, 1.5, 2.0, 2.5, 3.0, 3.5],
             pairs: vec![(0.5, 3.5), (1.0, 3.5), (1.0, 3.0), (1.5, 3.0)],
         }
     }
@@ -719,6 +722,8 @@ pub fn check_wtmmm_counts(s: &KernelSums, opts: &KernelOptions) -> Result<()> {
 }
 
 /// Nearest grid index to octave `o` above the smallest scale.
+///
+/// **Panics** if `scales` is empty.
 pub fn nearest_scale(scales: &[f64], o: f64) -> usize {
     let want = scales[0].log2() + o;
     (0..scales.len())
@@ -733,6 +738,8 @@ pub fn nearest_scale(scales: &[f64], o: f64) -> usize {
 /// True when octave `o` (above the smallest scale) lies on the grid: within
 /// half a step of a grid scale (so octave 3 is the top scale 2.9 of a
 /// 3-octave grid with 10 voices).
+///
+/// **Panics** if `scales` is empty.
 pub fn octave_on_grid(scales: &[f64], o: f64) -> bool {
     let half = if scales.len() > 1 {
         0.5 * (scales[1] / scales[0]).log2()
@@ -755,6 +762,15 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     let ns = s.scales.len();
     if s.images.is_empty() {
         return Err(Error::Input("no image in the kernel sums".into()));
+    }
+    if s.scales.is_empty()
+        || !s.scales.iter().all(|a| a.is_finite() && *a > 0.0)
+        || s.scales.windows(2).any(|w| w[0] >= w[1])
+    {
+        return Err(Error::param(
+            "scales",
+            "the kernel sums need positive, finite, ascending scales",
+        ));
     }
     let oct: Vec<f64> = s.scales.iter().map(|a| (a / s.scales[0]).log2()).collect();
     let top = oct[ns - 1];

@@ -364,6 +364,8 @@ impl WtmmmHistograms {
     }
 
     /// Mean of `ln M` at scale `j` from the bin centres (NaN if empty).
+    ///
+    /// **Panics** if `j` is not a scale index of the histograms.
     pub fn mean_ln_m(&self, j: usize) -> f64 {
         let h = &self.hist[j];
         if h.n == 0 {

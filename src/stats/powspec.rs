@@ -104,13 +104,23 @@ pub struct PowerSpectrum {
 }
 
 impl PowerSpectrum {
-    /// Adds another spectrum's sums (same `bins_per_octave`).
-    pub fn merge(&mut self, other: &PowerSpectrum) {
+    /// Adds another spectrum's sums.
+    ///
+    /// **Errors** if the two were binned with different `bins_per_octave`.
+    pub fn merge(&mut self, other: &PowerSpectrum) -> Result<()> {
         if self.images == 0 {
             *self = other.clone();
-            return;
+            return Ok(());
         }
-        assert_eq!(self.bins_per_octave, other.bins_per_octave, "bins differ");
+        if self.bins_per_octave != other.bins_per_octave {
+            return Err(Error::param(
+                "bins-per-octave",
+                format!(
+                    "cannot merge spectra binned with {} and {} bins per octave",
+                    self.bins_per_octave, other.bins_per_octave
+                ),
+            ));
+        }
         let n = self.sum_s.len().max(other.sum_s.len());
         self.sum_s.resize(n, 0.0);
         self.sum_lnk.resize(n, 0.0);
@@ -121,6 +131,7 @@ impl PowerSpectrum {
             self.count[b] += other.count[b];
         }
         self.images += other.images;
+        Ok(())
     }
 
     /// `(|k|, S)` per non-empty bin, |k| ascending (rad/px; `|k|` is the
@@ -212,11 +223,9 @@ impl PowerSpectrum {
     /// [`crate::theory`]), exactly as [`power_spectrum`] bins an image's, so
     /// that the two can be fitted alike. Counts as one image.
     ///
-    /// **Errors** if `bins_per_octave` is 0.
+    /// **Errors** if `bins_per_octave` is not in 1..=64.
     pub fn from_density(s: ArrayView2<f64>, bins_per_octave: usize) -> Result<Self> {
-        if bins_per_octave == 0 {
-            return Err(Error::param("bins-per-octave", "must be >= 1"));
-        }
+        check_bins(bins_per_octave)?;
         let (ny, nx) = s.dim();
         let mut ps = PowerSpectrum {
             bins_per_octave,
@@ -288,9 +297,7 @@ pub fn power_spectrum(img: ArrayView2<f64>, cfg: &PowerSpectrumConfig) -> Result
     if let Some(why) = crate::field::amplitude_problem(img.iter()) {
         return Err(Error::Input(why));
     }
-    if cfg.bins_per_octave == 0 {
-        return Err(Error::param("bins-per-octave", "must be >= 1"));
-    }
+    check_bins(cfg.bins_per_octave)?;
     let mut f = img.to_owned();
     detrend(&mut f, cfg.detrend);
     let mut wsum2 = (nx * ny) as f64;
@@ -338,6 +345,19 @@ pub fn power_spectrum(img: ArrayView2<f64>, cfg: &PowerSpectrumConfig) -> Result
         }
     }
     Ok(ps)
+}
+
+/// `bins_per_octave` in 1..=64: at 1024 px the modes of the last
+/// octave are 1/512 octave apart, so 64 bins already leave most empty, and
+/// a larger number only overflows the bin index.
+fn check_bins(b: usize) -> Result<()> {
+    if !(1..=64).contains(&b) {
+        return Err(Error::param(
+            "bins-per-octave",
+            format!("must be in 1..=64, got {b}"),
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -55,6 +55,7 @@ pub fn fbm(params: FbmParams, ny: usize, nx: usize, seed: u64, index: u64) -> Re
             format!("must be at least 2, got {ny}x{nx}"),
         ));
     }
+    super::check_pixels(ny, nx)?;
     let (my, mx) = (2 * ny, 2 * nx);
     let mut rng = rng_for(seed, index);
     // white noise in space; its DFT is Hermitian complex Gaussian noise

@@ -166,7 +166,7 @@ fn check_size(ny: usize, nx: usize) -> Result<()> {
             format!("must be at least 4x4, got {ny}x{nx}"),
         ));
     }
-    Ok(())
+    super::check_pixels(ny, nx)
 }
 
 /// 2D real FFT on a `ny x nx` row-major grid, spectra stored transposed:

@@ -91,6 +91,7 @@ pub fn steps_for_size(size: usize) -> Result<usize> {
             format!("cascades need a power of two >= 2, got {size}"),
         ));
     }
+    super::check_pixels(size, size)?;
     Ok(size.trailing_zeros() as usize)
 }
 

@@ -10,6 +10,7 @@ pub mod fisc;
 pub mod levy;
 pub mod wcascade;
 
+use crate::error::{Error, Result};
 use rand::SeedableRng;
 use rand::rngs::Xoshiro256PlusPlus;
 
@@ -17,6 +18,22 @@ use rand::rngs::Xoshiro256PlusPlus;
 /// algorithm whose output does not change between rand versions (unlike
 /// `StdRng`).
 pub type SynthRng = Xoshiro256PlusPlus;
+
+/// An error unless a generated `ny x nx` image is at most
+/// [`crate::io`]'s limit of 2^28 pixels (16384^2): beyond it the product
+/// may wrap or the allocation abort the process instead of failing.
+pub(crate) fn check_pixels(ny: usize, nx: usize) -> Result<()> {
+    match ny.checked_mul(nx) {
+        Some(n) if n <= crate::io::MAX_PIXELS => Ok(()),
+        _ => Err(Error::param(
+            "size",
+            format!(
+                "{ny}x{nx} is over the limit of {} M pixels (16384^2)",
+                crate::io::MAX_PIXELS >> 20
+            ),
+        )),
+    }
+}
 
 /// SplitMix64 finaliser (Steele, Lea & Flood 2014), used to derive
 /// well-separated seeds.

@@ -307,6 +307,48 @@ impl Default for TraceMomentFitConfig {
     }
 }
 
+impl TraceMomentFitConfig {
+    /// **Errors** naming the setting: every range `LO < HI` and finite,
+    /// η and wavenumbers > 0 (wavenumbers up to π rad/px, the Nyquist
+    /// wavenumber), `q_fit_max` finite and > 0.
+    pub fn validate(&self) -> Result<()> {
+        let range = |name: &str, r: (f64, f64)| {
+            if r.0.is_finite() && r.1.is_finite() && r.0 < r.1 {
+                Ok(())
+            } else {
+                Err(Error::param(
+                    name,
+                    format!("{}:{} must be finite with LO < HI", r.0, r.1),
+                ))
+            }
+        };
+        range("eta-fit", self.eta)?;
+        if self.eta.0 <= 0.0 {
+            return Err(Error::param("eta-fit", "η must be > 0"));
+        }
+        for (name, r) in [("lambda-fit", self.log2_lambda), ("lag-fit", self.log2_lag)] {
+            if let Some(r) = r {
+                range(name, r)?;
+            }
+        }
+        if let Some(k) = self.k_range {
+            range("k-range", k)?;
+            if k.0 <= 0.0 || k.1 > std::f64::consts::PI {
+                return Err(Error::param(
+                    "k-range",
+                    "need 0 < LO < HI <= pi rad/px (the Nyquist wavenumber)",
+                ));
+            }
+        }
+        if let Some(q) = self.q_fit_max
+            && !(q.is_finite() && q > 0.0)
+        {
+            return Err(Error::param("q-fit-max", format!("must be > 0, got {q}")));
+        }
+        Ok(())
+    }
+}
+
 /// Mergeable per-image sums (annealed ensemble averages).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TraceMomentAccumulator {
@@ -374,7 +416,7 @@ impl TraceMomentAccumulator {
         self.accumulate_sf(field, None);
         let ps = power_spectrum(field.filled()?.view(), &self.config.spectrum)?;
         match &mut self.spectrum {
-            Some(s) => s.merge(&ps),
+            Some(s) => s.merge(&ps)?,
             None => self.spectrum = Some(ps),
         }
         Ok(())
@@ -472,13 +514,22 @@ impl TraceMomentAccumulator {
     /// e.g. a cascade measure or [`crate::synth::fif::fif_flux`]. No
     /// structure functions or spectrum.
     ///
-    /// **Errors** on a negative or non-finite unmasked value or an image
-    /// smaller than 8x8.
+    /// **Errors** on a negative or non-finite unmasked value, an image
+    /// smaller than 8x8, or a mask of another shape.
     pub fn add_flux(&mut self, phi: ArrayView2<f64>, mask: Option<ArrayView2<bool>>) -> Result<()> {
         let (ny, nx) = phi.dim();
         if ny < 8 || nx < 8 {
             return Err(Error::Input(format!(
                 "flux {ny}x{nx} too small for trace moments (8x8)"
+            )));
+        }
+        if let Some(m) = &mask
+            && m.dim() != (ny, nx)
+        {
+            return Err(Error::Input(format!(
+                "mask {}x{} for a flux {ny}x{nx}",
+                m.dim().0,
+                m.dim().1
             )));
         }
         let mut ok = Array2::from_elem((ny, nx), true);
@@ -654,7 +705,7 @@ impl TraceMomentAccumulator {
             a.resize(nj, LogSum::default());
         }
         match (&mut self.spectrum, &o.spectrum) {
-            (Some(a), Some(b)) => a.merge(b),
+            (Some(a), Some(b)) => a.merge(b)?,
             (None, Some(b)) => self.spectrum = Some(b.clone()),
             _ => {}
         }
@@ -686,8 +737,9 @@ impl TraceMomentAccumulator {
 
     /// Exponents, fits and tables from the accumulated sums.
     ///
-    /// **Errors** with no image, a flux identically 0 (constant field), or
-    /// fewer than 3 levels in the fit range.
+    /// **Errors** with no image, a flux identically 0 (constant field),
+    /// fewer than 3 levels in the fit range, or settings that fail
+    /// [`TraceMomentFitConfig::validate`].
     pub fn finish(&self, fc: &TraceMomentFitConfig) -> Result<TraceMomentResult> {
         self.finish_inner(fc, None)
     }
@@ -700,6 +752,7 @@ impl TraceMomentAccumulator {
         fc: &TraceMomentFitConfig,
         pin: Option<(f64, f64)>,
     ) -> Result<TraceMomentResult> {
+        fc.validate()?;
         if self.images == 0 || self.n_valid == 0 {
             return Err(Error::Input("no image accumulated".into()));
         }

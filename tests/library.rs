@@ -1,0 +1,124 @@
+//! The library's contract on bad input: an `Err` naming the problem, never
+//! a panic or a silent wrong number (found by a review that drove the
+//! public API as a user's program would).
+
+use ndarray::Array2;
+use wtmm::Field;
+use wtmm::skeleton::{AnalysisConfig, LinkParams, SearchRadius, skeleton};
+use wtmm::spectra::{Rule, image_sums};
+use wtmm::stats::powspec::{PowerSpectrumConfig, power_spectrum};
+use wtmm::synth::fbm::{FbmParams, fbm};
+use wtmm::synth::fif::{FifParams, fif};
+use wtmm::synth::wcascade::{Basis, Isotropy, Law, WCascadeParams, wcascade};
+use wtmm::tracemoments::{TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig};
+
+fn surface(n: usize) -> Field {
+    Field::new(fbm(FbmParams { hurst: 0.5 }, n, n, 1, 0).unwrap())
+}
+
+fn err<T: std::fmt::Debug>(r: wtmm::Result<T>, needle: &str) {
+    let e = r.expect_err("bad input accepted").to_string();
+    assert!(e.contains(needle), "{e:?} does not mention {needle:?}");
+}
+
+#[test]
+fn a_proportional_box_must_be_finite() {
+    for (factor, min) in [(f64::INFINITY, 1.0), (1.0, f64::INFINITY), (f64::NAN, 1.0)] {
+        let cfg = AnalysisConfig {
+            octaves: 2,
+            margin: Some(0),
+            link: LinkParams {
+                radius: SearchRadius::Proportional { factor, min },
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        err(skeleton(&surface(64), &cfg), "radius");
+    }
+}
+
+#[test]
+fn spectra_refuse_bad_q_and_fit_ranges() {
+    let cfg = AnalysisConfig {
+        octaves: 3,
+        margin: Some(0),
+        ..Default::default()
+    };
+    let f = surface(128);
+    for q in [
+        vec![0.0, f64::NAN, 2.0],
+        vec![0.0, 1.0, 1.0],
+        vec![2.0, 0.0],
+    ] {
+        let s = image_sums(&f, &cfg, &q, "x").unwrap();
+        err(s.spectra(Rule::Plain, (0.5, 3.0)), "`q`");
+    }
+    let s = image_sums(&f, &cfg, &[0.0, 2.0], "x").unwrap();
+    // 3 octaves of 10 voices: 0 <= lo < hi <= 3
+    for fit in [(-5.0, 0.5), (0.5, 100.0), (2.0, 1.0), (f64::NAN, 2.0)] {
+        err(s.spectra(Rule::Plain, fit), "fit");
+    }
+    assert!(s.spectra(Rule::Plain, (0.5, 3.0)).is_ok());
+    let mut empty = s.clone();
+    empty.scales.clear();
+    err(empty.spectra(Rule::Plain, (0.5, 3.0)), "scales");
+}
+
+#[test]
+fn power_spectra_refuse_bad_bins_and_mixed_merges() {
+    let img = surface(64).data;
+    let bad = PowerSpectrumConfig {
+        bins_per_octave: usize::MAX,
+        ..Default::default()
+    };
+    err(power_spectrum(img.view(), &bad), "bins-per-octave");
+    let four = power_spectrum(img.view(), &PowerSpectrumConfig::default()).unwrap();
+    let eight = power_spectrum(
+        img.view(),
+        &PowerSpectrumConfig {
+            bins_per_octave: 8,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut m = four.clone();
+    err(m.merge(&eight), "bins");
+    assert_eq!(m, four, "a refused merge changes nothing");
+}
+
+#[test]
+fn trace_moments_refuse_bad_masks_and_fit_settings() {
+    let mut acc = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+    let phi = Array2::from_elem((16, 16), 1.0);
+    let mask = Array2::from_elem((8, 8), false);
+    err(acc.add_flux(phi.view(), Some(mask.view())), "mask");
+    acc.add_field(&surface(64)).unwrap();
+    assert!(acc.finish(&TraceMomentFitConfig::default()).is_ok());
+    for q in [0.0, -1.0, f64::NAN] {
+        let fc = TraceMomentFitConfig {
+            q_fit_max: Some(q),
+            ..Default::default()
+        };
+        err(acc.finish(&fc), "q-fit-max");
+    }
+    let fc = TraceMomentFitConfig {
+        eta: (5.0, 1.0),
+        ..Default::default()
+    };
+    err(acc.finish(&fc), "eta-fit");
+}
+
+#[test]
+fn generators_refuse_sizes_beyond_the_pixel_limit() {
+    err(fbm(FbmParams { hurst: 0.5 }, usize::MAX, 2, 1, 0), "limit");
+    err(fif(&FifParams::TOPO, 1 << 40, 1 << 40, 1, 0), "limit");
+    let p = WCascadeParams {
+        law: Law::LogNormal {
+            m: -0.38 * std::f64::consts::LN_2,
+            sigma2: 0.03 * std::f64::consts::LN_2,
+        },
+        isotropy: Isotropy::Isotropic,
+        basis: Basis::Db8,
+    };
+    err(wcascade(&p, 1 << 40, 1, 0), "limit");
+}
