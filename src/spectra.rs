@@ -107,6 +107,10 @@ pub struct PartitionSums {
 
 impl PartitionSums {
     /// The partition sums of one image's skeleton, for the q grid `q`.
+    /// The skeleton does not say which analysis made it nor how many
+    /// pixels were missing: `analysis` is `None` and `missing` 0 (so merges
+    /// cannot check the analysis and the spectra give no missing-pixel or
+    /// wavelet-order warnings); [`image_sums`] sets both.
     pub fn from_skeleton(sk: &Skeleton, q: &[f64], label: impl Into<String>) -> Self {
         let ns = sk.scales.len();
         let nq = q.len();
@@ -228,7 +232,7 @@ impl PartitionSums {
             ));
         }
         match (&self.analysis, &other.analysis) {
-            (Some(a), Some(b)) if a != b => {
+            (Some(a), Some(b)) if same_analysis(a) != same_analysis(b) => {
                 return Err(Error::param(
                     "analysis",
                     format!(
@@ -475,6 +479,13 @@ impl PartitionSums {
         let last_fit = *in_fit.last().expect("3 scales");
         if est.tau.iter().all(|t| !t.is_finite()) {
             // nothing to report: an error, not a file of nulls
+            if ens.lines.iter().all(|&n| n == 0) {
+                return Err(Error::Input(
+                    "no maxima line at any scale: the image is flat (constant), or its \
+                     counting domain is empty"
+                        .into(),
+                ));
+            }
             return Err(Error::Input(format!(
                 "no q has a partition function over the fit range: {} maxima lines reach \
                  a = {:.2} px, the top of the fit range, in {} image(s); the counting domain \
@@ -922,6 +933,22 @@ pub fn image_sums(
     let (ny, nx) = field.dim();
     s.images[0].missing = (ny * nx - field.valid_count()) as u64;
     Ok(s)
+}
+
+/// An analysis as merging sees it: the scales are compared on their own
+/// (explicit scales equal to a grid are that grid), and the margin in the
+/// pixels it resolves to (the default for the wavelet and the largest
+/// scale, or the same number given explicitly, is one margin).
+fn same_analysis(c: &crate::skeleton::AnalysisConfig) -> crate::skeleton::AnalysisConfig {
+    let d = crate::skeleton::AnalysisConfig::default();
+    crate::skeleton::AnalysisConfig {
+        margin: Some(c.margin_px()),
+        scales: None,
+        a_min: d.a_min,
+        octaves: d.octaves,
+        voices: d.voices,
+        ..c.clone()
+    }
 }
 
 /// The fields in which two analyses differ, as `key: a vs b`.

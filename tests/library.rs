@@ -106,6 +106,12 @@ fn trace_moments_refuse_bad_masks_and_fit_settings() {
         ..Default::default()
     };
     err(acc.finish(&fc), "eta-fit");
+    // a refused field leaves the accumulator as it was (it used to add the
+    // flux, then fail on the spectrum, and a later finish had no beta)
+    let before = acc.clone();
+    let huge = surface(64).data.mapv(|v| (v + 5.0) * 1e100);
+    err(acc.add_field(&Field::new(huge)), "1e100");
+    assert_eq!(acc, before);
 }
 
 #[test]
@@ -121,4 +127,54 @@ fn generators_refuse_sizes_beyond_the_pixel_limit() {
         basis: Basis::Db8,
     };
     err(wcascade(&p, 1 << 40, 1, 0), "limit");
+}
+
+/// Sums of the same analysis merge however it was written down (explicit
+/// scales equal to the grid, the default margin given as its pixels);
+/// another margin or wavelet does not.
+#[test]
+fn merging_compares_analyses_by_what_they_do() {
+    let f = surface(96);
+    let q = [0.0, 2.0];
+    let grid = AnalysisConfig {
+        octaves: 2,
+        ..Default::default()
+    };
+    let spelled = AnalysisConfig {
+        scales: Some(grid.scale_list()),
+        margin: Some(grid.margin_px()),
+        ..grid.clone()
+    };
+    let a = image_sums(&f, &grid, &q, "a").unwrap();
+    let mut m = a.clone();
+    m.merge(&image_sums(&f, &spelled, &q, "b").unwrap())
+        .unwrap();
+    assert_eq!(m.images.len(), 2);
+    let other = AnalysisConfig {
+        margin: Some(grid.margin_px() + 2),
+        ..grid.clone()
+    };
+    err(
+        a.clone().merge(&image_sums(&f, &other, &q, "c").unwrap()),
+        "margin",
+    );
+}
+
+/// A constant image has no maxima at all, and the error says so rather
+/// than blaming the counting domain.
+#[test]
+fn a_constant_image_is_called_flat() {
+    let cfg = AnalysisConfig {
+        octaves: 2,
+        margin: Some(0),
+        ..Default::default()
+    };
+    let s = image_sums(
+        &Field::new(Array2::from_elem((64, 64), 3.0)),
+        &cfg,
+        &[0.0],
+        "c",
+    )
+    .unwrap();
+    err(s.spectra(Rule::Plain, (0.5, 2.0)), "flat");
 }

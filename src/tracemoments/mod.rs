@@ -408,13 +408,18 @@ impl TraceMomentAccumulator {
     /// Adds one field: flux (after the optional fractional integration),
     /// structure functions and spectrum.
     ///
-    /// **Errors** if the field is smaller than 8x8 or has no valid pixel.
+    /// **Errors** if the field is smaller than 8x8, has no valid pixel or
+    /// values beyond [`crate::field::AMPLITUDE_LIMIT`]; the accumulator is
+    /// then unchanged (everything that can fail is computed first).
     pub fn add_field(&mut self, field: &Field) -> Result<()> {
+        if let Some(why) = field.amplitude_problem() {
+            return Err(Error::Input(why));
+        }
+        let ps = power_spectrum(field.filled()?.view(), &self.config.spectrum)?;
         let (phi, ok, diff) = self.field_flux(field)?;
         self.accumulate_flux(&phi, &ok)?;
         self.diff_orders.push(diff);
         self.accumulate_sf(field, None);
-        let ps = power_spectrum(field.filled()?.view(), &self.config.spectrum)?;
         match &mut self.spectrum {
             Some(s) => s.merge(&ps)?,
             None => self.spectrum = Some(ps),
@@ -552,6 +557,11 @@ impl TraceMomentAccumulator {
 
     fn accumulate_flux(&mut self, phi: &Array2<f64>, ok: &Array2<bool>) -> Result<()> {
         let (ny, nx) = phi.dim();
+        // refused before anything is changed
+        let valid = ok.iter().filter(|&&o| o).count() as u64;
+        if valid == 0 {
+            return Err(Error::Input("no valid flux pixel".into()));
+        }
         let pyr = flux::Pyramid::new(ok.view());
         let nl = pyr.levels();
         if self.box_count.len() < nl {
@@ -564,10 +574,6 @@ impl TraceMomentAccumulator {
                     v.resize(nl, LogSum::default());
                 }
             }
-        }
-        let valid = ok.iter().filter(|&&o| o).count() as u64;
-        if valid == 0 {
-            return Err(Error::Input("no valid flux pixel".into()));
         }
         self.n_valid += valid;
         let base: Vec<f64> = phi
