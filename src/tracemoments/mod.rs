@@ -174,7 +174,13 @@ pub struct TraceMomentConfig {
     pub dtm_q: Vec<f64>,
     /// Structure-function orders (`> 0`).
     pub sf_q: Vec<f64>,
-    /// Spectrum options (the field's spectrum, for H via β).
+    /// Spectrum options (the field's spectrum, for H via β). The default
+    /// tapers and removes a plane, as a DEM needs; for periodic fields
+    /// (the generators' W-cascades, FISC, FIF) use
+    /// `PowerSpectrumConfig::for_field(true)`, as the CLI does: a plane
+    /// removed from a periodic field adds a sawtooth across the border
+    /// (8 FIF fields of 256^2: beta 3.03 with the default, 3.26 with
+    /// `for_field(true)`; H read 0.625 for a true 0.70 with the default).
     pub spectrum: PowerSpectrumConfig,
 }
 
