@@ -71,10 +71,11 @@ impl Field {
     /// The values with masked pixels filled by a harmonic interpolation of
     /// their surroundings (the solution of Laplace's equation inside each
     /// hole with the valid pixels around it as boundary values), for
-    /// filters with long tails: a fractional derivative or a power spectrum
-    /// sees a mean-filled hole as a step along its rim, whose response
-    /// decays only like a power of the distance and so reaches far into
-    /// the valid data. The harmonic fill is continuous at the rim and
+    /// filters with long tails: a fractional derivative sees a mean-filled
+    /// hole as a step along its rim, whose response decays only like a
+    /// power of the distance and so reaches far into the valid data (the
+    /// trace moments' flux uses it; a power spectrum does not, the fill
+    /// being smoother than the field around it). The harmonic fill is continuous at the rim and
     /// smooth inside; a hole away from the image border is filled exactly
     /// where the field is a plane, and where a hole meets the border the
     /// fill has zero gradient across it (nothing is known beyond).
@@ -86,9 +87,9 @@ impl Field {
     /// the masked pixels alone, until the largest update falls below 1e-9
     /// of the data's range or 50 sweeps), so large holes cost a few sweeps
     /// per level, not a number growing with their size: a plane is
-    /// restored to 5e-8 of its range in a 15 x 25 hole (and scattered pixels), 1e-4 in a disc
-    /// over 5 % of a 1024^2 image (55 ms) and 4e-4 in one over half of it
-    /// (0.43 s; 1.7 s at 2048^2).
+    /// restored to 5e-8 of its range in a 15 x 25 hole with scattered
+    /// pixels, 1e-4 in a disc over 5 % of a 1024^2 image (55 ms) and 4e-4
+    /// in one over half of it (0.43 s; 1.7 s at 2048^2).
     ///
     /// **Errors** if no pixel is valid.
     pub fn filled_harmonic(&self) -> Result<Array2<f64>> {
@@ -240,8 +241,8 @@ fn harmonic_fill(data: &Array2<f64>, mask: &Array2<bool>, tol: f64) -> Array2<f6
 
 /// Successive over-relaxation of Laplace's equation on the masked pixels
 /// (4 neighbours; at the image border the missing neighbours are left out,
-/// a zero-gradient edge) until the largest update is below `tol` or 500
-/// sweeps have run.
+/// a zero-gradient edge) until the largest update is below `tol` or 50
+/// sweeps have run (the level below gave a smooth first guess).
 fn relax(out: &mut Array2<f64>, mask: &Array2<bool>, tol: f64) {
     let (ny, nx) = out.dim();
     let holes: Vec<(usize, usize)> = mask

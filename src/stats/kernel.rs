@@ -1017,10 +1017,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             ens[last].n, s.scales[last]
         ));
     }
-    if n_img < 3 {
-        warnings
-            .push("fewer than 3 images: standard errors from the regression residuals only".into());
-    }
+    // (fewer than 3 images, or fewer than 10: stderr_method warns)
     // a cumulant whose leave-one-out fits are not all finite keeps the
     // regression error (`est` above): said, not silent
     let fallback: Vec<String> = (0..3)
