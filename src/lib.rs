@@ -71,6 +71,9 @@ pub mod tracemoments;
 
 pub use error::{Error, Result};
 pub use field::Field;
+pub use skeleton::{AnalysisConfig, Skeleton};
+pub use spectra::{PartitionSums, Rule, Spectra, image_sums};
+pub use theory::Model;
 
 /// The crate version, recorded in every output.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");

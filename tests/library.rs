@@ -178,3 +178,16 @@ fn a_constant_image_is_called_flat() {
     .unwrap();
     err(s.spectra(Rule::Plain, (0.5, 2.0)), "flat");
 }
+
+/// Periodic fields are analysed on the whole torus, others inside the
+/// default margin; the main types are reachable from the crate root.
+#[test]
+fn analysis_defaults_follow_the_kind_of_field() {
+    assert_eq!(wtmm::AnalysisConfig::for_field(true).margin_px(), 0);
+    let plain = wtmm::AnalysisConfig::for_field(false);
+    assert_eq!(plain, AnalysisConfig::default());
+    assert_eq!(
+        plain.margin_px(),
+        (3.2f64 * 1.5 * 2f64.powf(4.9)).ceil() as usize
+    );
+}

@@ -135,8 +135,8 @@ impl CwtOpts {
     /// `--margin` was given: the periodic FFT transform is exact everywhere
     /// on such fields, so an interior would only discard half the maxima.
     pub fn torus_for(&mut self, model: &crate::theory::Model) {
-        if model.is_periodic() && self.margin.is_none() {
-            self.margin = Some(0);
+        if self.margin.is_none() {
+            self.margin = crate::skeleton::AnalysisConfig::for_field(model.is_periodic()).margin;
         }
     }
 }

@@ -100,6 +100,20 @@ impl Default for AnalysisConfig {
 }
 
 impl AnalysisConfig {
+    /// The defaults for a field of the given kind: a periodic field (the
+    /// generators' W-cascades, FISC, FIF) is analysed on the whole torus
+    /// (margin 0: the FFT transform is exact everywhere on it, and an
+    /// interior would discard half the maxima), any other field inside the
+    /// default margin. What the CLI does for generated ensembles; see
+    /// [`crate::stats::powspec::PowerSpectrumConfig::for_field`] for the
+    /// spectrum.
+    pub fn for_field(periodic: bool) -> Self {
+        AnalysisConfig {
+            margin: periodic.then_some(0),
+            ..Default::default()
+        }
+    }
+
     /// **Errors** naming the parameter that is out of range.
     pub fn validate(&self) -> Result<()> {
         if let Some(s) = &self.scales {
