@@ -16,6 +16,15 @@ fn surface(n: usize) -> Field {
     Field::new(fbm(FbmParams { hurst: 0.5 }, n, n, 1, 0).unwrap())
 }
 
+/// The default analysis over `octaves` octaves on the whole torus.
+fn torus(octaves: usize) -> AnalysisConfig {
+    AnalysisConfig {
+        octaves,
+        margin: Some(0),
+        ..Default::default()
+    }
+}
+
 fn err<T: std::fmt::Debug>(r: wtmm::Result<T>, needle: &str) {
     let e = r.expect_err("bad input accepted").to_string();
     assert!(e.contains(needle), "{e:?} does not mention {needle:?}");
@@ -39,11 +48,7 @@ fn a_proportional_box_must_be_finite() {
 
 #[test]
 fn spectra_refuse_bad_q_and_fit_ranges() {
-    let cfg = AnalysisConfig {
-        octaves: 3,
-        margin: Some(0),
-        ..Default::default()
-    };
+    let cfg = torus(3);
     let f = surface(128);
     for q in [
         vec![0.0, f64::NAN, 2.0],
@@ -164,11 +169,7 @@ fn merging_compares_analyses_by_what_they_do() {
 /// than blaming the counting domain.
 #[test]
 fn a_constant_image_is_called_flat() {
-    let cfg = AnalysisConfig {
-        octaves: 2,
-        margin: Some(0),
-        ..Default::default()
-    };
+    let cfg = torus(2);
     let s = image_sums(
         &Field::new(Array2::from_elem((64, 64), 3.0)),
         &cfg,
