@@ -52,7 +52,8 @@ fn gauss_tail_at_3_2() -> f64 {
 }
 
 /// The analysing wavelet (SPEC §1).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Wavelet {
     /// First derivatives of a Gaussian: 1 vanishing moment.

@@ -7,7 +7,16 @@
 //! Data flows one way: image ([`io`], [`field::Field`]) → continuous wavelet
 //! transform ([`cwt`]) → maxima, chains, WTMMM and maxima lines
 //! ([`skeleton`]) → partition sums → spectra τ(q), h(q), D(q), D(h)
-//! ([`spectra`]). The library never prints; the `wtmm` binary ([`cli`]) formats.
+//! ([`spectra`]). The library never prints; the `wtmm` binary (module `cli`)
+//! formats.
+//!
+//! # Features
+//!
+//! `cli` (default) builds the `wtmm` command line (clap, progress bars,
+//! Ctrl-C cleanup) and enables `plot`, the PNG/SVG figures (plotters with an
+//! embedded font). A program that only computes spectra can do without
+//! both: `wtmm = { version = "0.1", default-features = false }` builds the
+//! analysis, the generators, the theory and the readers alone.
 //!
 //! # Quick start
 //!
@@ -55,12 +64,14 @@
 // Every public item is documented; keep it so.
 #![warn(missing_docs)]
 
+#[cfg(feature = "cli")]
 pub mod cli;
 pub mod cwt;
 pub mod error;
 pub mod field;
 pub mod fourier;
 pub mod io;
+#[cfg(feature = "plot")]
 pub mod plot;
 pub mod skeleton;
 pub mod spectra;

@@ -30,7 +30,8 @@ use crate::skeleton::Skeleton;
 use crate::stats::fit::line_fit;
 
 /// Which modulus a line contributes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Rule {
     /// `M_L(a) = max_{a' <= a} M(a')` along the line (meant to keep q < 0 stable).

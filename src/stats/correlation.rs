@@ -108,9 +108,8 @@ use crate::skeleton::distance_to_mask;
 use crate::stats::pdf::Point;
 
 /// Which magnitude is correlated.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Magnitude {
     /// `ln M(x, a)`.

@@ -47,9 +47,8 @@ use crate::field::Field;
 use crate::skeleton::{AnalysisConfig, DetectScratch, Linker, Parallelism, detect_linkable};
 
 /// Which WTMMM a statistic is taken over.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum WtmmmSet {
     /// Every WTMMM of the scale (independent of the linking).

@@ -23,7 +23,8 @@ use crate::stats::fit::{LineFit, line_fit};
 pub const CONVENTION: &str = "angle-averaged";
 
 /// Taper applied before the FFT.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Window {
     /// No taper: right for periodic fields (cascades on a torus).
@@ -34,7 +35,8 @@ pub enum Window {
 }
 
 /// What is removed before the FFT.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Detrend {
     /// Nothing removed (the `k = 0` mode is left out of the bins anyway).

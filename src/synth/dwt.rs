@@ -87,9 +87,8 @@ const DB8: [f64; 16] = [
 
 /// An orthonormal compactly supported 1D wavelet (separable products make
 /// the 2D basis). See the module doc for the naming.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Basis {
     /// db1: 1 vanishing moment, 2 taps; discontinuous basis functions.

@@ -93,9 +93,8 @@ pub enum Law {
 }
 
 /// How the modulus is spread over ψ1, ψ2, ψ3 (II Fig 5).
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Isotropy {
     /// ψ1, ψ2, ψ3 with the weights of II eqs 35-36 (Fig 5e).
@@ -506,7 +505,6 @@ pub fn wcascade(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::ValueEnum;
 
     fn ln(m: f64, sigma2: f64) -> WCascadeParams {
         WCascadeParams {
@@ -609,8 +607,10 @@ mod tests {
         }
     }
 
+    #[cfg(feature = "cli")]
     #[test]
     fn cli_names_match() {
+        use clap::ValueEnum;
         for b in [Basis::Haar, Basis::Db4, Basis::Db8] {
             assert_eq!(Basis::from_str(b.name(), false).unwrap(), b);
         }

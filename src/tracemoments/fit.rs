@@ -162,7 +162,8 @@ pub fn fit_universal(q: &[f64], k: &[f64]) -> Option<UniversalFit> {
 
 /// How the universal fit weights the measured K(q) (module docs of
 /// [`crate::tracemoments`], "Universal fit").
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum UniversalWeighting {
     /// Generalised least squares with the jackknife covariance of K(q)

@@ -10,7 +10,8 @@ use crate::synth::fif::fractional_integrate;
 
 /// How the flux is obtained from the field (a fractional differentiation of
 /// order 1, enough for H < 1; seed 000 §5.2).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum FluxKind {
     /// Modulus of the forward-difference gradient, on the 3-point stencil
