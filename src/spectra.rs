@@ -490,8 +490,8 @@ impl PartitionSums {
             return Err(Error::Input(format!(
                 "no q has a partition function over the fit range: {} maxima lines reach \
                  a = {:.2} px, the top of the fit range, in {} image(s); the counting domain \
-                 is too small for these scales (use fewer --octaves, a smaller --margin, \
-                 or a lower --fit)",
+                 is too small for these scales (use fewer octaves, a smaller margin, \
+                 or a lower fit range: --octaves, --margin, --fit)",
                 ens.lines[last_fit], self.scales[last_fit], n_img
             )));
         }
@@ -540,7 +540,7 @@ impl PartitionSums {
                     self.q[last],
                     w.name(),
                     if w == crate::cwt::Wavelet::Gauss {
-                        ": try --wavelet mexican"
+                        ": try the mexican wavelet (--wavelet mexican)"
                     } else {
                         ""
                     }
@@ -1019,7 +1019,7 @@ mod tests {
             w.contains("at 9 of the q (q = -4 .. 4, up to h = 1.200)"),
             "{w}"
         );
-        assert!(w.contains("try --wavelet mexican"), "{w}");
+        assert!(w.contains("try the mexican wavelet"), "{w}");
     }
 
     #[test]

@@ -516,7 +516,7 @@ impl CorrelationPlan {
         );
         if y0 >= y1 || x0 >= x1 {
             return Err(Error::Input(format!(
-                "image {ny}x{nx} has no interior at margin {margin} px (use a smaller --margin or smaller scales)"
+                "image {ny}x{nx} has no interior at margin {margin} px (use a smaller margin or smaller scales: --margin, --octaves)"
             )));
         }
         let (dy, dx) = (y1 - y0, x1 - x0);

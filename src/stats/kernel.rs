@@ -711,8 +711,8 @@ pub fn check_wtmmm_counts(s: &KernelSums, opts: &KernelOptions) -> Result<()> {
         "fewer than {MIN_WTMMM} WTMMM {set} at {} of the scales the kernel uses (fit range \
          {}:{} octaves, references, pairs), over {} image(s): a = {}; c1..c3 need {MIN_WTMMM} \
          at each (the plug-in variance of one value and third cumulant of two are identically \
-         0); the counting domain is too small for these scales (use fewer --octaves, a \
-         smaller --margin, or a lower --fit)",
+         0); the counting domain is too small for these scales (use fewer octaves, a \
+         smaller margin, or a lower fit range: --octaves, --margin, --fit)",
         short.len(),
         opts.fit.0,
         opts.fit.1,

@@ -449,9 +449,10 @@ impl TraceMomentAccumulator {
                 Error::Input(match field.range() {
                     Some((lo, hi)) if lo == hi => "constant image: no fluctuations".into(),
                     _ => format!(
-                        "cannot estimate H = xi(1) for --diff-order auto from the structure \
-                         function of this {ny}x{nx} image (too few lags, or none with a \
-                         nonzero increment); give --diff-order"
+                        "cannot estimate H = xi(1) for the automatic derivative order \
+                         (--diff-order auto) from the structure function of this {ny}x{nx} \
+                         image (too few lags, or none with a nonzero increment); give the \
+                         order (FluxDiff::Order, --diff-order)"
                     ),
                 })
             })?,
