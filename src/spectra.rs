@@ -414,8 +414,9 @@ impl PartitionSums {
     /// **Errors** if the sums fail [`PartitionSums::check`] (e.g. a q grid
     /// with NaN or duplicates, no scales), if the fit range is not within
     /// the scales (`0 <= lo < hi <= ` the octaves they span, the last scale
-    /// plus one step: 4 for a grid of 4 octaves), or if fewer than 3
-    /// scales fall in it.
+    /// plus one step: 4 for a grid of 4 octaves), if an end lies between
+    /// two scales (it would fit from the next one), or if fewer than 3
+    /// scales fall in it. [`default_fit`] gives the CLI's range.
     pub fn spectra(&self, rule: Rule, fit: (f64, f64)) -> Result<Spectra> {
         self.check().map_err(|e| Error::param("sums", e))?;
         let ns = self.scales.len();
@@ -435,6 +436,20 @@ impl PartitionSums {
                 "fit",
                 format!(
                     "{}:{} octaves must satisfy 0 <= lo < hi <= {top:.2}, the octaves the scales span",
+                    fit.0, fit.1
+                ),
+            ));
+        }
+        // an end between two scales would fit from the next one and be
+        // recorded as given
+        let on_grid =
+            |o: f64| (o - top).abs() <= 1e-6 || log2_a.iter().any(|l| (l - oct0 - o).abs() <= 1e-6);
+        if let Some(o) = [fit.0, fit.1].into_iter().find(|&o| !on_grid(o)) {
+            return Err(Error::param(
+                "fit",
+                format!(
+                    "octave {o} of {}:{} lies between two scales: the ends must be octaves of \
+                     scales of the grid (or the top, {top:.2})",
                     fit.0, fit.1
                 ),
             ));
@@ -906,7 +921,78 @@ impl ShapeCount {
     }
 }
 
+/// The default fit range, in octaves above a_min, for a grid of `octaves`
+/// octaves of `voices` voices (the CLI's `--fit` default): from the first
+/// scale at or above half an octave to `min(octaves, 4)`, the paper's
+/// "first four octaves" (II §3) less the first half octave, where the
+/// pixel-sampled transform and the lines born at a_min bias the local
+/// slopes (README "How the defaults were chosen"). `(0.5, 4.0)` for the
+/// default 5 octaves of 10 voices; `(2/3, 4)` with 3 voices.
+pub fn default_fit(octaves: usize, voices: usize) -> (f64, f64) {
+    let v = voices.max(1) as f64;
+    ((0.5 * v - 1e-9).ceil() / v, (octaves as f64).min(4.0))
+}
+
 impl PartitionSums {
+    /// [`default_fit`] for the grid of these sums: its whole octaves and
+    /// its voices, read from the scales (the last scale is one voice short
+    /// of the grid's octaves).
+    ///
+    /// **Errors** if the scales span less than one octave.
+    pub fn default_fit(&self) -> Result<(f64, f64)> {
+        let n = self.scales.len();
+        let step = if n > 1 {
+            (self.scales[1] / self.scales[0]).log2()
+        } else {
+            0.0
+        };
+        let span = match (self.scales.first(), self.scales.last()) {
+            (Some(a0), Some(a1)) => (a1 / a0).log2() + step,
+            _ => 0.0,
+        };
+        let octaves = (span + 1e-6).floor();
+        if !(octaves >= 1.0) {
+            return Err(Error::param(
+                "fit",
+                format!("the sums span {span:.3} octaves, less than one: give the range"),
+            ));
+        }
+        let voices = if step > 0.0 {
+            (1.0 / step).round().max(1.0)
+        } else {
+            1.0
+        };
+        Ok(default_fit(octaves as usize, voices as usize))
+    }
+
+    /// Reads sums written by [`PartitionSums::write_json`] (`sums.json` of
+    /// `wtmm analyze` and `validate`), checked with [`PartitionSums::check`].
+    ///
+    /// **Errors** naming the file if it cannot be read, is not a
+    /// partition-sums file, or fails the check.
+    pub fn read_json(path: impl AsRef<std::path::Path>) -> Result<PartitionSums> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let s: PartitionSums = serde_json::from_str(&text)
+            .map_err(|e| Error::format(path, format!("not a partition-sums file: {e}")))?;
+        s.check()
+            .map_err(|e| Error::format(path, format!("invalid partition sums: {e}")))?;
+        Ok(s)
+    }
+
+    /// Writes the sums as JSON (atomically: a complete file or none), to be
+    /// merged later with [`PartitionSums::read_json`] and
+    /// [`PartitionSums::merge`].
+    pub fn write_json(&self, path: impl AsRef<std::path::Path>) -> Result<()> {
+        let path = path.as_ref();
+        let s = serde_json::to_string_pretty(self)
+            .map_err(|e| Error::format(path, format!("cannot encode JSON: {e}")))?;
+        crate::io::write_atomic(path, (s + "\n").as_bytes())
+    }
+
     /// The distinct recorded image sizes, with their counts, largest first.
     pub fn image_shapes(&self) -> Vec<ShapeCount> {
         ShapeCount::tally(self.images.iter().filter_map(|p| p.shape))

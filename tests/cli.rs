@@ -1766,3 +1766,26 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
     let o2 = dir.join("o2").display().to_string();
     assert_eq!(run(&[an(&png), vec!["--out", &o2]].concat()), 0);
 }
+
+/// The default fit starts at the first scale at or above half an octave:
+/// with 3 voices there is none at 0.5 (the command used to refuse its own
+/// default), and `merge` derives the same range from the sums.
+#[test]
+fn default_fit_with_odd_voices() {
+    let dir = scratch("odd-voices");
+    let a = fbm_npy(&dir, "a.npy", 160, 1);
+    let o = dir.join("out").display().to_string();
+    assert_eq!(analyze(&a, "2", &["--voices", "3"], &o), 0);
+    let s = json(&dir.join("out").join("spectra.json"));
+    let fit: Vec<f64> = serde_json::from_value(s["fit_octaves"].clone()).unwrap();
+    assert!(
+        (fit[0] - 2.0 / 3.0).abs() < 1e-12 && fit[1] == 2.0,
+        "{fit:?}"
+    );
+    let sums = dir.join("out").join("sums.json").display().to_string();
+    let m = dir.join("merged").display().to_string();
+    assert_eq!(run(&["merge", &sums, "--out", &m]), 0);
+    let t = json(&dir.join("merged").join("spectra.json"));
+    assert_eq!(t["fit_octaves"], s["fit_octaves"]);
+    assert_eq!(t["tau"], s["tau"]);
+}

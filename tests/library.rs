@@ -5,7 +5,7 @@
 use ndarray::Array2;
 use wtmm::Field;
 use wtmm::skeleton::{AnalysisConfig, LinkParams, SearchRadius, skeleton};
-use wtmm::spectra::{Rule, image_sums};
+use wtmm::spectra::{PartitionSums, Rule, default_fit, image_sums};
 use wtmm::stats::powspec::{PowerSpectrumConfig, power_spectrum};
 use wtmm::synth::fbm::{FbmParams, fbm};
 use wtmm::synth::fif::{FifParams, fif};
@@ -64,6 +64,9 @@ fn spectra_refuse_bad_q_and_fit_ranges() {
         err(s.spectra(Rule::Plain, fit), "fit");
     }
     assert!(s.spectra(Rule::Plain, (0.5, 3.0)).is_ok());
+    // an end between two voices would fit from the next scale and be
+    // recorded as given
+    err(s.spectra(Rule::Plain, (0.55, 3.0)), "between two scales");
     let mut empty = s.clone();
     empty.scales.clear();
     err(empty.spectra(Rule::Plain, (0.5, 3.0)), "scales");
@@ -191,4 +194,45 @@ fn analysis_defaults_follow_the_kind_of_field() {
         plain.margin_px(),
         (3.2f64 * 1.5 * 2f64.powf(4.9)).ceil() as usize
     );
+}
+
+#[test]
+fn the_default_fit_lies_on_every_grid() {
+    assert_eq!(default_fit(5, 10), (0.5, 4.0));
+    assert_eq!(default_fit(3, 10), (0.5, 3.0));
+    // odd voices have no scale at half an octave: the first one above it
+    // (the CLI's default failed with --voices 3 before)
+    for (voices, lo) in [(3, 2.0 / 3.0), (1, 1.0), (5, 0.6), (4, 0.5)] {
+        let (l, h) = default_fit(5, voices);
+        assert!((l - lo).abs() < 1e-12 && h == 4.0, "{voices}: {l}");
+        let cfg = AnalysisConfig { voices, ..torus(3) };
+        let s = image_sums(&surface(128), &cfg, &[0.0, 2.0], "x").unwrap();
+        let fit = s.default_fit().unwrap();
+        assert_eq!(fit, default_fit(3, voices));
+        if voices > 1 {
+            let sp = s.spectra(Rule::Plain, fit).unwrap();
+            assert!((sp.fit_scales.0 / 1.5 - lo.exp2()).abs() < 1e-9);
+        }
+    }
+}
+
+#[test]
+fn sums_round_trip_through_json() {
+    let dir = std::env::temp_dir().join(format!("wtmm-sums-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("sums.json");
+    let s = image_sums(&surface(128), &torus(3), &[-1.0, 0.0, 2.0], "x").unwrap();
+    s.write_json(&path).unwrap();
+    let back = PartitionSums::read_json(&path).unwrap();
+    let fit = s.default_fit().unwrap();
+    let (a, b) = (
+        s.spectra(Rule::Plain, fit).unwrap(),
+        back.spectra(Rule::Plain, fit).unwrap(),
+    );
+    assert_eq!(a.tau, b.tau);
+    assert_eq!(back.analysis, s.analysis);
+    std::fs::write(&path, "{\"q\": [1]}").unwrap();
+    err(PartitionSums::read_json(&path), "sums.json");
+    err(PartitionSums::read_json(dir.join("none.json")), "none.json");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

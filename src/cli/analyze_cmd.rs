@@ -66,12 +66,14 @@ impl LineOpts {
     }
 }
 
-/// `--fit LO:HI` (octaves above a_min), or the default 0.5:min(4, octaves),
-/// checked against the grid of `octaves` x `voices` scales.
+/// `--fit LO:HI` (octaves above a_min), or the default
+/// [`crate::spectra::default_fit`] (0.5:min(4, octaves) when the voices
+/// divide half an octave), checked against the grid of `octaves` x
+/// `voices` scales.
 pub fn fit_range(fit: Option<&str>, octaves: usize, voices: usize) -> Result<(f64, f64)> {
     let r = match fit {
         Some(f) => parse_range("fit", f)?,
-        None => (0.5, (octaves as f64).min(4.0)),
+        None => crate::spectra::default_fit(octaves, voices),
     };
     check_fit(r, octaves as f64, 1.0 / voices as f64, "")?;
     Ok(r)
@@ -113,7 +115,8 @@ pub struct SpectraOpts {
     pub q: String,
     /// Fit range in octaves above a_min, `LO:HI` (the first half octave is
     /// left out: see the README, "How the defaults were chosen"). Default
-    /// 0.5:4, or 0.5:OCTAVES with fewer than 4 octaves.
+    /// 0.5:4, or 0.5:OCTAVES with fewer than 4 octaves (from the first scale
+    /// above half an octave when the voices are odd: 0.667 with 3).
     #[arg(long, allow_hyphen_values = true)]
     pub fit: Option<String>,
     /// Modulus along a maxima line: plain (M at a) or sup (max of M over scales <= a).

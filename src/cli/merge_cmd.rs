@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use clap::Args;
 use serde_json::json;
 
-use super::analyze_cmd::{check_fit, fit_range, theory_curves, write_outputs};
+use super::analyze_cmd::{check_fit, theory_curves, write_outputs};
 use super::common::{make_out_dir, parse_range};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
@@ -62,14 +62,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     // the file of each image, in the order merged
     let mut owner: Vec<usize> = Vec::new();
     for (f, p) in args.sums.iter().enumerate() {
-        let text = std::fs::read_to_string(p).map_err(|source| Error::Read {
-            path: p.clone(),
-            source,
-        })?;
-        let s: PartitionSums = serde_json::from_str(&text)
-            .map_err(|e| Error::format(p, format!("not a partition-sums file: {e}")))?;
-        s.check()
-            .map_err(|e| Error::format(p, format!("invalid partition sums: {e}")))?;
+        let s = PartitionSums::read_json(p)?;
         // a shard of unknown analysis cannot be checked against the others
         // (the merge keeps the analysis all shards share)
         if let Some(acc) = &sums
@@ -111,21 +104,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     let fit = match &args.fit {
         Some(f) => parse_range("fit", f)?,
         // analyze's default for the whole octaves and the voices of the sums
-        None => {
-            let octaves = (span + 1e-6).floor() as usize;
-            if octaves == 0 {
-                return Err(Error::param(
-                    "fit",
-                    format!("the sums span {span:.3} octaves, less than one: give the range"),
-                ));
-            }
-            let voices = if step > 0.0 {
-                (1.0 / step).round().max(1.0)
-            } else {
-                1.0
-            };
-            fit_range(None, octaves, voices as usize)?
-        }
+        None => sums.default_fit()?,
     };
     // older sums.json record no voices: the grid step is the scales' ratio
     check_fit(
