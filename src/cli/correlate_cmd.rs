@@ -45,10 +45,7 @@ use crate::stats::kernel::{
 use crate::stats::pdf::{Point, WtmmmSet, image_wtmmm};
 use crate::theory::Model;
 
-/// `σ_W / σ_min` of the reference implementation: 13 px / 1.5703 px
-/// (II §3; SPEC §1): the paper's scale unit in units of the Gaussian's
-/// standard deviation.
-pub const PAPER_UNIT: f64 = 13.0 / 1.5703;
+pub use crate::stats::correlation::PAPER_UNIT;
 
 /// Where the magnitudes come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -414,30 +411,7 @@ fn time_per_call(batches: usize, f: &mut dyn FnMut() -> Result<()>) -> Result<f6
 /// Max |C - eq 76| over the bins with `k sup(a1, a2) < Δx < L/4`, per pair
 /// and over all pairs, for C (per-image centring) and C_ensemble.
 fn window_check(r: &CorrelationResult, model: &Model, l: f64, k: f64) -> serde_json::Value {
-    let mut worst = (0.0f64, 0.0f64, 0usize);
-    let per: Vec<serde_json::Value> = r
-        .pairs
-        .iter()
-        .map(|p| {
-            let lo = k * p.a1.max(p.a2);
-            let (mut d_img, mut d_ens, mut n) = (0.0f64, 0.0f64, 0usize);
-            for (i, &dx) in p.dx.iter().enumerate() {
-                if dx > lo
-                    && dx < l / 4.0
-                    && let Some(t) = model.magnitude_correlation(dx, l)
-                {
-                    d_img = d_img.max((p.c[i] - t).abs());
-                    d_ens = d_ens.max((p.c_ensemble[i] - t).abs());
-                    n += 1;
-                }
-            }
-            worst = (worst.0.max(d_img), worst.1.max(d_ens), worst.2 + n);
-            json!({"a1": p.a1, "a2": p.a2, "dx_min": lo, "dx_max": l / 4.0, "bins": n,
-                "max_abs_dev_C": d_img, "max_abs_dev_C_ensemble": d_ens})
-        })
-        .collect();
-    json!({"factor": k, "bins": worst.2, "max_abs_dev_C": worst.0,
-        "max_abs_dev_C_ensemble": worst.1, "pairs": per})
+    serde_json::to_value(r.compare_theory(model, l, k)).expect("plain numbers")
 }
 
 fn result_json(

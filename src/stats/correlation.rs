@@ -1454,6 +1454,99 @@ pub struct CorrelationResult {
     pub stderr_method: String,
 }
 
+/// `σ_W / σ_min` of the reference implementation, 13 px / 1.5703 px (II §3;
+/// SPEC §1, §12): the paper's scale unit in units of the Gaussian's
+/// standard deviation. II eq 76 holds for `Δx > sup(a1, a2)` in `σ_W`
+/// units, i.e. `Δx > PAPER_UNIT sup(a1, a2)` with `a` in pixels.
+pub const PAPER_UNIT: f64 = 13.0 / 1.5703;
+
+/// How far one pair's correlation lies from the theory in a window of lags.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PairCheck {
+    /// The pair's scales, in pixels.
+    pub a1: f64,
+    /// See `a1`.
+    pub a2: f64,
+    /// The window: `factor sup(a1, a2) < Δx < L/4` px.
+    pub dx_min: f64,
+    /// See `dx_min`.
+    pub dx_max: f64,
+    /// Lag bins in the window with a theoretical value.
+    pub bins: usize,
+    /// Largest `|C - theory|` there, per-image centring ([`PairCorrelation::c`]).
+    #[serde(rename = "max_abs_dev_C")]
+    pub max_abs_dev: f64,
+    /// The same with ensemble centring ([`PairCorrelation::c_ensemble`]).
+    #[serde(rename = "max_abs_dev_C_ensemble")]
+    pub max_abs_dev_ensemble: f64,
+}
+
+/// [`CorrelationResult::compare_theory`]: the largest deviations from the
+/// model's magnitude correlation (II eq 76; 0 for fBm) over all pairs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TheoryCheck {
+    /// The window starts at `factor sup(a1, a2)` px: 1 for eq 76 read
+    /// literally in pixels, [`PAPER_UNIT`] for the paper's `σ_W` units
+    /// (`wtmm validate` judges the latter).
+    pub factor: f64,
+    /// Lag bins compared, over all pairs; 0 means no value (the maxima
+    /// below are then 0 and mean nothing).
+    pub bins: usize,
+    /// Largest deviation over the pairs, per-image centring.
+    #[serde(rename = "max_abs_dev_C")]
+    pub max_abs_dev: f64,
+    /// Largest deviation over the pairs, ensemble centring (II eq 68).
+    #[serde(rename = "max_abs_dev_C_ensemble")]
+    pub max_abs_dev_ensemble: f64,
+    /// Per pair.
+    pub pairs: Vec<PairCheck>,
+}
+
+impl CorrelationResult {
+    /// Compares each pair with `model`'s magnitude correlation for an
+    /// integral scale `l` px (the image side for a W-cascade, II eq 76)
+    /// over `factor sup(a1, a2) < Δx < l/4`, the window of the issue's
+    /// acceptance with `factor = PAPER_UNIT`. Bins where the model gives no
+    /// value (e.g. a model without a closed form) are skipped.
+    pub fn compare_theory(&self, model: &crate::theory::Model, l: f64, factor: f64) -> TheoryCheck {
+        let mut out = TheoryCheck {
+            factor,
+            bins: 0,
+            max_abs_dev: 0.0,
+            max_abs_dev_ensemble: 0.0,
+            pairs: Vec::with_capacity(self.pairs.len()),
+        };
+        for p in &self.pairs {
+            let lo = factor * p.a1.max(p.a2);
+            let mut pc = PairCheck {
+                a1: p.a1,
+                a2: p.a2,
+                dx_min: lo,
+                dx_max: l / 4.0,
+                bins: 0,
+                max_abs_dev: 0.0,
+                max_abs_dev_ensemble: 0.0,
+            };
+            for (i, &dx) in p.dx.iter().enumerate() {
+                if dx > lo
+                    && dx < l / 4.0
+                    && let Some(t) = model.magnitude_correlation(dx, l)
+                {
+                    pc.max_abs_dev = pc.max_abs_dev.max((p.c[i] - t).abs());
+                    pc.max_abs_dev_ensemble =
+                        pc.max_abs_dev_ensemble.max((p.c_ensemble[i] - t).abs());
+                    pc.bins += 1;
+                }
+            }
+            out.max_abs_dev = out.max_abs_dev.max(pc.max_abs_dev);
+            out.max_abs_dev_ensemble = out.max_abs_dev_ensemble.max(pc.max_abs_dev_ensemble);
+            out.bins += pc.bins;
+            out.pairs.push(pc);
+        }
+        out
+    }
+}
+
 /// Ensemble correlation functions from the per-image sums: per bin, sums
 /// over images in a canonical order (sorted by label and means, so merging
 /// is order-independent), both centrings, delete-one jackknife errors.
@@ -1586,6 +1679,57 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The window and both centrings of `compare_theory`, on a result built
+    /// from eq 76 itself with known offsets.
+    #[test]
+    fn theory_check_reads_the_window() {
+        let m = crate::theory::Model::preset("paper-lognormal")
+            .unwrap()
+            .model;
+        let l = 1024.0;
+        let dx = vec![10.0, 40.0, 60.0, 200.0, 300.0];
+        let t: Vec<f64> = dx
+            .iter()
+            .map(|&d| m.magnitude_correlation(d, l).unwrap())
+            .collect();
+        let pair = |a2: f64, off: [f64; 5]| PairCorrelation {
+            a1: 3.0,
+            a2,
+            log2_dx: dx.iter().map(|d| d.log2()).collect(),
+            dx: dx.clone(),
+            c: t.iter().zip(off).map(|(t, o)| t + o).collect(),
+            c_stderr: vec![0.0; 5],
+            c_ensemble: t.iter().zip(off).map(|(t, o)| t - 2.0 * o).collect(),
+            c_ensemble_stderr: vec![0.0; 5],
+            pairs: vec![1.0; 5],
+            c0: 0.0,
+            c0_ensemble: 0.0,
+        };
+        let r = CorrelationResult {
+            source: "cwt".into(),
+            magnitude: Magnitude::Lnm,
+            periodic: true,
+            images: 1,
+            scales: vec![3.0, 6.0],
+            mean: vec![0.0, 0.0],
+            // outside the window: dx = 10 (below 8.3 x 6 = 50 or 8.3 x 3 =
+            // 25) and 300 (beyond L/4 = 256) carry large offsets
+            pairs: vec![
+                pair(3.0, [1.0, 0.01, 0.02, -0.005, 1.0]),
+                pair(6.0, [1.0, 1.0, 0.003, 0.004, 1.0]),
+            ],
+            stderr_method: "none".into(),
+        };
+        let c = r.compare_theory(&m, l, PAPER_UNIT);
+        assert_eq!((c.pairs[0].bins, c.pairs[1].bins, c.bins), (3, 2, 5));
+        assert!((c.pairs[0].max_abs_dev - 0.02).abs() < 1e-12);
+        assert!((c.pairs[1].max_abs_dev - 0.004).abs() < 1e-12);
+        assert!((c.max_abs_dev - 0.02).abs() < 1e-12);
+        assert!((c.max_abs_dev_ensemble - 0.04).abs() < 1e-12);
+        // read literally (dx > sup(a1, a2) px) the 10 px bin counts
+        assert!((r.compare_theory(&m, l, 1.0).max_abs_dev - 1.0).abs() < 1e-12);
+    }
 
     #[test]
     fn runs_cover_the_table() {
