@@ -47,7 +47,8 @@ pub struct KernelArgs {
     #[arg(long, value_enum, default_value = "lines")]
     pub set: WtmmmSet,
     /// Reference scales a' of the C_n(a, a') tables, octaves above a_min (II
-    /// Fig 26) [default: 0.5,1,1.5,2,2.5,3,3.5, those within --octaves].
+    /// Fig 26) [default: 0.5,1,1.5,2,2.5,3,3.5, those above the fit's lower
+    /// end and within --octaves: 1..3.5 with the default fit 0.5:4].
     #[arg(long)]
     pub refs: Option<String>,
     /// Pairs a:a' of the kernel curves, octaves above a_min, comma-separated
