@@ -72,7 +72,8 @@
 //! sharing a bin, in f64. On a rectangle whose every point is valid the
 //! pair counts are closed forms and the cross terms come from summed-area
 //! tables (no mask FFTs). 1024², one thread: 6.4-6.7 CWT scales on the
-//! torus, 11.4-12.6 on a non-periodic interior (`cargo bench --bench
+//! torus, 11.4-12.6 on a non-periodic interior (8.3 and 14.5 on a host
+//! with faster FFTs; `cargo bench --bench
 //! correlate`).
 //!
 //! ```
