@@ -423,14 +423,9 @@ impl PartitionSums {
         let nq = self.q.len();
         let log2_a: Vec<f64> = self.scales.iter().map(|a| a.log2()).collect();
         let oct0 = log2_a[0];
-        // the top of a grid of `octaves` octaves is one voice below
-        // `octaves`, which the CLI accepts as the fit's end
-        let top = log2_a[ns - 1] - oct0
-            + if ns > 1 {
-                log2_a[ns - 1] - log2_a[ns - 2]
-            } else {
-                0.0
-            };
+        // the top of a grid of `octaves` octaves is one voice above its
+        // last scale, which the CLI accepts as the fit's end
+        let (top, _) = self.grid_span();
         if !(fit.0 >= -1e-9 && fit.0 < fit.1 && fit.1 <= top + 1e-6) {
             return Err(Error::param(
                 "fit",
@@ -934,12 +929,9 @@ pub fn default_fit(octaves: usize, voices: usize) -> (f64, f64) {
 }
 
 impl PartitionSums {
-    /// [`default_fit`] for the grid of these sums: its whole octaves and
-    /// its voices, read from the scales (the last scale is one voice short
-    /// of the grid's octaves).
-    ///
-    /// **Errors** if the scales span less than one octave.
-    pub fn default_fit(&self) -> Result<(f64, f64)> {
+    /// The octaves the scales span, the last scale plus one step (a grid
+    /// of 4 octaves spans 4), and that step in octaves (0 for one scale).
+    pub(crate) fn grid_span(&self) -> (f64, f64) {
         let n = self.scales.len();
         let step = if n > 1 {
             (self.scales[1] / self.scales[0]).log2()
@@ -950,6 +942,16 @@ impl PartitionSums {
             (Some(a0), Some(a1)) => (a1 / a0).log2() + step,
             _ => 0.0,
         };
+        (span, step)
+    }
+
+    /// [`default_fit`] for the grid of these sums: its whole octaves and
+    /// its voices, read from the scales (the last scale is one voice short
+    /// of the grid's octaves).
+    ///
+    /// **Errors** if the scales span less than one octave.
+    pub fn default_fit(&self) -> Result<(f64, f64)> {
+        let (span, step) = self.grid_span();
         let octaves = (span + 1e-6).floor();
         if !(octaves >= 1.0) {
             return Err(Error::param(

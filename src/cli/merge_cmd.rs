@@ -94,13 +94,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     check_duplicate_images(&args.sums, &owner, &sums)?;
     // the grid's octaves (its last scale is one voice short of them), as
     // `analyze --fit` is checked
-    let n = sums.scales.len();
-    let step = if n > 1 {
-        (sums.scales[1] / sums.scales[0]).log2()
-    } else {
-        0.0
-    };
-    let span = (sums.scales[n - 1] / sums.scales[0]).log2() + step;
+    let (span, step) = sums.grid_span();
     let fit = match &args.fit {
         Some(f) => parse_range("fit", f)?,
         // analyze's default for the whole octaves and the voices of the sums
