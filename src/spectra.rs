@@ -989,10 +989,7 @@ impl PartitionSums {
     /// merged later with [`PartitionSums::read_json`] and
     /// [`PartitionSums::merge`].
     pub fn write_json(&self, path: impl AsRef<std::path::Path>) -> Result<()> {
-        let path = path.as_ref();
-        let s = serde_json::to_string_pretty(self)
-            .map_err(|e| Error::format(path, format!("cannot encode JSON: {e}")))?;
-        crate::io::write_atomic(path, (s + "\n").as_bytes())
+        crate::io::write_json(path.as_ref(), self)
     }
 
     /// The distinct recorded image sizes, with their counts, largest first.

@@ -325,7 +325,7 @@ pub fn write_outputs(
         body["theory"] = json!({"name": t.name, "tau": th, "tau_minus_theory": dev});
     }
     crate::cli::common::write_json(&dir.join("spectra.json"), &body)?;
-    crate::cli::common::write_json(&dir.join("sums.json"), sums)?;
+    sums.write_json(dir.join("sums.json"))?;
     let rows: Vec<Vec<String>> = (0..s.q.len())
         .map(|i| {
             vec![

@@ -5,10 +5,10 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::field::Field;
+pub use crate::io::write_json;
 use crate::io::{read_field_with_info, write_atomic};
 
 /// Parses `start:stop:step` (inclusive) or `a,b,c`, returned ascending;
@@ -150,13 +150,6 @@ pub fn analysis_json(cfg: &crate::skeleton::AnalysisConfig) -> serde_json::Value
     v["margin_default"] = serde_json::json!(cfg.margin.is_none());
     v["margin"] = serde_json::json!(cfg.margin_px());
     v
-}
-
-/// Pretty JSON written atomically.
-pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
-    let s = serde_json::to_string_pretty(value)
-        .map_err(|e| Error::format(path, format!("cannot encode JSON: {e}")))?;
-    write_atomic(path, (s + "\n").as_bytes())
 }
 
 /// CSV from a header and rows, written atomically.

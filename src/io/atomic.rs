@@ -65,6 +65,14 @@ pub fn remove_temporaries() -> usize {
     n
 }
 
+/// `value` as pretty JSON with a final newline, written with
+/// [`write_atomic`] (every JSON output of the crate goes through here).
+pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
+    let s = serde_json::to_string_pretty(value)
+        .map_err(|e| Error::format(path, format!("cannot encode JSON: {e}")))?;
+    write_atomic(path, (s + "\n").as_bytes())
+}
+
 /// Writes `bytes` to a temporary file beside `path`, then renames it over
 /// `path` (or, under an open [`OutputBatch`], leaves the rename to its commit).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {

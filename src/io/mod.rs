@@ -21,7 +21,7 @@ mod pgm;
 mod png;
 mod tiff;
 
-pub use atomic::{OutputBatch, outputs_committed, remove_temporaries, write_atomic};
+pub use atomic::{OutputBatch, outputs_committed, remove_temporaries, write_atomic, write_json};
 pub use png::{PNG16_NODATA, Png16Mapping};
 
 use std::path::{Path, PathBuf};
