@@ -714,56 +714,97 @@ fn finish_on<const TORUS: bool>(
         if state[seed] != 1 {
             continue;
         }
-        // the 8-connected component (state 1 -> 3 while collecting)
-        s.comp.clear();
-        s.stack.clear();
-        s.stack.push([seed as u32, x + 1, y + 1]);
-        state[seed] = 3;
-        while let Some(p) = s.stack.pop() {
-            s.comp.push(p);
-            for q in neighbours(p) {
-                if state[q[0] as usize] == 1 {
-                    state[q[0] as usize] = 3;
-                    s.stack.push(q);
-                }
-            }
+        // The walks of a component start, one after the other, at the
+        // unwalked pixel of least `start_key`. `open` is the state of the
+        // component's unwalked pixels: 3 once it is collected, 1 before.
+        let seed_px = [seed as u32, x + 1, y + 1];
+        let (mut start, mut had_end, mut open);
+        let mut remaining = usize::MAX;
+        let mut comp_len = 0;
+        if nmask[seed].count_ones() <= 1 {
+            // an end first in raster order has the least key: it starts
+            // the first walk, before the component is collected (walking
+            // on state 1, whose pixels near the walk are all this
+            // component's); about half the pixels are in such components
+            (start, had_end, open) = (seed_px, true, 1);
+        } else {
+            // the 8-connected component (state 1 -> 3 while collecting)
+            s.comp.clear();
+            s.stack.clear();
+            s.stack.push(seed_px);
+            state[seed] = 3;
+            collect(&mut s.stack, &mut s.comp, state, neighbours);
+            // before the first walk every neighbour is unwalked
+            let key;
+            (key, start) = s
+                .comp
+                .iter()
+                .map(|&p| (start_key(nmask[p[0] as usize].count_ones(), p[0]), p))
+                .min_by_key(|&(k, _)| k)
+                .expect("the seed is in its component");
+            comp_len = s.comp.len();
+            remaining = comp_len;
+            had_end = key >> 32 <= 1;
+            open = 3;
         }
-        // deterministic order: walk from raster-first endpoints
-        s.comp.sort_unstable_by_key(|p| p[0]);
-        let comp_len = s.comp.len();
-        let mut remaining = comp_len;
         let mut first_walk = true;
-        while remaining > 0 {
-            // start: an unvisited pixel (state 3) with the fewest unvisited neighbours
-            let mut start = [u32::MAX; 3];
-            let mut best = u32::MAX;
-            for &p in &s.comp {
-                if state[p[0] as usize] != 3 {
-                    continue;
-                }
-                // before the first walk every neighbour is unvisited
-                let c = if first_walk {
-                    nmask[p[0] as usize].count_ones()
-                } else {
-                    neighbours(p).filter(|q| state[q[0] as usize] == 3).count() as u32
-                };
-                if c < best {
-                    best = c;
-                    start = p;
-                    if c <= 1 {
+        // a pixel of the walk had two or more unwalked neighbours
+        let mut branched = false;
+        loop {
+            if !first_walk {
+                if open == 1 {
+                    if !branched {
+                        // every neighbour of every walked pixel was walked:
+                        // the walk was the whole component
                         break;
                     }
+                    // collect the rest: the unwalked pixels reached from the walk
+                    s.comp.clear();
+                    s.stack.clear();
+                    for &p in &s.order {
+                        for q in neighbours(p) {
+                            if state[q[0] as usize] == 1 {
+                                state[q[0] as usize] = 3;
+                                s.stack.push(q);
+                            }
+                        }
+                    }
+                    collect(&mut s.stack, &mut s.comp, state, neighbours);
+                    remaining = s.comp.len();
+                    open = 3;
+                } else {
+                    s.comp.retain(|p| state[p[0] as usize] == 3);
                 }
+                if remaining == 0 {
+                    break;
+                }
+                let key;
+                (key, start) = s
+                    .comp
+                    .iter()
+                    .map(|&p| {
+                        let c = neighbours(p).filter(|q| state[q[0] as usize] == 3).count();
+                        (start_key(c as u32, p[0]), p)
+                    })
+                    .min_by_key(|&(k, _)| k)
+                    .expect("remaining > 0");
+                had_end = key >> 32 <= 1;
             }
-            let had_end = best <= 1;
+            // the walk: each step to the first unwalked neighbour in NEIGH order
             s.order.clear();
             let mut cur = start;
             loop {
                 state[cur[0] as usize] = 2;
                 s.order.push(cur);
-                remaining -= 1;
-                match neighbours(cur).find(|q| state[q[0] as usize] == 3) {
-                    Some(j) => cur = j,
+                remaining = remaining.wrapping_sub(1);
+                let mut next = neighbours(cur).filter(|q| state[q[0] as usize] == open);
+                match next.next() {
+                    Some(j) => {
+                        if open == 1 && !branched && next.next().is_some() {
+                            branched = true;
+                        }
+                        cur = j;
+                    }
                     None => break,
                 }
             }
@@ -813,6 +854,34 @@ fn finish_on<const TORUS: bool>(
         out.wtmmm[i as usize].arg = argument(s.pt[s.maxk[i as usize] as usize]);
     }
     out
+}
+
+/// Moves the pixels reached from `stack` through unwalked pixels (state 1)
+/// to state 3 and appends them to `comp`, depth first. (A function, not a
+/// closure, so that it can be inlined by force: as a closure it was not,
+/// and the tracing lost what the collection saved.)
+#[inline(always)]
+fn collect<I: Iterator<Item = Pix>>(
+    stack: &mut Vec<Pix>,
+    comp: &mut Vec<Pix>,
+    state: &mut [u8],
+    neighbours: impl Fn(Pix) -> I,
+) {
+    while let Some(p) = stack.pop() {
+        comp.push(p);
+        for q in neighbours(p) {
+            if state[q[0] as usize] == 1 {
+                state[q[0] as usize] = 3;
+                stack.push(q);
+            }
+        }
+    }
+}
+
+/// Orders the candidate starts of a walk: fewest unvisited neighbours `c`
+/// first, with every end (`c <= 1`) equal, then raster order (index `k`).
+fn start_key(c: u32, k: u32) -> u64 {
+    (c.max(1) as u64) << 32 | k as u64
 }
 
 /// The largest of `v` (>= 0, no NaN), with eight independent lanes: a plain
@@ -1098,6 +1167,154 @@ mod tests {
         assert_eq!(maxima(&[2.0; 6], true), vec![3]);
         // a plateau across the closing point of a closed chain
         assert_eq!(maxima(&[3.0, 3.0, 1.0, 2.0, 1.0, 3.0], true), vec![0, 3]);
+    }
+
+    /// The chain decomposition written plainly, as it was first defined:
+    /// components in raster order of their first pixel, sorted; each walk
+    /// starts at the first pixel in raster order with the fewest unwalked
+    /// neighbours (stopping at the first end) and steps to the first
+    /// unwalked neighbour in `NEIGH` order.
+    /// Also counts the closed chains, the components split into several
+    /// chains, and those of them whose first pixel is an end.
+    fn reference_chains(
+        pix: &[(u32, u32)],
+        ny: u32,
+        nx: u32,
+        torus: bool,
+    ) -> (Vec<Chain>, [usize; 3]) {
+        let index: std::collections::HashMap<(u32, u32), usize> =
+            pix.iter().enumerate().map(|(i, &p)| (p, i)).collect();
+        let nb = |i: usize| -> Vec<usize> {
+            let (x, y) = pix[i];
+            NEIGH
+                .iter()
+                .filter_map(|&(dx, dy)| {
+                    let (mut qx, mut qy) = (x as i64 + dx as i64, y as i64 + dy as i64);
+                    if torus {
+                        (qx, qy) = (qx.rem_euclid(nx as i64), qy.rem_euclid(ny as i64));
+                    }
+                    if qx < 0 || qy < 0 {
+                        return None;
+                    }
+                    index.get(&(qx as u32, qy as u32)).copied()
+                })
+                .collect()
+        };
+        let n = pix.len();
+        let (mut seen, mut walked) = (vec![false; n], vec![false; n]);
+        let mut chains = Vec::new();
+        let mut counts = [0; 3];
+        for seed in 0..n {
+            if seen[seed] {
+                continue;
+            }
+            let mut comp = vec![seed];
+            seen[seed] = true;
+            let mut i = 0;
+            while i < comp.len() {
+                for q in nb(comp[i]) {
+                    if !seen[q] {
+                        seen[q] = true;
+                        comp.push(q);
+                    }
+                }
+                i += 1;
+            }
+            comp.sort();
+            let chains_before = chains.len();
+            let mut first = true;
+            while comp.iter().any(|&p| !walked[p]) {
+                let (mut start, mut best) = (0, usize::MAX);
+                for &p in &comp {
+                    if walked[p] {
+                        continue;
+                    }
+                    let c = nb(p).into_iter().filter(|&q| !walked[q]).count();
+                    if c < best {
+                        (start, best) = (p, c);
+                        if c <= 1 {
+                            break;
+                        }
+                    }
+                }
+                let mut order = Vec::new();
+                let mut cur = start;
+                loop {
+                    walked[cur] = true;
+                    order.push(cur);
+                    match nb(cur).into_iter().find(|&q| !walked[q]) {
+                        Some(q) => cur = q,
+                        None => break,
+                    }
+                }
+                let m = order.len();
+                let closed = first
+                    && best > 1
+                    && m == comp.len()
+                    && m >= 3
+                    && adjacent(pix[order[0]], pix[order[m - 1]], torus.then_some((nx, ny)));
+                first = false;
+                counts[0] += closed as usize;
+                chains.push(Chain {
+                    pixels: order.iter().map(|&p| pix[p]).collect(),
+                    closed,
+                });
+            }
+            if chains.len() > chains_before + 1 {
+                counts[1] += 1;
+                counts[2] += (nb(comp[0]).len() <= 1) as usize;
+            }
+        }
+        (chains, counts)
+    }
+
+    #[test]
+    fn chains_match_the_plain_decomposition() {
+        // random pixel sets, sparse to dense (dense ones are tangles whose
+        // components split into many chains), on the plane and the torus
+        let mut rng = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            rng
+        };
+        let mut seen = [0; 3];
+        for trial in 0..600 {
+            let (ny, nx) = (5 + next() % 20, 5 + next() % 20);
+            let density = [0.12, 0.25, 0.4, 0.6][trial % 4];
+            let torus = trial % 8 >= 4;
+            let pix: Vec<(u32, u32)> = (0..ny * nx)
+                .filter(|_| (next() % 1000) as f64 / 1000.0 < density)
+                .map(|i| ((i % nx) as u32, (i / nx) as u32))
+                .collect();
+            let cand = pix
+                .iter()
+                .map(|&(x, y)| Px {
+                    x,
+                    y,
+                    m: 1.0 + (next() % 7) as f64,
+                    t: Complex64::new(1.0, 0.5),
+                })
+                .collect();
+            let mut s = DetectScratch {
+                cand,
+                ..Default::default()
+            };
+            let domain = Domain::interior(ny as usize, nx as usize, if torus { 0 } else { 1 });
+            assert_eq!(domain.is_torus(), torus);
+            let out = finish(ScaleMaxima::default(), 8.0, &domain, 0.0, 1.0, true, &mut s);
+            let (want, counts) = reference_chains(&pix, ny as u32, nx as u32, torus);
+            assert_eq!(out.chains, want, "trial {trial}: {ny}x{nx}, torus {torus}");
+            assert_eq!(out.n_chains, want.len());
+            assert_eq!(out.n_wtmm, pix.len());
+            for (s, c) in seen.iter_mut().zip(counts) {
+                *s += c;
+            }
+        }
+        // closed chains, split components, and split components whose
+        // raster-first pixel is an end (walked before being collected)
+        assert!(seen.iter().all(|&c| c >= 50), "{seen:?}");
     }
 
     /// The slow reference: list the runs, then test each against its
