@@ -145,10 +145,17 @@ fn offset(last: &LinePoint, x: u32, y: u32, period: Option<(u32, u32)>) -> (i64,
     let d = |a: u32, b: u32, n: Option<u32>| {
         let d = a as i64 - b as i64;
         match n {
+            // the nearest image: |d| < n as both lie on the torus (no
+            // division: this runs for every candidate of every line)
             Some(n) => {
                 let n = n as i64;
-                let d = d.rem_euclid(n);
-                if 2 * d > n { d - n } else { d }
+                if 2 * d > n {
+                    d - n
+                } else if 2 * d <= -n {
+                    d + n
+                } else {
+                    d
+                }
             }
             None => d,
         }
@@ -171,6 +178,9 @@ struct Buckets {
     period: Option<(u32, u32)>,
     start: Vec<u32>,
     idx: Vec<u32>,
+    /// `(x, y, m)` of `idx[i]`, in the same (cell) order: the search reads
+    /// its cells' WTMMM contiguously.
+    pts: Vec<(u32, u32, f64)>,
 }
 
 impl Buckets {
@@ -206,11 +216,14 @@ impl Buckets {
         }
         self.idx.clear();
         self.idx.resize(sm.wtmmm.len(), 0);
+        self.pts.clear();
+        self.pts.resize(sm.wtmmm.len(), (0, 0, 0.0));
         let mut fill = self.start.clone();
         for (k, w) in sm.wtmmm.iter().enumerate() {
             let (cx, cy) = self.cell_of(w.x, w.y);
             let c = (cy * self.gx + cx) as usize;
             self.idx[fill[c] as usize] = k as u32;
+            self.pts[fill[c] as usize] = (w.x, w.y, w.m);
             fill[c] += 1;
         }
     }
@@ -236,10 +249,8 @@ impl Buckets {
     /// `d^2 <= max_d2`) whose modulus ratio lies in `(lo, hi)` and that is
     /// not `taken`: `(index, d^2)` (`u32::MAX` if none), and whether the box
     /// held any WTMMM at all. `ri` must not exceed the cell size.
-    #[allow(clippy::too_many_arguments)]
     fn nearest(
         &self,
-        sm: &ScaleMaxima,
         last: &LinePoint,
         ri: i64,
         max_d2: f64,
@@ -253,9 +264,9 @@ impl Buckets {
         for yy in Self::around(cy, self.gy, wrap) {
             for xx in Self::around(cx, self.gx, wrap) {
                 let c = (yy * self.gx + xx) as usize;
-                for &k in &self.idx[self.start[c] as usize..self.start[c + 1] as usize] {
-                    let w = &sm.wtmmm[k as usize];
-                    let (dx, dy) = offset(last, w.x, w.y, self.period);
+                let cell = self.start[c] as usize..self.start[c + 1] as usize;
+                for (&k, &(x, y, m)) in self.idx[cell.clone()].iter().zip(&self.pts[cell]) {
+                    let (dx, dy) = offset(last, x, y, self.period);
                     if dx.abs() > ri || dy.abs() > ri {
                         continue;
                     }
@@ -267,7 +278,7 @@ impl Buckets {
                     if taken.is_some_and(|t| t[k as usize]) {
                         continue;
                     }
-                    let ratio = w.m / last.m;
+                    let ratio = m / last.m;
                     if !(ratio > lo && ratio < hi) {
                         continue;
                     }
@@ -515,7 +526,7 @@ impl Linker {
         // each alive line's nearest acceptable candidate
         self.want.clear();
         for last in &self.last {
-            let (best, in_box) = self.buckets.nearest(sm, last, ri, max_d2, (lo, hi), None);
+            let (best, in_box) = self.buckets.nearest(last, ri, max_d2, (lo, hi), None);
             if best.0 == u32::MAX {
                 if in_box {
                     ends.ratio += 1;
