@@ -759,6 +759,15 @@ impl RowFilter<'_> {
             unsafe fn avx2(rf: &RowFilter, row: &mut [Complex64], src: &[Complex64], m: bool) {
                 rf.apply_impl(row, src, m)
             }
+            #[target_feature(enable = "avx512f")]
+            unsafe fn avx512(rf: &RowFilter, row: &mut [Complex64], src: &[Complex64], m: bool) {
+                rf.apply_impl(row, src, m)
+            }
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU supports AVX-512F (checked just above).
+                unsafe { avx512(self, row, src, mirrored) };
+                return;
+            }
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the CPU supports AVX2 (checked just above).
                 unsafe { avx2(self, row, src, mirrored) };
