@@ -246,16 +246,15 @@ impl Buckets {
     }
 
     /// The nearest WTMMM to `last` within the box of half-width `ri` (and
-    /// `d^2 <= max_d2`) whose modulus ratio lies in `(lo, hi)` and that is
-    /// not `taken`: `(index, d^2)` (`u32::MAX` if none), and whether the box
-    /// held any WTMMM at all. `ri` must not exceed the cell size.
+    /// `d^2 <= max_d2`) whose modulus ratio lies in `(lo, hi)`: `(index,
+    /// d^2)` (`u32::MAX` if none), and whether the box held any WTMMM at
+    /// all. `ri` must not exceed the cell size.
     fn nearest(
         &self,
         last: &LinePoint,
         ri: i64,
         max_d2: f64,
         (lo, hi): (f64, f64),
-        taken: Option<&[bool]>,
     ) -> ((u32, f64), bool) {
         let (cx, cy) = self.cell_of(last.x, last.y);
         let mut best = (u32::MAX, f64::INFINITY);
@@ -275,9 +274,6 @@ impl Buckets {
                         continue;
                     }
                     in_box = true;
-                    if taken.is_some_and(|t| t[k as usize]) {
-                        continue;
-                    }
                     let ratio = m / last.m;
                     if !(ratio > lo && ratio < hi) {
                         continue;
@@ -526,7 +522,7 @@ impl Linker {
         // each alive line's nearest acceptable candidate
         self.want.clear();
         for last in &self.last {
-            let (best, in_box) = self.buckets.nearest(last, ri, max_d2, (lo, hi), None);
+            let (best, in_box) = self.buckets.nearest(last, ri, max_d2, (lo, hi));
             if best.0 == u32::MAX {
                 if in_box {
                     ends.ratio += 1;
