@@ -719,7 +719,6 @@ fn finish_on<const TORUS: bool>(
         // component's unwalked pixels: 3 once it is collected, 1 before.
         let seed_px = [seed as u32, x + 1, y + 1];
         let (mut start, mut had_end, mut open);
-        let mut remaining = usize::MAX;
         let mut comp_len = 0;
         if nmask[seed].count_ones() <= 1 {
             // an end first in raster order has the least key: it starts
@@ -743,7 +742,6 @@ fn finish_on<const TORUS: bool>(
                 .min_by_key(|&(k, _)| k)
                 .expect("the seed is in its component");
             comp_len = s.comp.len();
-            remaining = comp_len;
             had_end = key >> 32 <= 1;
             open = 3;
         }
@@ -758,24 +756,16 @@ fn finish_on<const TORUS: bool>(
                         // the walk was the whole component
                         break;
                     }
-                    // collect the rest: the unwalked pixels reached from the walk
+                    // collect the rest: the unwalked pixels reached from
+                    // the walk (the walked ones leave `comp` just below)
                     s.comp.clear();
                     s.stack.clear();
-                    for &p in &s.order {
-                        for q in neighbours(p) {
-                            if state[q[0] as usize] == 1 {
-                                state[q[0] as usize] = 3;
-                                s.stack.push(q);
-                            }
-                        }
-                    }
+                    s.stack.extend_from_slice(&s.order);
                     collect(&mut s.stack, &mut s.comp, state, neighbours);
-                    remaining = s.comp.len();
                     open = 3;
-                } else {
-                    s.comp.retain(|p| state[p[0] as usize] == 3);
                 }
-                if remaining == 0 {
+                s.comp.retain(|p| state[p[0] as usize] == 3);
+                if s.comp.is_empty() {
                     break;
                 }
                 let key;
@@ -787,7 +777,7 @@ fn finish_on<const TORUS: bool>(
                         (start_key(c as u32, p[0]), p)
                     })
                     .min_by_key(|&(k, _)| k)
-                    .expect("remaining > 0");
+                    .expect("comp is not empty");
                 had_end = key >> 32 <= 1;
             }
             // the walk: each step to the first unwalked neighbour in NEIGH order
@@ -796,7 +786,6 @@ fn finish_on<const TORUS: bool>(
             loop {
                 state[cur[0] as usize] = 2;
                 s.order.push(cur);
-                remaining = remaining.wrapping_sub(1);
                 let mut next = neighbours(cur).filter(|q| state[q[0] as usize] == open);
                 match next.next() {
                     Some(j) => {
