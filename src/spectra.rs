@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::skeleton::Skeleton;
-use crate::stats::fit::line_fit;
+use crate::stats::fit::{line_fit, slope_change};
 
 /// Which modulus a line contributes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -508,28 +508,58 @@ impl PartitionSums {
         let (legendre_h, legendre_d) = legendre(&self.q, &est.tau);
         let mut warnings = Vec::new();
         for qi in 0..nq {
-            let qv = self.q[qi];
             if !est.tau[qi].is_finite() {
                 warnings.push(format!(
-                    "q = {qv}: tau not estimable (empty partition function in the fit range)"
-                ));
-                continue;
-            }
-            if est.r2[qi] < R2_WARN {
-                warnings.push(format!(
-                    "q = {qv}: poor power law, R^2 = {:.4} < {R2_WARN} over the fit range",
-                    est.r2[qi]
+                    "q = {}: tau not estimable (empty partition function in the fit range)",
+                    self.q[qi]
                 ));
             }
-            let worst = in_fit
-                .iter()
-                .map(|&j| ens.n_eff[qi * ns + j])
-                .fold(f64::INFINITY, f64::min);
-            if worst < N_EFF_WARN {
-                warnings.push(format!(
-                    "q = {qv}: Z(q, a) is dominated by {worst:.1} effective maxima lines at the largest fitted scales (< {N_EFF_WARN})"
-                ));
+        }
+        // the per-q diagnostics below come in runs of neighbouring q (the
+        // tails of the q range): one warning per run, not one per q
+        let curved: Vec<Option<f64>> = (0..nq)
+            .map(|qi| {
+                let d = est.slope_change[qi];
+                (est.tau[qi].is_finite() && d.abs() > SLOPE_CHANGE_WARN).then_some(d)
+            })
+            .collect();
+        // a run of several q quotes its extreme value and where it is
+        let at = |run: &str, qi: usize, most: &str| {
+            if run.contains(',') || run.contains("..") {
+                (format!("{most} "), format!(" (at q = {})", self.q[qi]))
+            } else {
+                (String::new(), String::new())
             }
+        };
+        for (run, qi) in runs(&self.q, &curved, f64::abs) {
+            let (most, where_) = at(&run, qi, "up to");
+            warnings.push(format!(
+                "{run}: log2 Z(q, a) is not a straight line over the fit range: its local slope \
+                 changes by {most}{:+.2}{where_} from a = {:.2} to {:.2} px (more than \
+                 {SLOPE_CHANGE_WARN}: the local tau(q) strays more than {} either side of the \
+                 fitted one)",
+                est.slope_change[qi],
+                self.scales[in_fit[0]],
+                self.scales[last_fit],
+                SLOPE_CHANGE_WARN / 2.0
+            ));
+        }
+        let dominated: Vec<Option<f64>> = (0..nq)
+            .map(|qi| {
+                let worst = in_fit
+                    .iter()
+                    .map(|&j| ens.n_eff[qi * ns + j])
+                    .fold(f64::INFINITY, f64::min);
+                (est.tau[qi].is_finite() && worst < N_EFF_WARN).then_some(worst)
+            })
+            .collect();
+        for (run, qi) in runs(&self.q, &dominated, |n| -n) {
+            let (most, where_) = at(&run, qi, "as few as");
+            warnings.push(format!(
+                "{run}: Z(q, a) is dominated by {most}{:.1} effective maxima lines{where_} at the \
+                 largest fitted scales (< {N_EFF_WARN})",
+                dominated[qi].unwrap_or(f64::NAN),
+            ));
         }
         // II §3.1: a wavelet with n vanishing moments measures exponents
         // below n; where the lines grow like a^n or faster the estimate is
@@ -625,6 +655,7 @@ impl PartitionSums {
             h: est.h,
             d: est.d,
             tau_r2: est.r2,
+            tau_slope_change: est.slope_change,
             legendre_h,
             legendre_d,
             log2_scales: log2_a,
@@ -638,10 +669,45 @@ impl PartitionSums {
     }
 }
 
-/// R^2 below which a fit is flagged.
-pub const R2_WARN: f64 = 0.99;
+/// Change of the local slope of `log2 Z(q, a)` across the fit range above
+/// which a fit is flagged as no power law: the fitted tau(q) then stands for
+/// local slopes more than 0.1 either side of it, the size of the tau
+/// tolerances of SPEC §11. (R^2 was the test before; it calls every flat
+/// power law, tau ~ 0, a poor one and passes strong curvature where tau is
+/// steep.)
+pub const SLOPE_CHANGE_WARN: f64 = 0.2;
 /// Effective number of lines below which a cell is flagged as dominated.
 pub const N_EFF_WARN: f64 = 10.0;
+
+/// Runs of neighbouring q (adjacent in the q list) that carry a value:
+/// per run its label (`q = a`, `q = a, b`, `q = a .. b`) and the index of
+/// its most extreme value (the largest `key`).
+fn runs(q: &[f64], v: &[Option<f64>], key: impl Fn(f64) -> f64) -> Vec<(String, usize)> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < v.len() {
+        if v[i].is_none() {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        let mut worst = i;
+        while i + 1 < v.len() && v[i + 1].is_some() {
+            i += 1;
+            if key(v[i].unwrap_or(f64::NAN)) > key(v[worst].unwrap_or(f64::NAN)) {
+                worst = i;
+            }
+        }
+        let label = match i - start {
+            0 => format!("q = {}", q[start]),
+            1 => format!("q = {}, {}", q[start], q[i]),
+            _ => format!("q = {} .. {}", q[start], q[i]),
+        };
+        out.push((label, worst));
+        i += 1;
+    }
+    out
+}
 
 /// Jackknife where available, regression otherwise.
 fn pick(jk: &[f64], reg: &[f64]) -> Vec<f64> {
@@ -739,6 +805,7 @@ struct Estimates {
     tau: Vec<f64>,
     tau_se: Vec<f64>,
     r2: Vec<f64>,
+    slope_change: Vec<f64>,
     h: Vec<f64>,
     h_se: Vec<f64>,
     d: Vec<f64>,
@@ -753,6 +820,7 @@ impl Estimates {
             tau: vec![f64::NAN; q.len()],
             tau_se: vec![f64::NAN; q.len()],
             r2: vec![f64::NAN; q.len()],
+            slope_change: vec![f64::NAN; q.len()],
             h: vec![f64::NAN; q.len()],
             h_se: vec![f64::NAN; q.len()],
             d: vec![f64::NAN; q.len()],
@@ -771,6 +839,7 @@ impl Estimates {
                 e.tau[qi] = fz.slope;
                 e.tau_se[qi] = fz.slope_stderr;
                 e.r2[qi] = fz.r2;
+                e.slope_change[qi] = slope_change(&x, &z).unwrap_or(f64::NAN);
                 e.h[qi] = fh.slope;
                 e.h_se[qi] = fh.slope_stderr;
                 e.d[qi] = fd.slope;
@@ -850,6 +919,11 @@ pub struct Spectra {
     pub tau_stderr: Vec<f64>,
     /// R^2 of the log2 Z fits.
     pub tau_r2: Vec<f64>,
+    /// How much the local slope of `log2 Z(q, a)` changes across the fit
+    /// range (`stats::slope_change`; 0 for a pure power law); NaN where tau
+    /// is. Flagged beyond [`SLOPE_CHANGE_WARN`].
+    #[serde(default)]
+    pub tau_slope_change: Vec<f64>,
     /// Canonical h(q) and D(q) (slopes of h(q, a) and D(q, a)).
     pub h: Vec<f64>,
     /// Standard error of h(q), as `tau_stderr`.
@@ -884,8 +958,9 @@ pub struct Spectra {
     pub n_eff: Vec<Vec<f64>>,
     /// Maxima lines alive per scale (all images).
     pub lines: Vec<u64>,
-    /// Human-readable warnings: q not estimable, poor power laws (R^2 below
-    /// [`R2_WARN`]), cells dominated by few lines (below [`N_EFF_WARN`]),
+    /// Human-readable warnings: q not estimable, curved log2 Z (local slope
+    /// changing by more than [`SLOPE_CHANGE_WARN`]), cells dominated by few
+    /// lines (below [`N_EFF_WARN`]), runs of neighbouring q in one warning,
     /// missing pixels, mixed image sizes, few lines at the top of the fit.
     pub warnings: Vec<String>,
 }
@@ -1080,6 +1155,68 @@ mod tests {
             ..Default::default()
         });
         s
+    }
+
+    /// A power law is flagged by how much its local slope changes, not by
+    /// R^2: Z(q, a) ~ a^tau with tau(4) = 0 exactly (h = 1/2) passes at
+    /// every q, and log2 M = h L + c L^2 (L = log2 a) is flagged exactly
+    /// where the slope of q log2 M changes by 2 c q (L_max - L_min) > 0.2.
+    #[test]
+    fn curved_partition_functions_are_flagged_flat_ones_not() {
+        let sums = |c: f64| {
+            let scales: Vec<f64> = (0..41).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+            let values: Vec<Vec<f64>> = scales
+                .iter()
+                .map(|&a| {
+                    // n ~ a^-2 to 0.3 % at the largest fitted scale
+                    let n = 7 * (40000.0 / (a / 1.5).powi(2)).round() as usize;
+                    let l = a.log2();
+                    (0..n)
+                        .map(|k| 0.5 * l + c * l * l + ((k % 7) as f64 - 3.0) * 0.1)
+                        .collect()
+                })
+                .collect();
+            let q: Vec<f64> = (-4..=4).map(f64::from).collect();
+            PartitionSums::from_log2_values(&scales, &values, &q, "x")
+                .unwrap()
+                .spectra(Rule::Plain, (0.5, 4.0))
+                .unwrap()
+        };
+        let flat = sums(0.0);
+        let i4 = flat.q_index(4.0).unwrap();
+        assert!(flat.tau[i4].abs() < 0.01, "tau(4) = {}", flat.tau[i4]);
+        assert!(
+            flat.tau_r2[i4] < 0.5,
+            "R^2 {} would have flagged it",
+            flat.tau_r2[i4]
+        );
+        assert!(flat.tau_slope_change.iter().all(|d| d.abs() < 0.01));
+        assert!(
+            !flat.warnings.iter().any(|w| w.contains("straight line")),
+            "{:?}",
+            flat.warnings
+        );
+        let c = 0.02;
+        let curved = sums(c);
+        let (lo, hi) = (curved.fit_scales.0.log2(), curved.fit_scales.1.log2());
+        for (i, &qv) in curved.q.iter().enumerate() {
+            let expect = 2.0 * c * qv * (hi - lo);
+            assert!(
+                (curved.tau_slope_change[i] - expect).abs() < 0.01,
+                "q = {qv}: {} for {expect}",
+                curved.tau_slope_change[i]
+            );
+        }
+        let said: Vec<&String> = curved
+            .warnings
+            .iter()
+            .filter(|w| w.contains("straight line"))
+            .collect();
+        assert_eq!(said.len(), 2, "{said:?}");
+        assert!(
+            said[0].starts_with("q = -4 .. -2: ") && said[0].contains("up to -0.56 (at q = -4)")
+        );
+        assert!(said[1].starts_with("q = 2 .. 4: ") && said[1].contains("up to +0.56 (at q = 4)"));
     }
 
     #[test]

@@ -122,6 +122,62 @@ pub fn line_fit(x: &[f64], y: &[f64]) -> Option<LineFit> {
     })
 }
 
+/// How much the local slope of `y(x)` changes across the range of `x`:
+/// `2 c (x_max - x_min)` for the least-squares parabola `a + b x + c x^2`
+/// through the finite points. A straight line gives 0; a fitted slope
+/// stands for local slopes within about half this value either side.
+/// Unlike R^2 it does not depend on the slope itself, so a flat power law
+/// (tau(q) ~ 0) is not taken for a poor one. `None` with fewer than 3
+/// usable points or fewer than 3 distinct `x`.
+///
+/// **Panics** if `x` and `y` differ in length.
+pub fn slope_change(x: &[f64], y: &[f64]) -> Option<f64> {
+    assert_eq!(x.len(), y.len(), "slope_change: x and y lengths differ");
+    let pts: Vec<(f64, f64)> = x
+        .iter()
+        .zip(y)
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .map(|(a, b)| (*a, *b))
+        .collect();
+    if pts.len() < 3 {
+        return None;
+    }
+    let nf = pts.len() as f64;
+    let mx = pts.iter().map(|p| p.0).sum::<f64>() / nf;
+    let my = pts.iter().map(|p| p.1).sum::<f64>() / nf;
+    let mu = pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>() / nf;
+    // Frisch-Waugh: c is the slope of y's residual (after the line in x) on
+    // the residual of u = (x - mx)^2 (after the same line)
+    let (mut sxx, mut sxu, mut sxy) = (0.0, 0.0, 0.0);
+    for &(a, b) in &pts {
+        let dx = a - mx;
+        sxx += dx * dx;
+        sxu += dx * (dx * dx - mu);
+        sxy += dx * (b - my);
+    }
+    if sxx <= 0.0 {
+        return None;
+    }
+    let (bu, by) = (sxu / sxx, sxy / sxx);
+    let (mut suu, mut suy) = (0.0, 0.0);
+    for &(a, b) in &pts {
+        let dx = a - mx;
+        let ru = dx * dx - mu - bu * dx;
+        suu += ru * ru;
+        suy += ru * (b - my - by * dx);
+    }
+    // two distinct x leave no curvature to fit (ru = 0 up to rounding)
+    if suu <= 1e-12 * sxx * sxx / nf {
+        return None;
+    }
+    let (lo, hi) = pts
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+            (l.min(p.0), h.max(p.0))
+        });
+    Some(2.0 * suy / suu * (hi - lo))
+}
+
 /// Mean and sample standard deviation (NaN for fewer than 2 values).
 pub fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len() as f64;
@@ -178,6 +234,22 @@ mod tests {
         assert!((f.slope - 1.0).abs() < 1e-14);
         let expect = (4.0 / 2.0 / 5.0f64).sqrt();
         assert!((f.slope_stderr - expect).abs() < 1e-14);
+    }
+
+    /// The change of the local slope is exact on a parabola, 0 on a line
+    /// whatever its slope, and undefined without three distinct x.
+    #[test]
+    fn slope_change_of_a_parabola() {
+        let x: Vec<f64> = (0..20).map(|i| 0.6 + 0.1 * f64::from(i)).collect();
+        // y' = b + 2 c x goes from b + 2 c 0.6 to b + 2 c 2.5: a change of 3.8 c
+        for (b, c) in [(0.0, 0.3), (-2.0, -0.05), (5.0, 0.0)] {
+            let y: Vec<f64> = x.iter().map(|v| 1.0 + b * v + c * v * v).collect();
+            let d = slope_change(&x, &y).unwrap();
+            assert!((d - 3.8 * c).abs() < 1e-12, "b {b} c {c}: {d}");
+        }
+        assert!(slope_change(&[0.0, 1.0], &[0.0, 1.0]).is_none());
+        assert!(slope_change(&[0.0, 1.0, 1.0, 0.0], &[0.0, 1.0, 2.0, 3.0]).is_none());
+        assert!(slope_change(&[0.0, 1.0, f64::NAN, 2.0], &[0.0, 1.0, 9.0, 4.0]).is_some());
     }
 
     #[test]

@@ -7,4 +7,4 @@ pub mod kernel;
 pub mod pdf;
 pub mod powspec;
 
-pub use fit::{LineFit, jackknife_se, line_fit};
+pub use fit::{LineFit, jackknife_se, line_fit, slope_change};
