@@ -1088,7 +1088,22 @@ pub fn image_sums(
     q: &[f64],
     label: impl Into<String>,
 ) -> Result<PartitionSums> {
-    let sk = crate::skeleton::skeleton(field, cfg)?;
+    image_sums_with(field, cfg, q, label, crate::skeleton::Parallelism::Serial)
+}
+
+/// [`image_sums`] with the scales detected in parallel or not
+/// ([`crate::skeleton::Parallelism`]; the sums are the same bits either
+/// way): `Scales` for a lone image, `Serial` when images run in parallel.
+///
+/// **Errors** as [`image_sums`].
+pub fn image_sums_with(
+    field: &crate::Field,
+    cfg: &crate::skeleton::AnalysisConfig,
+    q: &[f64],
+    label: impl Into<String>,
+    par: crate::skeleton::Parallelism,
+) -> Result<PartitionSums> {
+    let sk = crate::skeleton::skeleton_with(field, cfg, par, &[])?;
     let mut s = PartitionSums::from_skeleton(&sk, q, label);
     s.analysis = Some(cfg.clone());
     let (ny, nx) = field.dim();

@@ -342,6 +342,63 @@ fn reconstruction_with_the_true_kernel() {
     assert!((three[0].l1 - good[0].l1).abs() < 1e-9);
 }
 
+/// A monofractal's kernel is a pure shift by c1 (c2 = 0), and a measured c2
+/// below 0 (noise, on such data) gives no density: `reconstruct` refuses
+/// it (it used to amplify the histogram's noise by up to e^12, L1 ~ 1e5)
+/// and the shift alone reproduces P_a to the counting noise. Without
+/// smoothing the prediction is the source histogram moved by a non-integer
+/// number of bins; a band-limited shift keeps white noise white at the
+/// same variance, so the L1 is that of two independent histograms,
+/// `v_b = 2 π_b (1 - π_b)/(N d²)` (4 sd as above, one-sided, since the
+/// interpolation can only smooth).
+#[test]
+fn reconstruction_of_a_pure_shift() {
+    let scales = [1.0, 4.0];
+    let c1 = -0.38;
+    let s = (4.0f64).ln();
+    let big_n = 400_000usize;
+    let mut h = WtmmmHistograms::new(&scales, PdfConfig::default()).unwrap();
+    let mut rng = rng_for(8, 0);
+    let base = Normal::new(1.0, 0.4).unwrap();
+    for _ in 0..big_n {
+        let u: f64 = base.sample(&mut rng);
+        h.add(1, u.exp(), 0.0);
+        let v = base.sample(&mut rng) + c1 * s;
+        h.add(0, v.exp(), 0.0);
+    }
+    let err = reconstruct(&h, 0, &[1], &[c1, -0.004]).unwrap_err();
+    assert!(err.to_string().contains("c2 = -0.004 < 0"), "{err}");
+    assert!(reconstruct(&h, 0, &[1], &[c1, -0.004, 0.001]).is_err());
+    let shift = reconstruct(&h, 0, &[1], &[c1]).unwrap();
+    let zero_c2 = reconstruct(&h, 0, &[1], &[c1, 0.0]).unwrap();
+    assert!((shift[0].l1 - zero_c2[0].l1).abs() < 1e-9);
+    let d = h.config.dlnm;
+    let nf = big_n as f64;
+    let (mut mean, mut var) = (0.0, 0.0);
+    for &p in &shift[0].measured {
+        let pi_b = p * d;
+        let v = 2.0 * pi_b * (1.0 - pi_b) / (nf * d * d);
+        mean += d * (2.0 * v / PI).sqrt();
+        var += d * d * v * (1.0 - 2.0 / PI);
+    }
+    let sd = var.sqrt();
+    println!(
+        "L1 of the shift {:.5}; counting noise {mean:.5} +- {sd:.5}",
+        shift[0].l1
+    );
+    assert!(
+        shift[0].l1 < mean + 4.0 * sd,
+        "l1 {} vs {mean} +- {sd}",
+        shift[0].l1
+    );
+    let off = reconstruct(&h, 0, &[1], &[c1 + 0.1]).unwrap();
+    assert!(
+        off[0].l1 > mean + 10.0 * sd,
+        "a wrong shift: l1 {}",
+        off[0].l1
+    );
+}
+
 // ---------------------------------------------------------------- pdfs
 
 /// The densities of [`wtmmm_pdfs`] for a known law: `N = 200 000` points

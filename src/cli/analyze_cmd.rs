@@ -13,8 +13,8 @@ use super::{CwtOpts, OutDir, Outcome};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
-use crate::skeleton::{AnalysisConfig, LinkParams, SearchRadius};
-use crate::spectra::{PartitionSums, Rule, Spectra, image_sums};
+use crate::skeleton::{AnalysisConfig, LinkParams, Parallelism, SearchRadius};
+use crate::spectra::{PartitionSums, Rule, Spectra, image_sums_with};
 use crate::theory::{Model, TheoryTable};
 
 /// Options of every command that builds maxima lines: the scale grid and
@@ -264,11 +264,18 @@ pub fn analyze_paths(
     quiet: bool,
 ) -> Result<PartitionSums> {
     let pb = progress(paths.len() as u64, "analyze", quiet);
+    // a lone image (a DEM) would leave all but one core idle: detect its
+    // scales in parallel instead (the same sums to the bit)
+    let par = if paths.len() == 1 {
+        Parallelism::Scales
+    } else {
+        Parallelism::Serial
+    };
     let parts: Vec<PartitionSums> = paths
         .par_iter()
         .map(|p| {
             let field = super::common::read_image(p)?;
-            let s = image_sums(&field, cfg, q, p.display().to_string())
+            let s = image_sums_with(&field, cfg, q, p.display().to_string(), par)
                 .map_err(|e| Error::format(p, e.to_string()))?;
             if s.images[0].lines[0] == 0 {
                 return Err(Error::format(p, super::common::NO_MAXIMA));

@@ -308,7 +308,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         (Some(m), Some(a)) => (m, a),
         _ => return Err(Error::Input("no image in the input".into())),
     };
-    let main = kernel_estimates(main_sums, &kopts)?;
+    let mut main = kernel_estimates(main_sums, &kopts)?;
     // scales short of WTMMM: an error for the set asked, a note on the other
     check_wtmmm_counts(main_sums, &kopts).map_err(|e| input.blame(e))?;
     let mut alt = kernel_estimates(alt_sums, &kopts)?;
@@ -322,9 +322,20 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         .map(|g| kernel_estimates(g, &kopts))
         .transpose()?;
     let rj = scales_at(&scales, &rec);
-    let c = main.cumulants.values();
+    let mut c = main.cumulants.values().to_vec();
+    if c[1] < 0.0 {
+        // a kernel with c2 < 0 is no density (reconstruct refuses it); the
+        // shift by c1 is the kernel of a monofractal, the case this is
+        main.warnings.push(format!(
+            "c2 = {:.5} < 0 (no intermittency to within the errors, or a bias): the Fig 29 \
+             reconstruction uses the shift by c1 alone, for both kernels",
+            c[1]
+        ));
+        c.truncate(1);
+    }
     // an empty target or source scale is a fault of the data
-    let recon2 = reconstruct(&acc.hist, rj[0], &rj[1..], &c[..2]).map_err(|e| input.blame(e))?;
+    let recon2 = reconstruct(&acc.hist, rj[0], &rj[1..], &c[..c.len().min(2)])
+        .map_err(|e| input.blame(e))?;
     let recon3 = reconstruct(&acc.hist, rj[0], &rj[1..], &c).map_err(|e| input.blame(e))?;
     let out = KernelOutputs {
         main,
@@ -736,11 +747,13 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         save_chart(&c, &dir.join(format!("cumulant_C{}.png", n + 1)))?;
     }
     // II Fig 29: pdfs pushed through the estimated kernel
-    for (file, rs, what) in [
-        ("reconstruction.png", &o.recon2, "c1, c2"),
-        ("reconstruction_c3.png", &o.recon3, "c1, c2, c3"),
+    for (file, rs) in [
+        ("reconstruction.png", &o.recon2),
+        ("reconstruction_c3.png", &o.recon3),
     ] {
         let Some(first) = rs.first() else { continue };
+        // the cumulants actually used (c1 alone where c2 < 0)
+        let what = ["c1", "c1, c2", "c1, c2, c3"][first.c.len().clamp(1, 3) - 1];
         let mut c = Chart {
             title: title(&format!(
                 "P_a' pushed to a = {:.2} px, {what} (Fig 29)",

@@ -1079,7 +1079,11 @@ pub struct Reconstruction {
 /// wraps around.
 ///
 /// **Errors** if a scale index is out of range, a source is not larger than
-/// the target, `c` is empty or not finite, or a histogram is empty.
+/// the target, `c` is empty or not finite, `c2 < 0` (then `|Ĝ|` grows like
+/// `exp(|c2| s p^2 / 2)`: no probability density, and the counting noise
+/// of the histogram is amplified without bound; a measured c2 below 0, as
+/// on a monofractal, calls for the shift `c = [c1]`), or a histogram is
+/// empty.
 pub fn reconstruct(
     h: &WtmmmHistograms,
     to: usize,
@@ -1089,6 +1093,16 @@ pub fn reconstruct(
     let ns = h.scales.len();
     if c.is_empty() || c.iter().any(|v| !v.is_finite()) {
         return Err(Error::param("cumulants", "need finite c1, c2, ..."));
+    }
+    if c.len() > 1 && c[1] < 0.0 {
+        return Err(Error::param(
+            "cumulants",
+            format!(
+                "c2 = {} < 0 gives no probability density (the kernel would amplify \
+                 the histogram's noise without bound); use c1 alone for a shift",
+                c[1]
+            ),
+        ));
     }
     if to >= ns || from.iter().any(|&f| f >= ns || f <= to) {
         return Err(Error::param(
