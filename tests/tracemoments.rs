@@ -758,6 +758,39 @@ fn jackknife_errors_reflect_the_ensemble_scatter() {
     assert!(r.stderr_method.contains("jackknife"));
 }
 
+/// Every level of the box pyramid averages over the same region, so a
+/// conserved flux keeps `<φ_λ> = 1` at every λ (K(1) = 0 up to rounding)
+/// on images whose sides are not powers of two. Boxes tiled from one
+/// corner used to cover less of the image the larger they were: on the
+/// 511^2 crop of this log-normal cascade (σ² of ln W = 0.14) log2 <φ_λ>
+/// drifted by 0.76 from the finest to the largest box. A power-of-two
+/// image is one window and unchanged.
+#[test]
+fn box_moments_see_the_same_region_at_every_scale() {
+    let phi = cascade(9, 0.37, 11, 0);
+    let cfg = TraceMomentConfig::default();
+    let fc = TraceMomentFitConfig {
+        log2_lambda: Some((0.0, 7.0)),
+        ..Default::default()
+    };
+    let i1 = cfg.q.iter().position(|&q| q == 1.0).unwrap();
+    for (ny, nx) in [(511, 511), (300, 300), (200, 330), (512, 512)] {
+        let crop = phi.slice(ndarray::s![0..ny, 0..nx]);
+        let mut acc = TraceMomentAccumulator::new(cfg.clone()).unwrap();
+        acc.add_flux(crop, None).unwrap();
+        let r = acc.finish(&fc).unwrap();
+        let drift = r.log2_moments[i1]
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(
+            drift < 1e-12,
+            "{ny}x{nx}: log2 <phi_lambda> off 0 by {drift}"
+        );
+        assert!(r.k[i1].abs() < 1e-12, "{ny}x{nx}: K(1) = {}", r.k[i1]);
+    }
+}
+
 /// The tiles of one field add up to the whole field at every fitted box
 /// size: identical K(q), and a block-jackknife error.
 #[test]

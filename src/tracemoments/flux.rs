@@ -175,10 +175,33 @@ pub(crate) fn flux(
     Ok((phi, ok))
 }
 
+/// The windows every level of the box pyramid is computed on, as `(y0, x0,
+/// ny, nx)`: of sides the largest multiples of `L = 2^floor(log2 min(ny,
+/// nx))` that fit, anchored at the four corners (the distinct ones; one
+/// window, the image, when both sides are multiples of L). Every level must
+/// average over the same region: boxes tiled from one corner would cover
+/// less and less of a non-power-of-two image as they grow (25 % of a 511^2
+/// image at 256 px against all of it at 2 px), so the moments of different
+/// scales would see different parts of the field, and a conserved flux
+/// would not keep K(1) = 0 (log2 <φ_λ> drifted by +0.36 on a 511^2 FIF).
+/// The windows cover every pixel; the overlap weighs the central pixels
+/// more, the same at every level.
+pub(crate) fn windows(ny: usize, nx: usize) -> Vec<(usize, usize, usize, usize)> {
+    let l = 1usize << (ny.min(nx) as f64).log2().floor() as u32;
+    let (ry, rx) = (ny / l * l, nx / l * l);
+    let mut ys = vec![0, ny - ry];
+    let mut xs = vec![0, nx - rx];
+    ys.dedup();
+    xs.dedup();
+    ys.iter()
+        .flat_map(|&y| xs.iter().map(move |&x| (y, x, ry, rx)))
+        .collect()
+}
+
 /// Sums and valid counts over boxes of side `2^k`, `k = 0..=kmax`
-/// (`kmax = floor(log2 min(ny, nx))`); boxes tile the image from the top-left
-/// corner and the remainder strips of a non-power-of-two image are dropped at
-/// the levels where a whole box does not fit.
+/// (`kmax = floor(log2 min(ny, nx))`); boxes tile the array from the
+/// top-left corner. Built per window of [`windows`], whose sides are
+/// multiples of the largest box, so every level covers the whole window.
 pub(crate) struct Pyramid {
     /// Per level: `(ny_k, nx_k)` boxes.
     pub dims: Vec<(usize, usize)>,
@@ -233,13 +256,21 @@ impl Pyramid {
     }
 
     /// Natural logs of the box averages at level `k` for the boxes that are
-    /// at least half valid (the others are dropped).
-    pub(crate) fn log_means(&self, sums: &[f64], k: usize) -> Vec<f64> {
+    /// at least half valid (the others are dropped) and whose `(row,
+    /// column)` of boxes passes `keep`.
+    pub(crate) fn log_means(
+        &self,
+        sums: &[f64],
+        k: usize,
+        keep: impl Fn(usize, usize) -> bool,
+    ) -> Vec<f64> {
         let full = 1u64 << (2 * k);
+        let cx = self.dims[k].1.max(1);
         sums.iter()
             .zip(&self.counts[k])
-            .filter(|(_, c)| 2 * (**c as u64) >= full && **c > 0)
-            .map(|(s, c)| (s / *c as f64).ln())
+            .enumerate()
+            .filter(|(i, (_, c))| 2 * (**c as u64) >= full && **c > 0 && keep(i / cx, i % cx))
+            .map(|(_, (s, c))| (s / *c as f64).ln())
             .collect()
     }
 }
@@ -317,8 +348,8 @@ mod tests {
         assert_eq!(p.levels(), 3);
         let s = p.sums(valid.iter().map(|&v| v as u8 as f64).collect());
         // level 1: left boxes empty (dropped), right boxes half valid (kept)
-        assert_eq!(p.log_means(&s[1], 1).len(), 2);
+        assert_eq!(p.log_means(&s[1], 1, |_, _| true).len(), 2);
         // level 2: 4 of 16 valid: dropped
-        assert_eq!(p.log_means(&s[2], 2).len(), 0);
+        assert_eq!(p.log_means(&s[2], 2, |_, _| true).len(), 0);
     }
 }
