@@ -349,6 +349,15 @@ fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
             "C1 = {:.4} < 0: no intermittency is resolved",
             res.c1
         ));
+    } else if res.c1.is_finite()
+        && (res.c1 <= 2.0 * res.c1_stderr || res.k.iter().all(|k| !k.is_finite() || k.abs() < 1e-9))
+    {
+        // K(q) = C1 x shape(alpha): with C1 ~ 0 the shape, alpha, is free
+        w.push(format!(
+            "C1 = {:.4} +- {:.4} is not distinguishable from 0 (no intermittency resolved), \
+             so alpha, the shape of K(q), is undetermined: do not quote it",
+            res.c1, res.c1_stderr
+        ));
     }
     if res.beta.is_none() {
         w.push(
