@@ -369,7 +369,7 @@ fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
     for d in res.dtm.iter().filter(|d| d.n < 3) {
         w.push(format!(
             "DTM at q = {}: {} usable eta value(s) (K(q, eta) of the sign of K(q), eta in the \
-             fit range, q eta <= q_s): {}",
+             fit range, q eta <= q_s/2): {}",
             d.q,
             d.n,
             if d.n < 2 {
@@ -630,8 +630,10 @@ pub fn plot_k(dir: &Path, r: &TraceMomentResult, theory: Option<(&str, &[f64])>)
     save_chart(&c, &dir.join("K.png"))
 }
 
-/// Double trace moments: `log10 K(q, η)` against `log10 η` with the fitted
-/// line of slope α over the η fit range.
+/// Double trace moments: `log10 |K(q, η)|` against `log10 η` with the
+/// fitted line of slope α over the η fit range (K(q, η) < 0 for q < 1: the
+/// fit takes |K| there, and so does the plot; values of the other sign are
+/// noise and left out, as in the fit).
 fn plot_dtm(dir: &Path, r: &TraceMomentResult) -> Result<()> {
     let mut c = Chart {
         title: format!(
@@ -639,7 +641,7 @@ fn plot_dtm(dir: &Path, r: &TraceMomentResult) -> Result<()> {
             r.dtm_alpha, r.dtm_c1
         ),
         x_label: "log10 η".into(),
-        y_label: "log10 K(q, η)".into(),
+        y_label: "log10 |K(q, η)|".into(),
         ..Default::default()
     };
     for (iq, d) in r.dtm.iter().enumerate() {
@@ -647,8 +649,8 @@ fn plot_dtm(dir: &Path, r: &TraceMomentResult) -> Result<()> {
             .eta
             .iter()
             .zip(&r.k_eta[iq])
-            .filter(|(_, k)| **k > 0.0)
-            .map(|(e, k)| (e.log10(), k.log10()))
+            .filter(|(_, k)| **k * (d.q - 1.0) > 0.0)
+            .map(|(e, k)| (e.log10(), k.abs().log10()))
             .collect();
         c.series.push(Series::new(
             format!("q = {}", d.q),

@@ -124,7 +124,7 @@
 //! `φ^(η) = φ^η / <φ^η>` at the finest resolution, then coarse-grained:
 //! `<(φ^(η)_λ)^q> ~ λ^K(q,η)`, `K(q, η) = η^α K(q)` for universal
 //! multifractals, so `log|K(q, η)| = α log η + log|K(q)|`: α is the slope
-//! over a middle range of η (default 0.3..2, and `qη <= q_s`), and
+//! over a middle range of η (default 0.3..2, and `qη <= q_s/2`, the universal fit's bound), and
 //! `C1 = e^intercept / |(q^α - q)/(α - 1)|`.
 //!
 //! # Structure functions and spectrum
@@ -420,7 +420,9 @@ impl TraceMomentAccumulator {
     /// Adds one field: flux (after the optional fractional integration),
     /// structure functions and spectrum.
     ///
-    /// **Errors** if the field is smaller than 8x8, has no valid pixel or
+    /// **Errors** if the field is smaller than 8x8 (16x16 with
+    /// [`FluxDiff::Auto`], whose `ξ(1)` needs the lags 2 and 4 px, each at
+    /// most a quarter of the side), has no valid pixel or
     /// values beyond [`crate::field::AMPLITUDE_LIMIT`]; the accumulator is
     /// then unchanged (everything that can fail is computed first).
     pub fn add_field(&mut self, field: &Field) -> Result<()> {
@@ -920,8 +922,11 @@ impl TraceMomentAccumulator {
                 .filter(|(e, k)| {
                     **e >= fc.eta.0 - 1e-12
                         && **e <= fc.eta.1 + 1e-12
-                        && qq * **e <= q_s
-                        && **e <= q_s
+                        // the moments of φ^η are of order qη (and η
+                        // for its normalisation): the same q_s/2 bound as
+                        // the universal fit, below which they are unbiased
+                        && qq * **e <= 0.5 * q_s
+                        && **e <= 0.5 * q_s
                         // K(q, η) has the sign of K(q): negative for q < 1
                         // (conservation makes K(1) = 0); a value of the
                         // other sign is noise, not a point of the power law
@@ -1244,7 +1249,7 @@ pub struct TraceMomentResult {
     pub k_eta_stderr: Vec<Vec<f64>>,
     /// `log2 <(φ^(η))_λ^q>` per DTM q, per η, per level.
     pub log2_moments_eta: Vec<Vec<Vec<f64>>>,
-    /// η range of the DTM fits (further limited to `η <= q_s`, `qη <= q_s`).
+    /// η range of the DTM fits (further limited to `η <= q_s/2`, `qη <= q_s/2`).
     pub dtm_eta_range: (f64, f64),
     /// α from the DTM at the first DTM q.
     pub dtm_alpha: f64,
