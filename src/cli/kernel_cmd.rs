@@ -89,13 +89,6 @@ pub fn parse_pairs(flag: &str, s: &str) -> Result<Vec<(f64, f64)>> {
         .collect()
 }
 
-/// A pairs option (`a:b,...`, octaves above a_min): the given pairs, each
-/// checked against the grid, or without one the pairs of `default` with
-/// octaves beyond the grid lowered to its top scale (so a shorter
-/// `--octaves` keeps the paper's pairs that fit, and shortens the others),
-/// duplicates dropped.
-///
-/// **Errors** when a given octave is off the grid.
 /// Reference scales of II Fig 26, in octaves above a_min.
 pub const DEFAULT_REFS: &str = "0.5,1,1.5,2,2.5,3,3.5";
 /// Scale pairs of II Fig 25.
@@ -119,6 +112,13 @@ pub fn default_pairs(scales: &[f64]) -> Result<Vec<(f64, f64)>> {
     Ok(pairs)
 }
 
+/// A pairs option (`a:b,...`, octaves above a_min): the given pairs, each
+/// checked against the grid, or without one the pairs of `default` with
+/// octaves beyond the grid lowered to its top scale (so a shorter
+/// `--octaves` keeps the paper's pairs that fit, and shortens the others),
+/// duplicates dropped.
+///
+/// **Errors** when a given octave is off the grid.
 pub fn pairs_or_default(
     flag: &str,
     given: Option<&str>,

@@ -237,7 +237,13 @@ impl Moments {
         }
     }
 
-    /// Plug-in cumulants `[κ1, κ2, κ3]` (NaN when empty).
+    /// Plug-in cumulants `[κ1, κ2, κ3]` (NaN when empty): the derivatives of
+    /// the empirical log characteristic function at 0 (II eqs 57-58), so
+    /// the kernel curves and the cumulants agree. They are biased by about
+    /// `-κ2/n` and `-3κ3/n` against the k-statistics; the bias grows with
+    /// the scale as n falls (like a^-2), which tilts c2 up by about 1e-5 at
+    /// 32 x 1024^2 (a few thousand WTMMM at the top fitted scale) and by
+    /// 0.1 standard error on 4 x 256^2 (28 WTMMM there).
     pub fn cumulants(&self) -> [f64; 3] {
         if self.n == 0 {
             return [f64::NAN; 3];
