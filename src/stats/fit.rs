@@ -76,18 +76,24 @@ pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<Strin
     format!("jackknife over images; regression for {list}")
 }
 
+/// The points `(x, y)` where both are finite.
+///
+/// **Panics** (naming `who`) if `x` and `y` differ in length.
+fn finite_pairs(x: &[f64], y: &[f64], who: &str) -> Vec<(f64, f64)> {
+    assert_eq!(x.len(), y.len(), "{who}: x and y lengths differ");
+    x.iter()
+        .zip(y)
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .map(|(a, b)| (*a, *b))
+        .collect()
+}
+
 /// Least-squares fit over the points where both `x` and `y` are finite.
 /// Returns `None` with fewer than 2 usable points or when all `x` coincide.
 ///
 /// **Panics** if `x` and `y` differ in length.
 pub fn line_fit(x: &[f64], y: &[f64]) -> Option<LineFit> {
-    assert_eq!(x.len(), y.len(), "line_fit: x and y lengths differ");
-    let pts: Vec<(f64, f64)> = x
-        .iter()
-        .zip(y)
-        .filter(|(a, b)| a.is_finite() && b.is_finite())
-        .map(|(a, b)| (*a, *b))
-        .collect();
+    let pts = finite_pairs(x, y, "line_fit");
     let n = pts.len();
     if n < 2 {
         return None;
@@ -132,13 +138,7 @@ pub fn line_fit(x: &[f64], y: &[f64]) -> Option<LineFit> {
 ///
 /// **Panics** if `x` and `y` differ in length.
 pub fn slope_change(x: &[f64], y: &[f64]) -> Option<f64> {
-    assert_eq!(x.len(), y.len(), "slope_change: x and y lengths differ");
-    let pts: Vec<(f64, f64)> = x
-        .iter()
-        .zip(y)
-        .filter(|(a, b)| a.is_finite() && b.is_finite())
-        .map(|(a, b)| (*a, *b))
-        .collect();
+    let pts = finite_pairs(x, y, "slope_change");
     if pts.len() < 3 {
         return None;
     }
