@@ -524,15 +524,15 @@ impl PartitionSums {
             })
             .collect();
         // a run of several q quotes its extreme value and where it is
-        let at = |run: &str, qi: usize, most: &str| {
-            if run.contains(',') || run.contains("..") {
+        let at = |several: bool, qi: usize, most: &str| {
+            if several {
                 (format!("{most} "), format!(" (at q = {})", self.q[qi]))
             } else {
                 (String::new(), String::new())
             }
         };
-        for (run, qi) in runs(&self.q, &curved, f64::abs) {
-            let (most, where_) = at(&run, qi, "up to");
+        for (run, qi, several) in runs(&self.q, &curved, f64::abs) {
+            let (most, where_) = at(several, qi, "up to");
             warnings.push(format!(
                 "{run}: log2 Z(q, a) is not a straight line over the fit range: its local slope \
                  changes by {most}{:+.2}{where_} from a = {:.2} to {:.2} px (more than \
@@ -553,8 +553,8 @@ impl PartitionSums {
                 (est.tau[qi].is_finite() && worst < N_EFF_WARN).then_some(worst)
             })
             .collect();
-        for (run, qi) in runs(&self.q, &dominated, |n| -n) {
-            let (most, where_) = at(&run, qi, "as few as");
+        for (run, qi, several) in runs(&self.q, &dominated, |n| -n) {
+            let (most, where_) = at(several, qi, "as few as");
             warnings.push(format!(
                 "{run}: Z(q, a) is dominated by {most}{:.1} effective maxima lines{where_} at the \
                  largest fitted scales (< {N_EFF_WARN})",
@@ -680,9 +680,9 @@ pub const SLOPE_CHANGE_WARN: f64 = 0.2;
 pub const N_EFF_WARN: f64 = 10.0;
 
 /// Runs of neighbouring q (adjacent in the q list) that carry a value:
-/// per run its label (`q = a`, `q = a, b`, `q = a .. b`) and the index of
-/// its most extreme value (the largest `key`).
-fn runs(q: &[f64], v: &[Option<f64>], key: impl Fn(f64) -> f64) -> Vec<(String, usize)> {
+/// per run its label (`q = a`, `q = a, b`, `q = a .. b`), the index of its
+/// most extreme value (the largest `key`) and whether it holds several q.
+fn runs(q: &[f64], v: &[Option<f64>], key: impl Fn(f64) -> f64) -> Vec<(String, usize, bool)> {
     let mut out = Vec::new();
     let mut i = 0;
     while i < v.len() {
@@ -703,7 +703,7 @@ fn runs(q: &[f64], v: &[Option<f64>], key: impl Fn(f64) -> f64) -> Vec<(String, 
             1 => format!("q = {}, {}", q[start], q[i]),
             _ => format!("q = {} .. {}", q[start], q[i]),
         };
-        out.push((label, worst));
+        out.push((label, worst, i > start));
         i += 1;
     }
     out
