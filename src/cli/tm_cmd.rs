@@ -661,7 +661,8 @@ fn plot_dtm(dir: &Path, r: &TraceMomentResult) -> Result<()> {
         if d.alpha.is_finite() && d.c1.is_finite() {
             // log K = α log η + log(C1 |shape(α, q)|)
             let b = (d.c1 * universal_shape(d.alpha, d.q).abs()).log10();
-            let (x0, x1) = (r.dtm_eta_range.0.log10(), r.dtm_eta_range.1.log10());
+            // over the η this q's fit used (qη <= q_s/2 cuts the top)
+            let (x0, x1) = (d.eta_used.0.log10(), d.eta_used.1.log10());
             c.series.push(Series::new(
                 format!("slope alpha = {:.3}", d.alpha),
                 vec![(x0, b + d.alpha * x0), (x1, b + d.alpha * x1)],

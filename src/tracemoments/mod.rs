@@ -936,6 +936,11 @@ impl TraceMomentAccumulator {
                 .map(|(e, k)| (e.ln(), k.abs().ln()))
                 .unzip();
             let f = line_fit(&xs, &ys);
+            let used = |pick: fn(f64, f64) -> f64| xs.iter().copied().reduce(pick).map(f64::exp);
+            let eta_used = (
+                used(f64::min).unwrap_or(f64::NAN),
+                used(f64::max).unwrap_or(f64::NAN),
+            );
             dtm.push(match f {
                 Some(f) => {
                     let shape = universal_shape(f.slope, qq).abs();
@@ -949,6 +954,7 @@ impl TraceMomentAccumulator {
                             f64::NAN
                         },
                         n: f.n,
+                        eta_used,
                     }
                 }
                 None => DtmFit {
@@ -957,6 +963,7 @@ impl TraceMomentAccumulator {
                     alpha_stderr: f64::NAN,
                     c1: f64::NAN,
                     n: 0,
+                    eta_used: (f64::NAN, f64::NAN),
                 },
             });
         }
@@ -1137,6 +1144,9 @@ pub struct DtmFit {
     pub c1: f64,
     /// Number of η values in the fit.
     pub n: usize,
+    /// Smallest and largest η the fit used (the η range cut further by
+    /// `qη <= q_s/2`; NaN if no fit).
+    pub eta_used: (f64, f64),
 }
 
 /// Everything [`TraceMomentAccumulator::finish`] computes (the `tm.json`
