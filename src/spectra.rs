@@ -497,11 +497,34 @@ impl PartitionSums {
                         .into(),
                 ));
             }
+            // say how small the domain is and how far the lines do reach,
+            // so that the user can pick the options
+            let domain = match (
+                self.images.iter().filter_map(|im| im.shape).min(),
+                self.analysis.as_ref().map(|a| a.margin_px()),
+            ) {
+                (Some([ny, nx]), Some(m)) => format!(
+                    " (the counting domain of the {ny}x{nx} image is {}x{} px inside a \
+                     {m} px margin)",
+                    ny.saturating_sub(2 * m),
+                    nx.saturating_sub(2 * m)
+                ),
+                _ => String::new(),
+            };
+            let reach = match ens.lines.iter().rposition(|&n| n > 0) {
+                Some(j) => format!(
+                    "; the longest lines end at a = {:.2} px, {:.2} octaves above the first \
+                     scale",
+                    self.scales[j],
+                    log2_a[j] - oct0
+                ),
+                None => String::new(),
+            };
             return Err(Error::Input(format!(
                 "no q has a partition function over the fit range: {} maxima lines reach \
-                 a = {:.2} px, the top of the fit range, in {} image(s); the counting domain \
-                 is too small for these scales (use fewer octaves, a smaller margin, \
-                 or a lower fit range: --octaves, --margin, --fit)",
+                 a = {:.2} px, the top of the fit range, in {} image(s){domain}{reach}; the \
+                 counting domain is too small for these scales (use fewer octaves, a smaller \
+                 margin, or a lower fit range: --octaves, --margin, --fit)",
                 ens.lines[last_fit], self.scales[last_fit], n_img
             )));
         }
