@@ -55,6 +55,7 @@ fn jacksboro_crop_reads_the_same_in_every_format() {
         ("dem_u2_be.npy", 0.0, false, ">u2"),
         ("dem_f32.tif", 0.0, true, "f32"),
         ("dem_f32_tiled_deflate.tif", 0.0, true, "f32"),
+        ("dem_f32_zstd.tif", 0.0, true, "f32"),
         ("dem_i16_geo_nodata.tif", 0.0, true, "i16"),
         // 16-bit PNG: quantisation step `scale` = 0.5 (from its sidecar).
         ("dem_u16.png", 0.25, true, "u16"),
@@ -131,6 +132,18 @@ fn small_png_files() {
             .all(|d| d.abs() < 1e-9)
     );
     assert!(info.warnings[0].contains("palette"), "{:?}", info.warnings);
+
+    // a sidecar nodata on a colour PNG matches its grey pixels exactly (the
+    // Rec. 709 sum of (255, 255, 255) is 254.99999999999997)
+    let nd = read("rgb_grey_nodata.png");
+    let masked: Vec<(usize, usize)> = nd
+        .data
+        .indexed_iter()
+        .filter(|&((y, x), _)| nd.is_masked(y, x))
+        .map(|(p, _)| p)
+        .collect();
+    assert_eq!(masked, vec![(1, 2), (1, 3), (2, 2), (2, 3)]);
+    assert_eq!(nd.data[[0, 1]], lum(15.0, 5.0, 200.0));
 }
 
 #[test]
@@ -359,6 +372,13 @@ fn write_field_dispatches_and_writes_masks() {
     assert!(err.to_string().contains("f.pgm") && err.to_string().contains("cannot write"));
     let err = write_tiff_f32(&dir.join("e.tif"), &Array2::zeros((0, 3))).unwrap_err();
     assert!(err.to_string().contains("empty"));
+    // float32 would turn these into inf (read back as missing) or all zeros
+    for v in [1e40, -1e39, 1e-300] {
+        let a = Array2::from_elem((2, 3), v);
+        let err = write_tiff_f32(&dir.join("r.tif"), &a).unwrap_err();
+        assert!(err.to_string().contains("float32"), "{v}: {err}");
+        assert!(!dir.join("r.tif").exists());
+    }
     let err = write_png16(&dir.join("e.png"), &Array2::zeros((3, 0))).unwrap_err();
     assert!(err.to_string().contains("empty"));
 }

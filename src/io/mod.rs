@@ -5,7 +5,7 @@
 //! | extension | reads | writes |
 //! |---|---|---|
 //! | `.npy` | 2D, any integer or float dtype (`i1`..`u8`, `f2`, `f4`, `f8`), either byte order, C or Fortran order | float64 |
-//! | `.tif`, `.tiff` | one band; 8/16/32/64-bit integer, 32/64-bit float; any compression the `tiff` crate decodes; GeoTIFF read as plain TIFF; GDAL nodata tag (42113) honoured | float32, NaN kept |
+//! | `.tif`, `.tiff` | one band; 8/16/32/64-bit integer, 16/32/64-bit float; uncompressed, LZW, deflate, PackBits, JPEG, CCITT fax or ZSTD; GeoTIFF read as plain TIFF; GDAL nodata tag (42113) honoured | float32, NaN kept (values beyond its range refused) |
 //! | `.png` | grey 1..16 bit (raw integer values), grey+alpha (alpha 0 = missing); RGB(A) and palette converted to luminance with a warning; a `<stem>.json` sidecar applies `value = png*scale + offset` and its nodata | 16-bit grey + sidecar JSON |
 //! | `.pgm` | P5 (binary, 8 or 16 bit) and P2 (ASCII), raw integer values | — |
 //! | `.asc` | ESRI ASCII grid; header keys case-insensitive; `NODATA_value` honoured; first row = north | — |

@@ -131,7 +131,14 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     for p in 0..nx * ny {
         let k = p * channels;
         let v = if colour {
-            0.2126 * sample(k) + 0.7152 * sample(k + 1) + 0.0722 * sample(k + 2)
+            let (r, g, b) = (sample(k), sample(k + 1), sample(k + 2));
+            // a grey pixel is its own value exactly (the weighted sum is not:
+            // 255 gives 254.99999999999997, which a sidecar nodata would miss)
+            if r == g && g == b {
+                r
+            } else {
+                0.2126 * r + 0.7152 * g + 0.0722 * b
+            }
         } else {
             sample(k) / grey_div
         };

@@ -190,6 +190,21 @@ pub(super) fn encode_f32(path: &Path, a: &Array2<f64>) -> Result<Vec<u8>> {
         (Ok(w), Ok(h)) => (w, h),
         _ => return Err(Error::format(path, "image too large for TIFF")),
     };
+    // float32 holds |v| in [1.2e-38, 3.4e38] at full precision: refuse what
+    // it would turn into inf (read back as missing) or flush whole to 0
+    let big = a
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    if big > f32::MAX as f64 || (big > 0.0 && big < f32::MIN_POSITIVE as f64) {
+        return Err(Error::format(
+            path,
+            format!(
+                "values up to {big:e} in magnitude do not fit a float32 TIFF \
+                 (1.2e-38 to 3.4e38): write .npy (float64) or rescale"
+            ),
+        ));
+    }
     let data: Vec<f32> = a.iter().map(|&v| v as f32).collect();
     let err = |e: tiff::TiffError| Error::format(path, format!("cannot encode TIFF: {e}"));
     let mut buf = Cursor::new(Vec::new());
