@@ -511,6 +511,15 @@ impl PartitionSums {
                 ),
                 _ => String::new(),
             };
+            let missing: u64 = self.images.iter().map(|im| im.missing).sum();
+            let domain = if missing > 0 {
+                format!(
+                    "{domain}, less the {missing} missing pixels' surroundings (maxima count only \
+                     farther from them than the wavelet's support at the largest scale)"
+                )
+            } else {
+                domain
+            };
             let reach = match ens.lines.iter().rposition(|&n| n > 0) {
                 Some(j) => format!(
                     "; the longest lines end at a = {:.2} px, {:.2} octaves above the first \

@@ -600,6 +600,33 @@ fn pdf_and_kernel_name_the_input_and_the_cause() {
     }
 }
 
+/// Scattered missing pixels can leave no maxima to count (maxima count only
+/// farther from a hole than the support at the largest scale): the error
+/// says so, with the count, instead of calling the image flat.
+#[test]
+fn scattered_holes_are_named_as_the_cause() {
+    let dir = scratch("scattered_holes");
+    let mut f = fbm(FbmParams { hurst: 0.4 }, 96, 96, 3, 0).unwrap();
+    // one hole every 16 px: none of the 96^2 is 24 px from every hole
+    for y in (0..96).step_by(16) {
+        for x in (0..96).step_by(16) {
+            f[[y, x]] = f64::NAN;
+        }
+    }
+    let p = dir.join("holes.npy");
+    write_npy(&p, &f).unwrap();
+    let p = p.display().to_string();
+    let out = dir.join("o");
+    let o = out.display().to_string();
+    let (code, err) = run_bin_stderr(&["analyze", &p, "--octaves", "2", "--out", &o]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains(&p), "{err}");
+    assert!(err.contains("36 missing pixels"), "{err}");
+    assert!(err.contains("which leaves 0 of the"), "{err}");
+    assert!(!err.contains("flat"), "{err}");
+    assert!(!out.exists());
+}
+
 /// `pdf` refuses a shown scale without WTMMM (it drew empty curves, or
 /// failed in the plot over an empty axis) and flags one with few.
 #[test]

@@ -278,7 +278,7 @@ pub fn analyze_paths(
             let s = image_sums_with(&field, cfg, q, p.display().to_string(), par)
                 .map_err(|e| Error::format(p, e.to_string()))?;
             if s.images[0].lines[0] == 0 {
-                return Err(Error::format(p, super::common::NO_MAXIMA));
+                return Err(Error::format(p, super::common::no_maxima(&field, cfg)));
             }
             pb.inc(1);
             Ok(s)

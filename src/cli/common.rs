@@ -142,6 +142,30 @@ pub const NO_MAXIMA: &str = "no maxima at the smallest scale: the image is flat 
      extreme value such as an untagged nodata dwarfing the rest), or the counting domain left by \
      the margin is too small (try a smaller --margin or fewer --octaves)";
 
+/// [`NO_MAXIMA`], or, when the image has missing pixels, how much of the
+/// counting domain they leave (maxima count only farther from them than the
+/// wavelet's support at the largest scale): scattered holes can leave none.
+pub fn no_maxima(field: &crate::field::Field, cfg: &crate::skeleton::AnalysisConfig) -> String {
+    let missing = field
+        .mask
+        .as_ref()
+        .map_or(0, |m| m.iter().filter(|&&b| b).count());
+    match cfg.counting_pixels(field) {
+        Ok((counted, interior)) if missing > 0 => {
+            let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
+            format!(
+                "no maxima to count: the image has {missing} missing pixels (NaN, inf or \
+                 nodata), and maxima count only farther from them than the wavelet's support \
+                 at the largest scale ({:.0} px at a = {a_max:.1} px), which leaves {counted} \
+                 of the {interior} pixels of the counting domain; fill the gaps before the \
+                 analysis, crop to a gap-free region, or use fewer --octaves",
+                cfg.wavelet.support_radius() * a_max
+            )
+        }
+        _ => NO_MAXIMA.into(),
+    }
+}
+
 /// The analysis configuration as recorded in the outputs, with the margin
 /// resolved to the pixels used (`margin_default` says it was the default
 /// for the wavelet and the largest scale) instead of `null`.

@@ -186,7 +186,7 @@ fn collect(
         |acc, field, label, par| {
             let w = image_wtmmm(field, cfg, par, true)?;
             if w.all.first().is_none_or(|v| v.is_empty()) {
-                return Err(no_maxima(input, label));
+                return Err(no_maxima(input, label, field, cfg));
             }
             let m = KernelSums::from_points(&scales, kcfg, set, w.set(set), label)?;
             let o = KernelSums::from_points(&scales, kcfg, set.other(), w.set(set.other()), label)?;

@@ -309,11 +309,12 @@ pub fn reason(e: Error) -> String {
 
 /// Why an image gave no maxima: [`Input::fold`] names a file itself, a
 /// generated image is named here.
-pub fn no_maxima(input: &Input, label: &str) -> Error {
+pub fn no_maxima(input: &Input, label: &str, field: &Field, cfg: &AnalysisConfig) -> Error {
+    let why = super::common::no_maxima(field, cfg);
     if input.generated() {
-        Error::Input(format!("{label}: {}", super::common::NO_MAXIMA))
+        Error::Input(format!("{label}: {why}"))
     } else {
-        Error::Input(super::common::NO_MAXIMA.into())
+        Error::Input(why)
     }
 }
 
@@ -444,7 +445,7 @@ pub fn collect_histograms(
         |acc, field, label, par| {
             let w = image_wtmmm(field, cfg, par, set == WtmmmSet::Lines)?;
             if w.all.first().is_none_or(|v| v.is_empty()) {
-                return Err(no_maxima(input, label));
+                return Err(no_maxima(input, label, field, cfg));
             }
             acc.merge(&WtmmmHistograms::from_points(&scales, pcfg, w.set(set))?)
         },

@@ -81,7 +81,10 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     let sk = skeleton_with(&field, &cfg, Parallelism::Scales, &all)
         .map_err(|e| Error::format(&args.image, e.to_string()))?;
     if sk.lines.is_empty() {
-        return Err(Error::format(&args.image, super::common::NO_MAXIMA));
+        return Err(Error::format(
+            &args.image,
+            super::common::no_maxima(&field, &cfg),
+        ));
     }
     make_out_dir(&args.out.out)?;
     // line id of each (scale, x, y)

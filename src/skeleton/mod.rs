@@ -216,6 +216,28 @@ impl AnalysisConfig {
         }
         Ok(d)
     }
+
+    /// Pixels of the counting domain for `field`: `(counted, interior)`,
+    /// the interior rectangle's pixels and those of them farther from every
+    /// missing pixel than the wavelet's support at the largest scale (where
+    /// maxima count, [`Skeleton::counts`]). Says why an image with scattered
+    /// holes has no maxima.
+    ///
+    /// **Errors** as [`Self::domain`].
+    pub fn counting_pixels(&self, field: &Field) -> Result<(usize, usize)> {
+        let d = self.domain(field)?;
+        let interior = (d.y1 - d.y0) * (d.x1 - d.x0);
+        let clearance = (d.support * self.scale_list().last().copied().unwrap_or(0.0)) as f32;
+        let counted = match &d.mask_distance {
+            None => interior,
+            Some(dist) => dist
+                .slice(ndarray::s![d.y0..d.y1, d.x0..d.x1])
+                .iter()
+                .filter(|&&r| r > clearance)
+                .count(),
+        };
+        Ok((counted, interior))
+    }
 }
 
 /// Counts at one scale.
