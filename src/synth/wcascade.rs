@@ -190,10 +190,13 @@ impl Law {
                 finite("gamma", gamma)?;
                 finite("beta", beta)?;
                 finite("lambda", lambda)?;
-                if lambda <= 0.0 {
+                if !(lambda > 0.0 && lambda < Poisson::<f64>::MAX_LAMBDA) {
                     return Err(Error::param(
                         "lambda",
-                        format!("the Poisson mean must be > 0, got {lambda}"),
+                        format!(
+                            "the Poisson mean must be in (0, {:e}), got {lambda}",
+                            Poisson::<f64>::MAX_LAMBDA
+                        ),
                     ));
                 }
                 if !(beta > 0.0 && beta < 1.0) {
@@ -210,7 +213,7 @@ impl Law {
                         name,
                         format!(
                             "the cascade does not converge: h_min = {h_min:.4} <= 0 \
-                             (need gamma < 0 and D(h) < 0 for all h <= 0; II eqs 37-38)"
+                             (need D(h) < 0 for all h <= 0; II eqs 37-38)"
                         ),
                     ));
                 }
@@ -541,6 +544,17 @@ mod tests {
         assert!(e.contains("`lambda`"), "{e}");
         let e = lp(0.1, 0.5, 1.0).validate().unwrap_err().to_string();
         assert!(e.contains("`gamma`"), "{e}");
+        // γ >= 0 converges when λ's zero of D is above 0 (h_min 1.70)
+        assert!(lp(0.05, 0.5, 5.0).validate().is_ok());
+        // beyond what the Poisson sampler draws: an error, not a panic
+        let e = lp(-1.0, 0.9999, 5e19).validate().unwrap_err().to_string();
+        assert!(e.contains("`lambda`"), "{e}");
+        // h(0) beyond 2^53: h_max is found (a fixed step of 1 never moved)
+        for (g, l) in [(-1.0, 1e17), (-1e17, 1.0)] {
+            assert!(lp(g, 0.5, l).validate().is_ok());
+            let (lo, hi) = lp(g, 0.5, l).law.h_range();
+            assert!(lo > 0.0 && hi > lo && hi.is_finite(), "{lo} {hi}");
+        }
         let e = wcascade(&ln(-0.3, 0.01), 100, 0, 0)
             .unwrap_err()
             .to_string();

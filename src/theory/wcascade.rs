@@ -135,9 +135,16 @@ impl Law {
                     bisect_zero(&d, h_asym, h0)
                 };
                 // right branch: D falls from 2 to -∞
-                let mut hi = h0 + 1.0;
-                while d(hi) >= 0.0 {
-                    hi = h0 + 2.0 * (hi - h0);
+                // (steps relative to h0: a fixed step is lost in h0's
+                // rounding when h0 is huge, and the search never ended)
+                let mut step = h0.abs().max(1.0);
+                let mut hi = h0 + step;
+                while d(hi) >= 0.0 && hi.is_finite() {
+                    step *= 2.0;
+                    hi = h0 + step;
+                }
+                if !hi.is_finite() {
+                    return (h_min, f64::INFINITY);
                 }
                 (h_min, bisect_zero(&d, h0, hi))
             }
