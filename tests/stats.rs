@@ -881,6 +881,12 @@ fn brute_force_check(magnitude: Magnitude, scales: Vec<f64>) {
             }
         }
         let r = correlation_estimates(&sums.unwrap()).unwrap();
+        assert_eq!(r.stderr_method, "none");
+        assert!(
+            r.warnings[0].contains("no standard errors"),
+            "{:?}",
+            r.warnings
+        );
         let nbins = bin_of(max_dx, bpo) + 1;
         // brute force: per-image centring, and ensemble centring
         let raw: Vec<Vec<Vec<(usize, usize, f64)>>> = imgs

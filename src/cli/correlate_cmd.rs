@@ -307,6 +307,15 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         wall,
         cost,
     )?;
+    // warnings go out even with --quiet, as analyze's do
+    let mut warned = std::collections::BTreeSet::new();
+    for r in cwt_res.iter().chain(sk_res.iter()) {
+        for w in &r.warnings {
+            if warned.insert(w.clone()) {
+                say!("warning: {w}");
+            }
+        }
+    }
     if !quiet {
         say!("correlate: {} images, {wall:.1} s", input.len());
         if let Some(c) = body.get("checks").and_then(|c| c.as_object()) {
@@ -436,7 +445,7 @@ fn result_json(
         })
         .collect();
     json!({"source": r.source, "magnitude": r.magnitude, "periodic": r.periodic, "images": r.images,
-        "mean": r.mean, "stderr_method": r.stderr_method, "pairs": pairs})
+        "mean": r.mean, "stderr_method": r.stderr_method, "warnings": r.warnings, "pairs": pairs})
 }
 
 /// Writes correlation.json, correlation.csv and the Fig 30 plots; returns
@@ -655,7 +664,10 @@ pub fn validation_criteria(
         scales,
         pairs,
         periodic,
-        margin: None,
+        // the user's --margin and --eps, as `correlate` takes them (the
+        // default margin follows the correlated scales)
+        margin: cfg.margin,
+        eps: cfg.eps,
         ..Default::default()
     };
     let plan = CorrelationPlan::new(size, size, &ccfg)?;

@@ -134,7 +134,8 @@ pub struct CorrelationConfig {
     /// The field is periodic: use the whole torus and circular lags.
     pub periodic: bool,
     /// Interior margin (px) when not periodic; `None` = SPEC §1 default for
-    /// the largest scale of `scales`.
+    /// the largest scale of `scales` (plus half the energy box with
+    /// [`Magnitude::Energy`]).
     pub margin: Option<usize>,
     /// Log-spaced `|Δx|` bins per octave.
     pub bins_per_octave: usize,
@@ -205,7 +206,17 @@ impl CorrelationConfig {
         }
         let a_max = self.scales.iter().cloned().fold(0.0, f64::max);
         self.margin
-            .unwrap_or_else(|| default_margin(self.wavelet, a_max))
+            .unwrap_or_else(|| default_margin(self.wavelet, a_max) + self.box_reach(a_max))
+    }
+
+    /// How far beyond a point its magnitude reads the transform, on top of
+    /// the wavelet's support: the box of the energy magnitude (half its
+    /// side, [`box_energy`]), 0 for `ln M`.
+    fn box_reach(&self, a: f64) -> usize {
+        match self.magnitude {
+            Magnitude::Energy => (a / 2.0).floor() as usize,
+            Magnitude::Lnm => 0,
+        }
     }
 }
 
@@ -1072,7 +1083,7 @@ fn cwt_correlation_in(
     valid.resize(dy * dx, true);
     if let Some(mask) = &field.mask {
         let dist = distance_to_mask(mask);
-        let r = cfg.wavelet.support_radius() * a_max;
+        let r = cfg.wavelet.support_radius() * a_max + cfg.box_reach(a_max) as f64;
         for y in 0..dy {
             for x in 0..dx {
                 valid[y * dx + x] = dist[[y + y0, x + x0]] as f64 > r;
@@ -1453,6 +1464,9 @@ pub struct CorrelationResult {
     pub pairs: Vec<PairCorrelation>,
     /// "jackknife over images" (>= 3 images) or "none".
     pub stderr_method: String,
+    /// What the reader should know (few images for the error bars).
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 /// `σ_W / σ_min` of the reference implementation, 13 px / 1.5703 px (II §3;
@@ -1660,6 +1674,17 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
             }
         })
         .collect();
+    let mut warnings = Vec::new();
+    let stderr_method = if n_img >= 3 {
+        // flags jackknife errors over few images, as the spectra do
+        crate::stats::fit::stderr_method(n_img, &[], &mut warnings)
+    } else {
+        warnings.push(format!(
+            "no standard errors: {n_img} image{} (a jackknife needs 3 or more)",
+            if n_img == 1 { "" } else { "s" }
+        ));
+        "none".into()
+    };
     Ok(CorrelationResult {
         source: s.source.clone(),
         magnitude: s.magnitude,
@@ -1668,12 +1693,8 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
         scales: s.scales.clone(),
         mean: mu,
         pairs,
-        stderr_method: if n_img >= 3 {
-            "jackknife over images"
-        } else {
-            "none"
-        }
-        .into(),
+        stderr_method,
+        warnings,
     })
 }
 
