@@ -1742,6 +1742,7 @@ mod tests {
                 pair(6.0, [1.0, 1.0, 0.003, 0.004, 1.0]),
             ],
             stderr_method: "none".into(),
+            warnings: vec![],
         };
         let c = r.compare_theory(&m, l, PAPER_UNIT);
         assert_eq!((c.pairs[0].bins, c.pairs[1].bins, c.bins), (3, 2, 5));
