@@ -194,6 +194,18 @@ impl ScaleGrid {
                 format!("must be in 1..=64, got {}", self.voices),
             ));
         }
+        if !(self.a_max() <= MAX_SCALE) {
+            return Err(Error::param(
+                "a-min",
+                format!(
+                    "{} px over {} octaves reaches {} px, beyond any image ({} px)",
+                    crate::error::short(self.a_min),
+                    self.octaves,
+                    crate::error::short(self.a_max()),
+                    crate::error::short(MAX_SCALE)
+                ),
+            ));
+        }
         Ok(())
     }
 
@@ -218,6 +230,10 @@ pub fn same_scales(a: &[f64], b: &[f64]) -> bool {
             .zip(b)
             .all(|(x, y)| (x - y).abs() <= 1e-9 * x.abs())
 }
+
+/// Largest scale accepted (px): the side of the largest image the readers
+/// accept (`io::MAX_PIXELS` = 2^28 pixels in one row).
+pub const MAX_SCALE: f64 = (1u64 << 28) as f64;
 
 /// Default interior margin for a wavelet and largest scale (SPEC §1).
 pub fn default_margin(wavelet: Wavelet, a_max: f64) -> usize {

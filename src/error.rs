@@ -64,3 +64,13 @@ impl Error {
 
 /// Library result alias.
 pub type Result<T> = std::result::Result<T, Error>;
+
+/// A number for a message: as Rust prints it in the usual range, in
+/// scientific notation beyond it (`1e-300` printed in full is 300 digits).
+pub(crate) fn short(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-3..1e6).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:.3e}")
+    }
+}

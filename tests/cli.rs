@@ -600,6 +600,26 @@ fn pdf_and_kernel_name_the_input_and_the_cause() {
     }
 }
 
+/// An output named like an input in the same directory is refused, and the
+/// input keeps its bytes (`cwt` used to overwrite it).
+#[test]
+fn outputs_never_replace_an_input() {
+    let dir = scratch("clobber");
+    let p = fbm_npy(&dir, "modulus_00.npy", 64, 5);
+    let before = std::fs::read(&p).unwrap();
+    let d = dir.display().to_string();
+    let (code, err) = run_bin_stderr(&["cwt", &p, "--scales", "2", "--out", &d]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("would overwrite the input"), "{err}");
+    assert_eq!(std::fs::read(&p).unwrap(), before);
+    // nothing else was left in the directory
+    let names: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(names, vec![std::ffi::OsString::from("modulus_00.npy")]);
+}
+
 /// Scattered missing pixels can leave no maxima to count (maxima count only
 /// farther from a hole than the support at the largest scale): the error
 /// says so, with the count, instead of calling the image flat.

@@ -3,7 +3,8 @@
 
 use ndarray::Array2;
 use num_complex::Complex64;
-use wtmm::cwt::{CwtPlan, Wavelet, direct_transform_at, modulus};
+use wtmm::cwt::{CwtPlan, ScaleGrid, Wavelet, direct_transform_at, modulus};
+use wtmm::skeleton::AnalysisConfig;
 use wtmm::synth::fbm::{FbmParams, fbm};
 
 /// Deterministic rough test image (no RNG needed): a sum of incommensurate waves.
@@ -204,6 +205,20 @@ fn bad_input_is_an_error() {
     img[[3, 3]] = f64::NAN;
     assert!(plan.forward(img.view()).is_err());
     assert!(plan.forward(Array2::zeros((8, 16)).view()).is_err());
+    // scales beyond any image, and numbers short in the messages
+    let g = ScaleGrid {
+        a_min: 1e300,
+        ..Default::default()
+    };
+    let e = g.validate().unwrap_err().to_string();
+    assert!(e.contains("`a-min`") && e.contains("1.000e300"), "{e}");
+    assert!(ScaleGrid::default().validate().is_ok());
+    let cfg = AnalysisConfig {
+        a_min: 1e-300,
+        ..Default::default()
+    };
+    let e = cfg.validate().unwrap_err().to_string();
+    assert!(e.contains("`a-min`") && e.len() < 200, "{e}");
 }
 
 /// The row-streamed transform equals the full one bit for bit, whatever the

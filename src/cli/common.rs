@@ -60,7 +60,10 @@ pub fn parse_q(flag: &str, s: &str) -> Result<Vec<f64>> {
     if let Some(q) = v.iter().find(|q| q.abs() > Q_LIMIT) {
         return Err(Error::param(
             flag,
-            format!("`{s}`: {q} is beyond |q| = {Q_LIMIT} (moments that far only overflow)"),
+            format!(
+                "`{s}`: {} is beyond |q| = {Q_LIMIT} (moments that far only overflow)",
+                crate::error::short(*q)
+            ),
         ));
     }
     Ok(v)

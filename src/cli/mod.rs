@@ -173,21 +173,6 @@ fn io_of(cmd: &Command) -> (Vec<&Path>, bool, Option<&Path>) {
     }
 }
 
-/// What makes two paths the same file: device and inode on Unix (hard
-/// links, symlinks and `..` alike), else the canonical path.
-fn file_identity(p: &Path) -> Option<(u64, u64, PathBuf)> {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::MetadataExt;
-        let m = std::fs::metadata(p).ok()?;
-        Some((m.dev(), m.ino(), PathBuf::new()))
-    }
-    #[cfg(not(unix))]
-    {
-        std::fs::canonicalize(p).ok().map(|c| (0, 0, c))
-    }
-}
-
 /// Checks every input before computing (a missing file at the end of a
 /// 32-image ensemble used to surface after the whole analysis): it must be a
 /// readable regular file, and an image must have a known extension.
@@ -196,7 +181,7 @@ fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
     // independent sample and shrink the jackknife errors
     let mut seen: std::collections::HashMap<(u64, u64, PathBuf), &Path> = Default::default();
     for &p in paths {
-        if let Some(key) = file_identity(p)
+        if let Some(key) = crate::io::file_identity(p)
             && let Some(first) = seen.insert(key, p)
         {
             return Err(Error::Input(format!(
@@ -250,6 +235,7 @@ fn prepare_out(dir: &Path) -> Result<()> {
 fn dispatch(cli: Cli) -> Result<Outcome> {
     let (inputs, images, out) = io_of(&cli.command);
     check_inputs(&inputs, images)?;
+    let _inputs = crate::io::protect(&inputs);
     let out: Option<PathBuf> = out.map(Path::to_path_buf);
     if let Some(dir) = &out
         && let Err(e) = prepare_out(dir)

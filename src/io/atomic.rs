@@ -65,6 +65,75 @@ pub fn remove_temporaries() -> usize {
     n
 }
 
+/// What makes two paths the same file: device and inode on Unix (hard
+/// links, symlinks and `..` alike), else the canonical path. `None` if the
+/// file does not exist.
+pub fn file_identity(p: &Path) -> Option<(u64, u64, PathBuf)> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        let m = std::fs::metadata(p).ok()?;
+        Some((m.dev(), m.ino(), PathBuf::new()))
+    }
+    #[cfg(not(unix))]
+    {
+        std::fs::canonicalize(p).ok().map(|c| (0, 0, c))
+    }
+}
+
+/// The files the running command reads ([`protect`]): no output may
+/// replace one.
+static PROTECTED: Mutex<Vec<(FileId, PathBuf)>> = Mutex::new(Vec::new());
+
+/// [`file_identity`]: device, inode, canonical path.
+type FileId = (u64, u64, PathBuf);
+
+/// Marks `paths` as inputs of the running command until the guard drops:
+/// meanwhile a [`write_atomic`] onto any of them (an output named like an
+/// input in the same directory, e.g. `cwt` writing `modulus_00.npy` beside
+/// an input of that name) is refused instead of destroying the input.
+#[must_use = "the inputs are protected only while the guard lives"]
+pub fn protect(paths: &[&Path]) -> Protected {
+    let mut g = PROTECTED.lock().unwrap_or_else(|e| e.into_inner());
+    let ids: Vec<_> = paths
+        .iter()
+        .filter_map(|&p| file_identity(p).map(|id| (id, p.to_path_buf())))
+        .collect();
+    g.extend(ids.iter().cloned());
+    Protected(ids)
+}
+
+/// See [`protect`].
+pub struct Protected(Vec<(FileId, PathBuf)>);
+
+impl Drop for Protected {
+    fn drop(&mut self) {
+        let mut g = PROTECTED.lock().unwrap_or_else(|e| e.into_inner());
+        for e in &self.0 {
+            if let Some(i) = g.iter().position(|x| x == e) {
+                g.swap_remove(i);
+            }
+        }
+    }
+}
+
+fn check_not_input(path: &Path) -> Result<()> {
+    let g = PROTECTED.lock().unwrap_or_else(|e| e.into_inner());
+    if g.is_empty() {
+        return Ok(());
+    }
+    if let Some(id) = file_identity(path)
+        && let Some((_, input)) = g.iter().find(|(i, _)| *i == id)
+    {
+        return Err(Error::Input(format!(
+            "{}: would overwrite the input {}; write the outputs to another directory (--out)",
+            path.display(),
+            input.display()
+        )));
+    }
+    Ok(())
+}
+
 /// `value` as pretty JSON with a final newline, written with
 /// [`write_atomic`] (every JSON output of the crate goes through here).
 pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
@@ -80,6 +149,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         path: path.into(),
         source,
     };
+    check_not_input(path)?;
     let name = path
         .file_name()
         .ok_or_else(|| err(std::io::Error::other("not a file path")))?;

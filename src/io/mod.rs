@@ -21,7 +21,10 @@ mod pgm;
 mod png;
 mod tiff;
 
-pub use atomic::{OutputBatch, outputs_committed, remove_temporaries, write_atomic, write_json};
+pub use atomic::{
+    OutputBatch, Protected, file_identity, outputs_committed, protect, remove_temporaries,
+    write_atomic, write_json,
+};
 pub use png::{PNG16_NODATA, Png16Mapping};
 
 use std::path::{Path, PathBuf};

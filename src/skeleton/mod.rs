@@ -123,6 +123,15 @@ impl AnalysisConfig {
             if s.windows(2).any(|w| !(w[1] > w[0])) || !(s[0] > 0.0) {
                 return Err(Error::param("scales", "must be positive and increasing"));
             }
+            if !(s[s.len() - 1] <= crate::cwt::MAX_SCALE) {
+                return Err(Error::param(
+                    "scales",
+                    format!(
+                        "{} px is beyond any image",
+                        crate::error::short(s[s.len() - 1])
+                    ),
+                ));
+            }
         } else {
             self.grid().validate()?;
         }
@@ -135,8 +144,9 @@ impl AnalysisConfig {
                     "a-min"
                 },
                 format!(
-                    "{a0} px is below {:.2} px, where the {} wavelet's passband passes the \
+                    "{} px is below {:.2} px, where the {} wavelet's passband passes the \
                      Nyquist wavenumber (the pixel grid cannot resolve it)",
+                    crate::error::short(a0),
                     self.wavelet.min_scale(),
                     self.wavelet
                 ),
