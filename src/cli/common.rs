@@ -156,13 +156,13 @@ pub fn no_maxima(field: &crate::field::Field, cfg: &crate::skeleton::AnalysisCon
     match cfg.counting_pixels(field) {
         Ok((counted, interior)) if missing > 0 => {
             let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
+            let clearance = cfg.hole_clearance();
             format!(
                 "no maxima to count: the image has {missing} missing pixels (NaN, inf or \
                  nodata), and maxima count only farther from them than the wavelet's support \
-                 at the largest scale ({:.0} px at a = {a_max:.1} px), which leaves {counted} \
-                 of the {interior} pixels of the counting domain; fill the gaps before the \
-                 analysis, crop to a gap-free region, or use fewer --octaves",
-                cfg.wavelet.support_radius() * a_max
+                 at the largest scale ({clearance:.0} px at a = {a_max:.1} px), which leaves \
+                 {counted} of the {interior} pixels of the counting domain; fill the gaps \
+                 before the analysis, crop to a gap-free region, or use fewer --octaves"
             )
         }
         _ => NO_MAXIMA.into(),

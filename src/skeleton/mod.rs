@@ -227,6 +227,12 @@ impl AnalysisConfig {
         Ok(d)
     }
 
+    /// How far from every missing pixel a maximum must lie to count: the
+    /// wavelet's support at the largest scale (px).
+    pub fn hole_clearance(&self) -> f64 {
+        self.wavelet.support_radius() * self.scale_list().last().copied().unwrap_or(0.0)
+    }
+
     /// Pixels of the counting domain for `field`: `(counted, interior)`,
     /// the interior rectangle's pixels and those of them farther from every
     /// missing pixel than the wavelet's support at the largest scale (where
@@ -237,7 +243,7 @@ impl AnalysisConfig {
     pub fn counting_pixels(&self, field: &Field) -> Result<(usize, usize)> {
         let d = self.domain(field)?;
         let interior = (d.y1 - d.y0) * (d.x1 - d.x0);
-        let clearance = (d.support * self.scale_list().last().copied().unwrap_or(0.0)) as f32;
+        let clearance = self.hole_clearance() as f32;
         let counted = match &d.mask_distance {
             None => interior,
             Some(dist) => dist
@@ -350,7 +356,7 @@ pub fn skeleton_with(
         margin: cfg.margin_px(),
         domain: (domain.y0, domain.y1, domain.x0, domain.x1),
         hole_distance: domain.mask_distance.clone().map(std::sync::Arc::new),
-        hole_clearance: domain.support * scales.last().copied().unwrap_or(0.0),
+        hole_clearance: cfg.hole_clearance(),
         ..Default::default()
     };
     let mut asm = Assembler {
