@@ -645,6 +645,16 @@ fn scattered_holes_are_named_as_the_cause() {
     assert!(err.contains("which leaves 0 of the"), "{err}");
     assert!(!err.contains("flat"), "{err}");
     assert!(!out.exists());
+    // the statistics commands fail on the ensemble (maxima exist at the
+    // small scales) or on the correlation's domain: the holes are named
+    for cmd in ["pdf", "kernel", "correlate"] {
+        let (code, err) = run_bin_stderr(&[cmd, &p, "--octaves", "2", "--out", &o]);
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains(&p), "{cmd}: {err}");
+        assert!(err.contains("missing pixels"), "{cmd}: {err}");
+        assert!(!err.contains("invalid input"), "{cmd}: {err}");
+        assert!(!out.exists(), "{cmd}");
+    }
 }
 
 /// `pdf` refuses a shown scale without WTMMM (it drew empty curves, or

@@ -680,6 +680,7 @@ pub fn validation_criteria(
         seed,
         periodic,
         wavelet: cfg.wavelet,
+        holes: Default::default(),
     };
     let sk_scales = kcfg_a.scale_list();
     struct Acc {

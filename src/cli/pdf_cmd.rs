@@ -15,6 +15,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use clap::{Args, ValueEnum};
 use rayon::prelude::*;
@@ -90,6 +91,46 @@ pub struct Input {
     pub periodic: bool,
     /// The wavelet the preset recommends (gauss without a model).
     pub wavelet: Wavelet,
+    /// Missing pixels met by [`Input::fold`], so that an ensemble-level
+    /// shortage of maxima can name them as its likely cause.
+    pub holes: HoleTally,
+}
+
+/// Images with missing pixels (NaN, inf, nodata) and their pixel count,
+/// tallied while folding (shared across the rayon workers).
+#[derive(Debug, Default)]
+pub struct HoleTally {
+    images: AtomicUsize,
+    pixels: AtomicUsize,
+}
+
+impl HoleTally {
+    fn add(&self, field: &Field) {
+        let n = field
+            .mask
+            .as_ref()
+            .map_or(0, |m| m.iter().filter(|&&b| b).count());
+        if n > 0 {
+            self.images.fetch_add(1, Ordering::Relaxed);
+            self.pixels.fetch_add(n, Ordering::Relaxed);
+        }
+    }
+
+    /// What to add to a "too few maxima" message when images had holes.
+    pub fn note(&self, of: usize) -> Option<String> {
+        let (k, n) = (
+            self.images.load(Ordering::Relaxed),
+            self.pixels.load(Ordering::Relaxed),
+        );
+        (k > 0).then(|| {
+            format!(
+                "; {k} of the {of} image(s) have missing pixels (NaN, inf or nodata; {n} in \
+                 all), and maxima count only farther from them than the wavelet's support at \
+                 each scale, so scattered gaps leave few maxima at the larger scales: fill the \
+                 gaps before the analysis or crop to a gap-free region"
+            )
+        })
+    }
 }
 
 impl StatsInput {
@@ -167,6 +208,7 @@ impl StatsInput {
             size,
             seed,
             periodic,
+            holes: HoleTally::default(),
         })
     }
 }
@@ -237,11 +279,12 @@ impl Input {
             .into_par_iter()
             .try_fold(&init, |mut acc, i| -> Result<A> {
                 let (field, label) = self.load(i)?;
+                self.holes.add(&field);
                 step(&mut acc, &field, &label, par).map_err(|e| {
                     if self.generated() {
                         e
                     } else {
-                        Error::format(&self.images[i], e.to_string())
+                        Error::format(&self.images[i], reason(e))
                     }
                 })?;
                 pb.inc(1);
@@ -279,8 +322,12 @@ impl Input {
     /// A fault of the data ([`Error::Input`]) found in the ensemble as a
     /// whole (not one image), naming the input: a single file as the file at
     /// fault, else in the message. Other errors pass unchanged.
+    /// Missing pixels met while folding are named as the likely cause.
     pub fn blame(&self, e: Error) -> Error {
-        let Error::Input(msg) = e else { return e };
+        let Error::Input(mut msg) = e else { return e };
+        if let Some(note) = self.holes.note(self.len()) {
+            msg.push_str(&note);
+        }
         match self.images.as_slice() {
             [one] => Error::format(one, msg),
             _ => Error::Input(format!("{}: {msg}", self.describe())),

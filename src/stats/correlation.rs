@@ -1089,6 +1089,17 @@ fn cwt_correlation_in(
                 valid[y * dx + x] = dist[[y + y0, x + x0]] as f64 > r;
             }
         }
+        if !valid.contains(&true) {
+            ws.valid = valid;
+            let missing = mask.iter().filter(|&&b| b).count();
+            return Err(Error::Input(format!(
+                "no valid point for the correlation: the image has {missing} missing pixels \
+                 (NaN, inf or nodata), and points count only farther from them than the \
+                 wavelet's support at the largest scale ({r:.0} px at a = {a_max:.1} px), \
+                 which leaves none of the {dy}x{dx} domain; fill the gaps or crop to a \
+                 gap-free region"
+            )));
+        }
     }
     // fields 0..ns: the magnitudes on the FFT grid (domain at the origin);
     // field ns: the mask, if needed. Outside the domain the fields must be
@@ -1155,7 +1166,9 @@ fn cwt_correlation_in(
     if n_valid == 0 {
         ws.valid = valid;
         return Err(Error::Input(
-            "no valid point for the correlation (flat or masked image)".into(),
+            "no valid point for the correlation: every point is below eps times the largest \
+             modulus at some scale (a flat image?)"
+                .into(),
         ));
     }
     let all_valid = n_valid == dy * dx;
