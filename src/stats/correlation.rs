@@ -658,6 +658,10 @@ impl CorrelationPlan {
             } else {
                 self.cfg.magnitude
             },
+            // the skeleton's points carry their own wavelet and threshold
+            wavelet: (source == "cwt").then_some(self.cfg.wavelet),
+            eps: (source == "cwt").then_some(self.cfg.eps),
+            margin: self.cfg.margin_px(),
             images: vec![],
         }
     }
@@ -1008,6 +1012,13 @@ pub struct CorrelationSums {
     /// The magnitude correlated: the configured one for `source = "cwt"`,
     /// always ln M for `source = "wtmmm"`.
     pub magnitude: Magnitude,
+    /// Wavelet of the transform (`source = "cwt"`; `None` for "wtmmm",
+    /// whose points come from a skeleton made elsewhere).
+    pub wavelet: Option<Wavelet>,
+    /// Threshold `eps` of the valid points (`source = "cwt"`).
+    pub eps: Option<f64>,
+    /// Interior margin in pixels (0 on a torus).
+    pub margin: usize,
     /// One partial per image, in the order added.
     pub images: Vec<CorrelationImage>,
 }
@@ -1023,11 +1034,15 @@ impl CorrelationSums {
             && self.max_dx == other.max_dx
             && self.periodic == other.periodic
             && self.magnitude == other.magnitude
+            && self.wavelet == other.wavelet
+            && self.eps == other.eps
+            && self.margin == other.margin
             && crate::cwt::same_scales(&self.scales, &other.scales);
         if !same {
             return Err(Error::param(
                 "pairs",
-                "cannot merge correlation sums computed with different settings",
+                "cannot merge correlation sums computed with different settings (source, \
+                 scales, pairs, bins, max dx, domain, magnitude, wavelet, eps or margin)",
             ));
         }
         self.images.extend(other.images.iter().cloned());
