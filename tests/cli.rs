@@ -1055,6 +1055,30 @@ fn validate_judges_the_fbm_range_once() {
     assert!(want > 30, "{want}");
 }
 
+/// A q grid whose binary steps miss 0 and 2 by rounding still has them: it
+/// panicked looking q = 0 up (exit 101), and dropped the tau(2) + 4 row.
+#[test]
+fn validate_takes_q_grids_with_rounding() {
+    let dir = scratch("validate-qgrid");
+    let o = dir.join("o").display().to_string();
+    let args = validate_args(
+        "paper-lognormal",
+        "1",
+        "128",
+        &["--q=-0.3:3:0.1", "--out", &o],
+    );
+    assert_eq!(run(&args), 0);
+    let v = json(&Path::new(&o).join("validation.json"));
+    let names: Vec<&str> = v["criteria"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["name"].as_str().unwrap())
+        .collect();
+    assert!(names.contains(&"tau(2) + 4 (WTMM beta)"), "{names:?}");
+    assert!(names.contains(&"h(q=0)"), "{names:?}");
+}
+
 /// Periodic models are analysed on the whole torus unless `--margin` says
 /// otherwise, and the margin used is recorded.
 #[test]

@@ -31,7 +31,18 @@ pub fn parse_list(flag: &str, s: &str) -> Result<Vec<f64>> {
             if n > 100_000 {
                 return Err(bad("too many values"));
             }
-            (0..=n).map(|i| a + i as f64 * st).collect()
+            // a + i st is inexact in binary (-0.3 + 3 x 0.1 = 5.6e-17, not
+            // 0): rounded to 12 significant digits, the decimal grid meant
+            (0..=n)
+                .map(|i| {
+                    let x = a + i as f64 * st;
+                    if x.abs() < 1e-9 * st {
+                        0.0
+                    } else {
+                        format!("{x:.11e}").parse().expect("a formatted f64")
+                    }
+                })
+                .collect()
         }
         _ => return Err(bad("use start:stop:step or a,b,c")),
     };
@@ -250,6 +261,12 @@ mod tests {
             vec![-2.0, 0.0, 1.0, 2.0]
         );
         assert_eq!(parse_list("q", "3").unwrap(), vec![3.0]);
+        // the decimal grid meant, not the binary sums a + i step
+        let v = parse_list("q", "-0.3:3:0.1").unwrap();
+        assert_eq!(v[3], 0.0);
+        assert_eq!(v[23], 2.0);
+        assert_eq!(v[33], 3.0);
+        assert!(parse_list("q", "-7.2:8:0.2").unwrap().contains(&2.0));
         for bad in [
             "0,1,1,2",
             "1:0:1",

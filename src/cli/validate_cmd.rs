@@ -394,8 +394,11 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let mut q = opts.q()?;
     let halves = (2.0 * pq_lo).round() as i64..=(2.0 * pq_hi).round() as i64;
     for extra in halves.map(|k| k as f64 / 2.0) {
-        if !q.iter().any(|&x| (x - extra).abs() < 1e-12) {
-            q.push(extra);
+        // a value within rounding of the half integer becomes it (the
+        // criteria look q = 0 and q = 2 up exactly)
+        match q.iter_mut().find(|x| (**x - extra).abs() < 1e-9) {
+            Some(x) => *x = extra,
+            None => q.push(extra),
         }
     }
     q.sort_by(f64::total_cmp);
