@@ -348,6 +348,40 @@ fn compare_tiny_ensembles() {
             .all(|k| k.as_f64().unwrap().abs() < 1e-12)
     );
     assert!((c["theory"]["H"].as_f64().unwrap() - 1.0 / 3.0).abs() < 1e-12);
+    // one group has no scatter: null, not 0 ("no significant bias")
+    let one = dir.join("one");
+    let code = run(&[
+        "compare",
+        "--preset",
+        "paper-fbm",
+        "--count",
+        "1",
+        "--size",
+        "128",
+        "--groups",
+        "1",
+        "--octaves",
+        "3",
+        "--voices",
+        "4",
+        "--fit",
+        "0:3",
+        "--q",
+        "-1:3:0.5",
+        "--eta",
+        "1",
+        "--out",
+        one.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0);
+    for s in json(&one.join("compare.json"))["summary"]
+        .as_array()
+        .unwrap()
+    {
+        assert!(s["max_abs_bias"].is_f64(), "{s}");
+        assert!(s["rms_sd_groups"].is_null(), "{s}");
+        assert!(s["max_abs_bias_over_se"].is_null(), "{s}");
+    }
     for bad in [
         vec!["--preset", "topo-fif", "--count", "2", "--groups", "3"],
         vec!["--preset", "paper-fisc", "--size", "100"],

@@ -142,20 +142,23 @@ fn scalar(value: f64, groups: &[f64], target: f64) -> Scalar {
 }
 
 fn method_tau(name: &str, tau: Vec<f64>, groups: Vec<Vec<f64>>, theory: &[f64]) -> MethodTau {
-    let g = groups.len() as f64;
-    let mut sd = Vec::with_capacity(tau.len());
+    let (mut sd, mut se) = (Vec::with_capacity(tau.len()), Vec::with_capacity(tau.len()));
     for i in 0..tau.len() {
         let v: Vec<f64> = groups
             .iter()
             .map(|t| t[i])
             .filter(|x| x.is_finite())
             .collect();
-        sd.push(mean_std(&v).1);
+        // NaN with fewer than 2 finite groups; the error of the mean over
+        // the groups that gave a value
+        let s = mean_std(&v).1;
+        sd.push(s);
+        se.push(s / (v.len() as f64).sqrt());
     }
     MethodTau {
         method: name.into(),
         bias: tau.iter().zip(theory).map(|(a, b)| a - b).collect(),
-        se: sd.iter().map(|s| s / g.sqrt()).collect(),
+        se,
         sd_groups: sd,
         tau,
         groups,
@@ -167,7 +170,10 @@ fn summarise(m: &MethodTau, q: &[f64], range: (f64, f64)) -> Summary {
         .filter(|&i| q[i] >= range.0 - 1e-12 && q[i] <= range.1 + 1e-12 && m.bias[i].is_finite())
         .collect();
     let n = idx.len();
-    let (mut worst, mut q_worst, mut ss, mut sds, mut z) = (0.0f64, f64::NAN, 0.0, 0.0, 0.0f64);
+    let (mut worst, mut q_worst, mut ss) = (0.0f64, f64::NAN, 0.0);
+    // the scatter only over the q where the groups gave one (a single
+    // group, or groups without a value, have none: NaN, not 0)
+    let (mut sds, mut n_sd, mut z, mut n_z) = (0.0, 0usize, 0.0f64, 0usize);
     for &i in &idx {
         let b = m.bias[i].abs();
         if b >= worst {
@@ -177,21 +183,23 @@ fn summarise(m: &MethodTau, q: &[f64], range: (f64, f64)) -> Summary {
         ss += b * b;
         if m.sd_groups[i].is_finite() {
             sds += m.sd_groups[i].powi(2);
+            n_sd += 1;
         }
         if m.se[i] > 0.0 {
             z = z.max(b / m.se[i]);
+            n_z += 1;
         }
     }
-    let nan_if_empty = |v: f64| if n == 0 { f64::NAN } else { v };
+    let nan_if_none = |v: f64, k: usize| if k == 0 { f64::NAN } else { v };
     Summary {
         method: m.method.clone(),
         q_range: range,
         n_q: n,
-        max_abs_bias: nan_if_empty(worst),
+        max_abs_bias: nan_if_none(worst, n),
         q_of_max_abs_bias: q_worst,
-        rms_bias: nan_if_empty((ss / n.max(1) as f64).sqrt()),
-        rms_sd_groups: nan_if_empty((sds / n.max(1) as f64).sqrt()),
-        max_abs_bias_over_se: nan_if_empty(z),
+        rms_bias: nan_if_none((ss / n.max(1) as f64).sqrt(), n),
+        rms_sd_groups: nan_if_none((sds / n_sd.max(1) as f64).sqrt(), n_sd),
+        max_abs_bias_over_se: nan_if_none(z, n_z),
     }
 }
 
