@@ -166,10 +166,15 @@ impl AnalysisConfig {
             ));
         }
         match self.link.radius {
-            SearchRadius::Reference { cap } if !(cap >= 1.0) => {
+            // finite: JSON has no inf, and the recorded analysis must
+            // read back (a cap of the image side is no cap)
+            SearchRadius::Reference { cap } if !(cap >= 1.0 && cap.is_finite()) => {
                 return Err(Error::param(
                     "radius-cap",
-                    "the search-box cap must be >= 1 px",
+                    format!(
+                        "the search-box cap must be a finite number of px >= 1, got {cap} (for \
+                         no cap give the image side)"
+                    ),
                 ));
             }
             SearchRadius::Proportional { factor, min }
