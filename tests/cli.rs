@@ -1914,3 +1914,29 @@ fn default_fit_with_odd_voices() {
     assert_eq!(t["fit_octaves"], s["fit_octaves"]);
     assert_eq!(t["tau"], s["tau"]);
 }
+
+/// A plane: `spectrum` blames the data, not a flag the user never gave, and
+/// `analyze` flags h(q) at the gauss wavelet's order (it reads 1 - 3e-11,
+/// which a strict `h >= 1` test let through without a word).
+#[test]
+fn a_plane_is_named_as_smooth_not_as_a_bad_flag() {
+    let dir = scratch("plane");
+    let p = dir.join("plane.npy");
+    write_npy(
+        &p,
+        &Array2::from_shape_fn((128, 128), |(y, x)| (x + 2 * y) as f64),
+    )
+    .unwrap();
+    let p = p.display().to_string();
+    let o = dir.join("o").display().to_string();
+    let (code, err) = run_bin_stderr(&["spectrum", &p, "--out", &o]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains(&p) && err.contains("power spectrum is 0"),
+        "{err}"
+    );
+    assert!(!err.contains("k-range"), "{err}");
+    let (code, err) = run_bin_stderr(&["analyze", &p, "--octaves", "2", "--out", &o]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("h(q) >= 1"), "{err}");
+}

@@ -9,7 +9,7 @@ use serde_json::json;
 
 use super::common::{f, header, make_out_dir, parse_range, read_all, write_csv, write_json};
 use super::{OutDir, Outcome};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
@@ -112,7 +112,14 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     for s in &spectra {
         ens.merge(s)?;
     }
-    let fit = ens.fit(k_lo, k_hi)?;
+    // a fault of the data names the image(s)
+    let fit = ens
+        .fit(k_lo, k_hi)
+        .map_err(|e| match (e, args.images.as_slice()) {
+            (Error::Input(m), [one]) => Error::format(one, m),
+            (Error::Input(m), many) => Error::Input(format!("{} images: {m}", many.len())),
+            (e, _) => e,
+        })?;
     let per_image: Vec<f64> = spectra
         .iter()
         .map(|s| s.fit(k_lo, k_hi).map(|f| f.beta).unwrap_or(f64::NAN))

@@ -160,6 +160,20 @@ impl PowerSpectrum {
             .into_iter()
             .filter(|&(k, s)| k >= k_lo && k <= k_hi && s > 0.0 && s.is_finite())
             .collect();
+        let in_range = self
+            .points()
+            .iter()
+            .filter(|&&(k, _)| k >= k_lo && k <= k_hi)
+            .count();
+        if pts.len() < 3 && in_range >= 3 {
+            // the bins are there but hold no power: the data's fault
+            return Err(Error::Input(format!(
+                "the power spectrum is 0 at {} of the {in_range} bins in [{k_lo:.4}, \
+                 {k_hi:.4}] rad/px: once the mean (or the plane, for non-periodic images) is \
+                 removed nothing is left there (a constant or planar image?)",
+                in_range - pts.len()
+            )));
+        }
         if pts.len() < 3 {
             return Err(Error::param(
                 "k-range",
