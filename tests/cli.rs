@@ -1940,3 +1940,31 @@ fn a_plane_is_named_as_smooth_not_as_a_bad_flag() {
     assert_eq!(code, 0, "{err}");
     assert!(err.contains("h(q) >= 1"), "{err}");
 }
+
+/// `kernel` with one octave has no reference scale above the fit range's
+/// start: the pooled tables are empty, and it says so (it printed NaN
+/// "for fewer than 3 images" with 3 images).
+#[test]
+fn kernel_says_when_its_tables_are_empty() {
+    let dir = scratch("kernel_one_octave");
+    let o = dir.join("o").display().to_string();
+    let (code, err) = run_bin_stderr(&[
+        "kernel",
+        "--preset",
+        "paper-lognormal",
+        "--count",
+        "3",
+        "--size",
+        "128",
+        "--octaves",
+        "1",
+        "--out",
+        &o,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("tables are empty"), "{err}");
+    let k = json(&dir.join("o").join("kernel.json"));
+    assert!(k["cumulants_pooled"]["c1"]["value"].is_null(), "{}", k["cumulants_pooled"]);
+    let w = k["warnings"].to_string();
+    assert!(w.contains("tables are empty"), "{w}");
+}

@@ -358,7 +358,9 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     )?;
     // "value +- se", the se spelled out when it cannot be estimated
     let pm = |e: &crate::stats::kernel::Estimate| {
-        if e.stderr.is_finite() {
+        if !e.value.is_finite() {
+            "none".to_string()
+        } else if e.stderr.is_finite() {
             format!("{:.4} +- {:.4}", e.value, e.stderr)
         } else {
             format!("{:.4} (no error: fewer than 3 images)", e.value)

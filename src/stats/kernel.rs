@@ -1023,6 +1023,21 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             ens[last].n, s.scales[last]
         ));
     }
+    if tables.iter().all(|t| t.rows.is_empty()) {
+        let refs = if opts.refs.is_empty() {
+            "no reference scale lies above the start of the fit range".to_string()
+        } else {
+            format!(
+                "no reference scale (at {:?} octaves) has a fitted scale below it",
+                opts.refs
+            )
+        };
+        warnings.push(format!(
+            "the C_n(a, a') tables are empty (pooled c_n: none): {refs} (fit {}:{} octaves); \
+             give references inside the fit range or more octaves (--refs, --octaves)",
+            opts.fit.0, opts.fit.1
+        ));
+    }
     // (fewer than 3 images, or fewer than 10: stderr_method warns)
     // a cumulant whose leave-one-out fits are not all finite keeps the
     // regression error (`est` above): said, not silent
