@@ -1964,7 +1964,34 @@ fn kernel_says_when_its_tables_are_empty() {
     assert_eq!(code, 0, "{err}");
     assert!(err.contains("tables are empty"), "{err}");
     let k = json(&dir.join("o").join("kernel.json"));
-    assert!(k["cumulants_pooled"]["c1"]["value"].is_null(), "{}", k["cumulants_pooled"]);
+    assert!(
+        k["cumulants_pooled"]["c1"]["value"].is_null(),
+        "{}",
+        k["cumulants_pooled"]
+    );
     let w = k["warnings"].to_string();
     assert!(w.contains("tables are empty"), "{w}");
+}
+
+/// `tm --universal-fit gls` with too few images for the covariance says that
+/// the fit fell back to OLS (it was only in tm.json).
+#[test]
+fn tm_says_when_an_explicit_gls_falls_back() {
+    let dir = scratch("tm_gls");
+    let a = fbm_npy(&dir, "a.npy", 64, 1);
+    let b = fbm_npy(&dir, "b.npy", 64, 2);
+    let o = dir.join("o").display().to_string();
+    let (code, err) = run_bin_stderr(&["tm", &a, &b, "--universal-fit", "gls", "--out", &o]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("--universal-fit gls was not possible"),
+        "{err}"
+    );
+    let t = json(&dir.join("o").join("tm.json"));
+    assert!(t["warnings"].to_string().contains("gls was not possible"));
+    // the default (gls where possible) falls back quietly
+    let o2 = dir.join("o2").display().to_string();
+    let (code, err) = run_bin_stderr(&["tm", &a, &b, "--out", &o2]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("gls was not possible"), "{err}");
 }

@@ -207,6 +207,16 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             ));
         }
     }
+    // an explicit request that could not be honoured is said, not only
+    // recorded in tm.json
+    if args.tm.universal_fit == Some(UniversalWeighting::Gls)
+        && res.universal_fit.starts_with("ols")
+    {
+        extra.push(format!(
+            "--universal-fit gls was not possible; the universal fit is {}",
+            res.universal_fit
+        ));
+    }
     make_out_dir(&args.out.out)?;
     // box levels are in pixels: images of several sizes weigh by their area
     let shapes = crate::spectra::ShapeCount::tally(shapes);
