@@ -459,7 +459,9 @@ impl PartitionSums {
             return Err(Error::param(
                 "fit",
                 format!(
-                    "only {} scales in the fit range {}:{} octaves (scales span {:.2} octaves)",
+                    "only {} scales in the fit range {}:{} octaves, need 3 (the {ns} scales span \
+                     {:.2} octaves above the smallest; widen --fit, or give more --voices or \
+                     --octaves)",
                     in_fit.len(),
                     fit.0,
                     fit.1,

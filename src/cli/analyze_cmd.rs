@@ -249,9 +249,6 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     for w in &spectra.warnings {
         say!("warning: {w}");
     }
-    if !quiet {
-        say!("wrote {}", args.out.out.join("spectra.json").display());
-    }
     Ok(Outcome::Ok)
 }
 

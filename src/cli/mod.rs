@@ -261,9 +261,15 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         (Some(dir), c) if !matches!(c, Command::Synth(_)) => files_under(dir),
         _ => Vec::new(),
     };
+    let quiet = cli.quiet;
     let r = run_command(cli).and_then(|o| {
         let written = batch.map(|b| b.commit_files()).transpose()?;
         if let (Some(dir), Some(written)) = (&out, written) {
+            // said once the files are there (not before the commit, which
+            // can still fail)
+            if !quiet && !written.is_empty() {
+                say!("wrote {} file(s) to {}", written.len(), dir.display());
+            }
             warn_stale(dir, &before, &written);
         }
         Ok(o)

@@ -36,31 +36,31 @@ pub struct ModelOpts {
     #[arg(long)]
     pub preset: Option<String>,
     /// fbm: Hurst exponent H in (0, 1); fif: order H of the fractional integration of the flux.
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub hurst: Option<f64>,
     /// fif: Lévy index alpha in (0, 2] (2 = log-normal generator).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub alpha: Option<f64>,
     /// fif: codimension of the mean C1 in [0, 2).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub c1: Option<f64>,
     /// wcascade: law of the multipliers.
     #[arg(long, value_enum)]
     pub law: Option<LawName>,
     /// wcascade lognormal: mean of ln M (e.g. -0.2634 = -0.38 ln 2).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub m: Option<f64>,
     /// wcascade lognormal: variance of ln M.
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub sigma2: Option<f64>,
     /// wcascade logpoisson: ln M = Y ln beta + gamma.
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub gamma: Option<f64>,
     /// wcascade logpoisson: beta in (0, 1).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub beta: Option<f64>,
     /// wcascade logpoisson: Poisson mean lambda.
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub lambda: Option<f64>,
     /// wcascade: orthonormal wavelet basis (db8 = 8 vanishing moments, the paper's).
     #[arg(long, value_enum)]
@@ -69,10 +69,10 @@ pub struct ModelOpts {
     #[arg(long, value_enum)]
     pub isotropy: Option<Isotropy>,
     /// fisc: p-model weight p in (0, 1/2].
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub p: Option<f64>,
     /// fisc: fractional integration order H*.
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub hstar: Option<f64>,
 }
 

@@ -640,10 +640,9 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     )?;
     if !quiet {
         say!(
-            "pdf: {} images, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s; wrote {}",
+            "pdf: {} images, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s",
             hist.images,
             args.set.name(),
-            dir.join("pdf.json").display()
         );
     }
     if let Some(w) = warning {

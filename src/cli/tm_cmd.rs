@@ -234,9 +234,6 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     for w in tm_warnings(&res).iter().chain(&extra) {
         say!("warning: {w}");
     }
-    if !quiet {
-        say!("wrote {}", args.out.out.join("tm.json").display());
-    }
     Ok(Outcome::Ok)
 }
 

@@ -786,7 +786,9 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         return Err(Error::param(
             "fit",
             format!(
-                "only {} scales in the fit range {}:{} octaves (scales span {top:.2} octaves)",
+                "only {} scales in the fit range {}:{} octaves, need 3 (the {ns} scales span \
+                 {top:.2} octaves above the smallest; widen --fit, or give more --voices or \
+                 --octaves)",
                 in_fit.len(),
                 opts.fit.0,
                 opts.fit.1

@@ -460,7 +460,7 @@ impl TraceMomentAccumulator {
                         "cannot estimate H = xi(1) for the automatic derivative order \
                          (--diff-order auto) from the structure function of this {ny}x{nx} \
                          image (too few lags, or none with a nonzero increment); give the \
-                         order (FluxDiff::Order, --diff-order)"
+                         order (--diff-order; FluxDiff::Order in the library)"
                     ),
                 })
             })?,
@@ -828,9 +828,10 @@ impl TraceMomentAccumulator {
             .map(|&x| x >= lo - 1e-9 && x <= hi + 1e-9)
             .collect();
         if in_range.iter().filter(|&&b| b).count() < 3 {
+            // named as the CLI flag (FitConfig::log2_lambda in the library)
             return Err(Error::param(
-                "log2-lambda",
-                format!("fewer than 3 scales in [{lo}, {hi}] (log2 λ up to {kmax})"),
+                "lambda-fit",
+                format!("fewer than 3 scales in log2 λ = [{lo}, {hi}] (log2 λ up to {kmax})"),
             ));
         }
         let fit_line = |y: &[f64]| {
