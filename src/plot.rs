@@ -318,8 +318,20 @@ fn titled_area<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     title: &str,
 ) -> std::result::Result<DrawingArea<DB, Shift>, String> {
+    // a long title (the data it shows: preset, images, size, wavelet) is
+    // set smaller until it fits the width, rather than clipped
+    let avail = root.dim_in_pixel().0.saturating_sub(2 * MARGIN) as f64;
+    let wide = ("sans-serif", 22.0)
+        .into_font()
+        .box_size(title)
+        .map_or(0.0, |(w, _)| w as f64);
+    let size = if wide > avail && wide > 0.0 {
+        (22.0 * avail / wide).floor().max(12.0)
+    } else {
+        22.0
+    };
     root.margin(MARGIN, MARGIN, MARGIN, MARGIN)
-        .titled(title, ("sans-serif", 22))
+        .titled(title, ("sans-serif", size))
         .map_err(|x| err_str(&x))
 }
 

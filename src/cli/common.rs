@@ -240,6 +240,12 @@ pub fn progress(len: u64, msg: &str, quiet: bool) -> ProgressBar {
 
 /// The object every JSON output starts from: `version`, `command`, `params`.
 /// Commands add their result keys to it.
+/// A file's name without its directories, for titles.
+pub fn file_label(p: &std::path::Path) -> String {
+    p.file_name()
+        .map_or_else(|| p.display().to_string(), |f| f.to_string_lossy().into())
+}
+
 pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
     serde_json::json!({"version": crate::VERSION, "command": command, "params": params})
 }

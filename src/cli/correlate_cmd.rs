@@ -301,7 +301,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         cwt_res.as_ref(),
         sk_res.as_ref(),
         input.model.as_ref(),
-        &input.name,
+        &input.title(cfg.wavelet),
         l,
         cfg.a_min,
         wall,
@@ -730,6 +730,7 @@ pub fn validation_criteria(
     let wall = t0.elapsed().as_secs_f64();
     let mut crit = Vec::new();
     let name = input.name.clone();
+    let title = input.title(cfg.wavelet);
     // kernel
     // the defaults of `kernel` (pairs lowered onto a short grid's top)
     let kopts = KernelOptions {
@@ -791,7 +792,7 @@ pub fn validation_criteria(
         json!({"model": model, "count": count, "size": size, "seed": seed, "analysis": kcfg_a, "options": kopts}),
         &outs,
         Some(model),
-        &name,
+        (&name, &title),
         wall,
     )?;
     // correlation
@@ -841,7 +842,7 @@ pub fn validation_criteria(
         Some(&r),
         None,
         Some(model),
-        &name,
+        &title,
         l,
         cfg.a_min,
         wall,

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use clap::Args;
 use serde_json::json;
 
-use super::common::{header, make_out_dir, parse_list, progress, write_json};
+use super::common::{file_label, header, make_out_dir, parse_list, progress, write_json};
 use super::{OutDir, Outcome};
 use crate::cwt::{CwtPlan, Wavelet, modulus_argument};
 use crate::error::{Error, Result};
@@ -81,7 +81,7 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
             save_modulus_png(
                 m.view(),
                 a,
-                args.wavelet,
+                &format!("{}, {} wavelet", file_label(&args.image), args.wavelet.name()),
                 &args.out.out.join(format!("modulus_{stem}.png")),
             )
         })();
@@ -124,7 +124,7 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
 fn save_modulus_png(
     m: ndarray::ArrayView2<f64>,
     a: f64,
-    wavelet: Wavelet,
+    what: &str,
     path: &std::path::Path,
 ) -> Result<()> {
     let (ny, nx) = m.dim();
@@ -140,7 +140,7 @@ fn save_modulus_png(
     save_raster_chart(
         &Raster::grey(m, (0, 255)),
         &RasterChart {
-            title: format!("modulus M(b, a), a = {a:.2} px, {} wavelet", wavelet.name()),
+            title: format!("modulus M(b, a), a = {a:.2} px, {what}"),
             x_label: if m.iter().any(|v| v.is_nan()) {
                 "x (px)   teal: no value (the wavelet reaches a missing pixel)".into()
             } else {

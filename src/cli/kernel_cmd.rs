@@ -353,7 +353,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         params,
         &out,
         input.model.as_ref(),
-        &input.name,
+        (&input.name, &input.title(cfg.wavelet)),
         wall,
     )?;
     // "value +- se", the se spelled out when it cannot be estimated
@@ -408,7 +408,7 @@ pub fn write_kernel_outputs(
     params: serde_json::Value,
     o: &KernelOutputs,
     model: Option<&Model>,
-    name: &str,
+    (name, title): (&str, &str),
     wall: f64,
 ) -> Result<()> {
     let k = &o.main;
@@ -588,7 +588,7 @@ pub fn write_kernel_outputs(
             &rows,
         )?;
     }
-    plot_kernel(dir, o, model, name)
+    plot_kernel(dir, o, model, title)
 }
 
 fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str) -> Result<()> {

@@ -334,6 +334,25 @@ impl Input {
         }
     }
 
+    /// What a figure's title says of its data: the preset (or files), the
+    /// images and their size, the wavelet.
+    pub fn title(&self, wavelet: Wavelet) -> String {
+        let w = wavelet.name();
+        if self.generated() {
+            let (n, s) = (self.count, self.size);
+            return format!("{}, {n} images of {s}x{s}, {w}", self.name);
+        }
+        let what = match self.images.as_slice() {
+            [one] => super::common::file_label(one),
+            many => format!("{} images", many.len()),
+        };
+        if self.name.is_empty() {
+            format!("{what}, {w}")
+        } else {
+            format!("{what} ({}), {w}", self.name)
+        }
+    }
+
     /// What goes into `params` of every output.
     pub fn params_json(&self) -> serde_json::Value {
         if self.generated() {
@@ -633,7 +652,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     write_pdf_csvs(dir, &show.iter().map(|&j| get(j)).collect::<Vec<_>>())?;
     plot_pdfs(
         dir,
-        &input.name,
+        &input.title(cfg.wavelet),
         &show.iter().map(|&j| get(j)).collect::<Vec<_>>(),
         &sec.iter().map(|&j| get(j)).collect::<Vec<_>>(),
         h0,

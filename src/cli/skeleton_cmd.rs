@@ -187,7 +187,8 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
             &r,
             &RasterChart {
                 title: format!(
-                    "chains and WTMMM, a = {:.2} px, {} (II Figs 9, 15)",
+                    "{}: chains and WTMMM, a = {:.2} px, {} (II Figs 9, 15)",
+                    super::common::file_label(&args.image),
                     sm.a,
                     cfg.wavelet.name()
                 ),
