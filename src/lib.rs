@@ -88,3 +88,7 @@ pub use theory::Model;
 
 /// The crate version, recorded in every output.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+
+/// The git commit the crate was built from (12 hex digits), or "unknown"
+/// outside a repository; recorded beside [`VERSION`] in every output.
+pub const BUILD: &str = env!("WTMM_BUILD");

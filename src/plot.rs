@@ -700,8 +700,11 @@ fn encode_png_rgb8(buf: &[u8], w: u32, h: u32) -> Vec<u8> {
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         // what made the picture (the JSON beside it holds the parameters)
-        enc.add_text_chunk("Software".into(), format!("wtmm {}", crate::VERSION))
-            .expect("a Latin-1 keyword and text");
+        enc.add_text_chunk(
+            "Software".into(),
+            format!("wtmm {} ({})", crate::VERSION, crate::BUILD),
+        )
+        .expect("a Latin-1 keyword and text");
         let mut wr = enc.write_header().expect("in-memory PNG header");
         wr.write_image_data(buf).expect("in-memory PNG data");
     }
@@ -1214,7 +1217,7 @@ pub fn save_raster_chart(raster: &Raster, spec: &RasterChart, path: &Path) -> Re
 /// What made the picture, as a comment after the XML declaration (if any);
 /// the JSON beside it holds the parameters.
 fn tag_svg(s: &mut String) {
-    let tag = format!("<!-- wtmm {} -->", crate::VERSION);
+    let tag = format!("<!-- wtmm {} ({}) -->", crate::VERSION, crate::BUILD);
     match s.find("?>") {
         Some(i) => s.insert_str(i + 2, &format!("\n{tag}")),
         None => s.insert_str(0, &format!("{tag}\n")),

@@ -1603,7 +1603,7 @@ fn every_command_writes_the_spec_keys() {
             assert!(out(name).join(f).is_file(), "{name}/{f} missing");
         }
     };
-    let head = ["version", "command", "params"];
+    let head = ["version", "build", "command", "params"];
 
     let mut a = vec!["analyze"];
     a.extend_from_slice(&im);

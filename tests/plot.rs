@@ -239,7 +239,13 @@ fn raster_chart_png_and_svg_of_the_requested_size() {
     assert!(s.contains("href=\"data:image/png;base64,iVBORw0KGgo"));
     assert!(s.trim_end().ends_with("</svg>"));
     // the version that drew them: a PNG text chunk, an SVG comment
-    let version = format!("wtmm {}", env!("CARGO_PKG_VERSION"));
+    // with the commit built from (12 hex digits, or "unknown" outside git)
+    assert!(
+        wtmm::BUILD == "unknown" || wtmm::BUILD.len() == 12,
+        "{}",
+        wtmm::BUILD
+    );
+    let version = format!("wtmm {} ({})", env!("CARGO_PKG_VERSION"), wtmm::BUILD);
     let bytes = std::fs::read(&png).unwrap();
     let reader = png::Decoder::new(std::io::Cursor::new(bytes))
         .read_info()

@@ -247,7 +247,7 @@ pub fn file_label(p: &std::path::Path) -> String {
 }
 
 pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
-    serde_json::json!({"version": crate::VERSION, "command": command, "params": params})
+    serde_json::json!({"version": crate::VERSION, "build": crate::BUILD, "command": command, "params": params})
 }
 
 #[cfg(test)]

@@ -190,6 +190,7 @@ pub fn write_png16(path: &Path, a: &Array2<f64>) -> Result<Png16Mapping> {
     // the mapping, and what wrote it (every JSON output says so)
     let mut body = serde_json::json!(mapping);
     body["version"] = serde_json::json!(crate::VERSION);
+    body["build"] = serde_json::json!(crate::BUILD);
     body["written_by"] = serde_json::json!("wtmm");
     let json = serde_json::to_vec_pretty(&body)
         .map_err(|e| Error::format(&sidecar, format!("cannot encode JSON: {e}")))?;
