@@ -63,6 +63,11 @@ impl Field {
         }
     }
 
+    /// Number of missing (masked) pixels.
+    pub fn missing_count(&self) -> usize {
+        self.data.len() - self.valid_count()
+    }
+
     /// True if pixel `(y, x)` is masked.
     pub fn is_masked(&self, y: usize, x: usize) -> bool {
         self.mask.as_ref().is_some_and(|m| m[[y, x]])

@@ -160,10 +160,7 @@ pub const NO_MAXIMA: &str = "no maxima at the smallest scale: the image is flat 
 /// counting domain they leave (maxima count only farther from them than the
 /// wavelet's support at the largest scale): scattered holes can leave none.
 pub fn no_maxima(field: &crate::field::Field, cfg: &crate::skeleton::AnalysisConfig) -> String {
-    let missing = field
-        .mask
-        .as_ref()
-        .map_or(0, |m| m.iter().filter(|&&b| b).count());
+    let missing = field.missing_count();
     match cfg.counting_pixels(field) {
         Ok((counted, interior)) if missing > 0 => {
             let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);

@@ -106,10 +106,7 @@ pub struct HoleTally {
 
 impl HoleTally {
     fn add(&self, field: &Field) {
-        let n = field
-            .mask
-            .as_ref()
-            .map_or(0, |m| m.iter().filter(|&&b| b).count());
+        let n = field.missing_count();
         if n > 0 {
             self.images.fetch_add(1, Ordering::Relaxed);
             self.pixels.fetch_add(n, Ordering::Relaxed);

@@ -1106,7 +1106,7 @@ fn cwt_correlation_in(
         }
         if !valid.contains(&true) {
             ws.valid = valid;
-            let missing = mask.iter().filter(|&&b| b).count();
+            let missing = field.missing_count();
             return Err(Error::Input(format!(
                 "no valid point for the correlation: the image has {missing} missing pixels \
                  (NaN, inf or nodata), and points count only farther from them than the \
