@@ -283,7 +283,7 @@ fn tm_bad_input_exits_2_and_writes_nothing() {
 fn compare_tiny_ensembles() {
     let dir = scratch("compare_tiny");
     // a small ensemble of `preset` split into `groups`, written to `out`
-    let compare = |preset: &str, count: &str, groups: &str, out: &Path| {
+    let compare = |preset: &str, count: &str, groups: &str, q: &str, out: &Path| {
         run(&[
             "compare",
             "--preset",
@@ -301,7 +301,7 @@ fn compare_tiny_ensembles() {
             "--fit",
             "0:3",
             "--q",
-            "-1:3:0.5",
+            q,
             "--eta",
             "1",
             "--out",
@@ -310,7 +310,7 @@ fn compare_tiny_ensembles() {
     };
     for preset in ["paper-fbm", "topo-fif"] {
         let out = dir.join(preset);
-        let code = compare(preset, "4", "2", &out);
+        let code = compare(preset, "4", "2", "-1:3:0.5", &out);
         assert_eq!(code, 0, "{preset}");
         let c = json(&out.join("compare.json"));
         assert_eq!(c["command"], "compare");
@@ -354,11 +354,20 @@ fn compare_tiny_ensembles() {
     assert!((c["theory"]["H"].as_f64().unwrap() - 1.0 / 3.0).abs() < 1e-12);
     // one group has no scatter: null, not 0 ("no significant bias")
     let one = dir.join("one");
-    assert_eq!(compare("paper-fbm", "1", "1", &one), 0);
-    for s in json(&one.join("compare.json"))["summary"]
-        .as_array()
-        .unwrap()
-    {
+    // a q grid without 1 (-1:3:0.3) gains it: H = tau(1) + 2 needs it
+    assert_eq!(compare("paper-fbm", "1", "1", "-1:3:0.3", &one), 0);
+    let c = json(&one.join("compare.json"));
+    assert!(
+        c["q"].as_array().unwrap().contains(&1.0.into()),
+        "{}",
+        c["q"]
+    );
+    assert!(
+        !c["scalars"]["H_wtmm = tau(1) + 2"]["value"].is_null(),
+        "{}",
+        c["scalars"]
+    );
+    for s in c["summary"].as_array().unwrap() {
         assert!(s["max_abs_bias"].is_f64(), "{s}");
         assert!(s["rms_sd_groups"].is_null(), "{s}");
         assert!(s["max_abs_bias_over_se"].is_null(), "{s}");

@@ -219,7 +219,14 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     opts.line.cwt.torus_for(&model);
     let cfg = opts.analysis()?;
     let fit = opts.fit()?;
-    let q = opts.q()?;
+    // H = tau(1) + 2 and beta = tau(2) + 4 need q = 1 and 2 on the grid
+    let mut q = opts.q()?;
+    for need in [1.0, 2.0] {
+        if find(&q, need).is_none() {
+            q.push(need);
+        }
+    }
+    q.sort_by(f64::total_cmp);
     let rule = opts.rule();
     if args.count == 0 {
         return Err(Error::param("count", "must be >= 1"));
