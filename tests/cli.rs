@@ -1079,30 +1079,6 @@ fn validate_judges_the_fbm_range_once() {
     assert!(want > 30, "{want}");
 }
 
-/// A q grid whose binary steps miss 0 and 2 by rounding still has them: it
-/// panicked looking q = 0 up (exit 101), and dropped the tau(2) + 4 row.
-#[test]
-fn validate_takes_q_grids_with_rounding() {
-    let dir = scratch("validate-qgrid");
-    let o = dir.join("o").display().to_string();
-    let args = validate_args(
-        "paper-lognormal",
-        "1",
-        "128",
-        &["--q=-0.3:3:0.1", "--out", &o],
-    );
-    assert_eq!(run(&args), 0);
-    let v = json(&Path::new(&o).join("validation.json"));
-    let names: Vec<&str> = v["criteria"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| c["name"].as_str().unwrap())
-        .collect();
-    assert!(names.contains(&"tau(2) + 4 (WTMM beta)"), "{names:?}");
-    assert!(names.contains(&"h(q=0)"), "{names:?}");
-}
-
 /// Periodic models are analysed on the whole torus unless `--margin` says
 /// otherwise, and the margin used is recorded.
 #[test]
@@ -1367,6 +1343,30 @@ fn validate_fills_the_published_q_range() {
             .join("reconstruction.csv")
             .exists()
     );
+    // a grid whose binary steps miss 0 and 2 by rounding (-0.3 + 3 x 0.1 =
+    // 5.6e-17) still has them exactly: validate panicked looking q = 0 up
+    // (exit 101) and dropped the tau(2) + 4 row
+    let o2 = dir.join("o2").display().to_string();
+    let args = validate_args(
+        "paper-lognormal",
+        "1",
+        "128",
+        &["--q=-0.3:3:0.1", "--out", &o2],
+    );
+    assert_eq!(run(&args), 0);
+    let v = json(&Path::new(&o2).join("validation.json"));
+    let q = v["estimates"]["q"].as_array().unwrap();
+    for want in [0.0, 2.0] {
+        assert!(q.contains(&want.into()), "{want}: {q:?}");
+        let near = q
+            .iter()
+            .filter(|x| (x.as_f64().unwrap() - want).abs() < 1e-6);
+        assert_eq!(near.count(), 1, "{want}: {q:?}");
+    }
+    let crit = v["criteria"].as_array().unwrap();
+    for name in ["tau(2) + 4 (WTMM beta)", "h(q=0)"] {
+        assert!(crit.iter().any(|c| c["name"] == name), "{name}");
+    }
 }
 
 /// `validate --replicates`: one directory per seed, and a summary whose
