@@ -1760,7 +1760,10 @@ fn missing_pixels_are_counted_and_reported() {
 ///   grid scale; a NaN `--theory-beta`; a `--summary-q` holding no q;
 /// * the same file twice through a hard link;
 /// * a PNG sidecar of another shape (a stale sidecar beside a new PNG);
-/// * more images than four-digit file names hold (`synth --count 10001`).
+/// * more images than four-digit file names hold (`synth --count 10001`);
+/// * a cascade size that is not a power of two for a generated ensemble,
+///   and a size too small for `validate`'s spectral fit (checked before
+///   the ensemble is analysed).
 #[test]
 fn hostile_inputs_are_refused_and_nothing_is_written() {
     let dir = scratch("hostile");
@@ -1843,6 +1846,35 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         vec![
             "synth", "fbm", "--hurst", "0.4", "--size", "16", "--count", "10001", "--out", &out,
         ],
+        vec![
+            "kernel",
+            "--preset",
+            "paper-lognormal",
+            "--size",
+            "100",
+            "--count",
+            "1",
+            "--out",
+            &out,
+        ],
+        vec![
+            "validate",
+            "fif",
+            "--alpha",
+            "1.8",
+            "--c1",
+            "0.1",
+            "--hurst",
+            "0.5",
+            "--size",
+            "96",
+            "--count",
+            "1",
+            "--octaves",
+            "2",
+            "--out",
+            &out,
+        ],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -1865,6 +1897,8 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "are the same file",
         "is not the PNG's",
         "must be at most 10000",
+        "wcascade needs a power of two, got 100",
+        "too small for the spectral criterion",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {
@@ -1880,6 +1914,13 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
     std::fs::write(&side, sc.to_string()).unwrap();
     let o2 = dir.join("o2").display().to_string();
     assert_eq!(run(&[an(&png), vec!["--out", &o2]].concat()), 0);
+    // FIF is built by FFTs of any length: no power of two asked
+    let o3 = dir.join("o3").display().to_string();
+    let fif = [
+        "synth", "fif", "--alpha", "1.8", "--c1", "0.1", "--hurst", "0.5", "--size", "100",
+        "--count", "1", "--out", &o3,
+    ];
+    assert_eq!(run(&fif), 0);
 }
 
 /// The default fit starts at the first scale at or above half an octave:

@@ -247,12 +247,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
             format!("must be >= 16, got {}", args.size),
         ));
     }
-    if matches!(model, Model::Fisc(_) | Model::WCascade(_)) && !args.size.is_power_of_two() {
-        return Err(Error::param(
-            "size",
-            format!("{} needs a power of two, got {}", model.name(), args.size),
-        ));
-    }
+    model.check_size(args.size)?;
     let summary_q = parse_range("summary-q", &args.summary_q)?;
     if !q.iter().any(|&v| v >= summary_q.0 && v <= summary_q.1) {
         return Err(Error::param(

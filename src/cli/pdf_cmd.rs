@@ -169,6 +169,9 @@ impl StatsInput {
             return Err(Error::param("count", "must be >= 1"));
         }
         let generated = self.images.is_empty();
+        if let Some(r) = resolved.as_ref().filter(|_| generated) {
+            r.model.check_size(size)?;
+        }
         let periodic = match (self.domain, margin) {
             (DomainChoice::Torus, Some(m)) if m != 0 => {
                 return Err(Error::param(

@@ -13,8 +13,8 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
-    CONVENTION, Detrend, PowerSpectrum, PowerSpectrumConfig, Window, default_k_range,
-    power_spectrum,
+    CONVENTION, Detrend, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,
+    default_k_range, power_spectrum,
 };
 
 #[derive(Args, Debug)]
@@ -85,7 +85,7 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         Some(r) => r,
         None => {
             let r = default_k_range(nmin);
-            if r.0 >= r.1 {
+            if bins_in_range(nmin, nmin, args.bins_per_octave, r)? < 3 {
                 let small = fields
                     .iter()
                     .zip(&args.images)
@@ -94,7 +94,8 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
                     .unwrap_or_default();
                 return Err(crate::Error::Input(format!(
                     "{small}: a side of {nmin} px is too small for the default fit range \
-                     (8 cycles per image up to pi/4 rad/px needs more than 64 px); give --k-range"
+                     (8 cycles per image up to pi/4 rad/px holds fewer than the 3 bins a fit needs); \
+                     give --k-range or more --bins-per-octave"
                 )));
             }
             r

@@ -12,7 +12,7 @@ use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::io::{write_npy, write_png16, write_tiff_f32};
-use crate::theory::{Model, TheoryTable};
+use crate::theory::TheoryTable;
 
 #[derive(Args, Debug)]
 pub struct SynthArgs {
@@ -73,12 +73,7 @@ pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
     let r = args.model_opts.resolve(args.model)?;
     let c = &args.common;
     check_common(c)?;
-    if !matches!(r.model, Model::Fbm(_)) && !c.size.is_power_of_two() {
-        return Err(Error::param(
-            "size",
-            format!("{} needs a power of two, got {}", r.model.name(), c.size),
-        ));
-    }
+    r.model.check_size(c.size)?;
     let t = TheoryTable::new(&r.model, &[-2.0, -1.0, 0.0, 1.0, 2.0, 3.0]);
     let theory = json!({"beta": t.beta, "beta_convention": t.beta_convention, "h_of_q0": t.h_of_q0,
         "h_min": t.h_min, "h_max": t.h_max, "recommended_wavelet": r.wavelet});

@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::io::write_atomic;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::fit::mean_std;
-use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, default_k_range};
+use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, bins_in_range, default_k_range};
 use crate::theory::{Model, TheoryTable};
 
 #[derive(Args, Debug, Clone)]
@@ -369,13 +369,16 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
 fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let r = args.model_opts.resolve(args.model)?;
     let (k_lo, k_hi) = default_k_range(args.size);
-    if k_lo >= k_hi {
+    let ps_cfg = PowerSpectrumConfig::for_field(r.model.is_periodic());
+    let k_bins = bins_in_range(args.size, args.size, ps_cfg.bins_per_octave, (k_lo, k_hi))?;
+    if k_bins < 3 {
         // checked before the ensemble is analysed, not after
         return Err(Error::param(
             "size",
             format!(
                 "{} px is too small for the spectral criterion: beta is fitted from 8 cycles \
-                 per image to pi/4 rad/px, which needs more than 64 px",
+                 per image to pi/4 rad/px, which holds {k_bins} spectrum bins at this size \
+                 and a fit needs 3",
                 args.size
             ),
         ));
@@ -420,13 +423,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             ),
         ));
     }
-    if !matches!(r.model, Model::Fbm(_)) && !args.size.is_power_of_two() {
-        return Err(Error::param(
-            "size",
-            format!("{} needs a power of two, got {}", r.model.name(), args.size),
-        ));
-    }
-    let ps_cfg = PowerSpectrumConfig::for_field(r.model.is_periodic());
+    r.model.check_size(args.size)?;
     let t0 = std::time::Instant::now();
     let pb = progress(args.count as u64, "validate", quiet);
     let model = r.model;

@@ -264,6 +264,25 @@ pub fn default_k_range(n: usize) -> (f64, f64) {
     (2.0 * pi * 8.0 / n as f64, pi / 4.0)
 }
 
+/// The number of spectrum bins of an `ny x nx` image that fall in
+/// `[k_lo, k_hi]` rad/px ([`PowerSpectrum::fit`] needs 3), so that a size
+/// too small for a fit range is refused before any image is analysed.
+///
+/// **Errors** if `bins_per_octave` is not in 1..=64.
+pub fn bins_in_range(
+    ny: usize,
+    nx: usize,
+    bins_per_octave: usize,
+    (k_lo, k_hi): (f64, f64),
+) -> Result<usize> {
+    let ps = PowerSpectrum::from_density(Array2::ones((ny, nx)).view(), bins_per_octave)?;
+    Ok(ps
+        .points()
+        .iter()
+        .filter(|&&(k, _)| k >= k_lo && k <= k_hi)
+        .count())
+}
+
 /// Removes a mean or a least-squares plane in place.
 fn detrend(img: &mut Array2<f64>, how: Detrend) {
     let (ny, nx) = img.dim();

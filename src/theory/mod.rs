@@ -292,6 +292,24 @@ impl Model {
         self.theory().magnitude_correlation(dx, l)
     }
 
+    /// True for the generators built on a dyadic grid (FISC's p-model and
+    /// the W-cascades' wavelet basis); fBm and FIF take any size.
+    pub fn needs_power_of_two(&self) -> bool {
+        matches!(self, Model::Fisc(_) | Model::WCascade(_))
+    }
+
+    /// **Errors** unless [`Model::synthesize`] can make `size x size`
+    /// images: a power of two for the cascades, at most 16384^2 pixels.
+    pub fn check_size(&self, size: usize) -> Result<()> {
+        if self.needs_power_of_two() && !size.is_power_of_two() {
+            return Err(Error::param(
+                "size",
+                format!("{} needs a power of two, got {size}", self.name()),
+            ));
+        }
+        crate::synth::check_pixels(size, size)
+    }
+
     /// Image `index` of the ensemble `seed`, `size x size`.
     ///
     /// **Errors** on invalid parameters or size (cascades need a power of two).
