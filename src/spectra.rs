@@ -449,26 +449,7 @@ impl PartitionSums {
                 ),
             ));
         }
-        let in_fit: Vec<usize> = (0..ns)
-            .filter(|&j| {
-                let o = log2_a[j] - oct0;
-                o >= fit.0 - 1e-9 && o <= fit.1 + 1e-9
-            })
-            .collect();
-        if in_fit.len() < 3 {
-            return Err(Error::param(
-                "fit",
-                format!(
-                    "only {} scales in the fit range {}:{} octaves, need 3 (the {ns} scales span \
-                     {:.2} octaves above the smallest; widen --fit, or give more --voices or \
-                     --octaves)",
-                    in_fit.len(),
-                    fit.0,
-                    fit.1,
-                    log2_a[ns - 1] - oct0
-                ),
-            ));
-        }
+        let in_fit = fit_indices(&self.scales, fit)?;
         let ens = self.ensemble(rule, None);
         let est = Estimates::fit(&ens, &log2_a, &in_fit, &self.q);
         // delete-one jackknife over images: error bars from the ensemble scatter
@@ -531,11 +512,38 @@ impl PartitionSums {
                 ),
                 None => String::new(),
             };
+            // what ends the lines: a domain too small for the scales, or a
+            // ratio window too narrow for the scale step (it bounds the
+            // local exponents a line can follow, LinkParams::ratio)
+            let margin = self.analysis.as_ref().map_or(0, |a| a.margin_px());
+            let cure = if margin > 0 || missing > 0 {
+                "; the counting domain is too small for these scales (use fewer octaves, a \
+                 smaller margin, or a lower fit range: --octaves, --margin, --fit)"
+                    .to_string()
+            } else {
+                "; the whole image is counted, so the scales reach too far for its size (use \
+                 fewer octaves or a lower fit range: --octaves, --fit)"
+                    .to_string()
+            };
+            let step = self
+                .scales
+                .windows(2)
+                .map(|w| (w[1] / w[0]).log2())
+                .fold(f64::NAN, f64::min);
+            let window = match self.analysis.as_ref().map(|a| a.link.ratio) {
+                Some((lo, hi)) if step > 0.0 => format!(
+                    ", or the linking: a line follows a local exponent only from {:.2} to {:.2} \
+                     per octave at this scale step ({:.3} octave) and --ratio {lo}:{hi}; \
+                     lines whose modulus changes faster end (more --voices or a wider --ratio)",
+                    lo.log2() / step,
+                    hi.log2() / step,
+                    step
+                ),
+                _ => String::new(),
+            };
             return Err(Error::Input(format!(
                 "no q has a partition function over the fit range: {} maxima lines reach \
-                 a = {:.2} px, the top of the fit range, in {} image(s){domain}{reach}; the \
-                 counting domain is too small for these scales (use fewer octaves, a smaller \
-                 margin, or a lower fit range: --octaves, --margin, --fit)",
+                 a = {:.2} px, the top of the fit range, in {} image(s){domain}{reach}{cure}{window}",
                 ens.lines[last_fit], self.scales[last_fit], n_img
             )));
         }
@@ -683,6 +691,10 @@ impl PartitionSums {
             image_shapes,
             q: self.q.clone(),
             fit_octaves: fit,
+            fit_octaves_used: (
+                round9(log2_a[in_fit[0]] - oct0),
+                round9(log2_a[last_fit] - oct0),
+            ),
             fit_scales: (self.scales[in_fit[0]], self.scales[last_fit]),
             tau_stderr: pick(&jk_tau, &est.tau_se),
             h_stderr: pick(&jk_h, &est.h_se),
@@ -943,8 +955,12 @@ pub struct Spectra {
     pub image_shapes: Vec<ShapeCount>,
     /// The q values.
     pub q: Vec<f64>,
-    /// Fit range in octaves above a_min, and in pixels.
+    /// Fit range in octaves above a_min as asked (`--fit`; HI equal to the
+    /// octaves the grid spans means its top scale, one voice below).
     pub fit_octaves: (f64, f64),
+    /// The octaves above a_min of the first and last fitted scales.
+    #[serde(default)]
+    pub fit_octaves_used: (f64, f64),
     /// The smallest and largest scales (px) inside the fit range.
     pub fit_scales: (f64, f64),
     /// τ(q): slope of the annealed `log2 Z(q, a)` against `log2 a` over the
@@ -1180,6 +1196,44 @@ fn config_difference(
         }
     }
     d.join("; ")
+}
+
+/// The indices of the scales inside the fit range `fit` (octaves above the
+/// smallest scale), so that a command can refuse a range holding fewer than
+/// 3 scales before it analyses anything.
+///
+/// **Errors** if fewer than 3 scales fall in it.
+pub fn fit_indices(scales: &[f64], fit: (f64, f64)) -> Result<Vec<usize>> {
+    let ns = scales.len();
+    let log2_a: Vec<f64> = scales.iter().map(|a| a.log2()).collect();
+    let oct0 = log2_a.first().copied().unwrap_or(0.0);
+    let in_fit: Vec<usize> = (0..ns)
+        .filter(|&j| {
+            let o = log2_a[j] - oct0;
+            o >= fit.0 - 1e-9 && o <= fit.1 + 1e-9
+        })
+        .collect();
+    if in_fit.len() < 3 {
+        return Err(Error::param(
+            "fit",
+            format!(
+                "only {} scales in the fit range {}:{} octaves, need 3 (the {ns} scales span \
+                 {:.2} octaves above the smallest; widen --fit, or give more --voices or \
+                 --octaves)",
+                in_fit.len(),
+                fit.0,
+                fit.1,
+                log2_a.last().map_or(0.0, |l| l - oct0)
+            ),
+        ));
+    }
+    Ok(in_fit)
+}
+
+/// `x` to 9 decimals: octaves computed as differences of logarithms carry
+/// float noise (3.8999999999999995 for 3.9) that would read as a value.
+fn round9(x: f64) -> f64 {
+    (x * 1e9).round() / 1e9
 }
 
 #[cfg(test)]

@@ -282,31 +282,32 @@ fn tm_bad_input_exits_2_and_writes_nothing() {
 #[test]
 fn compare_tiny_ensembles() {
     let dir = scratch("compare_tiny");
-    // a small ensemble of `preset` split into `groups`, written to `out`
+    // a small ensemble of `preset` split into `groups` (default: "")
+    // written to `out`
     let compare = |preset: &str, count: &str, groups: &str, q: &str, out: &Path| {
+        let g = ["--groups", groups];
+        let g = if groups.is_empty() { &g[..0] } else { &g[..] };
         run(&[
-            "compare",
-            "--preset",
-            preset,
-            "--count",
-            count,
-            "--size",
-            "128",
-            "--groups",
-            groups,
-            "--octaves",
-            "3",
-            "--voices",
-            "4",
-            "--fit",
-            "0:3",
-            "--q",
-            q,
-            "--eta",
-            "1",
-            "--out",
-            out.to_str().unwrap(),
-        ])
+            &[
+                "compare", "--preset", preset, "--count", count, "--size", "128",
+            ][..],
+            g,
+            &[
+                "--octaves",
+                "3",
+                "--voices",
+                "4",
+                "--fit",
+                "0:3",
+                "--q",
+                q,
+                "--eta",
+                "1",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        ]
+        .concat())
     };
     for preset in ["paper-fbm", "topo-fif"] {
         let out = dir.join(preset);
@@ -354,9 +355,11 @@ fn compare_tiny_ensembles() {
     assert!((c["theory"]["H"].as_f64().unwrap() - 1.0 / 3.0).abs() < 1e-12);
     // one group has no scatter: null, not 0 ("no significant bias")
     let one = dir.join("one");
-    // a q grid without 1 (-1:3:0.3) gains it: H = tau(1) + 2 needs it
-    assert_eq!(compare("paper-fbm", "1", "1", "-1:3:0.3", &one), 0);
+    // a q grid without 1 (-1:3:0.3) gains it: H = tau(1) + 2 needs it;
+    // the default --groups (4) follows a smaller count
+    assert_eq!(compare("paper-fbm", "1", "", "-1:3:0.3", &one), 0);
     let c = json(&one.join("compare.json"));
+    assert_eq!(c["params"]["groups"], 1, "{}", c["params"]);
     assert!(
         c["q"].as_array().unwrap().contains(&1.0.into()),
         "{}",
@@ -1763,7 +1766,9 @@ fn missing_pixels_are_counted_and_reported() {
 /// * more images than four-digit file names hold (`synth --count 10001`);
 /// * a cascade size that is not a power of two for a generated ensemble,
 ///   and a size too small for `validate`'s spectral fit (checked before
-///   the ensemble is analysed).
+///   the ensemble is analysed);
+/// * a single scale (it has no linked maxima: it used to read as a flat
+///   image, now the fit range is refused before the analysis).
 #[test]
 fn hostile_inputs_are_refused_and_nothing_is_written() {
     let dir = scratch("hostile");
@@ -1875,6 +1880,18 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
             "--out",
             &out,
         ],
+        vec![
+            "analyze",
+            &ok,
+            "--octaves",
+            "1",
+            "--voices",
+            "1",
+            "--margin",
+            "0",
+            "--out",
+            &out,
+        ],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -1899,6 +1916,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "must be at most 10000",
         "wcascade needs a power of two, got 100",
         "too small for the spectral criterion",
+        "only 0 scales in the fit range",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {

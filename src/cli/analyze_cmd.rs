@@ -76,6 +76,12 @@ pub fn fit_range(fit: Option<&str>, octaves: usize, voices: usize) -> Result<(f6
         None => crate::spectra::default_fit(octaves, voices),
     };
     check_fit(r, octaves as f64, 1.0 / voices as f64, "")?;
+    // fewer than 3 scales is refused here, before any image is analysed
+    // (one scale has no linked maxima, which read as a flat image)
+    let grid: Vec<f64> = (0..octaves * voices)
+        .map(|j| (j as f64 / voices as f64).exp2())
+        .collect();
+    crate::spectra::fit_indices(&grid, r)?;
     Ok(r)
 }
 

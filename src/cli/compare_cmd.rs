@@ -71,9 +71,10 @@ pub struct CompareArgs {
     pub size: usize,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Number of sub-ensembles (of consecutive images) for the scatter.
-    #[arg(long, default_value_t = 4)]
-    pub groups: usize,
+    /// Number of sub-ensembles (of consecutive images) for the scatter
+    /// [default: 4, or the image count when it is smaller].
+    #[arg(long)]
+    pub groups: Option<usize>,
     /// q range of the bias/scatter summary, `LO:HI`.
     #[arg(long, default_value = "0:3")]
     pub summary_q: String,
@@ -83,6 +84,13 @@ pub struct CompareArgs {
     pub tm: TmOpts,
     #[command(flatten)]
     pub out: OutDir,
+}
+
+impl CompareArgs {
+    /// `--groups`, or its default: 4, fewer with fewer images.
+    pub fn groups(&self) -> usize {
+        self.groups.unwrap_or(self.count.min(4))
+    }
 }
 
 /// Everything one image contributes.
@@ -231,13 +239,13 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     if args.count == 0 {
         return Err(Error::param("count", "must be >= 1"));
     }
-    if args.groups == 0 || args.groups > args.count {
+    if args.groups() == 0 || args.groups() > args.count {
         return Err(Error::param(
             "groups",
             format!(
-                "must be in 1..={} (the image count), got {} (the default is 4: give \
-                 --groups with fewer than 4 images)",
-                args.count, args.groups
+                "must be in 1..={} (the image count), got {}",
+                args.count,
+                args.groups()
             ),
         ));
     }
@@ -298,7 +306,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         .collect::<Result<_>>()?;
     pb.finish_and_clear();
     let wall = t0.elapsed().as_secs_f64();
-    let member = |i: usize| i * args.groups / args.count;
+    let member = |i: usize| i * args.groups() / args.count;
     let wtmm_of = |sel: &dyn Fn(usize) -> bool| -> Result<Spectra> {
         let s = PartitionSums::merge_all(
             parts
@@ -333,9 +341,9 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     // full ensemble with jackknife errors over images
     let accs: Vec<TraceMomentAccumulator> = parts.iter().map(|p| p.acc.clone()).collect();
     let (tm_acc, t_all) = finish_ensemble(&accs, &tm_fit)?;
-    let mut w_groups = Vec::with_capacity(args.groups);
-    let mut t_groups = Vec::with_capacity(args.groups);
-    for g in 0..args.groups {
+    let mut w_groups = Vec::with_capacity(args.groups());
+    let mut t_groups = Vec::with_capacity(args.groups());
+    for g in 0..args.groups() {
         w_groups.push(wtmm_of(&|i| member(i) == g)?);
         t_groups.push(tm_of(&|i| member(i) == g)?.1);
     }
@@ -388,7 +396,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
 
     // scalars: H, beta, alpha, C1
     let at = |s: &Spectra, v: f64| find(&s.q, v).map_or(f64::NAN, |i| s.tau[i]);
-    let gvals = |fun: &dyn Fn(usize) -> f64| -> Vec<f64> { (0..args.groups).map(fun).collect() };
+    let gvals = |fun: &dyn Fn(usize) -> f64| -> Vec<f64> { (0..args.groups()).map(fun).collect() };
     let beta_th = model.beta();
     let scalars: Vec<(&str, Scalar)> = vec![
         (
@@ -474,7 +482,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     make_out_dir(dir)?;
     let params = json!({
         "model": model, "preset": r.preset, "count": args.count, "size": args.size,
-        "seed": args.seed, "groups": args.groups, "summary_q": summary_q,
+        "seed": args.seed, "groups": args.groups(), "summary_q": summary_q,
         "wtmm": {"analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit, "rule": rule},
         "tm": {"config": tm_cfg, "fit": tm_fit},
     });
@@ -599,15 +607,24 @@ fn table(
     timing: &serde_json::Value,
 ) -> String {
     let mut s = String::new();
-    let per = args.count / args.groups;
+    // image i is in group i * groups / count: sizes differ by at most one
+    let (lo, hi) = (
+        args.count / args.groups(),
+        args.count.div_ceil(args.groups()),
+    );
+    let per = if lo == hi {
+        format!("{lo}")
+    } else {
+        format!("{lo}-{hi}")
+    };
     let _ = writeln!(
         s,
-        "compare {name}: {} images {}x{}, seed {}, {} sub-ensembles of ~{per}; wall {:.1} s",
+        "compare {name}: {} images {}x{}, seed {}, {} sub-ensembles of {per}; wall {:.1} s",
         args.count,
         args.size,
         args.size,
         args.seed,
-        args.groups,
+        args.groups(),
         timing["wall_seconds"].as_f64().unwrap_or(f64::NAN)
     );
     let _ = writeln!(

@@ -698,8 +698,8 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         args.seed,
         cfg.wavelet,
         rule,
-        fit.0,
-        fit.1,
+        s.fit_octaves_used.0,
+        s.fit_octaves_used.1,
         s.fit_scales.0,
         s.fit_scales.1
     );
