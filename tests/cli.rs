@@ -2044,3 +2044,39 @@ fn tm_says_when_an_explicit_gls_falls_back() {
     assert_eq!(code, 0, "{err}");
     assert!(!err.contains("gls was not possible"), "{err}");
 }
+
+/// `synth` into a directory that holds another run's files names every one
+/// it did not write (not only those of its own name beyond --count): a
+/// `DIR/*.npy` ensemble would mix two models unnoticed.
+#[test]
+fn synth_names_every_file_it_did_not_write() {
+    let dir = scratch("synth-stale");
+    let out = dir.join("s");
+    let o = out.to_str().unwrap();
+    let synth = |extra: &[&str]| run(&[&["synth", "--size", "16", "--out", o][..], extra].concat());
+    assert_eq!(synth(&["--preset", "paper-lognormal", "--count", "3"]), 0);
+    assert!(json(&out.join("synth.json"))["stale_files"].is_null());
+    assert_eq!(synth(&["fbm", "--hurst", "0.3", "--count", "2"]), 0);
+    let stale = |want: &[&str]| {
+        let s = json(&out.join("synth.json"));
+        let got: Vec<String> = serde_json::from_value(s["stale_files"].clone()).unwrap();
+        assert_eq!(got, want);
+    };
+    stale(&[
+        "wcascade_0000.npy",
+        "wcascade_0001.npy",
+        "wcascade_0002.npy",
+    ]);
+    // a PNG's sidecar is its own, the .npy of the same name is not
+    assert_eq!(
+        synth(&["fbm", "--hurst", "0.3", "--count", "1", "--format", "png"]),
+        0
+    );
+    stale(&[
+        "fbm_0000.npy",
+        "fbm_0001.npy",
+        "wcascade_0000.npy",
+        "wcascade_0001.npy",
+        "wcascade_0002.npy",
+    ]);
+}

@@ -102,7 +102,7 @@ fn check_common(c: &SynthCommon) -> Result<()> {
             "count",
             format!(
                 "must be at most {MAX_COUNT}, got {}: the files are numbered with four digits \
-                 (`{{stem}}_NNNN`, which the stale-file check reads); write a larger ensemble \
+                 (`{{stem}}_NNNN`); write a larger ensemble \
                  as several directories with different --seed",
                 c.count
             ),
@@ -174,17 +174,17 @@ where
     let mut body = header("synth", p);
     body["theory"] = theory;
     body["files"] = json!(names);
-    // older images of the same name beyond --count (an earlier, larger run
-    // into the same directory) would join a `DIR/*.npy` ensemble unnoticed
-    let stale = stale_files(&c.out.out, stem, c.count);
+    // older files this run does not rewrite (an earlier, larger run, or
+    // another model, into the same directory) would join a `DIR/*.npy`
+    // ensemble unnoticed
+    let stale = stale_files(&c.out.out, &names);
     if !stale.is_empty() {
         say!(
-            "warning: {} holds {} older file(s) `{stem}_NNNN` beyond --count {} (e.g. {}): \
-             they are not part of this ensemble (see synth.json)",
+            "warning: {} holds {} older file(s) this run did not write (e.g. {}): they are not \
+             part of this ensemble (synth.json lists its files); remove them or use a fresh --out",
             c.out.out.display(),
             stale.len(),
-            c.count,
-            stale[0]
+            stale[..stale.len().min(3)].join(", ")
         );
         body["stale_files"] = json!(stale);
     }
@@ -192,19 +192,27 @@ where
     Ok(Outcome::Ok)
 }
 
-/// Files `{stem}_NNNN.*` in `dir` with `NNNN >= count`, sorted.
-fn stale_files(dir: &std::path::Path, stem: &str, count: usize) -> Vec<String> {
+/// The files in `dir` (not its subdirectories) other than `written`, their
+/// PNG sidecars, synth.json and hidden files (the staged writes of this
+/// run among them), sorted: left by an earlier run.
+fn stale_files(dir: &std::path::Path, written: &[String]) -> Vec<String> {
     let Ok(rd) = std::fs::read_dir(dir) else {
         return Vec::new();
     };
-    let prefix = format!("{stem}_");
+    let mut keep: std::collections::HashSet<String> = written.iter().cloned().collect();
+    for n in written {
+        if let Some(stem) = n.strip_suffix(".png") {
+            keep.insert(format!("{stem}.json"));
+        }
+    }
+    keep.insert("synth.json".into());
     let mut v: Vec<String> = rd
-        .filter_map(|e| e.ok()?.file_name().into_string().ok())
-        .filter(|n| {
-            n.strip_prefix(&prefix)
-                .and_then(|r| r.split('.').next())
-                .is_some_and(|d| d.len() == 4 && d.parse::<usize>().is_ok_and(|i| i >= count))
+        .filter_map(|e| {
+            let e = e.ok()?;
+            e.file_type().ok()?.is_file().then_some(())?;
+            e.file_name().into_string().ok()
         })
+        .filter(|n| !n.starts_with('.') && !keep.contains(n))
         .collect();
     v.sort();
     v
