@@ -141,6 +141,8 @@ fn synth_fif_then_tm() {
         // an ensemble of >= 5 images: GLS universal fit; the OLS one is kept
         let uf = tm["universal_fit"].as_str().unwrap();
         assert!(uf.starts_with("gls"), "{uf}");
+        assert_eq!(tm["params"]["fit"]["universal"], "gls");
+        assert!(tm["params"]["fit"]["universal_requested"].is_null());
         assert!(num(&tm, "alpha_ols").is_finite() && num(&tm, "universal_shrinkage") >= 0.0);
         for key in ["alpha", "C1", "H", "q_s", "dtm_alpha", "dtm_C1", "beta"] {
             assert!(num(&tm, key).is_finite(), "{key}: {}", tm[key]);
@@ -172,6 +174,18 @@ fn synth_fif_then_tm() {
             assert!(one["universal_fit"].as_str().unwrap().starts_with("ols"));
             per.push(num(&one, "C1"));
         }
+        // 3 images: the default GLS falls back to OLS, and the record says
+        // which was used and which was asked
+        let o = dir.join(format!("three{}", extra.len()));
+        let mut a = vec!["tm"];
+        a.extend(files[..3].iter().map(String::as_str));
+        a.extend_from_slice(extra);
+        a.extend_from_slice(&["--eta", "1", "--out", o.to_str().unwrap()]);
+        assert_eq!(run(&a), 0);
+        let three = json(&o.join("tm.json"));
+        assert!(three["universal_fit"].as_str().unwrap().starts_with("ols"));
+        assert_eq!(three["params"]["fit"]["universal"], "ols");
+        assert_eq!(three["params"]["fit"]["universal_requested"], "gls");
         let sigma = mean_std(&per).1 / (n as f64).sqrt();
         let est = num(&tm, "C1");
         let jk = num(&tm, "C1_stderr");
@@ -1768,7 +1782,8 @@ fn missing_pixels_are_counted_and_reported() {
 ///   and a size too small for `validate`'s spectral fit (checked before
 ///   the ensemble is analysed);
 /// * a single scale (it has no linked maxima: it used to read as a flat
-///   image, now the fit range is refused before the analysis).
+///   image, now the fit range is refused before the analysis);
+/// * a `tm --q` list with fewer than 3 orders q > 0 (alpha and C1 were NaN).
 #[test]
 fn hostile_inputs_are_refused_and_nothing_is_written() {
     let dir = scratch("hostile");
@@ -1892,6 +1907,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
             "--out",
             &out,
         ],
+        vec!["tm", &ok, "--q=0,1", "--out", &out],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -1917,6 +1933,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "wcascade needs a power of two, got 100",
         "too small for the spectral criterion",
         "only 0 scales in the fit range",
+        "the universal fit of alpha and C1 needs 3",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {

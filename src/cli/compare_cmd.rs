@@ -484,7 +484,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         "model": model, "preset": r.preset, "count": args.count, "size": args.size,
         "seed": args.seed, "groups": args.groups(), "summary_q": summary_q,
         "wtmm": {"analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit, "rule": rule},
-        "tm": {"config": tm_cfg, "fit": tm_fit},
+        "tm": {"config": tm_cfg, "fit": super::tm_cmd::fit_record(&tm_fit, &t_all.universal_fit)},
     });
     let mut body = header("compare", params.clone());
     body["model"] = json!(name);

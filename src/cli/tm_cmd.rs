@@ -74,8 +74,9 @@ pub struct TmOpts {
     /// the jackknife covariance of K(q) across q (correlations shrunk by the
     /// Schäfer-Strimmer intensity; needs >= 5 images or tiles), `ols` =
     /// unweighted least squares in K (the estimator before GLS) [default:
-    /// gls for an ensemble of images, ols for one image, whose tiles are
-    /// not independent samples for the covariance].
+    /// gls for an ensemble of 5 or more images (fewer fall back to ols,
+    /// recorded in tm.json), ols for one image, whose tiles are not
+    /// independent samples for the covariance].
     #[arg(long, value_enum)]
     pub universal_fit: Option<UniversalWeighting>,
     /// Taper before the FFT of the spectrum [default: hann for `tm`; none for
@@ -166,8 +167,46 @@ pub struct TmArgs {
     pub out: OutDir,
 }
 
+/// The fit settings as recorded: `universal` is the weighting the fit
+/// used (`universal_fit` of the result starts with it), and
+/// `universal_requested` keeps the one asked for (explicitly or by
+/// default) when it could not be used (GLS needs 5 jackknife parts).
+pub fn fit_record(fc: &TraceMomentFitConfig, used: &str) -> serde_json::Value {
+    let mut v = json!(fc);
+    let used = if used.starts_with("ols") {
+        UniversalWeighting::Ols
+    } else {
+        UniversalWeighting::Gls
+    };
+    if used != fc.universal {
+        v["universal_requested"] = json!(fc.universal);
+        v["universal"] = json!(used);
+    }
+    v
+}
+
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_q("q", &args.q)?;
+    // alpha and C1 come from a fit over the orders 0 < q <= q_s/2: fewer
+    // than 3 would give NaN without an error (the data-dependent q_s/2
+    // bound is checked, with a warning, after the moments)
+    let cap = args.tm.q_fit_max.unwrap_or(f64::INFINITY);
+    let usable = q.iter().filter(|&&v| v > 0.0 && v <= cap).count();
+    if usable < 3 {
+        return Err(Error::param(
+            "q",
+            format!(
+                "`{}` holds {usable} order(s) q > 0{}: the universal fit of alpha and C1 needs 3 \
+                 or more",
+                args.q,
+                if cap.is_finite() {
+                    format!(" up to --q-fit-max {cap}")
+                } else {
+                    String::new()
+                }
+            ),
+        ));
+    }
     let cfg = args.tm.config(q, false)?;
     let mut fc = args.tm.fit()?;
     if args.images.len() == 1 {
@@ -221,7 +260,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     // box levels are in pixels: images of several sizes weigh by their area
     let shapes = crate::spectra::ShapeCount::tally(shapes);
     let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
-        "config": cfg, "fit": fc});
+        "config": cfg, "fit": fit_record(&fc, &res.universal_fit)});
     write_outputs(
         &args.out.out,
         "tm",
