@@ -21,6 +21,12 @@ use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, bins_in_range, d
 use crate::theory::{Model, TheoryTable};
 
 #[derive(Args, Debug, Clone)]
+#[command(mut_arg("q", |a| a.help(
+    "q values: `start:stop:step` or `a,b,c`, to which every half integer of the published \
+     range is added (-6:8 for the W-cascades, -4:9 for FISC, -4:6 for fBm, 0:4 for FIF), so that \
+     each criterion is judged \
+     over its whole range [default: -4:6:0.5]"
+).hide_default_value(true)))]
 pub struct ValidateArgs {
     #[arg(value_enum)]
     pub model: Option<ModelName>,
