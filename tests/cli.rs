@@ -477,7 +477,7 @@ fn fif_model_in_synth_and_theory() {
             "--preset",
             "topo-fif",
             "--q",
-            "0:2:1",
+            "0:6:1",
             "--out",
             t.to_str().unwrap()
         ]),
@@ -492,6 +492,11 @@ fn fif_model_in_synth_and_theory() {
     assert!((th["beta"].as_f64().unwrap() - (4.0 + 1.4 - k2 - 2.0)).abs() < 1e-12);
     assert!((th["beta_integrated"].as_f64().unwrap() - (1.0 + 1.4 - k2)).abs() < 1e-12);
     assert!(th["notes"][0].as_str().unwrap().contains("q < 0"));
+    // D(q) < 0 at q = 5, 6 (h(q) below h_min): said, not left to be judged
+    assert!(th["D"][4].as_f64().unwrap() > 0.0 && th["D"][5].as_f64().unwrap() < 0.0);
+    assert!(th["h"][6].as_f64().unwrap() < th["h_min"].as_f64().unwrap());
+    let n = th["notes"][1].as_str().unwrap();
+    assert!(n.contains("D(q) < 0 at 2 of the q (5 to 6)"), "{n}");
 }
 
 fn fbm_npy(dir: &Path, name: &str, n: usize, seed: u64) -> String {

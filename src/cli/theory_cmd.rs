@@ -47,18 +47,43 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
     // the angle-integrated exponent of TM eq 11 and `tm` (E(k) ~ k S(k) for
     // an isotropic field), beside the angle-averaged `beta` = tau(2) + 4
     body["beta_integrated"] = json!(r.model.beta() - 1.0);
+    let mut notes = Vec::new();
     if let Model::Fif(p) = r.model
         && p.alpha < 2.0
         && p.c1 > 0.0
     {
-        body["notes"] = json!([if p.alpha > 1.0 + crate::theory::fif::ALPHA_ONE_EPS {
+        notes.push(if p.alpha > 1.0 + crate::theory::fif::ALPHA_ONE_EPS {
             "q < 0: tau(q) = q h_max - 2 is the spectrum truncated at h_max, where D = 2; \
              the strict Legendre transform of K (defined for q >= 0 only) gives D = 2 for every \
              h >= h_max and tau(q < 0) = -inf (src/theory/mod.rs)"
         } else {
             "q < 0: for alpha <= 1, K'(0+) = -inf, so h_max = +inf and tau(q < 0) = -inf: \
              written as null (src/theory/mod.rs)"
-        }]);
+        }
+        .to_string());
+    }
+    // D(q) < 0: the q where the annealed tau(q) is set by latent
+    // singularities (h outside [h_min, h_max], the exponents of D(h) >= 0)
+    let neg: Vec<f64> = q
+        .iter()
+        .zip(&t.d)
+        .filter(|&(_, &d)| d < -1e-12)
+        .map(|(&v, _)| v)
+        .collect();
+    if let (Some(lo), Some(hi)) = (neg.first(), neg.last()) {
+        notes.push(format!(
+            "D(q) < 0 at {} of the q ({lo} to {hi}): there the annealed tau(q) comes from \
+             latent singularities, h outside [h_min, h_max] = [{:.4}, {:.4}] where D(h) >= 0, \
+             which an image almost surely does not hold; an ensemble's estimate bends toward a \
+             straight line there (finite size and statistics), so these q are not a test of \
+             the estimator",
+            neg.len(),
+            t.h_min,
+            t.h_max
+        ));
+    }
+    if !notes.is_empty() {
+        body["notes"] = json!(notes);
     }
     let text = serde_json::to_string_pretty(&body).map_err(|e| Error::Input(e.to_string()))?;
     {
