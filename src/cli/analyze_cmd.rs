@@ -213,6 +213,16 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         && opts.line.cwt.wavelet.is_none()
     {
         opts.line.cwt.wavelet = Some(r.wavelet);
+        // the overlay changes the measurement itself: said, not only recorded
+        if r.wavelet != crate::skeleton::AnalysisConfig::default().wavelet {
+            say!(
+                "note: analysing with the {} wavelet, the one {} recommends (the default without \
+                 a theory is {}); give --wavelet to choose",
+                r.wavelet,
+                r.preset.unwrap_or(r.model.name()),
+                crate::skeleton::AnalysisConfig::default().wavelet
+            );
+        }
     }
     let cfg = opts.analysis()?;
     let (theory, theory_model) = match resolved {

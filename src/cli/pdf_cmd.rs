@@ -239,6 +239,17 @@ impl Input {
         let mut o = opts.clone();
         if o.cwt.wavelet.is_none() {
             o.cwt.wavelet = Some(self.wavelet);
+            // on the user's images the theory overlay changes the
+            // measurement itself: said, not only recorded (as in analyze)
+            let default = AnalysisConfig::default().wavelet;
+            if !self.generated() && self.wavelet != default {
+                say!(
+                    "note: analysing with the {} wavelet, the one {} recommends (the default \
+                     without a theory is {default}); give --wavelet to choose",
+                    self.wavelet,
+                    self.name
+                );
+            }
         }
         if self.periodic && o.cwt.margin.is_none() {
             o.cwt.margin = Some(0);
