@@ -1468,6 +1468,7 @@ fn inputs_that_would_give_wrong_or_empty_results_are_refused() {
         vec!["analyze", &a, "--octaves", "2", "--q=0,1,1", "--out", &out],
         vec!["spectrum", &a, "--k-range", "0.1:10", "--out", &out],
         vec!["tm", &a, "--lambda-fit", "0:20", "--out", &out],
+        vec!["pdf", &a, "--octaves", "2", "--h0", "1e6", "--out", &out],
         // recorded as null, which merge could not read back
         vec![
             "analyze",

@@ -594,10 +594,15 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         arg_bins: args.arg_bins,
     };
     pcfg.validate()?;
+    // a Hölder exponent: |h0| beyond 10 only rescales the pdfs out of f64
+    // (a^h0 with a up to 2^octaves) and is no surface's
     if let Some(h) = args.h0
-        && !h.is_finite()
+        && !(h.is_finite() && h.abs() <= 10.0)
     {
-        return Err(Error::param("h0", "must be finite"));
+        return Err(Error::param(
+            "h0",
+            format!("must be a finite exponent in [-10, 10], got {h}"),
+        ));
     }
     let t0 = std::time::Instant::now();
     let hist = collect_histograms(&input, &cfg, args.set, pcfg, quiet)?;
