@@ -37,7 +37,12 @@ fn main() {
     println!("cargo:rustc-env=WTMM_BUILD={id}");
     // a new commit moves HEAD or the branch it names; an edit or a commit
     // changes the index or the sources (a directory is watched whole)
-    for p in [".git/HEAD", ".git/refs/heads", ".git/packed-refs", ".git/index"] {
+    for p in [
+        ".git/HEAD",
+        ".git/refs/heads",
+        ".git/packed-refs",
+        ".git/index",
+    ] {
         if std::path::Path::new(p).exists() {
             println!("cargo:rerun-if-changed={p}");
         }

@@ -1448,6 +1448,17 @@ fn validate_replicates_summarise_independent_ensembles() {
         let want = 0.5 * (t0[k].as_f64().unwrap() + t1[k].as_f64().unwrap());
         assert!((m.as_f64().unwrap() - want).abs() < 1e-12);
     }
+    // the correlation is judged on the pooled ensembles' C(dx): the average
+    // of the two curves (equal bin counts), so its largest deviation is at
+    // most the mean of the two runs' (triangle inequality), up to the
+    // second-order change of the ensemble centring when the sums pool
+    let c = crit
+        .iter()
+        .find(|c| c["name"].as_str().unwrap().starts_with("max |C(dx)"))
+        .unwrap();
+    let pooled = num(c, "max_dev_of_pooled_correlation");
+    assert!(pooled.is_finite() && pooled <= num(c, "mean") + 1e-3, "{c}");
+    assert_eq!(c["pass_mean"], pooled <= num(c, "tolerance"));
     assert!(Path::new(&o).join("replicates.txt").is_file());
 }
 

@@ -623,7 +623,8 @@ fn write_correlation_outputs(
 /// top of the fit range, and the correlation of the four scale pairs of
 /// Fig 30, on the torus for periodic models). Writes `kernel/` and
 /// `correlation/` under `dir`. Models without these closed forms give no
-/// criterion.
+/// criterion. Also returns the correlation sums when there is a correlation
+/// criterion, for [`pooled_correlation_value`].
 #[allow(clippy::too_many_arguments)]
 pub fn validation_criteria(
     model: &Model,
@@ -635,13 +636,13 @@ pub fn validation_criteria(
     fit: (f64, f64),
     dir: &Path,
     quiet: bool,
-) -> Result<Vec<Criterion>> {
+) -> Result<(Vec<Criterion>, Option<CorrelationSums>)> {
     let th_c = model.cumulants();
     let has_corr = model
         .magnitude_correlation(size as f64 / 8.0, size as f64)
         .is_some();
     if th_c.is_none() && !has_corr {
-        return Ok(vec![]);
+        return Ok((vec![], None));
     }
     let periodic = model.is_periodic();
     let mut kcfg_a = cfg.clone();
@@ -796,16 +797,17 @@ pub fn validation_criteria(
         wall,
     )?;
     // correlation
-    let r = correlation_estimates(acc.corr.as_ref().expect("count >= 1"))?;
+    let corr = acc.corr.expect("count >= 1");
+    let r = correlation_estimates(&corr)?;
     let l = size as f64;
     if has_corr {
         let chk = window_check(&r, model, l, PAPER_UNIT);
         let lit = window_check(&r, model, l, 1.0);
         let fbm = matches!(model, Model::Fbm(_));
-        // no bin in the window: no value (a 0 would pass a replicates mean)
-        let bins = chk["bins"].as_u64().unwrap_or(0);
-        let value = |key: &str| chk[key].as_f64().filter(|_| bins > 0).unwrap_or(f64::NAN);
-        let (v, v_img) = (value("max_abs_dev_C_ensemble"), value("max_abs_dev_C"));
+        let (v, v_img) = (
+            window_value(&chk, "max_abs_dev_C_ensemble"),
+            window_value(&chk, "max_abs_dev_C"),
+        );
         let tol = if fbm { 0.005 } else { 0.01 };
         // II Fig 30 tests eq 76 on the log-normal W-cascade (and C ~ 0 on
         // fBm); for the other cascades eq 76 holds with their own ln W
@@ -848,5 +850,22 @@ pub fn validation_criteria(
         wall,
         None,
     )?;
-    Ok(crit)
+    Ok((crit, has_corr.then_some(corr)))
+}
+
+/// A value of [`window_check`], NaN when no dx bin lies in the window (a 0
+/// would pass a replicates mean).
+fn window_value(chk: &serde_json::Value, key: &str) -> f64 {
+    let bins = chk["bins"].as_u64().unwrap_or(0);
+    chk[key].as_f64().filter(|_| bins > 0).unwrap_or(f64::NAN)
+}
+
+/// The correlation criterion's value (max |C(dx) - II eq 76| in the window,
+/// ensemble centring) on sums pooled over several ensembles: `validate
+/// --replicates` judges the averaged curve, as it judges the averaged tau
+/// (a mean of per-ensemble maxima also collects each one's noise).
+pub fn pooled_correlation_value(sums: &CorrelationSums, model: &Model, size: usize) -> Result<f64> {
+    let r = correlation_estimates(sums)?;
+    let chk = window_check(&r, model, size as f64, PAPER_UNIT);
+    Ok(window_value(&chk, "max_abs_dev_C_ensemble"))
 }

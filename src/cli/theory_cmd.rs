@@ -52,15 +52,17 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
         && p.alpha < 2.0
         && p.c1 > 0.0
     {
-        notes.push(if p.alpha > 1.0 + crate::theory::fif::ALPHA_ONE_EPS {
-            "q < 0: tau(q) = q h_max - 2 is the spectrum truncated at h_max, where D = 2; \
+        notes.push(
+            if p.alpha > 1.0 + crate::theory::fif::ALPHA_ONE_EPS {
+                "q < 0: tau(q) = q h_max - 2 is the spectrum truncated at h_max, where D = 2; \
              the strict Legendre transform of K (defined for q >= 0 only) gives D = 2 for every \
              h >= h_max and tau(q < 0) = -inf (src/theory/mod.rs)"
-        } else {
-            "q < 0: for alpha <= 1, K'(0+) = -inf, so h_max = +inf and tau(q < 0) = -inf: \
+            } else {
+                "q < 0: for alpha <= 1, K'(0+) = -inf, so h_max = +inf and tau(q < 0) = -inf: \
              written as null (src/theory/mod.rs)"
-        }
-        .to_string());
+            }
+            .to_string(),
+        );
     }
     // D(q) < 0: the q where the annealed tau(q) is set by latent
     // singularities (h outside [h_min, h_max], the exponents of D(h) >= 0)

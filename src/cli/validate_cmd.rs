@@ -16,6 +16,7 @@ use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::io::write_atomic;
 use crate::plot::{Chart, Series, Style, save_chart};
+use crate::stats::correlation::CorrelationSums;
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, bins_in_range, default_k_range};
 use crate::theory::{Model, TheoryTable};
@@ -225,6 +226,10 @@ struct OneRun {
     /// The q ranges of the two τ criteria (core, published), in the order
     /// of the criteria list; the published one is absent when it is the core.
     tau_ranges: Vec<(f64, f64)>,
+    model: Model,
+    /// The correlation sums and the index of the correlation criterion,
+    /// pooled over the replicates to judge the averaged C(dx).
+    corr: Option<(CorrelationSums, usize)>,
 }
 
 /// One criterion over the replicate ensembles.
@@ -243,7 +248,12 @@ struct ReplicatedCriterion {
     /// maxima also collects each one's noise). The verdict uses it.
     #[serde(skip_serializing_if = "Option::is_none")]
     max_dev_of_mean_tau: Option<f64>,
-    /// The mean (for τ: `max_dev_of_mean_tau`) within the tolerance.
+    /// For the correlation criterion: max |C(dx) - II eq 76| of the curve
+    /// of the pooled ensembles (the averaged C(dx)). The verdict uses it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    max_dev_of_pooled_correlation: Option<f64>,
+    /// The mean (for τ: `max_dev_of_mean_tau`, for the correlation:
+    /// `max_dev_of_pooled_correlation`) within the tolerance.
     pass_mean: bool,
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     informational: bool,
@@ -278,6 +288,21 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
         .collect();
     let mean_tau: Vec<f64> = tau_stats.iter().map(|x| x.0).collect();
     let mean_dev = |r: (f64, f64)| max_dev(&first.q, &mean_tau, &first.tau_theory, r);
+    // C(dx) of the pooled ensembles (mergeable sums), judged like the mean tau
+    let pooled_corr = match &first.corr {
+        Some((_, i)) => {
+            let mut all = runs.iter().filter_map(|r| r.corr.as_ref().map(|c| &c.0));
+            let mut sums = all.next().expect("first has sums").clone();
+            for s in all {
+                sums.merge(s)?;
+            }
+            Some((
+                *i,
+                super::correlate_cmd::pooled_correlation_value(&sums, &first.model, args.size)?,
+            ))
+        }
+        None => None,
+    };
     let summary: Vec<ReplicatedCriterion> = first
         .criteria
         .iter()
@@ -286,7 +311,8 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             let values: Vec<f64> = runs.iter().map(|r| r.criteria[i].value).collect();
             let (mean, sd) = mean_std(&values);
             let of_mean = first.tau_ranges.get(i).map(|&r| mean_dev(r).0);
-            let judged = of_mean.unwrap_or(mean);
+            let of_pooled = pooled_corr.filter(|p| p.0 == i).map(|p| p.1);
+            let judged = of_mean.or(of_pooled).unwrap_or(mean);
             ReplicatedCriterion {
                 name: c.name.clone(),
                 target: c.target,
@@ -295,6 +321,7 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
                 stderr: sd / (n as f64).sqrt(),
                 passes: runs.iter().filter(|r| r.criteria[i].pass).count(),
                 max_dev_of_mean_tau: of_mean,
+                max_dev_of_pooled_correlation: of_pooled,
                 pass_mean: c.judge(judged),
                 informational: c.informational,
                 below: c.below,
@@ -336,6 +363,14 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             "  {}: the verdict is on the averaged tau(q): max |mean tau - theory| = {d:.4} \
              at q = {qd} (+- {se:.4})",
             c.name
+        );
+    }
+    if let Some((i, d)) = pooled_corr {
+        let _ = writeln!(
+            t,
+            "  {}: the verdict is on the averaged C(dx) (the {n} ensembles' sums pooled): \
+             {d:.4}",
+            summary[i].name
         );
     }
     let _ = writeln!(
@@ -609,7 +644,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         crit.push(c);
     }
     // kernel cumulants and magnitude correlation (SPEC §5-§6, §11): one more streamed pass
-    crit.extend(super::correlate_cmd::validation_criteria(
+    let (more, corr) = super::correlate_cmd::validation_criteria(
         &model,
         r.preset,
         args.count,
@@ -619,7 +654,13 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         fit,
         &args.out.out,
         quiet,
-    )?);
+    )?;
+    let corr_index = corr.as_ref().and_then(|_| {
+        more.iter()
+            .position(|c| c.name.starts_with("max |C(dx)"))
+            .map(|i| crit.len() + i)
+    });
+    crit.extend(more);
     let all_pass = crit.iter().all(|c| c.pass || c.informational);
     let wall = t0.elapsed().as_secs_f64();
 
@@ -772,6 +813,8 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         tau: s.tau.clone(),
         tau_theory: th.tau.clone(),
         tau_ranges,
+        model,
+        corr: corr.zip(corr_index),
     })
 }
 
