@@ -530,15 +530,21 @@ impl PartitionSums {
                 .windows(2)
                 .map(|w| (w[1] / w[0]).log2())
                 .fold(f64::NAN, f64::min);
+            // said when the window admits less than h in [-1, 1] (the
+            // default, (0.9, 1.11) at 10 voices, admits +-1.5)
             let window = match self.analysis.as_ref().map(|a| a.link.ratio) {
-                Some((lo, hi)) if step > 0.0 => format!(
-                    ", or the linking: a line follows a local exponent only from {:.2} to {:.2} \
+                Some((lo, hi))
+                    if step > 0.0 && (hi.log2() / step < 1.0 || lo.log2() / step > -1.0) =>
+                {
+                    format!(
+                        ", or the linking: a line follows a local exponent only from {:.2} to {:.2} \
                      per octave at this scale step ({:.3} octave) and --ratio {lo}:{hi}; \
                      lines whose modulus changes faster end (more --voices or a wider --ratio)",
-                    lo.log2() / step,
-                    hi.log2() / step,
-                    step
-                ),
+                        lo.log2() / step,
+                        hi.log2() / step,
+                        step
+                    )
+                }
                 _ => String::new(),
             };
             return Err(Error::Input(format!(

@@ -43,6 +43,7 @@ use serde_json::json;
 use super::analyze_cmd::{SpectraOpts, theory_curves};
 use super::common::{f, header, make_out_dir, parse_range, progress, write_csv, write_json};
 use super::model_args::{ModelName, ModelOpts};
+use super::pdf_cmd::reason;
 use super::tm_cmd::{TmOpts, plot_k, tau_from_tm};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
@@ -344,8 +345,25 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     let mut w_groups = Vec::with_capacity(args.groups());
     let mut t_groups = Vec::with_capacity(args.groups());
     for g in 0..args.groups() {
-        w_groups.push(wtmm_of(&|i| member(i) == g)?);
-        t_groups.push(tm_of(&|i| member(i) == g)?.1);
+        // a sub-ensemble's failure names its images (the whole ensemble fitted)
+        let images: Vec<usize> = (0..args.count).filter(|&i| member(i) == g).collect();
+        let blame = |e: Error| -> Error {
+            let which = match images.as_slice() {
+                [one] => format!("image {one}"),
+                [a, .., b] => format!("images {a}-{b}"),
+                [] => "no image".into(),
+            };
+            let m = format!(
+                "sub-ensemble {} of {} ({which} of {name}): {} (fewer --groups give each \
+                 sub-ensemble more images)",
+                g + 1,
+                args.groups(),
+                reason(e)
+            );
+            Error::Input(m)
+        };
+        w_groups.push(wtmm_of(&|i| member(i) == g).map_err(blame)?);
+        t_groups.push(tm_of(&|i| member(i) == g).map_err(blame)?.1);
     }
 
     // theory and the TM targets (module docs)
