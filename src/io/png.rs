@@ -150,6 +150,9 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     if has_alpha && !colour {
         info.dtype = format!("{depth_name} grey+alpha");
     }
+    // the decoded bytes are not needed any more: a 16384^2 image peaks at
+    // its f64 values and mask, not at those plus the buffer and a copy
+    drop(buf);
 
     let mut nodata = None;
     let (scale, offset) = match sidecar(path, (ny, nx), &mut info)? {
@@ -166,7 +169,11 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     for (m, &t) in mask.iter_mut().zip(&transparent) {
         *m |= t;
     }
-    let values: Vec<f64> = raw.iter().map(|&v| v * scale + offset).collect();
+    drop(transparent);
+    let mut values = raw;
+    for v in &mut values {
+        *v = *v * scale + offset;
+    }
     let data = Array2::from_shape_vec((ny, nx), values)
         .map_err(|e| bad(format!("internal shape error: {e}")))?;
     let mask = Array2::from_shape_vec((ny, nx), mask)
