@@ -25,7 +25,16 @@ fn main() {
         .filter(|s| !s.is_empty());
     let id = match commit {
         Some(c) => {
-            let mut args = vec!["status", "--porcelain", "--untracked-files=no", "--"];
+            // --no-optional-locks: a plain `status` refreshes the stat data
+            // in .git/index, which is watched below, so the next build
+            // would run again for nothing
+            let mut args = vec![
+                "--no-optional-locks",
+                "status",
+                "--porcelain",
+                "--untracked-files=no",
+                "--",
+            ];
             args.extend(SOURCES);
             match git(&args) {
                 Some(s) if s.trim().is_empty() => c,
