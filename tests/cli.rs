@@ -497,6 +497,16 @@ fn fif_model_in_synth_and_theory() {
     assert!(th["h"][6].as_f64().unwrap() < th["h_min"].as_f64().unwrap());
     let n = th["notes"][1].as_str().unwrap();
     assert!(n.contains("D(q) < 0 at 2 of the q (5 to 6)"), "{n}");
+    // two runs are named as two, not as one range: the log-normal's D is
+    // negative at q = -12 and 12 only
+    let t2 = dir.join("t2");
+    let a = ["theory", "--preset", "paper-lognormal", "--q=-12:12:1"];
+    assert_eq!(run(&[&a[..], &["--out", t2.to_str().unwrap()]].concat()), 0);
+    let th = json(&t2.join("theory.json"));
+    let d: Vec<f64> = serde_json::from_value(th["D"].clone()).unwrap();
+    assert!(d[0] < 0.0 && d[24] < 0.0 && d[1..24].iter().all(|&v| v > 0.0));
+    let n = th["notes"][0].as_str().unwrap();
+    assert!(n.contains("D(q) < 0 at 2 of the q (-12, 12)"), "{n}");
 }
 
 fn fbm_npy(dir: &Path, name: &str, n: usize, seed: u64) -> String {
@@ -1800,7 +1810,10 @@ fn missing_pixels_are_counted_and_reported() {
 ///   the ensemble is analysed);
 /// * a single scale (it has no linked maxima: it used to read as a flat
 ///   image, now the fit range is refused before the analysis);
-/// * a `tm --q` list with fewer than 3 orders q > 0 (alpha and C1 were NaN).
+/// * a `tm --q` list with fewer than 3 orders in 0 < q <= 2, where the
+///   universal fit starts (alpha and C1 were NaN), and a NaN `--q-fit-max`;
+/// * grids and sizes that were allocated before they were checked
+///   (`--octaves 100000 --voices 100000`, `validate --size 100000`).
 #[test]
 fn hostile_inputs_are_refused_and_nothing_is_written() {
     let dir = scratch("hostile");
@@ -1925,6 +1938,27 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
             &out,
         ],
         vec!["tm", &ok, "--q=0,1", "--out", &out],
+        // the first universal fit is over 0 < q <= 2 (alpha and C1 were NaN)
+        vec!["tm", &ok, "--q=3,4,5", "--out", &out],
+        // a bad --q-fit-max is named, not blamed on --q
+        vec!["tm", &ok, "--q-fit-max", "nan", "--out", &out],
+        // the grid is checked before the fit range builds it (an 80 GB
+        // allocation aborted)
+        vec![
+            "analyze",
+            &ok,
+            "--octaves",
+            "100000",
+            "--voices",
+            "100000",
+            "--out",
+            &out,
+        ],
+        // the size is checked before anything is allocated for it (an 80 GB
+        // allocation aborted)
+        vec![
+            "validate", "fbm", "--hurst", "0.3", "--size", "100000", "--count", "1", "--out", &out,
+        ],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -1950,7 +1984,11 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "wcascade needs a power of two, got 100",
         "too small for the spectral criterion",
         "only 0 scales in the fit range",
-        "the universal fit of alpha and C1 needs 3",
+        "holds 1 order(s) in 0 < q <= 2",
+        "holds 0 order(s) in 0 < q <= 2",
+        "q-fit-max`: must be > 0, got NaN",
+        "octaves`: must be in 1..=20, got 100000",
+        "100000x100000 is over the limit",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {

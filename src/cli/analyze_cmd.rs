@@ -71,6 +71,14 @@ impl LineOpts {
 /// divide half an octave), checked against the grid of `octaves` x
 /// `voices` scales.
 pub fn fit_range(fit: Option<&str>, octaves: usize, voices: usize) -> Result<(f64, f64)> {
+    // the grid's own checks first (they name --octaves or --voices), before
+    // a grid of octaves x voices scales is built below
+    crate::cwt::ScaleGrid {
+        a_min: 1.0,
+        octaves,
+        voices,
+    }
+    .validate()?;
     let r = match fit {
         Some(f) => parse_range("fit", f)?,
         None => crate::spectra::default_fit(octaves, voices),

@@ -65,23 +65,42 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
         );
     }
     // D(q) < 0: the q where the annealed tau(q) is set by latent
-    // singularities (h outside [h_min, h_max], the exponents of D(h) >= 0)
-    let neg: Vec<f64> = q
-        .iter()
-        .zip(&t.d)
-        .filter(|&(_, &d)| d < -1e-12)
-        .map(|(&v, _)| v)
-        .collect();
-    if let (Some(lo), Some(hi)) = (neg.first(), neg.last()) {
+    // singularities (h outside [h_min, h_max], the exponents of D(h) >= 0),
+    // named as runs of the list (D > 0 between two runs)
+    let mut runs: Vec<(f64, f64)> = Vec::new();
+    let mut n_neg = 0;
+    let mut open = false;
+    for (&v, &d) in q.iter().zip(&t.d) {
+        if d < -1e-12 {
+            n_neg += 1;
+            match runs.last_mut() {
+                Some(r) if open => r.1 = v,
+                _ => runs.push((v, v)),
+            }
+            open = true;
+        } else {
+            open = false;
+        }
+    }
+    if !runs.is_empty() {
+        let where_ = runs
+            .iter()
+            .map(|&(a, b)| {
+                if a == b {
+                    format!("{a}")
+                } else {
+                    format!("{a} to {b}")
+                }
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
         notes.push(format!(
-            "D(q) < 0 at {} of the q ({lo} to {hi}): there the annealed tau(q) comes from \
+            "D(q) < 0 at {n_neg} of the q ({where_}): there the annealed tau(q) comes from \
              latent singularities, h outside [h_min, h_max] = [{:.4}, {:.4}] where D(h) >= 0, \
              which an image almost surely does not hold; an ensemble's estimate bends toward a \
              straight line there (finite size and statistics), so these q are not a test of \
              the estimator",
-            neg.len(),
-            t.h_min,
-            t.h_max
+            t.h_min, t.h_max
         ));
     }
     if !notes.is_empty() {

@@ -187,28 +187,32 @@ pub fn fit_record(fc: &TraceMomentFitConfig, used: &str) -> serde_json::Value {
 
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_q("q", &args.q)?;
-    // alpha and C1 come from a fit over the orders 0 < q <= q_s/2: fewer
-    // than 3 would give NaN without an error (the data-dependent q_s/2
-    // bound is checked, with a warning, after the moments)
+    // the fit settings first, so that a bad --q-fit-max is named as such
+    let mut fc = args.tm.fit()?;
+    // alpha and C1 come from a fit over the orders 0 < q <= 2 first, then
+    // over 0 < q <= q_s/2 (tracemoments module docs): fewer than 3 orders
+    // in the first window gives no fit, alpha and C1 NaN without an error
+    // (the data-dependent q_s/2 bound is checked, with a warning, after
+    // the moments)
     let cap = args.tm.q_fit_max.unwrap_or(f64::INFINITY);
-    let usable = q.iter().filter(|&&v| v > 0.0 && v <= cap).count();
+    let first = cap.min(crate::tracemoments::FIRST_UNIVERSAL_Q_MAX);
+    let usable = q.iter().filter(|&&v| v > 0.0 && v <= first).count();
     if usable < 3 {
         return Err(Error::param(
             "q",
             format!(
-                "`{}` holds {usable} order(s) q > 0{}: the universal fit of alpha and C1 needs 3 \
-                 or more",
+                "`{}` holds {usable} order(s) in 0 < q <= {first}{}: the universal fit of alpha \
+                 and C1 starts there and needs 3 or more",
                 args.q,
-                if cap.is_finite() {
-                    format!(" up to --q-fit-max {cap}")
+                if cap < crate::tracemoments::FIRST_UNIVERSAL_Q_MAX {
+                    " (--q-fit-max)"
                 } else {
-                    String::new()
+                    ""
                 }
             ),
         ));
     }
     let cfg = args.tm.config(q, false)?;
-    let mut fc = args.tm.fit()?;
     if args.images.len() == 1 {
         // one image: its tiles are not independent samples for the covariance
         fc.universal = args.tm.universal_fit.unwrap_or(UniversalWeighting::Ols);

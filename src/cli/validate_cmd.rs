@@ -409,6 +409,12 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
 /// `args.out` and returns its criteria and table (not printed).
 fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let r = args.model_opts.resolve(args.model)?;
+    // the cheap checks first: a huge --size is refused before anything is
+    // allocated or computed for it
+    if args.count == 0 {
+        return Err(Error::param("count", "must be >= 1"));
+    }
+    r.model.check_size(args.size)?;
     let (k_lo, k_hi) = default_k_range(args.size);
     let ps_cfg = PowerSpectrumConfig::for_field(r.model.is_periodic());
     let k_bins = bins_in_range(args.size, args.size, ps_cfg.bins_per_octave, (k_lo, k_hi))?;
@@ -447,9 +453,6 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     }
     q.sort_by(f64::total_cmp);
     q.dedup_by(|a, b| (*a - *b).abs() < 1e-12);
-    if args.count == 0 {
-        return Err(Error::param("count", "must be >= 1"));
-    }
     let margin = cfg.margin_px();
     if 2 * margin >= args.size {
         let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
@@ -464,7 +467,6 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             ),
         ));
     }
-    r.model.check_size(args.size)?;
     let t0 = std::time::Instant::now();
     let pb = progress(args.count as u64, "validate", quiet);
     let model = r.model;

@@ -268,6 +268,13 @@ pub fn default_k_range(n: usize) -> (f64, f64) {
 /// `[k_lo, k_hi]` rad/px ([`PowerSpectrum::fit`] needs 3), so that a size
 /// too small for a fit range is refused before any image is analysed.
 ///
+/// Allocates nothing of the image's size: only the modes with
+/// `|k| <= 2 k_hi` are binned. That is exact, because a bin spans at most an
+/// octave: a bin whose mean `|k|` is at most `k_hi` has every mode below
+/// twice its lower edge, so below `2 k_hi`, and a bin holding a mode above
+/// `2 k_hi` starts above `k_hi`, so its mean lies outside the range
+/// whichever of its modes are binned.
+///
 /// **Errors** if `bins_per_octave` is not in 1..=64.
 pub fn bins_in_range(
     ny: usize,
@@ -275,7 +282,24 @@ pub fn bins_in_range(
     bins_per_octave: usize,
     (k_lo, k_hi): (f64, f64),
 ) -> Result<usize> {
-    let ps = PowerSpectrum::from_density(Array2::ones((ny, nx)).view(), bins_per_octave)?;
+    check_bins(bins_per_octave)?;
+    let mut ps = PowerSpectrum {
+        bins_per_octave,
+        images: 1,
+        ..Default::default()
+    };
+    let cap = 2.0 * k_hi;
+    for ky in 0..ny {
+        if angular_freq(ky, ny).abs() > cap {
+            continue;
+        }
+        for kx in 0..nx {
+            let k = mode_k(kx, nx, ky, ny);
+            if k <= cap {
+                ps.add(k, 1.0, 1);
+            }
+        }
+    }
     Ok(ps
         .points()
         .iter()
@@ -461,5 +485,37 @@ mod tests {
                 "{p:?} vs {q:?}"
             );
         }
+    }
+
+    /// `bins_in_range`, which bins only the modes below `2 k_hi`, counts
+    /// the bins of the whole spectrum: square and not, odd sizes, one to
+    /// eight bins per octave, ranges ending on bin edges and at Nyquist.
+    #[test]
+    fn bins_in_range_counts_the_whole_spectrum() {
+        let pi = std::f64::consts::PI;
+        for &(ny, nx) in &[(16, 16), (17, 40), (64, 64), (100, 37), (256, 200)] {
+            for bpo in [1, 2, 4, 8] {
+                let full = PowerSpectrum::from_density(Array2::ones((ny, nx)).view(), bpo)
+                    .unwrap()
+                    .points();
+                let edge = |b: f64| pi * 2f64.powf(-b / bpo as f64);
+                let n = ny.min(nx);
+                for r in [
+                    default_k_range(n),
+                    (0.0, pi),
+                    (edge(3.0), edge(1.0)),
+                    (0.1, edge(2.0)),
+                    (2.0 * pi / n as f64, 0.3),
+                ] {
+                    let want = full.iter().filter(|&&(k, _)| k >= r.0 && k <= r.1).count();
+                    assert_eq!(
+                        bins_in_range(ny, nx, bpo, r).unwrap(),
+                        want,
+                        "{ny}x{nx}, {bpo} bins per octave, {r:?}"
+                    );
+                }
+            }
+        }
+        assert!(bins_in_range(8, 8, 0, (0.1, 1.0)).is_err());
     }
 }

@@ -157,6 +157,10 @@ use crate::theory::fif::UniversalK;
 /// Dimension of space.
 const D: f64 = 2.0;
 
+/// The universal fit starts over `0 < q <= 2` (seed 000 §6.2.4; module
+/// docs), before q_s is known: it needs 3 orders there.
+pub const FIRST_UNIVERSAL_Q_MAX: f64 = 2.0;
+
 /// What to accumulate (fixed for an ensemble; accumulators merge only when
 /// their configurations are equal).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -873,10 +877,10 @@ impl TraceMomentAccumulator {
                 .unzip();
             fit_universal(&qs_, &ks_)
         };
-        let mut uni = fit_below(pin.map_or(2.0, |p| p.0));
+        let mut uni = fit_below(pin.map_or(FIRST_UNIVERSAL_Q_MAX, |p| p.0));
         let mut q_s = pin.map_or(f64::INFINITY, |p| p.1);
         let mut q_d = f64::INFINITY;
-        let mut q_hi = pin.map_or(2.0, |p| p.0);
+        let mut q_hi = pin.map_or(FIRST_UNIVERSAL_Q_MAX, |p| p.0);
         for _ in 0..3 {
             let Some(u) = uni else { break };
             let uk = UniversalK::new(u.alpha.min(2.0), u.c1.max(0.0));
