@@ -297,7 +297,7 @@ pub fn analyze_paths(
         .map(|p| {
             let field = super::common::read_image(p)?;
             let s = image_sums_with(&field, cfg, q, p.display().to_string(), par)
-                .map_err(|e| Error::format(p, e.to_string()))?;
+                .map_err(|e| super::common::in_file(p, e))?;
             if s.images[0].lines[0] == 0 {
                 return Err(Error::format(p, super::common::no_maxima(&field, cfg)));
             }

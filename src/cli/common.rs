@@ -108,6 +108,21 @@ pub fn read_all(paths: &[PathBuf]) -> Result<Vec<Field>> {
 /// not read) said on stderr with the file's name, and an error naming the
 /// file when every pixel is missing (the library accepts such a field; no
 /// command can use it) or the values are beyond f64's squares.
+/// The message of an error about the data, without the `invalid input: `
+/// prefix (for a message that names the input itself).
+pub fn reason(e: Error) -> String {
+    match e {
+        Error::Input(m) => m,
+        other => other.to_string(),
+    }
+}
+
+/// An error met while working on the file `path`, named by it:
+/// `path: why` (one form for every command).
+pub fn in_file(path: &Path, e: Error) -> Error {
+    Error::format(path, reason(e))
+}
+
 pub fn read_image(path: &Path) -> Result<Field> {
     let (field, info) = read_field_with_info(path)?;
     for w in &info.warnings {

@@ -43,14 +43,16 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     }
     let (ny, nx) = field.dim();
     let plan = CwtPlan::new(ny, nx, args.wavelet, &scales)
-        .map_err(|e| crate::Error::format(&args.image, e.to_string()))?;
+        .map_err(|e| super::common::in_file(&args.image, e))?;
     let margin = plan.default_margin();
     if 2 * margin >= ny.min(nx) {
-        return Err(Error::Input(format!(
-            "{}: image {ny}x{nx} is too small for scale {:.2} (interior margin {margin} px on each side)",
-            args.image.display(),
-            scales.iter().cloned().fold(0.0, f64::max)
-        )));
+        return Err(Error::format(
+            &args.image,
+            format!(
+                "image {ny}x{nx} is too small for scale {:.2} (interior margin {margin} px on each side)",
+                scales.iter().cloned().fold(0.0, f64::max)
+            ),
+        ));
     }
     let img = field.filled()?;
     // the transform is not trusted where the wavelet's support (radius R a)

@@ -375,14 +375,7 @@ impl Input {
     }
 }
 
-/// The message of an error about the data, without the `invalid input: `
-/// prefix (for a message that names the input itself).
-pub fn reason(e: Error) -> String {
-    match e {
-        Error::Input(m) => m,
-        other => other.to_string(),
-    }
-}
+pub use super::common::reason;
 
 /// Why an image gave no maxima: [`Input::fold`] names a file itself, a
 /// generated image is named here.

@@ -79,7 +79,7 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     draw.sort_unstable();
     let all: Vec<usize> = (0..grid.len()).collect();
     let sk = skeleton_with(&field, &cfg, Parallelism::Scales, &all)
-        .map_err(|e| Error::format(&args.image, e.to_string()))?;
+        .map_err(|e| super::common::in_file(&args.image, e))?;
     if sk.lines.is_empty() {
         return Err(Error::format(
             &args.image,

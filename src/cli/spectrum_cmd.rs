@@ -90,13 +90,16 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
                     .iter()
                     .zip(&args.images)
                     .find(|(f, _)| f.dim().0.min(f.dim().1) == nmin)
-                    .map(|(_, p)| p.display().to_string())
+                    .map(|(_, p)| p.clone())
                     .unwrap_or_default();
-                return Err(crate::Error::Input(format!(
-                    "{small}: a side of {nmin} px is too small for the default fit range \
-                     (8 cycles per image up to pi/4 rad/px holds fewer than the 3 bins a fit needs); \
-                     give --k-range or more --bins-per-octave"
-                )));
+                return Err(crate::Error::format(
+                    small,
+                    format!(
+                        "a side of {nmin} px is too small for the default fit range \
+                         (8 cycles per image up to pi/4 rad/px holds fewer than the 3 bins a fit \
+                         needs); give --k-range or more --bins-per-octave"
+                    ),
+                ));
             }
             r
         }
@@ -106,7 +109,7 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         .zip(&args.images)
         .map(|(fl, p)| {
             let img = fl.filled()?;
-            power_spectrum(img.view(), &cfg).map_err(|e| crate::Error::format(p, e.to_string()))
+            power_spectrum(img.view(), &cfg).map_err(|e| super::common::in_file(p, e))
         })
         .collect::<Result<_>>()?;
     let mut ens = PowerSpectrum::default();

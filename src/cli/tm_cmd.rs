@@ -228,7 +228,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             .map_or(if kmax >= 4.0 { 1.0 } else { 0.0 }, |r| r.0);
         let tile = (kmax - lo.max(0.0).floor()).max(0.0).exp2() as usize;
         let (whole, tiles) = TraceMomentAccumulator::field_tiles(&cfg, &field, tile)
-            .map_err(|e| Error::format(path, e.to_string()))?;
+            .map_err(|e| super::common::in_file(path, e))?;
         let res = finish_jackknife(&whole, &tiles, &fc, &format!("tiles of {tile} px"))?;
         (whole, res, vec![([ny, nx], ny * nx - field.valid_count())])
     } else {
@@ -299,7 +299,7 @@ pub fn accumulate_paths(
             let field = super::common::read_image(p)?;
             let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
             acc.add_field(&field)
-                .map_err(|e| Error::format(p, e.to_string()))?;
+                .map_err(|e| super::common::in_file(p, e))?;
             pb.inc(1);
             let (ny, nx) = field.dim();
             Ok((acc, ([ny, nx], ny * nx - field.valid_count())))
