@@ -429,6 +429,22 @@ fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
             }
         ));
     }
+    // as the other commands: jackknife errors over few images (or tiles)
+    // are rough, and say by how much
+    if let Some(m) = crate::stats::fit::few_groups_warning(
+        res.jackknife_groups,
+        &format!(
+            "a jackknife over {} {}",
+            res.jackknife_groups,
+            if res.stderr_method.contains("tiles") {
+                "tiles of one image"
+            } else {
+                "images"
+            }
+        ),
+    ) {
+        w.push(m);
+    }
     if res.dtm_alpha.is_finite() && !(res.dtm_alpha >= 0.0 && res.dtm_alpha <= 2.0) {
         w.push(format!(
             "DTM alpha = {:.3} lies outside [0, 2]: too few scales or images",

@@ -36,6 +36,22 @@ pub fn jackknife_se(v: &[f64]) -> f64 {
 /// `1/sqrt(2(n-1))` (normal data), 24 % at 10 images, 41 % at 4.
 pub const FEW_IMAGES: usize = 10;
 
+/// The warning for a jackknife over `n` groups (images, tiles) with
+/// `2 <= n <` [`FEW_IMAGES`]: its errors are themselves uncertain by about
+/// `1/sqrt(2(n-1))`; `how` names the jackknife ("a jackknife over 4
+/// images"). `None` otherwise.
+pub fn few_groups_warning(n: usize, how: &str) -> Option<String> {
+    (2..FEW_IMAGES).contains(&n).then(|| {
+        format!(
+            "the standard errors come from {how} ({} degree{} of freedom) and are themselves \
+             uncertain by about {:.0} %",
+            n - 1,
+            if n == 2 { "" } else { "s" },
+            100.0 / (2.0 * (n - 1) as f64).sqrt()
+        )
+    })
+}
+
 /// The `stderr_method` label of an ensemble estimate: "regression" with
 /// fewer than 3 images, else "jackknife over images", naming the entries
 /// in `fallback` (e.g. `q = 0, 1`, or `c2`) that kept the regression error
@@ -57,13 +73,8 @@ pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<Strin
         ));
         return "regression".into();
     }
-    if n_img < FEW_IMAGES {
-        warnings.push(format!(
-            "the standard errors come from a jackknife over {n_img} images ({} degrees of \
-             freedom) and are themselves uncertain by about {:.0} %",
-            n_img - 1,
-            100.0 / (2.0 * (n_img - 1) as f64).sqrt()
-        ));
+    if let Some(w) = few_groups_warning(n_img, &format!("a jackknife over {n_img} images")) {
+        warnings.push(w);
     }
     if fallback.is_empty() {
         return "jackknife over images".into();
@@ -212,6 +223,13 @@ mod tests {
         let (m, w) = said(FEW_IMAGES);
         assert_eq!(m, "jackknife over images");
         assert!(w.is_empty(), "{w:?}");
+        // two groups: one degree of freedom, 1/sqrt(2) = 71 %
+        let w = few_groups_warning(2, "a jackknife over 2 tiles").unwrap();
+        assert!(
+            w.contains("(1 degree of freedom)") && w.contains("71 %"),
+            "{w}"
+        );
+        assert!(few_groups_warning(1, "x").is_none() && few_groups_warning(10, "x").is_none());
     }
 
     #[test]
