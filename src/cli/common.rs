@@ -103,11 +103,6 @@ pub fn read_all(paths: &[PathBuf]) -> Result<Vec<Field>> {
     paths.iter().map(|p| read_image(p)).collect()
 }
 
-/// An image for analysis: [`read_field_with_info`], its warnings (a colour
-/// image converted to luminance, an unreadable nodata tag, pages or bytes
-/// not read) said on stderr with the file's name, and an error naming the
-/// file when every pixel is missing (the library accepts such a field; no
-/// command can use it) or the values are beyond f64's squares.
 /// The message of an error about the data, without the `invalid input: `
 /// prefix (for a message that names the input itself).
 pub fn reason(e: Error) -> String {
@@ -123,6 +118,11 @@ pub fn in_file(path: &Path, e: Error) -> Error {
     Error::format(path, reason(e))
 }
 
+/// An image for analysis: [`read_field_with_info`], its warnings (a colour
+/// image converted to luminance, an unreadable nodata tag, pages or bytes
+/// not read) said on stderr with the file's name, and an error naming the
+/// file when every pixel is missing (the library accepts such a field; no
+/// command can use it) or the values are beyond f64's squares.
 pub fn read_image(path: &Path) -> Result<Field> {
     let (field, info) = read_field_with_info(path)?;
     for w in &info.warnings {
