@@ -1959,6 +1959,18 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         vec![
             "validate", "fbm", "--hurst", "0.3", "--size", "100000", "--count", "1", "--out", &out,
         ],
+        // compare names --size, as validate does, before generating
+        vec![
+            "compare",
+            "--preset",
+            "paper-fbm",
+            "--size",
+            "128",
+            "--count",
+            "4",
+            "--out",
+            &out,
+        ],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -1989,6 +2001,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "q-fit-max`: must be > 0, got NaN",
         "octaves`: must be in 1..=20, got 100000",
         "100000x100000 is over the limit",
+        "`size`: 128 px is too small for the analysis",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {

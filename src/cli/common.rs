@@ -118,6 +118,26 @@ pub fn in_file(path: &Path, e: Error) -> Error {
     Error::format(path, reason(e))
 }
 
+/// Refuses, before any image is generated, a `size` whose interior at the
+/// analysis margin is empty (`validate`, `compare`: the images are made
+/// for the analysis, so `--size` is what to change).
+pub fn check_generated_size(cfg: &crate::skeleton::AnalysisConfig, size: usize) -> Result<()> {
+    let margin = cfg.margin_px();
+    if 2 * margin >= size {
+        let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
+        return Err(Error::param(
+            "size",
+            format!(
+                "{size} px is too small for the analysis: the interior margin is {margin} px on \
+                 each side at the largest scale {a_max:.1} px, so the images need more than {} px \
+                 (or fewer --octaves)",
+                2 * margin
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// An image for analysis: [`read_field_with_info`], its warnings (a colour
 /// image converted to luminance, an unreadable nodata tag, pages or bytes
 /// not read) said on stderr with the file's name, and an error naming the

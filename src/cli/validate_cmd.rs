@@ -453,20 +453,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     }
     q.sort_by(f64::total_cmp);
     q.dedup_by(|a, b| (*a - *b).abs() < 1e-12);
-    let margin = cfg.margin_px();
-    if 2 * margin >= args.size {
-        let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
-        return Err(Error::param(
-            "size",
-            format!(
-                "{} px is too small for the analysis: the interior margin is {margin} px on each \
-                 side at the largest scale {a_max:.1} px, so the images need more than {} px \
-                 (or fewer --octaves where the command has them)",
-                args.size,
-                2 * margin
-            ),
-        ));
-    }
+    super::common::check_generated_size(&cfg, args.size)?;
     let t0 = std::time::Instant::now();
     let pb = progress(args.count as u64, "validate", quiet);
     let model = r.model;
