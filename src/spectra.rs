@@ -530,11 +530,18 @@ impl PartitionSums {
                 .windows(2)
                 .map(|w| (w[1] / w[0]).log2())
                 .fold(f64::NAN, f64::min);
-            // said when the window admits less than h in [-1, 1] (the
-            // default, (0.9, 1.11) at 10 voices, admits +-1.5)
-            let window = match self.analysis.as_ref().map(|a| a.link.ratio) {
-                Some((lo, hi))
-                    if step > 0.0 && (hi.log2() / step < 1.0 || lo.log2() / step > -1.0) =>
+            // said when the window admits less than h in [-1, n], n the
+            // wavelet's order, the exponents it can measure (the default,
+            // (0.9, 1.11) at 10 voices, admits +-1.5: enough for gauss, not
+            // for the smooth parts of a field seen by mexican, whose
+            // modulus can grow up to a^3)
+            let window = match self
+                .analysis
+                .as_ref()
+                .map(|a| (a.link.ratio, a.wavelet.order() as f64))
+            {
+                Some(((lo, hi), order))
+                    if step > 0.0 && (hi.log2() / step < order || lo.log2() / step > -1.0) =>
                 {
                     format!(
                         ", or the linking: a line follows a local exponent only from {:.2} to {:.2} \
