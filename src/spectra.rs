@@ -645,6 +645,35 @@ impl PartitionSums {
                 ));
             }
         }
+        // the ratio window bounds the local exponent a line can follow per
+        // scale step (LinkParams::ratio): an estimate beyond that bound
+        // comes from lines that end where their modulus grows faster, so the
+        // exponents there are under-counted (a DEM's smooth parts seen by
+        // mexican: Levi Fell, 3 octaves, reads h(-4) = 2.04 past 1.51)
+        let step = self
+            .scales
+            .windows(2)
+            .map(|w| (w[1] / w[0]).log2())
+            .fold(f64::NAN, f64::min);
+        if let Some((lo, hi)) = self.analysis.as_ref().map(|a| a.link.ratio)
+            && step > 0.0
+        {
+            let bound = hi.log2() / step;
+            let at: Vec<usize> = (0..nq).filter(|&qi| est.h[qi] >= bound).collect();
+            if let (Some(&first), Some(&last)) = (at.first(), at.last()) {
+                let top = at.iter().map(|&qi| est.h[qi]).fold(f64::MIN, f64::max);
+                warnings.push(format!(
+                    "h(q) >= {bound:.2} at {} of the q (q = {} .. {}, up to h = {top:.3}): the \
+                     linking window --ratio {lo}:{hi} at steps of {step:.3} octave lets a line \
+                     follow a local exponent of at most {bound:.2} per octave, so lines whose \
+                     modulus grows faster end and these exponents are under-counted (widen \
+                     --ratio, e.g. 0.8:1.25)",
+                    at.len(),
+                    self.q[first],
+                    self.q[last],
+                ));
+            }
+        }
         let holed: Vec<u64> = self
             .images
             .iter()
@@ -1364,6 +1393,34 @@ mod tests {
             "{w}"
         );
         assert!(w.contains("try the mexican wavelet"), "{w}");
+    }
+
+    /// An estimate at or past the exponent the linking window lets a line
+    /// follow (log2(hi) per scale step: 1.51 per octave for (0.9, 1.11) at
+    /// 10 voices) is flagged; a wider window lifts the flag.
+    #[test]
+    fn exponents_past_the_linking_window_are_flagged() {
+        use crate::cwt::Wavelet;
+        let window = |h: f64, ratio: Option<(f64, f64)>| {
+            let mut s = power_law_sums(h, Wavelet::Mexican);
+            if let (Some(r), Some(a)) = (ratio, s.analysis.as_mut()) {
+                a.link.ratio = r;
+            }
+            let sp = s.spectra(Rule::Plain, (0.5, 4.0)).unwrap();
+            sp.warnings
+                .iter()
+                .find(|m| m.contains("linking window"))
+                .cloned()
+        };
+        assert!(window(1.2, None).is_none());
+        let w = window(2.0, None).expect("h = 2 is past 1.51");
+        assert!(
+            w.starts_with("h(q) >= 1.51 at 9 of the q (q = -4 .. 4, up to h = 2.000)"),
+            "{w}"
+        );
+        // (0.8, 1.25) at 10 voices: 10 log2(1.25) = 3.22 per octave
+        assert!(window(2.0, Some((0.8, 1.25))).is_none());
+        assert!(window(3.3, Some((0.8, 1.25))).is_some());
     }
 
     #[test]
