@@ -471,6 +471,13 @@ impl PartitionSums {
             }
         }
         let last_fit = *in_fit.last().expect("3 scales");
+        // the smallest scale step (octaves): the linking window bounds the
+        // local exponent a line follows to log2(ratio) per step
+        let step = self
+            .scales
+            .windows(2)
+            .map(|w| (w[1] / w[0]).log2())
+            .fold(f64::NAN, f64::min);
         if est.tau.iter().all(|t| !t.is_finite()) {
             // nothing to report: an error, not a file of nulls
             if ens.lines.iter().all(|&n| n == 0) {
@@ -525,11 +532,6 @@ impl PartitionSums {
                  fewer octaves or a lower fit range: --octaves, --fit)"
                     .to_string()
             };
-            let step = self
-                .scales
-                .windows(2)
-                .map(|w| (w[1] / w[0]).log2())
-                .fold(f64::NAN, f64::min);
             // said when the window admits less than h in [-1, n], n the
             // wavelet's order, the exponents it can measure (the default,
             // (0.9, 1.11) at 10 voices, admits +-1.5: enough for gauss, not
@@ -650,11 +652,6 @@ impl PartitionSums {
         // comes from lines that end where their modulus grows faster, so the
         // exponents there are under-counted (a DEM's smooth parts seen by
         // mexican: Levi Fell, 3 octaves, reads h(-4) = 2.04 past 1.51)
-        let step = self
-            .scales
-            .windows(2)
-            .map(|w| (w[1] / w[0]).log2())
-            .fold(f64::NAN, f64::min);
         if let Some((lo, hi)) = self.analysis.as_ref().map(|a| a.link.ratio)
             && step > 0.0
         {
