@@ -41,9 +41,9 @@ use serde::Serialize;
 use serde_json::json;
 
 use super::analyze_cmd::{SpectraOpts, theory_curves};
+use super::common::reason;
 use super::common::{f, header, make_out_dir, parse_range, progress, write_csv, write_json};
 use super::model_args::{ModelName, ModelOpts};
-use super::pdf_cmd::reason;
 use super::tm_cmd::{TmOpts, plot_k, tau_from_tm};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};

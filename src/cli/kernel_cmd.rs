@@ -17,9 +17,9 @@ use num_complex::Complex64;
 use serde_json::json;
 
 use super::analyze_cmd::{LineOpts, fit_range};
-use super::common::{f, header, make_out_dir, write_csv, write_json};
+use super::common::{f, header, make_out_dir, reason, write_csv, write_json};
 use super::pdf_cmd::{
-    StatsInput, check_octaves, grid_top, no_maxima, octaves_or_default, reason, scales_at,
+    StatsInput, check_octaves, grid_top, no_maxima, octaves_or_default, scales_at,
 };
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};

@@ -295,7 +295,7 @@ impl Input {
                     if self.generated() {
                         e
                     } else {
-                        Error::format(&self.images[i], reason(e))
+                        super::common::in_file(&self.images[i], e)
                     }
                 })?;
                 pb.inc(1);
@@ -374,8 +374,6 @@ impl Input {
         }
     }
 }
-
-pub use super::common::reason;
 
 /// Why an image gave no maxima: [`Input::fold`] names a file itself, a
 /// generated image is named here.
@@ -605,11 +603,11 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let h_est = match h0_from_histograms(&hist, fit, args.set) {
         Ok(h) => h,
         Err(e) if args.h0.is_none() && input.model.is_none() => {
-            let m = format!("{}, or give --h0", reason(e));
+            let m = format!("{}, or give --h0", super::common::reason(e));
             return Err(input.blame(Error::Input(m)));
         }
         Err(e) => {
-            warning = Some(reason(e));
+            warning = Some(super::common::reason(e));
             f64::NAN
         }
     };

@@ -241,6 +241,18 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let missing: Vec<usize> = shapes.iter().map(|s| s.1).collect();
     let shapes: Vec<[usize; 2]> = shapes.iter().map(|s| s.0).collect();
     let mut extra = Vec::new();
+    // as the other commands: jackknife errors over few images (or tiles of
+    // one image) are rough, and say by how much
+    let n = res.jackknife_groups;
+    let groups = if args.images.len() == 1 {
+        "tiles of one image"
+    } else {
+        "images"
+    };
+    extra.extend(crate::stats::fit::few_groups_warning(
+        n,
+        &format!("a jackknife over {n} {groups}"),
+    ));
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
             extra.push(format!(
@@ -428,22 +440,6 @@ fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
                 "a line through two points"
             }
         ));
-    }
-    // as the other commands: jackknife errors over few images (or tiles)
-    // are rough, and say by how much
-    if let Some(m) = crate::stats::fit::few_groups_warning(
-        res.jackknife_groups,
-        &format!(
-            "a jackknife over {} {}",
-            res.jackknife_groups,
-            if res.stderr_method.contains("tiles") {
-                "tiles of one image"
-            } else {
-                "images"
-            }
-        ),
-    ) {
-        w.push(m);
     }
     if res.dtm_alpha.is_finite() && !(res.dtm_alpha >= 0.0 && res.dtm_alpha <= 2.0) {
         w.push(format!(
