@@ -1196,11 +1196,23 @@ pub fn image_sums_with(
     par: crate::skeleton::Parallelism,
 ) -> Result<PartitionSums> {
     let sk = crate::skeleton::skeleton_with(field, cfg, par, &[])?;
-    let mut s = PartitionSums::from_skeleton(&sk, q, label);
+    Ok(skeleton_sums(&sk, field, cfg, q, label))
+}
+
+/// [`image_sums`] of a skeleton already built from `field` with `cfg` (a
+/// pass that wants more than the sums from one transform).
+pub fn skeleton_sums(
+    sk: &crate::skeleton::Skeleton,
+    field: &crate::Field,
+    cfg: &crate::skeleton::AnalysisConfig,
+    q: &[f64],
+    label: impl Into<String>,
+) -> PartitionSums {
+    let mut s = PartitionSums::from_skeleton(sk, q, label);
     s.analysis = Some(cfg.clone());
     let (ny, nx) = field.dim();
     s.images[0].missing = (ny * nx - field.valid_count()) as u64;
-    Ok(s)
+    s
 }
 
 /// An analysis as merging sees it: the scales are compared on their own

@@ -7,8 +7,8 @@ use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::field::Field;
-use crate::skeleton::AnalysisConfig;
-use crate::spectra::{PartitionSums, image_sums};
+use crate::skeleton::{AnalysisConfig, Parallelism, Skeleton, Wtmmm, skeleton_and_wtmmm};
+use crate::spectra::{PartitionSums, skeleton_sums};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, power_spectrum};
 
 /// Partition sums and power spectrum of an ensemble.
@@ -19,40 +19,55 @@ pub struct EnsembleResult {
     pub spectra: Vec<PowerSpectrum>,
 }
 
-/// Generates `count` images with `make(i)` and analyses them; `tick` is
-/// called once per finished image (progress bars).
-pub fn analyse_generated<G>(
+/// Generates `count` images with `make(i)` and analyses them, also running
+/// `extra(i, field, skeleton, wtmmm)` on each image's skeleton and its WTMMM at the first `wtmmm_scales`
+/// scales ([`skeleton_and_wtmmm`]), so that statistics beyond the partition
+/// sums cost no second transform. The results come back in image order;
+/// `tick` is called once per finished image (progress bars).
+#[allow(clippy::too_many_arguments)]
+pub fn analyse_generated<G, X, F>(
     count: usize,
     make: G,
     cfg: &AnalysisConfig,
     q: &[f64],
     ps_cfg: &PowerSpectrumConfig,
+    wtmmm_scales: usize,
+    extra: F,
     tick: &(dyn Fn() + Sync),
-) -> Result<EnsembleResult>
+) -> Result<(EnsembleResult, Vec<X>)>
 where
     G: Fn(usize) -> Result<Array2<f64>> + Sync,
+    X: Send,
+    F: Fn(usize, &Field, &Skeleton, Vec<Vec<Wtmmm>>) -> Result<X> + Sync,
 {
-    let parts: Vec<(PartitionSums, PowerSpectrum)> = (0..count)
+    let parts: Vec<(PartitionSums, PowerSpectrum, X)> = (0..count)
         .into_par_iter()
         .map(|i| {
             let img = make(i)?;
             let ps = power_spectrum(img.view(), ps_cfg)?;
-            let sums = image_sums(&Field::new(img), cfg, q, format!("image {i}"))?;
+            let field = Field::new(img);
+            let (sk, wtmmm) =
+                skeleton_and_wtmmm(&field, cfg, Parallelism::Serial, wtmmm_scales, true)?;
+            let sums = skeleton_sums(&sk, &field, cfg, q, format!("image {i}"));
+            let x = extra(i, &field, &sk, wtmmm)?;
             tick();
-            Ok((sums, ps))
+            Ok((sums, ps, x))
         })
         .collect::<Result<_>>()?;
     let mut spectrum = PowerSpectrum::default();
     let mut spectra = Vec::with_capacity(count);
     let mut sums = Vec::with_capacity(count);
-    for (s, p) in parts {
+    let mut extras = Vec::with_capacity(count);
+    for (s, p, x) in parts {
         spectrum.merge(&p)?;
         spectra.push(p);
         sums.push(s);
+        extras.push(x);
     }
-    Ok(EnsembleResult {
+    let ens = EnsembleResult {
         sums: PartitionSums::merge_all(sums)?.expect("count >= 1"),
         spectrum,
         spectra,
-    })
+    };
+    Ok((ens, extras))
 }

@@ -454,20 +454,31 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     q.sort_by(f64::total_cmp);
     q.dedup_by(|a, b| (*a - *b).abs() < 1e-12);
     super::common::check_generated_size(&cfg, args.size)?;
+    let model = r.model;
+    // kernel cumulants and magnitude correlation (SPEC §5-§6, §11), from
+    // the same skeletons and images as the partition sums
+    let extras = super::correlate_cmd::ValidationExtras::new(
+        &model, r.preset, args.count, args.size, args.seed, &cfg, fit,
+    )?;
     let t0 = std::time::Instant::now();
     let pb = progress(args.count as u64, "validate", quiet);
-    let model = r.model;
-    let ens = analyse_generated(
+    let (ens, per_image) = analyse_generated(
         args.count,
         |i| model.synthesize(args.size, args.seed, i as u64),
         &cfg,
         &q,
         &ps_cfg,
+        extras.as_ref().map_or(0, |e| e.wtmmm_scales()),
+        |i, field, sk, wtmmm| {
+            extras
+                .as_ref()
+                .map(|e| e.image(i, field, sk, wtmmm))
+                .transpose()
+        },
         &|| pb.inc(1),
     )?;
     pb.finish_and_clear();
-    // the first pass (spectra); `wall` adds the kernel and correlation pass
-    let wall_spectra = t0.elapsed().as_secs_f64();
+    let wall_pass = t0.elapsed().as_secs_f64();
     let rule = opts.rule();
     let s = ens.sums.spectra(rule, fit)?;
     let other = ens.sums.spectra(
@@ -632,18 +643,14 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         c.informational = true;
         crit.push(c);
     }
-    // kernel cumulants and magnitude correlation (SPEC §5-§6, §11): one more streamed pass
-    let (more, corr) = super::correlate_cmd::validation_criteria(
-        &model,
-        r.preset,
-        args.count,
-        args.size,
-        args.seed,
-        &cfg,
-        fit,
-        &args.out.out,
-        quiet,
-    )?;
+    let (more, corr) = match extras {
+        Some(e) => e.criteria(
+            per_image.into_iter().flatten().collect(),
+            &args.out.out,
+            wall_pass,
+        )?,
+        None => (vec![], None),
+    };
     let corr_index = corr.as_ref().and_then(|_| {
         more.iter()
             .position(|c| c.name.starts_with("max |C(dx)"))
@@ -712,7 +719,6 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     body["criteria"] = json!(crit);
     body["pass"] = json!(all_pass);
     body["wall_seconds"] = json!(wall);
-    body["wall_seconds_spectra"] = json!(wall_spectra);
     body["beta"] = json!({"value": beta_fit.beta, "stderr": beta_fit.beta_stderr, "per_image_sd": beta_sd, "theory": th.beta, "k_range": [k_lo, k_hi], "convention": "angle-averaged"});
     body["theory"] = serde_json::to_value(&th).map_err(|e| Error::Input(e.to_string()))?;
     body["estimates"] = json!({"q": s.q, "tau": s.tau, "tau_stderr": s.tau_stderr, "h": s.h, "D": s.d,

@@ -349,6 +349,34 @@ pub fn skeleton_with(
     par: Parallelism,
     keep: &[usize],
 ) -> Result<Skeleton> {
+    build(field, cfg, par, keep, 0, true).map(|(sk, _)| sk)
+}
+
+/// The skeleton and, at the first `wtmmm_scales` scales, every WTMMM of the
+/// counting rectangle (on a line or not; the WTMMM statistics of SPEC §5-§6
+/// want both sets), from one transform: `validate` takes the partition sums
+/// and the kernel from the same pass. Without `link` no lines are built
+/// (the statistics of all WTMMM need none).
+///
+/// **Errors** as [`skeleton_with`].
+pub fn skeleton_and_wtmmm(
+    field: &Field,
+    cfg: &AnalysisConfig,
+    par: Parallelism,
+    wtmmm_scales: usize,
+    link: bool,
+) -> Result<(Skeleton, Vec<Vec<Wtmmm>>)> {
+    build(field, cfg, par, &[], wtmmm_scales, link)
+}
+
+fn build(
+    field: &Field,
+    cfg: &AnalysisConfig,
+    par: Parallelism,
+    keep: &[usize],
+    wtmmm_scales: usize,
+    link: bool,
+) -> Result<(Skeleton, Vec<Vec<Wtmmm>>)> {
     cfg.validate()?;
     let domain = cfg.domain(field)?;
     let img = field.filled()?;
@@ -365,9 +393,11 @@ pub fn skeleton_with(
         ..Default::default()
     };
     let mut asm = Assembler {
-        linker: Linker::new(cfg.link).periodic(domain.is_torus().then_some((nx, ny))),
+        linker: link.then(|| Linker::new(cfg.link).periodic(domain.is_torus().then_some((nx, ny)))),
         sk,
         keep,
+        wtmmm: Vec::with_capacity(wtmmm_scales.min(scales.len())),
+        wtmmm_scales,
     };
     match par {
         Parallelism::Serial => {
@@ -379,7 +409,7 @@ pub fn skeleton_with(
                 let keep_j = keep.contains(&j);
                 let sm =
                     detect_linkable(&plan, &fi, j, &mut ws, &domain, cfg, keep_j, &mut scratch);
-                asm.push(sm);
+                asm.push(sm, &domain);
             }
         }
         Parallelism::Scales => {
@@ -388,13 +418,15 @@ pub fn skeleton_with(
                     detect_linkable(&plan, fi, j, ws, &domain, cfg, keep.contains(&j), s)
                 })?;
             for sm in found {
-                asm.push(sm);
+                asm.push(sm, &domain);
             }
         }
     }
     let mut sk = asm.sk;
-    sk.lines = asm.linker.finish();
-    Ok(sk)
+    if let Some(linker) = asm.linker {
+        sk.lines = linker.finish();
+    }
+    Ok((sk, asm.wtmmm))
 }
 
 /// [`detect`], plus the chains and the moduli along them when the linking
@@ -433,14 +465,20 @@ pub fn detect_linkable(
 
 /// Links scales as they arrive and keeps the per-scale counts.
 struct Assembler<'k> {
-    linker: Linker,
+    linker: Option<Linker>,
     sk: Skeleton,
     keep: &'k [usize],
+    /// The WTMMM of the counting rectangle at the first `wtmmm_scales` scales.
+    wtmmm: Vec<Vec<Wtmmm>>,
+    wtmmm_scales: usize,
 }
 
 impl Assembler<'_> {
-    fn push(&mut self, (mut sm, chain_m): (ScaleMaxima, Option<Vec<Vec<f64>>>)) {
-        let ended = self.linker.push_with(&sm, chain_m.as_deref());
+    fn push(&mut self, (mut sm, chain_m): (ScaleMaxima, Option<Vec<Vec<f64>>>), domain: &Domain) {
+        let ended = match self.linker.as_mut() {
+            Some(l) => l.push_with(&sm, chain_m.as_deref()),
+            None => Endings::default(),
+        };
         if chain_m.is_some() && !self.keep.contains(&sm.j) {
             sm.chains = Vec::new();
         }
@@ -450,8 +488,19 @@ impl Assembler<'_> {
             wtmm: sm.n_wtmm,
             chains: sm.n_chains,
             wtmmm: sm.wtmmm.len(),
-            lines: self.linker.alive(),
+            lines: self.linker.as_ref().map_or(0, |l| l.alive()),
         });
+        if sm.j < self.wtmmm_scales {
+            // chains may be traced in a guard band around the domain; only
+            // the WTMMM inside it count (as in the partition functions)
+            self.wtmmm.push(
+                sm.wtmmm
+                    .iter()
+                    .filter(|w| domain.counts(w.x, w.y))
+                    .copied()
+                    .collect(),
+            );
+        }
         if self.keep.contains(&sm.j) {
             self.sk.kept.push(sm);
         }

@@ -41,10 +41,9 @@ use std::f64::consts::PI;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
 use crate::field::Field;
-use crate::skeleton::{AnalysisConfig, DetectScratch, Linker, Parallelism, detect_linkable};
+use crate::skeleton::{AnalysisConfig, Parallelism, Skeleton, Wtmmm};
 
 /// Which WTMMM a statistic is taken over.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -134,61 +133,30 @@ pub fn image_wtmmm(
     par: Parallelism,
     link: bool,
 ) -> Result<ImageWtmmm> {
-    cfg.validate()?;
-    let domain = cfg.domain(field)?;
-    let img = field.filled()?;
-    let scales = cfg.scale_list();
-    let (ny, nx) = field.dim();
-    let plan = CwtPlan::new(ny, nx, cfg.wavelet, &scales)?;
-    // (the chains and their moduli come along only when a linking rule needs them)
-    let found = match par {
-        Parallelism::Serial => {
-            let fi = plan.forward(img.view())?;
-            let mut ws = plan.workspace();
-            let mut scratch = DetectScratch::default();
-            (0..scales.len())
-                .map(|j| detect_linkable(&plan, &fi, j, &mut ws, &domain, cfg, false, &mut scratch))
-                .collect::<Vec<_>>()
-        }
-        Parallelism::Scales => {
-            plan.par_map_scales_with(img.view(), DetectScratch::default, |s, fi, j, ws| {
-                detect_linkable(&plan, fi, j, ws, &domain, cfg, false, s)
-            })?
-        }
-    };
-    let mut out = ImageWtmmm {
-        scales: scales.clone(),
-        shape: (ny, nx),
-        all: Vec::with_capacity(scales.len()),
-        lines: vec![Vec::new(); scales.len()],
-    };
-    let mut linker = Linker::new(cfg.link).periodic(domain.is_torus().then_some((nx, ny)));
-    for (sm, chain_m) in &found {
-        if link {
-            linker.push_with(sm, chain_m.as_deref());
-        }
-        // chains may be traced in a guard band around the domain; only the
-        // WTMMM inside the domain count (as in the partition functions)
-        out.all.push(
-            sm.wtmmm
-                .iter()
-                .filter(|w| domain.counts(w.x, w.y))
-                .map(|w| Point {
-                    x: w.x,
-                    y: w.y,
-                    m: w.m,
-                    arg: w.arg,
-                })
-                .collect(),
-        );
-    }
-    if link {
+    let n = cfg.scale_list().len();
+    let (sk, all) = crate::skeleton::skeleton_and_wtmmm(field, cfg, par, n, link)?;
+    Ok(ImageWtmmm::from_skeleton(&sk, all))
+}
+
+impl ImageWtmmm {
+    /// The two sets from a skeleton and the WTMMM of its first `all.len()`
+    /// scales ([`crate::skeleton::skeleton_and_wtmmm`]); the lines are cut
+    /// to those scales. Only the counting rectangle is tested (the
+    /// detection already keeps the wavelet's support off missing pixels).
+    pub fn from_skeleton(sk: &Skeleton, all: Vec<Vec<Wtmmm>>) -> Self {
+        let n = all.len().min(sk.scales.len());
+        let (y0, y1, x0, x1) = sk.domain;
+        let inside = |x: u32, y: u32| {
+            let (x, y) = (x as usize, y as usize);
+            x >= x0 && x < x1 && y >= y0 && y < y1
+        };
+        let mut lines = vec![Vec::new(); n];
         // lines that never link beyond a_min carry no scale information
         // and are left out, as in the partition functions
-        for l in linker.finish().iter().filter(|l| l.points.len() > 1) {
-            for (j, p) in l.points.iter().enumerate() {
-                if domain.counts(p.x, p.y) {
-                    out.lines[j].push(Point {
+        for l in sk.lines.iter().filter(|l| l.points.len() > 1) {
+            for (j, p) in l.points.iter().take(n).enumerate() {
+                if inside(p.x, p.y) {
+                    lines[j].push(Point {
                         x: p.x,
                         y: p.y,
                         m: p.m,
@@ -197,8 +165,23 @@ pub fn image_wtmmm(
                 }
             }
         }
+        let point = |w: &Wtmmm| Point {
+            x: w.x,
+            y: w.y,
+            m: w.m,
+            arg: w.arg,
+        };
+        ImageWtmmm {
+            scales: sk.scales[..n].to_vec(),
+            shape: sk.shape,
+            all: all
+                .into_iter()
+                .take(n)
+                .map(|s| s.iter().map(point).collect())
+                .collect(),
+            lines,
+        }
     }
-    Ok(out)
 }
 
 /// Binning of the `(ln M, A)` histograms.
