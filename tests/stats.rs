@@ -1659,3 +1659,47 @@ fn correlation_sums_merge_only_like_with_like() {
     }
     assert_eq!(a.images.len(), 2);
 }
+
+/// `validate` takes the kernel from the spectra's skeleton cut to the fit
+/// range: that must be the WTMMM and lines a skeleton over the cut grid
+/// alone gives (linking runs from the smallest scale up and looks no
+/// further), on the torus and on an interior domain alike.
+#[test]
+fn a_skeleton_cut_to_its_first_scales_is_the_skeleton_of_those_scales() {
+    let model = Model::WCascade(wtmm::synth::wcascade::WCascadeParams {
+        law: wtmm::synth::wcascade::Law::LogNormal {
+            m: -0.38 * LN_2,
+            sigma2: 0.03 * LN_2,
+        },
+        isotropy: wtmm::synth::wcascade::Isotropy::Isotropic,
+        basis: wtmm::synth::dwt::Basis::Db8,
+    });
+    let field = Field::new(model.synthesize(256, 7, 0).unwrap());
+    for margin in [Some(0), None] {
+        let full = AnalysisConfig {
+            octaves: 4,
+            margin,
+            ..Default::default()
+        };
+        let grid = full.scale_list();
+        let n = 21; // two octaves of 10 voices
+        // the cut analysis keeps the full grid's margin, as validate does
+        let cut = AnalysisConfig {
+            scales: Some(grid[..n].to_vec()),
+            margin: Some(full.margin_px()),
+            ..full.clone()
+        };
+        for link in [true, false] {
+            let alone = image_wtmmm(&field, &cut, Parallelism::Serial, link).unwrap();
+            let (sk, all) =
+                wtmm::skeleton::skeleton_and_wtmmm(&field, &full, Parallelism::Scales, n, link)
+                    .unwrap();
+            assert_eq!(sk.scales.len(), grid.len());
+            let from_full = wtmm::stats::pdf::ImageWtmmm::from_skeleton(&sk, all);
+            assert_eq!(from_full.scales.len(), n);
+            assert!(alone.all.iter().all(|s| !s.is_empty()));
+            assert_eq!(alone.lines.iter().all(|s| !s.is_empty()), link);
+            assert_eq!(alone, from_full, "margin {margin:?}, link {link}");
+        }
+    }
+}
