@@ -63,6 +63,8 @@ pub struct Criterion {
     pub name: String,
     pub value: f64,
     pub target: f64,
+    /// Half-width of the pass band around `target`; NaN (null in the
+    /// JSON) for a one-sided criterion (`below`).
     pub tolerance: f64,
     pub pass: bool,
     pub note: String,
@@ -73,7 +75,7 @@ pub struct Criterion {
     pub informational: bool,
     /// One-sided criterion: passes when the value is below this bound (the
     /// log-Poisson c3 < 0); `target` is then the theory, shown, and
-    /// `tolerance` is not used.
+    /// `tolerance` is NaN.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub below: Option<f64>,
 }
@@ -848,10 +850,13 @@ mod tests {
         // passes, a positive one does not, whatever the distance to -0.0049
         let one = Criterion {
             below: Some(0.0),
-            ..criterion("c3", -0.0118, -0.0049, 0.005, "")
+            ..criterion("c3", -0.0118, -0.0049, f64::NAN, "")
         };
         assert!(one.judge(-0.0118) && one.judge(-1e-6));
         assert!(!one.judge(0.00006) && !one.judge(0.0) && !one.judge(f64::NAN));
         assert_eq!(one.tolerance_text(), "< 0");
+        // no tolerance is written for it
+        let j = serde_json::to_value(&one).unwrap();
+        assert!(j["tolerance"].is_null() && j["below"] == 0.0);
     }
 }
