@@ -103,6 +103,7 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
             t.h_min, t.h_max
         ));
     }
+    notes.extend(r.model.caveats());
     if !notes.is_empty() {
         body["notes"] = json!(notes);
     }

@@ -169,6 +169,10 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     if args.replicates == 0 {
         return Err(Error::param("replicates", "must be >= 1"));
     }
+    // said once, before the (long) run; also written with each ensemble
+    for w in args.model_opts.resolve(args.model)?.model.caveats() {
+        say!("warning: {w}");
+    }
     if args.replicates == 1 {
         let one = run_one(&args, quiet)?;
         show!("{}", one.table);
@@ -730,6 +734,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             "scales": [ss.fit_scales.0, ss.fit_scales.1],
             "tau": ss.tau, "tau_stderr": ss.tau_stderr, "h": ss.h, "D": ss.d}))});
     body["warnings"] = json!(s.warnings);
+    body["caveats"] = json!(model.caveats());
     write_json(&args.out.out.join("validation.json"), &body)?;
 
     let mut t = String::new();
@@ -764,6 +769,9 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         );
     }
     let _ = writeln!(t, "\nnotes:");
+    for w in model.caveats() {
+        let _ = writeln!(t, "  the model: {w}");
+    }
     for c in crit.iter().filter(|c| !c.note.is_empty()) {
         let _ = writeln!(t, "  {}: {}", c.name, c.note);
     }

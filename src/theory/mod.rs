@@ -292,6 +292,30 @@ impl Model {
         self.theory().magnitude_correlation(dx, l)
     }
 
+    /// What the generated surfaces do not deliver of this theory, for the
+    /// commands to say beside their outputs (empty when nothing is known).
+    /// A W-cascade on the Haar basis: the basis functions are step
+    /// functions, so the surface carries steps along the dyadic grid, edges
+    /// the analysing wavelet reads as h = 0 singularities on lines, beside
+    /// the cascade's own.
+    pub fn caveats(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if let Model::WCascade(p) = self
+            && p.basis == crate::synth::dwt::Basis::Haar
+        {
+            out.push(
+                "the Haar basis functions are discontinuous: the surface carries steps along \
+                 the dyadic grid (h = 0 on lines), which the wavelet transform reads beside the \
+                 cascade's singularities, so tau(q) at q > 0, the spectral beta and the kernel \
+                 cumulants are not the theory's (paper log-normal parameters, 8 x 512^2, \
+                 gauss: tau(2) 0.17 below it, c2 0.065 for 0.030); use --basis db4 or db8 \
+                 to test an estimator"
+                    .to_string(),
+            );
+        }
+        out
+    }
+
     /// True for the generators built on a dyadic grid (FISC's p-model and
     /// the W-cascades' wavelet basis); fBm and FIF take any size.
     pub fn needs_power_of_two(&self) -> bool {
@@ -574,6 +598,24 @@ impl TheoryTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_a_haar_cascade_carries_a_caveat() {
+        for name in PRESET_NAMES {
+            assert!(
+                Model::preset(name).unwrap().model.caveats().is_empty(),
+                "{name}"
+            );
+        }
+        let Model::WCascade(p) = Model::preset("paper-lognormal").unwrap().model else {
+            panic!("paper-lognormal is a W-cascade")
+        };
+        for (basis, n) in [(Basis::Haar, 1), (Basis::Db4, 0), (Basis::Db8, 0)] {
+            let c = Model::WCascade(WCascadeParams { basis, ..p }).caveats();
+            assert_eq!(c.len(), n, "{basis:?}");
+            assert!(c.iter().all(|w| w.contains("Haar") && w.contains("db8")));
+        }
+    }
 
     fn models() -> Vec<Model> {
         let ln2 = std::f64::consts::LN_2;
