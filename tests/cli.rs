@@ -2215,3 +2215,73 @@ fn synth_names_every_file_it_did_not_write() {
         "wcascade_0002.npy",
     ]);
 }
+
+/// A W-cascade on the Haar basis is said to be one (its steps are read
+/// beside the cascade): on stderr once per command, and in the outputs.
+#[test]
+fn a_haar_cascade_carries_its_caveat() {
+    let dir = scratch("haar");
+    let model = [
+        "wcascade",
+        "--law",
+        "lognormal",
+        "--m=-0.263",
+        "--sigma2",
+        "0.0208",
+        "--basis",
+    ];
+    let out = |n: &str| dir.join(n).display().to_string();
+    let s = out("s");
+    let (code, err) = run_bin_stderr(
+        &[
+            &["synth"][..],
+            &model,
+            &["haar", "--size", "64", "--out", &s],
+        ]
+        .concat(),
+    );
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(err.matches("warning: the Haar basis").count(), 1, "{err}");
+    let caveats = &json(&dir.join("s/synth.json"))["theory"]["caveats"];
+    assert!(caveats[0].as_str().unwrap().contains("discontinuous"));
+    let t = out("t");
+    let (code, err) = run_bin_stderr(&[&["theory"][..], &model, &["haar", "--out", &t]].concat());
+    assert_eq!(code, 0, "{err}");
+    let notes = json(&dir.join("t/theory.json"))["notes"].to_string();
+    assert!(notes.contains("Haar"), "{notes}");
+    // validate over two ensembles says it once, and writes it everywhere
+    let v = out("v");
+    let (code, err) = run_bin_stderr(
+        &[
+            &["validate"][..],
+            &model,
+            &[
+                "haar",
+                "--count",
+                "2",
+                "--size",
+                "256",
+                "--replicates",
+                "2",
+                "--out",
+                &v,
+            ],
+        ]
+        .concat(),
+    );
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(err.matches("warning: the Haar basis").count(), 1, "{err}");
+    for f in [
+        "replicates.json",
+        "seed_1/validation.json",
+        "seed_2/kernel/kernel.json",
+    ] {
+        assert!(json(&dir.join("v").join(f))["caveats"].is_array(), "{f}");
+    }
+    // the paper's db8 carries none
+    let d = out("d");
+    let (code, err) = run_bin_stderr(&[&["theory"][..], &model, &["db8", "--out", &d]].concat());
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("warning"), "{err}");
+    assert!(json(&dir.join("d/theory.json")).get("notes").is_none());
+}

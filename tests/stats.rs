@@ -1682,14 +1682,14 @@ fn a_skeleton_cut_to_its_first_scales_is_the_skeleton_of_those_scales() {
             ..Default::default()
         };
         let grid = full.scale_list();
-        let n = 21; // two octaves of 10 voices
-        // the cut analysis keeps the full grid's margin, as validate does
-        let cut = AnalysisConfig {
-            scales: Some(grid[..n].to_vec()),
-            margin: Some(full.margin_px()),
-            ..full.clone()
-        };
-        for link in [true, false] {
+        // one scale (no line links beyond it), two, two octaves of 10 voices
+        for (n, link) in [1, 2, 21].into_iter().flat_map(|n| [(n, true), (n, false)]) {
+            // the cut analysis keeps the full grid's margin, as validate does
+            let cut = AnalysisConfig {
+                scales: Some(grid[..n].to_vec()),
+                margin: Some(full.margin_px()),
+                ..full.clone()
+            };
             let alone = image_wtmmm(&field, &cut, Parallelism::Serial, link).unwrap();
             let (sk, all) =
                 wtmm::skeleton::skeleton_and_wtmmm(&field, &full, Parallelism::Scales, n, link)
@@ -1698,8 +1698,12 @@ fn a_skeleton_cut_to_its_first_scales_is_the_skeleton_of_those_scales() {
             let from_full = wtmm::stats::pdf::ImageWtmmm::from_skeleton(&sk, all);
             assert_eq!(from_full.scales.len(), n);
             assert!(alone.all.iter().all(|s| !s.is_empty()));
-            assert_eq!(alone.lines.iter().all(|s| !s.is_empty()), link);
-            assert_eq!(alone, from_full, "margin {margin:?}, link {link}");
+            // a single scale holds no line (none links beyond a_min)
+            assert_eq!(alone.lines.iter().all(|s| !s.is_empty()), link && n > 1);
+            assert_eq!(
+                alone, from_full,
+                "margin {margin:?}, {n} scales, link {link}"
+            );
         }
     }
 }

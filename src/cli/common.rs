@@ -282,6 +282,15 @@ pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
     serde_json::json!({"version": crate::VERSION, "build": crate::BUILD, "command": command, "params": params})
 }
 
+/// Writes `caveats` ([`crate::theory::Model::caveats`]) into an output's
+/// JSON when the model has any.
+pub fn note_caveats(body: &mut serde_json::Value, model: Option<&crate::theory::Model>) {
+    let caveats = model.map(|m| m.caveats()).unwrap_or_default();
+    if !caveats.is_empty() {
+        body["caveats"] = serde_json::json!(caveats);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

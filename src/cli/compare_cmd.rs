@@ -506,6 +506,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         "tm": {"config": tm_cfg, "fit": super::tm_cmd::fit_record(&tm_fit, &t_all.universal_fit)},
     });
     let mut body = header("compare", params.clone());
+    super::common::note_caveats(&mut body, Some(&r.model));
     body["model"] = json!(name);
     body["q"] = json!(q);
     body["theory"] = json!({

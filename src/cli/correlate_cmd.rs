@@ -465,6 +465,7 @@ fn write_correlation_outputs(
     cost: Option<(f64, f64, f64)>,
 ) -> Result<serde_json::Value> {
     let mut body = header(command, params);
+    super::common::note_caveats(&mut body, model);
     body["integral_scale"] = json!(l);
     body["centring"] = json!({
         "C": "per image: w - mean of w over the image's valid points (SPEC §6)",

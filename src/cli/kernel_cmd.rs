@@ -413,6 +413,7 @@ pub fn write_kernel_outputs(
 ) -> Result<()> {
     let k = &o.main;
     let mut body = header(command, params);
+    super::common::note_caveats(&mut body, model);
     body["set"] = json!(k.set);
     body["images"] = json!(k.images);
     body["fit_octaves"] = json!(k.fit_octaves);

@@ -233,6 +233,7 @@ impl ModelOpts {
             }
         };
         model.validate()?;
+        warn_caveats(&model);
         let wavelet = match model {
             // h_max > 1 needs more vanishing moments (II §3.1)
             Model::Fisc(_) => Wavelet::Mexican,
@@ -244,5 +245,20 @@ impl ModelOpts {
             preset: None,
             wavelet,
         })
+    }
+}
+
+/// Says on stderr, once per process, what the model's surfaces do not
+/// deliver of its theory ([`Model::caveats`]): every command that names a
+/// model resolves it, some more than once (`validate --replicates`).
+fn warn_caveats(model: &Model) {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    let caveats = model.caveats();
+    if !caveats.is_empty() {
+        ONCE.call_once(|| {
+            for w in &caveats {
+                say!("warning: {w}");
+            }
+        });
     }
 }

@@ -638,6 +638,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         json!({"input": input.params_json(), "analysis": super::common::analysis_json(&cfg), "set": args.set,
             "fit_octaves": fit, "binning": pcfg}),
     );
+    super::common::note_caveats(&mut body, input.model.as_ref());
     body["set"] = json!(args.set);
     body["images"] = json!(hist.images);
     body["h0"] = json!({"value": h0, "source": h0_source, "estimate_from_data": h_est,

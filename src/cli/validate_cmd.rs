@@ -169,10 +169,6 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     if args.replicates == 0 {
         return Err(Error::param("replicates", "must be >= 1"));
     }
-    // said once, before the (long) run; also written with each ensemble
-    for w in args.model_opts.resolve(args.model)?.model.caveats() {
-        say!("warning: {w}");
-    }
     if args.replicates == 1 {
         let one = run_one(&args, quiet)?;
         show!("{}", one.table);
@@ -342,6 +338,9 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
         "validate {}: {n} ensembles (seeds {}-{last}) of {} images {}x{}; each in seed_S/",
         first.name, args.seed, args.count, args.size, args.size
     );
+    for w in first.model.caveats() {
+        let _ = writeln!(t, "the model: {w}");
+    }
     let _ = writeln!(
         t,
         "{:<52} {:>9} {:>8} {:>9} {:>9} {:>7}  mean",
@@ -399,6 +398,7 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     params["seed"] = json!(args.seed);
     params["replicates"] = json!(n);
     let mut body = super::common::header("validate", params);
+    super::common::note_caveats(&mut body, Some(&first.model));
     body["model"] = json!(first.name);
     body["seeds"] = json!((args.seed..=last).collect::<Vec<u64>>());
     body["criteria"] = json!(summary);
@@ -734,7 +734,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             "scales": [ss.fit_scales.0, ss.fit_scales.1],
             "tau": ss.tau, "tau_stderr": ss.tau_stderr, "h": ss.h, "D": ss.d}))});
     body["warnings"] = json!(s.warnings);
-    body["caveats"] = json!(model.caveats());
+    super::common::note_caveats(&mut body, Some(&model));
     write_json(&args.out.out.join("validation.json"), &body)?;
 
     let mut t = String::new();

@@ -153,7 +153,8 @@ impl ImageWtmmm {
         let mut lines = vec![Vec::new(); n];
         // lines that never link beyond a_min carry no scale information
         // and are left out, as in the partition functions
-        for l in sk.lines.iter().filter(|l| l.points.len() > 1) {
+        // (judged on the cut line: a line of the first n scales alone)
+        for l in sk.lines.iter().filter(|l| l.points.len().min(n) > 1) {
             for (j, p) in l.points.iter().take(n).enumerate() {
                 if inside(p.x, p.y) {
                     lines[j].push(Point {
