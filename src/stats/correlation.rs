@@ -227,6 +227,10 @@ impl CorrelationConfig {
 /// each other (77-97 ms).
 const COLS: usize = 32;
 
+/// Padding between the spectrum's columns (complex elements; see
+/// [`RFft2`]): 64 bytes, one cache line.
+const COL_PAD: usize = 8;
+
 /// A 2D real-to-complex FFT of size `fy x fx` in f32: realfft along x (half
 /// spectrum, `nh = fx/2 + 1` columns), complex FFT along y. The spectrum is
 /// kept transposed (`[kx][ky]`, `nh x fy`), as in [`crate::cwt`]; only
@@ -250,10 +254,18 @@ const COLS: usize = 32;
 /// Rows known to be zero on input (the zero padding of a linear
 /// correlation) cost no row FFT, and output rows whose lags are never
 /// binned are not inverted.
+///
+/// **Column stride.** The columns of the spectrum lie `cs = fy + 8`
+/// elements apart, not `fy`: with `fy` a power of two the stride is a
+/// multiple of 4 KiB, so the [`COLS`] columns a row is scattered into (and
+/// gathered from) all fall in the same L1 set and evict each other. The
+/// padding is never read as data (its products are of zeros).
 struct RFft2 {
     fy: usize,
     fx: usize,
     nh: usize,
+    /// Column stride of the spectra and of the column block.
+    cs: usize,
     /// Rows `>= rows_in` of every input field are zero.
     rows_in: usize,
     /// Output rows needed: `y <= lag_rows` or `y >= fy - lag_rows`.
@@ -284,6 +296,7 @@ impl RFft2 {
             fy,
             fx,
             nh: fx / 2 + 1,
+            cs: fy + COL_PAD,
             rows_in: rows_in.min(fy),
             lag_rows,
             r2c,
@@ -294,8 +307,8 @@ impl RFft2 {
         }
     }
 
-    /// `field` (`[y][x]`) -> `out` (`[kx][ky]`, unnormalised); `half` is
-    /// `fy x nh` scratch, `row` an `fx` row buffer.
+    /// `field` (`[y][x]`) -> `out` (`[kx][ky]`, columns `cs` apart,
+    /// unnormalised); `half` is `fy x nh` scratch, `row` an `fx` row buffer.
     fn forward(
         &self,
         field: &[f64],
@@ -304,7 +317,7 @@ impl RFft2 {
         row: &mut [f32],
         scratch: &mut [Complex32],
     ) {
-        let (fx, fy, nh) = (self.fx, self.fy, self.nh);
+        let (fx, fy, nh, cs) = (self.fx, self.fy, self.nh, self.cs);
         for (y, (src, h)) in field
             .chunks_exact(fx)
             .zip(half.chunks_exact_mut(nh))
@@ -323,13 +336,15 @@ impl RFft2 {
         }
         for k0 in (0..nh).step_by(COLS) {
             let c = COLS.min(nh - k0);
-            let blk = &mut out[k0 * fy..(k0 + c) * fy];
+            let blk = &mut out[k0 * cs..(k0 + c) * cs];
             for (y, src) in half.chunks_exact(nh).enumerate() {
                 for (j, &v) in src[k0..k0 + c].iter().enumerate() {
-                    blk[j * fy + y] = v;
+                    blk[j * cs + y] = v;
                 }
             }
-            self.fwd_y.process_with_scratch(blk, scratch);
+            for col in blk.chunks_exact_mut(cs) {
+                self.fwd_y.process_with_scratch(&mut col[..fy], scratch);
+            }
         }
     }
 
@@ -348,19 +363,21 @@ impl RFft2 {
         out: &mut [f32],
         scratch: &mut [Complex32],
     ) {
-        let (fx, fy, nh) = (self.fx, self.fy, self.nh);
+        let (fx, fy, nh, cs) = (self.fx, self.fy, self.nh, self.cs);
         let norm = 1.0 / (fy * fx) as f32;
         for k0 in (0..nh).step_by(COLS) {
             let c = COLS.min(nh - k0);
-            let b = &mut blk[..c * fy];
-            let (sa, sb) = (&fa[k0 * fy..(k0 + c) * fy], &fb[k0 * fy..(k0 + c) * fy]);
+            let b = &mut blk[..c * cs];
+            let (sa, sb) = (&fa[k0 * cs..(k0 + c) * cs], &fb[k0 * cs..(k0 + c) * cs]);
             for ((v, a), g) in b.iter_mut().zip(sa).zip(sb) {
                 *v = a.conj() * g * norm;
             }
-            self.inv_y.process_with_scratch(b, scratch);
+            for col in b.chunks_exact_mut(cs) {
+                self.inv_y.process_with_scratch(&mut col[..fy], scratch);
+            }
             for (y, dst) in half.chunks_exact_mut(nh).enumerate() {
                 for (j, v) in dst[k0..k0 + c].iter_mut().enumerate() {
-                    *v = b[j * fy + y];
+                    *v = b[j * cs + y];
                 }
             }
         }
@@ -735,7 +752,7 @@ impl CorrelationPlan {
         n: usize,
         requests: &[(usize, usize, bool)],
     ) -> Vec<(Vec<f64>, Vec<f64>)> {
-        let (fy, fx, nh) = (self.fft.fy, self.fft.fx, self.fft.nh);
+        let (fy, fx, nh, cs) = (self.fft.fy, self.fft.fx, self.fft.nh, self.fft.cs);
         let ns = nh * fy;
         let Workspace {
             fields,
@@ -749,14 +766,15 @@ impl CorrelationPlan {
         } = ws;
         scratch.resize(self.fft.scratch_len, Complex32::default());
         half.resize(ns, Complex32::default());
-        x.resize(COLS * fy, Complex32::default());
+        x.resize(COLS * cs, Complex32::default());
         r.resize(fy * fx, 0.0);
         row.resize(fx, 0.0);
         while spec.len() < n {
             spec.push(Vec::new());
         }
         for (f, sp) in fields[..n].iter_mut().zip(spec.iter_mut()) {
-            sp.resize(ns, Complex32::default());
+            // (the padding stays zero: resize fills it, nothing writes it)
+            sp.resize(nh * cs, Complex32::default());
             self.fft.forward(f, half, sp, row, scratch);
         }
         let mut out = Vec::with_capacity(requests.len());
