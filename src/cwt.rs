@@ -277,6 +277,9 @@ pub struct CwtWorkspace {
     /// a 64-byte cache line and a block of [`ROW_BLOCK`] values of a row
     /// spans whole lines.
     toff: usize,
+    /// Row stride of `tbuf` at the last scale filtered (see
+    /// [`CwtPlan::filter_columns`]).
+    ts: usize,
     /// Output `T1 + i T2`, `[y][x]` (of [`CwtPlan::scale`]; allocated on first use).
     out: Array2<Complex64>,
     scratch: Vec<Complex64>,
@@ -422,7 +425,7 @@ impl CwtPlan {
 
     /// Fresh buffers for one worker.
     pub fn workspace(&self) -> CwtWorkspace {
-        let tbuf = vec![Complex64::default(); self.nx * self.ny + 3];
+        let tbuf = vec![Complex64::default(); self.nx * self.padded_stride() + 3];
         let toff = match tbuf.as_ptr().align_offset(64) {
             o if o <= 3 => o,
             _ => 0,
@@ -430,6 +433,7 @@ impl CwtPlan {
         CwtWorkspace {
             tbuf,
             toff,
+            ts: self.ny,
             out: Array2::zeros((0, 0)),
             scratch: vec![Complex64::default(); self.scratch_len],
             gx: vec![0.0; self.nx],
@@ -506,7 +510,8 @@ impl CwtPlan {
         ws: &'w mut CwtWorkspace,
     ) -> &'w Array2<Complex64> {
         let (ny, nx) = (self.ny, self.nx);
-        self.filter_columns(fi, j, ws);
+        // compact rows: one whole-array transpose
+        self.filter_columns(fi, j, ws, ny);
         // allocated on first use: consumers of `scale_rows` never need it
         if ws.out.dim() != (ny, nx) {
             ws.out = Array2::zeros((ny, nx));
@@ -547,7 +552,8 @@ impl CwtPlan {
         if rows.is_empty() {
             return;
         }
-        self.filter_columns(fi, j, ws);
+        let ts = self.padded_stride();
+        self.filter_columns(fi, j, ws, ts);
         for b in &mut ws.blocks {
             b.resize(ROW_BLOCK * nx, Complex64::default());
         }
@@ -564,7 +570,7 @@ impl CwtPlan {
             // gather columns y0..y0+h of the [kx][y] spectrum: h contiguous
             // values from every kx row (zeros where the row was pruned)
             let next = y0 + h;
-            let tb = &ws.tbuf[ws.toff..ws.toff + nx * ny];
+            let tb = &ws.tbuf[ws.toff..ws.toff + nx * ts];
             let mut kx = 0;
             while kx < nx {
                 if ws.zero_rows[kx] {
@@ -579,7 +585,7 @@ impl CwtPlan {
                     kx = end;
                     continue;
                 }
-                let row = &tb[kx * ny..(kx + 1) * ny];
+                let row = &tb[kx * ts..kx * ts + ny];
                 // the next block's two cache lines of this row: rows 16 KB
                 // apart defeat the hardware prefetcher
                 if next < rows.end {
@@ -600,11 +606,31 @@ impl CwtPlan {
         }
     }
 
+    /// Row stride of the filtered spectrum when it is read in row blocks
+    /// ([`Self::scale_rows`]): `ny`, plus one cache line when `ny` rows
+    /// would lie a multiple of 4 KiB apart. The block gather reads 8 values
+    /// from every row; with a power-of-two stride all those rows fall in
+    /// the same L1 set and evict each other (streamed CWT of 1024²,
+    /// 50 scales: 178-189 ms -> 164-169 ms, 2026-11-26).
+    fn padded_stride(&self) -> usize {
+        let row_bytes = self.ny * std::mem::size_of::<Complex64>();
+        if row_bytes.is_multiple_of(4096) {
+            self.ny + 64 / std::mem::size_of::<Complex64>()
+        } else {
+            self.ny
+        }
+    }
+
     /// The first half of a scale: the filtered spectrum `[kx][ky]` with its
-    /// FFTs along `ky` done, in `ws.tbuf` (pruned rows zero, flagged in
-    /// `ws.zero_rows`).
-    fn filter_columns(&self, fi: &FourierImage, j: usize, ws: &mut CwtWorkspace) {
+    /// FFTs along `ky` done, in `ws.tbuf`, rows `ts` apart (pruned rows
+    /// zero, flagged in `ws.zero_rows`).
+    fn filter_columns(&self, fi: &FourierImage, j: usize, ws: &mut CwtWorkspace, ts: usize) {
         let (ny, nx) = (self.ny, self.nx);
+        if ws.ts != ts {
+            // the zeros of earlier scales sat at the other stride
+            ws.ts = ts;
+            ws.zero_rows.fill(false);
+        }
         let a = self.scales[j];
         // separable Gaussian factors: nx + ny exponentials per scale
         for (g, k) in ws.gx.iter_mut().zip(&self.kx) {
@@ -618,7 +644,7 @@ impl CwtPlan {
         let a2 = a * a;
         let mexican = self.wavelet == Wavelet::Mexican;
         for kx in 0..nx {
-            let row = &mut ws.tbuf[ws.toff + kx * ny..ws.toff + (kx + 1) * ny];
+            let row = &mut ws.tbuf[ws.toff + kx * ts..ws.toff + kx * ts + ny];
             let gx = ws.gx[kx];
             if gx < PRUNE {
                 if !ws.zero_rows[kx] {
