@@ -20,10 +20,11 @@ pub struct EnsembleResult {
 }
 
 /// Generates `count` images with `make(i)` and analyses them, also running
-/// `extra(i, field, skeleton, wtmmm)` on each image's skeleton and its WTMMM at the first `wtmmm_scales`
-/// scales ([`skeleton_and_wtmmm`]), so that statistics beyond the partition
-/// sums cost no second transform. The results come back in image order;
-/// `tick` is called once per finished image (progress bars).
+/// `extra(i, field, skeleton, wtmmm)` on each image's skeleton and its
+/// WTMMM at the first `wtmmm_scales` scales ([`skeleton_and_wtmmm`]), so
+/// that statistics beyond the partition sums cost no second transform. The
+/// results come back in image order; `tick` is called once per finished
+/// image (progress bars).
 #[allow(clippy::too_many_arguments)]
 pub fn analyse_generated<G, X, F>(
     count: usize,
