@@ -2285,3 +2285,43 @@ fn a_haar_cascade_carries_its_caveat() {
     assert!(!err.contains("warning"), "{err}");
     assert!(json(&dir.join("d/theory.json")).get("notes").is_none());
 }
+
+/// `validate` refuses up front an image size whose images in flight would
+/// not fit in the available memory (the allocation used to abort the
+/// process, exit 134, with the output directory half made). Run only where
+/// 16384^2 (about 54 GB per image) cannot fit.
+#[test]
+fn validate_refuses_a_size_beyond_the_memory() {
+    let avail_gb = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|s| {
+            let line = s
+                .lines()
+                .find(|l| l.starts_with("MemAvailable:"))?
+                .to_string();
+            line.split_whitespace().nth(1)?.parse::<f64>().ok()
+        })
+        .map(|kb| kb * 1024.0 / 1e9);
+    let Some(avail_gb) = avail_gb.filter(|&g| g < 40.0) else {
+        return;
+    };
+    let dir = scratch("memory");
+    let out = dir.join("v");
+    let (code, err) = run_bin_stderr(&[
+        "validate",
+        "--preset",
+        "paper-lognormal",
+        "--count",
+        "1",
+        "--size",
+        "16384",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("`size`") && err.contains("GB in memory") && err.contains("available"),
+        "{err} ({avail_gb:.1} GB available)"
+    );
+    assert!(!out.exists());
+}

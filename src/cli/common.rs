@@ -282,6 +282,14 @@ pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
     serde_json::json!({"version": crate::VERSION, "build": crate::BUILD, "command": command, "params": params})
 }
 
+/// `MemAvailable` of /proc/meminfo in bytes (Linux); `None` elsewhere.
+pub fn available_memory() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = s.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024.0)
+}
+
 /// Writes `caveats` ([`crate::theory::Model::caveats`]) into an output's
 /// JSON when the model has any.
 pub fn note_caveats(body: &mut serde_json::Value, model: Option<&crate::theory::Model>) {

@@ -114,7 +114,7 @@ fn check_common(c: &SynthCommon) -> Result<()> {
     // grid twice as large in complex f64 (64 N^2 bytes), the largest case.
     let per_image = 64.0 * (c.size as f64).powi(2);
     let at_once = c.count.min(rayon::current_num_threads()) as f64;
-    if let Some(avail) = available_memory()
+    if let Some(avail) = super::common::available_memory()
         && per_image * at_once > avail
     {
         return Err(Error::param(
@@ -131,14 +131,6 @@ fn check_common(c: &SynthCommon) -> Result<()> {
         ));
     }
     Ok(())
-}
-
-/// `MemAvailable` of /proc/meminfo in bytes (Linux); `None` elsewhere.
-fn available_memory() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = s.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024.0)
 }
 
 /// Generates and writes `count` images in parallel; image `i` depends only on
