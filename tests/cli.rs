@@ -2286,7 +2286,7 @@ fn a_haar_cascade_carries_its_caveat() {
     assert!(json(&dir.join("d/theory.json")).get("notes").is_none());
 }
 
-/// `validate` refuses up front an image size whose images in flight would
+/// `validate` and `compare` refuse up front an image size whose images in flight would
 /// not fit in the available memory (the allocation used to abort the
 /// process, exit 134, with the output directory half made). Run only where
 /// 16384^2 (about 54 GB per image) cannot fit.
@@ -2323,5 +2323,20 @@ fn validate_refuses_a_size_beyond_the_memory() {
         err.contains("`size`") && err.contains("GB in memory") && err.contains("available"),
         "{err} ({avail_gb:.1} GB available)"
     );
+    assert!(!out.exists());
+    // compare generates its ensemble the same way
+    let (code, err) = run_bin_stderr(&[
+        "compare",
+        "--preset",
+        "paper-lognormal",
+        "--count",
+        "1",
+        "--size",
+        "16384",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("GB in memory"), "{err}");
     assert!(!out.exists());
 }

@@ -290,6 +290,35 @@ pub fn available_memory() -> Option<f64> {
     Some(kb * 1024.0)
 }
 
+/// Bytes per pixel of one generated image in flight in `validate` or
+/// `compare` (generator, power spectrum, transform and skeleton,
+/// correlation or trace moments), from peak RSS with two threads,
+/// 2026-11-26: validate 114 (log-normal), 184 (fBm) and 200 (FISC) at
+/// 2048^2, 139 (FISC) at 4096^2; compare 160 (log-normal, fBm) at 2048^2.
+const ENSEMBLE_BYTES_PER_PIXEL: f64 = 200.0;
+
+/// Refuses up front an ensemble whose images in flight (one per worker)
+/// would not fit in the available memory: the allocation would abort the
+/// process with no message and the output directory half made.
+pub fn check_ensemble_memory(size: usize, count: usize) -> Result<()> {
+    let per_image = ENSEMBLE_BYTES_PER_PIXEL * (size as f64).powi(2);
+    let at_once = count.min(rayon::current_num_threads()).max(1) as f64;
+    match super::common::available_memory() {
+        Some(avail) if per_image * at_once > avail => Err(Error::param(
+            "size",
+            format!(
+                "{size} px needs about {:.1} GB in memory ({at_once} image(s) at once, {:.1} GB \
+                 each); {:.1} GB are available (a smaller --size, or fewer images at once with \
+                 RAYON_NUM_THREADS)",
+                per_image * at_once / 1e9,
+                per_image / 1e9,
+                avail / 1e9
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Writes `caveats` ([`crate::theory::Model::caveats`]) into an output's
 /// JSON when the model has any.
 pub fn note_caveats(body: &mut serde_json::Value, model: Option<&crate::theory::Model>) {

@@ -258,6 +258,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     }
     model.check_size(args.size)?;
     super::common::check_generated_size(&cfg, args.size)?;
+    super::common::check_ensemble_memory(args.size, args.count)?;
     let summary_q = parse_range("summary-q", &args.summary_q)?;
     if !q.iter().any(|&v| v >= summary_q.0 && v <= summary_q.1) {
         return Err(Error::param(

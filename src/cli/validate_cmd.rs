@@ -177,34 +177,6 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     run_replicates(args, quiet)
 }
 
-/// Bytes per pixel of one image in flight in `validate` (generator, power
-/// spectrum, transform and skeleton, correlation fields and spectra),
-/// from peak RSS with two threads, 2026-11-26: 114 (log-normal), 184 (fBm)
-/// and 200 (FISC) at 2048^2, 139 (FISC) at 4096^2.
-const VALIDATE_BYTES_PER_PIXEL: f64 = 200.0;
-
-/// Refuses up front an ensemble whose images in flight (one per worker)
-/// would not fit in the available memory: the allocation would abort the
-/// process with no message and the output directory half made.
-fn check_memory(size: usize, count: usize) -> Result<()> {
-    let per_image = VALIDATE_BYTES_PER_PIXEL * (size as f64).powi(2);
-    let at_once = count.min(rayon::current_num_threads()).max(1) as f64;
-    match super::common::available_memory() {
-        Some(avail) if per_image * at_once > avail => Err(Error::param(
-            "size",
-            format!(
-                "{size} px needs about {:.1} GB in memory ({at_once} image(s) at once, {:.1} GB \
-                 each); {:.1} GB are available (a smaller --size, or fewer images at once with \
-                 RAYON_NUM_THREADS)",
-                per_image * at_once / 1e9,
-                per_image / 1e9,
-                avail / 1e9
-            ),
-        )),
-        _ => Ok(()),
-    }
-}
-
 /// `max |tau - theory|` over the q in `[lo, hi]` and the index where it is
 /// (`None` if the range holds no q); infinite at the first non-finite
 /// value, so that a missing estimate fails instead of reading as 0.
@@ -449,7 +421,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         return Err(Error::param("count", "must be >= 1"));
     }
     r.model.check_size(args.size)?;
-    check_memory(args.size, args.count)?;
+    super::common::check_ensemble_memory(args.size, args.count)?;
     let (k_lo, k_hi) = default_k_range(args.size);
     let ps_cfg = PowerSpectrumConfig::for_field(r.model.is_periodic());
     let k_bins = bins_in_range(args.size, args.size, ps_cfg.bins_per_octave, (k_lo, k_hi))?;
