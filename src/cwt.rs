@@ -611,7 +611,7 @@ impl CwtPlan {
     /// would lie a multiple of 4 KiB apart. The block gather reads 8 values
     /// from every row; with a power-of-two stride all those rows fall in
     /// the same L1 set and evict each other (streamed CWT of 1024²,
-    /// 50 scales: 178-189 ms -> 164-169 ms, 2026-11-26).
+    /// 50 scales: 178-186 ms -> 152-158 ms, 2026-11-26).
     fn padded_stride(&self) -> usize {
         let row_bytes = self.ny * std::mem::size_of::<Complex64>();
         if row_bytes.is_multiple_of(4096) {

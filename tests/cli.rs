@@ -2307,36 +2307,24 @@ fn validate_refuses_a_size_beyond_the_memory() {
     };
     let dir = scratch("memory");
     let out = dir.join("v");
-    let (code, err) = run_bin_stderr(&[
-        "validate",
-        "--preset",
-        "paper-lognormal",
-        "--count",
-        "1",
-        "--size",
-        "16384",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 2, "{err}");
-    assert!(
-        err.contains("`size`") && err.contains("GB in memory") && err.contains("available"),
-        "{err} ({avail_gb:.1} GB available)"
-    );
-    assert!(!out.exists());
     // compare generates its ensemble the same way
-    let (code, err) = run_bin_stderr(&[
-        "compare",
-        "--preset",
-        "paper-lognormal",
-        "--count",
-        "1",
-        "--size",
-        "16384",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("GB in memory"), "{err}");
-    assert!(!out.exists());
+    for command in ["validate", "compare"] {
+        let (code, err) = run_bin_stderr(&[
+            command,
+            "--preset",
+            "paper-lognormal",
+            "--count",
+            "1",
+            "--size",
+            "16384",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(code, 2, "{command}: {err}");
+        assert!(
+            err.contains("`size`") && err.contains("GB in memory") && err.contains("available"),
+            "{command}: {err} ({avail_gb:.1} GB available)"
+        );
+        assert!(!out.exists(), "{command}");
+    }
 }

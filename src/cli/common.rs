@@ -299,11 +299,18 @@ const ENSEMBLE_BYTES_PER_PIXEL: f64 = 200.0;
 
 /// Refuses up front an ensemble whose images in flight (one per worker)
 /// would not fit in the available memory: the allocation would abort the
-/// process with no message and the output directory half made.
+/// process with no message and the output directory half made. For
+/// `validate` and `compare`.
 pub fn check_ensemble_memory(size: usize, count: usize) -> Result<()> {
-    let per_image = ENSEMBLE_BYTES_PER_PIXEL * (size as f64).powi(2);
+    check_memory(size, count, ENSEMBLE_BYTES_PER_PIXEL)
+}
+
+/// [`check_ensemble_memory`] with `bytes_per_pixel` per image in flight
+/// (`synth`: 64, its fBm grid).
+pub fn check_memory(size: usize, count: usize, bytes_per_pixel: f64) -> Result<()> {
+    let per_image = bytes_per_pixel * (size as f64).powi(2);
     let at_once = count.min(rayon::current_num_threads()).max(1) as f64;
-    match super::common::available_memory() {
+    match available_memory() {
         Some(avail) if per_image * at_once > avail => Err(Error::param(
             "size",
             format!(

@@ -112,25 +112,7 @@ fn check_common(c: &SynthCommon) -> Result<()> {
     // an allocation beyond the machine aborts the process (no message, and
     // the directory left behind): estimate first. The fBm is drawn on a
     // grid twice as large in complex f64 (64 N^2 bytes), the largest case.
-    let per_image = 64.0 * (c.size as f64).powi(2);
-    let at_once = c.count.min(rayon::current_num_threads()) as f64;
-    if let Some(avail) = super::common::available_memory()
-        && per_image * at_once > avail
-    {
-        return Err(Error::param(
-            "size",
-            format!(
-                "{} px needs about {:.1} GB in memory ({} image(s) at once, {:.1} GB each); \
-                 {:.1} GB are available",
-                c.size,
-                per_image * at_once / 1e9,
-                at_once,
-                per_image / 1e9,
-                avail / 1e9
-            ),
-        ));
-    }
-    Ok(())
+    super::common::check_memory(c.size, c.count, 64.0)
 }
 
 /// Generates and writes `count` images in parallel; image `i` depends only on
