@@ -237,6 +237,10 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
     check_inputs(&inputs, images)?;
     let _inputs = crate::io::protect(&inputs);
     let out: Option<PathBuf> = out.map(Path::to_path_buf);
+    // a panic (a bug) unwinds past the clean-up below: this removes the
+    // directories made for it, after the batch (declared later, dropped
+    // first) has removed its temporaries
+    let _on_panic = PanicCleanup(out.as_deref());
     if let Some(dir) = &out
         && let Err(e) = prepare_out(dir)
     {
@@ -276,6 +280,18 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
     });
     release_created(out.as_deref(), r.is_err());
     r
+}
+
+/// Removes, when dropped during a panic, the still-empty directories
+/// created for the output directory it holds.
+struct PanicCleanup<'a>(Option<&'a Path>);
+
+impl Drop for PanicCleanup<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            release_created(self.0, true);
+        }
+    }
 }
 
 /// Most files [`files_under`] lists (an --out pointed at a large tree is
@@ -446,4 +462,33 @@ pub struct OutDir {
     /// Output directory (created if missing; written only after the inputs are checked).
     #[arg(long)]
     pub out: PathBuf,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A panic during a command removes the (empty) output directories the
+    /// command created; a normal drop leaves them to the explicit clean-up.
+    #[test]
+    fn a_panic_removes_the_directories_it_created() {
+        let root = std::env::temp_dir().join(format!("wtmm-panic-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let deep = root.join("x").join("y");
+        std::fs::create_dir_all(&deep).unwrap();
+        note_created(vec![root.clone(), root.join("x"), deep.clone()]);
+        {
+            let _g = PanicCleanup(Some(&root));
+        }
+        assert!(deep.exists(), "no panic: nothing removed");
+        let hook = std::panic::take_hook();
+        std::panic::set_hook(Box::new(|_| {}));
+        let r = std::panic::catch_unwind(|| {
+            let _g = PanicCleanup(Some(&root));
+            panic!("a bug");
+        });
+        std::panic::set_hook(hook);
+        assert!(r.is_err());
+        assert!(!root.exists(), "{} left behind", root.display());
+    }
 }

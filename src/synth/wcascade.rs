@@ -245,10 +245,18 @@ impl WCascadeParams {
     /// `sin(2φ)/(4φ) = r/(1+r) - 1/2`, `r = 2^(τ(2)/2 + 3)`. The left side
     /// falls monotonically from 1/2 (φ -> 0) to 0 (φ = π/2); bisection.
     ///
+    /// A very smooth law (`τ(2)` in the thousands) makes `r` infinite: the
+    /// right side is then 1/2 and the root its limit `φ* -> 0`.
+    ///
     /// **Panics** if `τ(2) < -6` (rejected by [`WCascadeParams::validate`]).
     pub fn phi_star(&self) -> f64 {
         let r = 2f64.powf(self.law.tau(2.0) / 2.0 + 3.0);
-        let rhs = r / (1.0 + r) - 0.5;
+        // (inf/inf would be NaN; the finite form is kept for its bits)
+        let rhs = if r.is_finite() {
+            r / (1.0 + r) - 0.5
+        } else {
+            0.5
+        };
         assert!(rhs >= 0.0, "II eq 36 has no root for tau(2) < -6");
         let f = |phi: f64| (2.0 * phi).sin() / (4.0 * phi) - rhs;
         let (mut lo, mut hi) = (1e-300, FRAC_PI_2);
@@ -411,6 +419,25 @@ pub fn wcascade_coefficients(
 ) -> Result<Array2<f64>> {
     params.validate()?;
     let steps = steps_for_size(size)?;
+    // the typical coefficient of the finest level is 2^(-h(0) n) of the
+    // root's (II eq 27): past ~2^-1000 it underflows double precision and
+    // the image holds only the coarse levels
+    let h0 = -params.law.cumulants()[0];
+    if h0 * steps as f64 > 1000.0 {
+        let (name, law) = match params.law {
+            Law::LogNormal { .. } => ("m", "m"),
+            Law::LogPoisson { .. } => ("gamma", "gamma + lambda ln beta"),
+        };
+        return Err(Error::param(
+            name,
+            format!(
+                "h(0) = {h0:.4e} is too large for {steps} cascade steps: the finest \
+                 coefficients, about 2^-{:.3e} of the root's, underflow double precision \
+                 (need h(0) * steps <= 1000; h(0) = -({law})/ln 2)",
+                h0 * steps as f64
+            ),
+        ));
+    }
     let shifts = level_shifts(params.basis, steps);
     let mut coef = Array2::<f64>::zeros((size, size));
     let mut rng = rng_for(seed, index);
@@ -577,6 +604,24 @@ mod tests {
         // start ratio c3/c1 = sqrt(2/r), the mean amplitude ratio of eq 36
         let c = p.start_coefficients();
         assert!((c[2] / c[0] - (2.0 / r).sqrt()).abs() < 1e-12);
+    }
+
+    /// A law so smooth that `r = 2^(τ(2)/2 + 3)` overflows (here τ(2) is
+    /// about 2300) passes the law's validation; eq 36's root is then its
+    /// limit φ* -> 0, not a panic (inf/inf).
+    #[test]
+    fn phi_star_of_a_very_smooth_law() {
+        let p = ln(-800.0, 10.0);
+        p.validate().unwrap();
+        assert!(!2f64.powf(p.law.tau(2.0) / 2.0 + 3.0).is_finite());
+        let phi = p.phi_star();
+        assert!(phi > 0.0 && phi < 1e-6, "φ* = {phi}");
+        // such a law cannot be synthesised (r overflows only for h(0) >
+        // ~1000): a clear error naming the flag, not an image of zeros
+        let e = wcascade(&ln(-800.0, 10.0), 64, 1, 0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`m`") && e.contains("underflow"), "{e}");
     }
 
     /// Placement: the energy of the basis function of tree position m at
