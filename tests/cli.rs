@@ -1189,7 +1189,7 @@ fn ignored_options_are_refused_and_defaults_follow_the_grid() {
     let b = fbm_npy(&dir, "b.npy", 192, 2);
     let out = dir.join("out");
     let o = out.display().to_string();
-    let refused: [&[&str]; 14] = [
+    let refused: [&[&str]; 17] = [
         &["pdf", &a, "--count", "3"],
         &["kernel", &a, "--size", "256"],
         &["correlate", &a, "--seed", "5"],
@@ -1227,6 +1227,11 @@ fn ignored_options_are_refused_and_defaults_follow_the_grid() {
         // margin 0 is the torus: a domain that says otherwise is a contradiction
         &["kernel", &a, "--domain", "torus", "--margin", "10"],
         &["pdf", &a, "--domain", "interior", "--margin", "0"],
+        // Fig 29 pushes larger source scales onto the target given first
+        &["kernel", &a, "--octaves", "3", "--reconstruct", "1,0"],
+        // a pair given twice would be computed and written twice
+        &["kernel", &a, "--octaves", "3", "--pairs", "1:2,1:2"],
+        &["correlate", &a, "--octaves", "3", "--pairs", "1:1,1:1"],
     ];
     for args in refused {
         let mut v = args.to_vec();

@@ -127,8 +127,12 @@ pub fn pairs_or_default(
 ) -> Result<Vec<(f64, f64)>> {
     if let Some(s) = given {
         let v = parse_pairs(flag, s)?;
-        for &(a, b) in &v {
+        for (i, &(a, b)) in v.iter().enumerate() {
             check_octaves(flag, &[a, b], scales)?;
+            // a pair twice would be computed, written and plotted twice
+            if v[..i].contains(&(a, b)) {
+                return Err(Error::param(flag, format!("`{s}`: {a}:{b} is given twice")));
+            }
         }
         return Ok(v);
     }
@@ -284,6 +288,21 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         "0,1,2,3",
         &scales,
     )?;
+    // the list comes back sorted: the target must have been given first
+    // (a source below it is not the Fig 29 push from larger scales)
+    if let Some(given) = args.reconstruct.as_deref()
+        && !given.contains(':')
+        && let Some(first) = given.split(',').next()
+        && first.trim().parse::<f64>().ok() != rec.first().copied()
+    {
+        return Err(Error::param(
+            "reconstruct",
+            format!(
+                "`{given}`: give the target octave first, then larger source octaves, \
+                 e.g. 0,1,2,3"
+            ),
+        ));
+    }
     let top = grid_top(&scales);
     if args.reconstruct.is_none() && rec.len() < 2 && top > 0.0 {
         // a grid shorter than an octave: from its top scale to its first
