@@ -1856,7 +1856,7 @@ fn missing_pixels_are_counted_and_reported() {
 /// * scales the pixel grid cannot resolve (below 1/pi px for gauss), and a
 ///   flood of scales for `cwt`;
 /// * a constant image for `cwt`; skeleton scales off the grid or two on one
-///   grid scale; a NaN `--theory-beta`; a `--summary-q` holding no q;
+///   grid scale; a NaN or absurd `--theory-beta`; a `--summary-q` holding no q;
 /// * the same file twice through a hard link;
 /// * a PNG sidecar of another shape (a stale sidecar beside a new PNG);
 /// * more images than four-digit file names hold (`synth --count 10001`);
@@ -1929,6 +1929,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         sk(&ok, "1000", &out),
         sk(&ok, "3,3.05", &out),
         vec!["spectrum", &ok, "--theory-beta", "nan", "--out", &out],
+        vec!["spectrum", &ok, "--theory-beta", "1e308", "--out", &out],
         vec![
             "compare",
             "--preset",
@@ -2014,6 +2015,18 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         vec![
             "validate", "fbm", "--hurst", "0.3", "--size", "100000", "--count", "1", "--out", &out,
         ],
+        // and the count of a generated ensemble (it grew without bound)
+        vec![
+            "kernel",
+            "--preset",
+            "paper-lognormal",
+            "--size",
+            "128",
+            "--count",
+            "1000000",
+            "--out",
+            &out,
+        ],
         // compare names --size, as validate does, before generating
         vec![
             "compare",
@@ -2043,7 +2056,8 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "flat.npy: constant image",
         "not on the analysis grid",
         "of another value",
-        "must be finite",
+        "theory-beta`: must be a finite exponent in [-10, 10], got NaN",
+        "theory-beta`: must be a finite exponent in [-10, 10], got 1e308",
         "holds none of the q",
         "are the same file",
         "is not the PNG's",
@@ -2055,7 +2069,8 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "holds 0 order(s) in 0 < q <= 2",
         "q-fit-max`: must be > 0, got NaN",
         "octaves`: must be in 1..=20, got 100000",
-        "100000x100000 is over the limit",
+        "`size`: must be in 16..=32768, got 100000",
+        "`count`: must be in 1..=10000, got 1000000",
         "`size`: 128 px is too small for the analysis",
     ];
     assert_eq!(why.len(), cases.len());

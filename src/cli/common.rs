@@ -187,9 +187,11 @@ pub fn make_out_dir(dir: &Path) -> Result<()> {
 
 /// Why an image gave no maxima at the smallest scale (the causes seen in
 /// practice, not only a constant image).
-pub const NO_MAXIMA: &str = "no maxima at the smallest scale: the image is flat (constant, or one \
-     extreme value such as an untagged nodata dwarfing the rest), or the counting domain left by \
-     the margin is too small (try a smaller --margin or fewer --octaves)";
+pub const NO_MAXIMA: &str = "no maxima line at the smallest scale: the image is flat (constant, or \
+     one extreme value such as an untagged nodata dwarfing the rest), or its few maxima do not \
+     link across scales (a lone edge or spike on a smooth background, not a rough surface), or \
+     the counting domain left by the margin is too small (try a smaller --margin or fewer \
+     --octaves)";
 
 /// [`NO_MAXIMA`], or, when the image has missing pixels, how much of the
 /// counting domain they leave (maxima count only farther from them than the
@@ -303,6 +305,30 @@ const ENSEMBLE_BYTES_PER_PIXEL: f64 = 200.0;
 /// `validate` and `compare`.
 pub fn check_ensemble_memory(size: usize, count: usize) -> Result<()> {
     check_memory(size, count, ENSEMBLE_BYTES_PER_PIXEL)
+}
+
+/// Size and count of a generated ensemble (`validate`, `compare`, `demo`,
+/// and `pdf`, `kernel`, `correlate` with a model): the sizes `synth`
+/// writes, and at most [`super::synth_cmd::MAX_COUNT`] images (the
+/// per-image sums of the jackknife grow with the count; a larger study is
+/// several runs with different --seed).
+pub fn check_generated(size: usize, count: usize) -> Result<()> {
+    if !(16..=1 << 15).contains(&size) {
+        return Err(Error::param(
+            "size",
+            format!("must be in 16..=32768, got {size}"),
+        ));
+    }
+    let max = super::synth_cmd::MAX_COUNT;
+    if !(1..=max).contains(&count) {
+        return Err(Error::param(
+            "count",
+            format!(
+                "must be in 1..={max}, got {count} (a larger study: several runs with different --seed)"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// [`check_ensemble_memory`] with `bytes_per_pixel` per image in flight

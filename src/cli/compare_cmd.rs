@@ -237,9 +237,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     }
     q.sort_by(f64::total_cmp);
     let rule = opts.rule();
-    if args.count == 0 {
-        return Err(Error::param("count", "must be >= 1"));
-    }
+    super::common::check_generated(args.size, args.count)?;
     if args.groups() == 0 || args.groups() > args.count {
         return Err(Error::param(
             "groups",
@@ -248,12 +246,6 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
                 args.count,
                 args.groups()
             ),
-        ));
-    }
-    if args.size < 16 {
-        return Err(Error::param(
-            "size",
-            format!("must be >= 16, got {}", args.size),
         ));
     }
     model.check_size(args.size)?;

@@ -165,10 +165,10 @@ impl StatsInput {
             self.size.unwrap_or(1024),
             self.seed.unwrap_or(1),
         );
-        if self.images.is_empty() && count == 0 {
-            return Err(Error::param("count", "must be >= 1"));
-        }
         let generated = self.images.is_empty();
+        if generated {
+            super::common::check_generated(size, count)?;
+        }
         if let Some(r) = resolved.as_ref().filter(|_| generated) {
             r.model.check_size(size)?;
         }
@@ -592,7 +592,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     {
         return Err(Error::param(
             "h0",
-            format!("must be a finite exponent in [-10, 10], got {h}"),
+            format!("must be a finite exponent in [-10, 10], got {h:?}"),
         ));
     }
     let t0 = std::time::Instant::now();

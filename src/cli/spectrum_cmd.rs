@@ -45,12 +45,14 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     if args.bins_per_octave == 0 {
         return Err(crate::Error::param("bins-per-octave", "must be >= 1"));
     }
+    // as --h0 of pdf: a line far outside the data is a typo, not a model
+    // (beta = 2h + 2 for a surface of exponent h)
     if let Some(b) = args.theory_beta
-        && !b.is_finite()
+        && !(b.abs() <= 10.0)
     {
         return Err(crate::Error::param(
             "theory-beta",
-            format!("{b}: must be finite"),
+            format!("must be a finite exponent in [-10, 10], got {b:?}"),
         ));
     }
     let k_range = args

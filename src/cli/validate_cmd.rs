@@ -417,9 +417,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let r = args.model_opts.resolve(args.model)?;
     // the cheap checks first: a huge --size is refused before anything is
     // allocated or computed for it
-    if args.count == 0 {
-        return Err(Error::param("count", "must be >= 1"));
-    }
+    super::common::check_generated(args.size, args.count)?;
     r.model.check_size(args.size)?;
     super::common::check_ensemble_memory(args.size, args.count)?;
     let (k_lo, k_hi) = default_k_range(args.size);

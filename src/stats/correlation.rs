@@ -192,7 +192,10 @@ impl CorrelationConfig {
         if let Some(m) = self.max_dx
             && !(m >= 1.0 && m.is_finite())
         {
-            return Err(Error::param("max-dx", format!("must be >= 1 px, got {m}")));
+            return Err(Error::param(
+                "max-dx",
+                format!("must be >= 1 px, got {m:?}"),
+            ));
         }
         if !(self.eps >= 0.0 && self.eps < 1.0) {
             return Err(Error::param("eps", "must be in [0, 1)"));
@@ -532,10 +535,18 @@ fn smooth(n: usize) -> usize {
 impl CorrelationPlan {
     /// Plans the correlation of `ny x nx` images.
     ///
-    /// **Errors** on an invalid configuration, a domain with no pixel, or a
-    /// `max_dx` beyond what the domain holds (half the torus when periodic).
+    /// **Errors** on an invalid configuration, an image smaller than 8x8, a
+    /// domain with no pixel, or a `max_dx` beyond what the domain holds
+    /// (half the torus when periodic).
     pub fn new(ny: usize, nx: usize, cfg: &CorrelationConfig) -> Result<Self> {
         cfg.validate()?;
+        // the transform's own limit, said before the domain's lags (a 1-px
+        // wide image would otherwise be told about --max-dx)
+        if ny < 8 || nx < 8 {
+            return Err(Error::Input(format!(
+                "image {ny}x{nx} is too small (need at least 8x8)"
+            )));
+        }
         let margin = cfg.margin_px();
         let (y0, y1, x0, x1) = (
             margin.min(ny),

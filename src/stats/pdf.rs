@@ -210,7 +210,10 @@ impl PdfConfig {
         if !(self.dlnm > 1e-4 && self.dlnm <= 2.0) {
             return Err(Error::param(
                 "lnm-bin",
-                format!("bin width of ln M must be in (1e-4, 2], got {}", self.dlnm),
+                format!(
+                    "bin width of ln M must be in (1e-4, 2], got {:?}",
+                    self.dlnm
+                ),
             ));
         }
         if self.arg_bins < 16 || !self.arg_bins.is_multiple_of(16) || self.arg_bins > 4096 {
@@ -516,7 +519,7 @@ pub fn wtmmm_pdfs(h: &WtmmmHistograms, opts: &PdfOptions) -> Result<Vec<ScalePdf
     if !(opts.joint_quantile > 0.0 && opts.joint_quantile <= 1.0) {
         return Err(Error::param(
             "joint-quantile",
-            format!("must be in (0, 1], got {}", opts.joint_quantile),
+            format!("must be in (0, 1], got {:?}", opts.joint_quantile),
         ));
     }
     if !opts.h0.is_finite() {

@@ -55,7 +55,7 @@ impl FiscParams {
             return Err(Error::param(
                 "p",
                 format!(
-                    "p must be in (0, 1/2] (two children get p/2, two get (1-p)/2), got {}",
+                    "p must be in (0, 1/2] (two children get p/2, two get (1-p)/2), got {:?}",
                     self.p
                 ),
             ));
@@ -64,7 +64,7 @@ impl FiscParams {
             return Err(Error::param(
                 "hstar",
                 format!(
-                    "H* must be in (0, 1) (II eq 5; A(H*) of eq 7 vanishes at 1), got {}",
+                    "H* must be in (0, 1) (II eq 5; A(H*) of eq 7 vanishes at 1), got {:?}",
                     self.hstar
                 ),
             ));

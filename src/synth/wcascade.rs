@@ -149,7 +149,7 @@ impl Law {
             if v.is_finite() {
                 Ok(())
             } else {
-                Err(Error::param(name, format!("must be finite, got {v}")))
+                Err(Error::param(name, format!("must be finite, got {v:?}")))
             }
         };
         match *self {
@@ -159,13 +159,13 @@ impl Law {
                 if sigma2 < 0.0 {
                     return Err(Error::param(
                         "sigma2",
-                        format!("the variance of ln M must be >= 0, got {sigma2}"),
+                        format!("the variance of ln M must be >= 0, got {sigma2:?}"),
                     ));
                 }
                 if m >= 0.0 {
                     return Err(Error::param(
                         "m",
-                        format!("need m < 0 (II eq 31; h(0) = -m/ln2 > 0), got {m}"),
+                        format!("need m < 0 (II eq 31; h(0) = -m/ln2 > 0), got {m:?}"),
                     ));
                 }
                 let (h_min, _) = self.h_range();
@@ -194,7 +194,7 @@ impl Law {
                     return Err(Error::param(
                         "lambda",
                         format!(
-                            "the Poisson mean must be in (0, {:e}), got {lambda}",
+                            "the Poisson mean must be in (0, {:e}), got {lambda:?}",
                             Poisson::<f64>::MAX_LAMBDA
                         ),
                     ));
@@ -202,7 +202,7 @@ impl Law {
                 if !(beta > 0.0 && beta < 1.0) {
                     return Err(Error::param(
                         "beta",
-                        format!("need 0 < beta < 1 (ln M = Y ln beta + gamma), got {beta}"),
+                        format!("need 0 < beta < 1 (ln M = Y ln beta + gamma), got {beta:?}"),
                     ));
                 }
                 let (h_min, _) = self.h_range();
