@@ -179,7 +179,7 @@ impl ScaleGrid {
         if !(self.a_min.is_finite() && self.a_min > 0.0) {
             return Err(Error::param(
                 "a-min",
-                format!("must be > 0, got {:?}", self.a_min),
+                format!("must be > 0, got {}", crate::error::short(self.a_min)),
             ));
         }
         if self.octaves == 0 || self.octaves > 20 {
@@ -337,7 +337,10 @@ impl CwtPlan {
         if let Some(a) = scales.iter().find(|a| !(a.is_finite() && **a > 0.0)) {
             return Err(Error::param(
                 "scales",
-                format!("scales must be > 0, got {a:?}"),
+                format!(
+                    "scales must be > 0, got {a_s}",
+                    a_s = crate::error::short(*a)
+                ),
             ));
         }
         if let Some(a) = scales.iter().find(|&&a| a < wavelet.min_scale()) {

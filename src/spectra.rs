@@ -25,7 +25,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, short};
 use crate::skeleton::Skeleton;
 use crate::stats::fit::{line_fit, slope_change};
 
@@ -431,7 +431,8 @@ impl PartitionSums {
                 "fit",
                 format!(
                     "{}:{} octaves must satisfy 0 <= lo < hi <= {top:.2}, the octaves the scales span",
-                    fit.0, fit.1
+                    short(fit.0),
+                    short(fit.1)
                 ),
             ));
         }
@@ -443,9 +444,11 @@ impl PartitionSums {
             return Err(Error::param(
                 "fit",
                 format!(
-                    "octave {o} of {}:{} lies between two scales: the ends must be octaves of \
+                    "octave {} of {}:{} lies between two scales: the ends must be octaves of \
                      scales of the grid (or the top, {top:.2})",
-                    fit.0, fit.1
+                    short(o),
+                    short(fit.0),
+                    short(fit.1)
                 ),
             ));
         }

@@ -1189,7 +1189,7 @@ fn ignored_options_are_refused_and_defaults_follow_the_grid() {
     let b = fbm_npy(&dir, "b.npy", 192, 2);
     let out = dir.join("out");
     let o = out.display().to_string();
-    let refused: [&[&str]; 17] = [
+    let refused: [&[&str]; 14] = [
         &["pdf", &a, "--count", "3"],
         &["kernel", &a, "--size", "256"],
         &["correlate", &a, "--seed", "5"],
@@ -1227,11 +1227,6 @@ fn ignored_options_are_refused_and_defaults_follow_the_grid() {
         // margin 0 is the torus: a domain that says otherwise is a contradiction
         &["kernel", &a, "--domain", "torus", "--margin", "10"],
         &["pdf", &a, "--domain", "interior", "--margin", "0"],
-        // Fig 29 pushes larger source scales onto the target given first
-        &["kernel", &a, "--octaves", "3", "--reconstruct", "1,0"],
-        // a pair given twice would be computed and written twice
-        &["kernel", &a, "--octaves", "3", "--pairs", "1:2,1:2"],
-        &["correlate", &a, "--octaves", "3", "--pairs", "1:1,1:1"],
     ];
     for args in refused {
         let mut v = args.to_vec();
@@ -1258,6 +1253,22 @@ fn ignored_options_are_refused_and_defaults_follow_the_grid() {
         .map(|p| (p[0].as_f64().unwrap(), p[1].as_f64().unwrap()))
         .collect();
     assert_eq!(pairs, vec![(0.5, 2.9), (1.0, 2.9), (1.5, 2.9)]);
+    // an explicit Fig 29 target then sources, as a list and as a range:
+    // the target is the first value (1.5 px = octave 0), the sources above
+    for rec in ["0,1,2", "0:2:1"] {
+        let mut v = vec!["kernel", &a, &b, "--reconstruct", rec];
+        v.extend_from_slice(&common);
+        v.push(&o);
+        assert_eq!(run(&v), 0, "{rec}");
+        let r = &json(&out.join("kernel.json"))["reconstruction"]["gaussian_c1_c2"];
+        let got: Vec<(f64, f64)> = r
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| (num(e, "a_to"), num(e, "a_from")))
+            .collect();
+        assert_eq!(got, vec![(1.5, 3.0), (1.5, 6.0)], "{rec}");
+    }
     let mut v = vec!["kernel", &a, &b, "--refs", "3.5"];
     v.extend_from_slice(&common);
     v.push(&o);
@@ -2010,6 +2021,39 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
             "--out",
             &out,
         ],
+        // Fig 29 pushes larger source scales onto the target given first
+        // (the list used to be sorted, swapping them)
+        vec![
+            "kernel",
+            &ok,
+            "--octaves",
+            "3",
+            "--reconstruct",
+            "1,0",
+            "--out",
+            &out,
+        ],
+        // a pair given twice (or to 1e-9) would be computed and written twice
+        vec![
+            "kernel",
+            &ok,
+            "--octaves",
+            "3",
+            "--pairs",
+            "1:2,1.0000000001:2",
+            "--out",
+            &out,
+        ],
+        vec![
+            "correlate",
+            &ok,
+            "--octaves",
+            "3",
+            "--pairs",
+            "1:1,1:1",
+            "--out",
+            &out,
+        ],
         // the size is checked before anything is allocated for it (an 80 GB
         // allocation aborted)
         vec![
@@ -2057,7 +2101,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "not on the analysis grid",
         "of another value",
         "theory-beta`: must be a finite exponent in [-10, 10], got NaN",
-        "theory-beta`: must be a finite exponent in [-10, 10], got 1e308",
+        "theory-beta`: must be a finite exponent in [-10, 10], got 1.000e308",
         "holds none of the q",
         "are the same file",
         "is not the PNG's",
@@ -2069,8 +2113,11 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "holds 0 order(s) in 0 < q <= 2",
         "q-fit-max`: must be > 0, got NaN",
         "octaves`: must be in 1..=20, got 100000",
-        "`size`: must be in 16..=32768, got 100000",
-        "`count`: must be in 1..=10000, got 1000000",
+        "give the target octave first",
+        "1.0000000001:2 is given twice",
+        "1:1 is given twice",
+        "`size`: must be in 16..=16384, got 100000",
+        "`count`: must be at most 10000, got 1000000",
         "`size`: 128 px is too small for the analysis",
     ];
     assert_eq!(why.len(), cases.len());

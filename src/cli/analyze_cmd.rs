@@ -101,7 +101,11 @@ pub fn check_fit(r: (f64, f64), span: f64, step: f64, what: &str) -> Result<()> 
     if r.0 < 0.0 || r.1 > span + 1e-6 {
         return Err(Error::param(
             "fit",
-            format!("{}:{} must lie within 0:{span} octaves{what}", r.0, r.1),
+            format!(
+                "{}:{} must lie within 0:{span} octaves{what}",
+                crate::error::short(r.0),
+                crate::error::short(r.1)
+            ),
         ));
     }
     if let Some(o) = [r.0, r.1]

@@ -187,7 +187,7 @@ pub fn make_out_dir(dir: &Path) -> Result<()> {
 
 /// Why an image gave no maxima at the smallest scale (the causes seen in
 /// practice, not only a constant image).
-pub const NO_MAXIMA: &str = "no maxima line at the smallest scale: the image is flat (constant, or \
+pub const NO_MAXIMA: &str = "no maxima (or no maxima line) at the smallest scale: the image is flat (constant, or \
      one extreme value such as an untagged nodata dwarfing the rest), or its few maxima do not \
      link across scales (a lone edge or spike on a smooth background, not a rough surface), or \
      the counting domain left by the margin is too small (try a smaller --margin or fewer \
@@ -313,19 +313,32 @@ pub fn check_ensemble_memory(size: usize, count: usize) -> Result<()> {
 /// per-image sums of the jackknife grow with the count; a larger study is
 /// several runs with different --seed).
 pub fn check_generated(size: usize, count: usize) -> Result<()> {
-    if !(16..=1 << 15).contains(&size) {
-        return Err(Error::param(
-            "size",
-            format!("must be in 16..=32768, got {size}"),
-        ));
-    }
+    check_generated_side(size)?;
     let max = super::synth_cmd::MAX_COUNT;
-    if !(1..=max).contains(&count) {
+    if count == 0 {
+        return Err(Error::param("count", "must be >= 1"));
+    }
+    if count > max {
         return Err(Error::param(
             "count",
             format!(
-                "must be in 1..={max}, got {count} (a larger study: several runs with different --seed)"
+                "must be at most {max}, got {count} (a larger study: several runs with \
+                 different --seed)"
             ),
+        ));
+    }
+    Ok(())
+}
+
+/// The side of a generated image: 16 px (the smallest worth analysing) to
+/// 16384 px, the square root of the pixel limit of the readers and
+/// generators (`io::MAX_PIXELS`).
+pub fn check_generated_side(size: usize) -> Result<()> {
+    let max = (crate::io::MAX_PIXELS as f64).sqrt() as usize;
+    if !(16..=max).contains(&size) {
+        return Err(Error::param(
+            "size",
+            format!("must be in 16..={max}, got {size}"),
         ));
     }
     Ok(())

@@ -130,7 +130,11 @@ pub fn pairs_or_default(
         for (i, &(a, b)) in v.iter().enumerate() {
             check_octaves(flag, &[a, b], scales)?;
             // a pair twice would be computed, written and plotted twice
-            if v[..i].contains(&(a, b)) {
+            // (to the tolerance of parse_list's duplicates)
+            if v[..i]
+                .iter()
+                .any(|&(c, d)| (c - a).abs() < 1e-9 && (d - b).abs() < 1e-9)
+            {
                 return Err(Error::param(flag, format!("`{s}`: {a}:{b} is given twice")));
             }
         }

@@ -484,7 +484,13 @@ mod tests {
         let hook = std::panic::take_hook();
         std::panic::set_hook(Box::new(|_| {}));
         let r = std::panic::catch_unwind(|| {
+            // as in `dispatch`: the guard before the batch, so that the
+            // batch removes its pending temporary first and the directory
+            // is empty when the guard removes it
             let _g = PanicCleanup(Some(&root));
+            let _batch = crate::io::OutputBatch::begin(&deep).unwrap();
+            crate::io::write_atomic(&deep.join("a.txt"), b"a").unwrap();
+            assert!(std::fs::read_dir(&deep).unwrap().next().is_some());
             panic!("a bug");
         });
         std::panic::set_hook(hook);

@@ -405,7 +405,10 @@ pub fn check_octaves(flag: &str, octaves: &[f64], scales: &[f64]) -> Result<()> 
     if let Some(o) = octaves.iter().find(|&&o| !octave_on_grid(scales, o)) {
         return Err(Error::param(
             flag,
-            format!("octave {o} is outside the scales (0..{top:.2} octaves above a_min)"),
+            format!(
+                "octave {} is outside the scales (0..{top:.2} octaves above a_min)",
+                crate::error::short(*o)
+            ),
         ));
     }
     // between two voices: the value would be read at the nearest scale and
@@ -422,7 +425,8 @@ pub fn check_octaves(flag: &str, octaves: &[f64], scales: &[f64]) -> Result<()> 
         return Err(Error::param(
             flag,
             format!(
-                "octave {o} lies between two scales: use a multiple of the voice step {step:.4} octave"
+                "octave {} lies between two scales: use a multiple of the voice step {step:.4} octave",
+                crate::error::short(*o)
             ),
         ));
     }
@@ -592,7 +596,10 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     {
         return Err(Error::param(
             "h0",
-            format!("must be a finite exponent in [-10, 10], got {h:?}"),
+            format!(
+                "must be a finite exponent in [-10, 10], got {h_s}",
+                h_s = crate::error::short(h)
+            ),
         ));
     }
     let t0 = std::time::Instant::now();

@@ -52,7 +52,10 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     {
         return Err(crate::Error::param(
             "theory-beta",
-            format!("must be a finite exponent in [-10, 10], got {b:?}"),
+            format!(
+                "must be a finite exponent in [-10, 10], got {b_s}",
+                b_s = crate::error::short(b)
+            ),
         ));
     }
     let k_range = args

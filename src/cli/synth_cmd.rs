@@ -89,12 +89,7 @@ pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
 pub const MAX_COUNT: usize = 10_000;
 
 fn check_common(c: &SynthCommon) -> Result<()> {
-    if c.size < 16 || c.size > 1 << 15 {
-        return Err(Error::param(
-            "size",
-            format!("must be in 16..=32768, got {}", c.size),
-        ));
-    }
+    super::common::check_generated_side(c.size)?;
     if c.count == 0 {
         return Err(Error::param("count", "must be >= 1"));
     }

@@ -127,7 +127,10 @@ impl TmOpts {
         {
             return Err(Error::param(
                 "frac-int",
-                format!("a small smoothing order is expected (|order| < 1, e.g. 0.1), got {h:?}"),
+                format!(
+                    "a small smoothing order is expected (|order| < 1, e.g. 0.1), got {h_s}",
+                    h_s = crate::error::short(h)
+                ),
             ));
         }
         cfg.validate()?;

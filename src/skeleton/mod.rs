@@ -155,7 +155,7 @@ impl AnalysisConfig {
         if !(self.eps >= 0.0 && self.eps < 1.0) {
             return Err(Error::param(
                 "eps",
-                format!("must be in [0, 1), got {:?}", self.eps),
+                format!("must be in [0, 1), got {}", crate::error::short(self.eps)),
             ));
         }
         let (lo, hi) = self.link.ratio;
@@ -172,8 +172,9 @@ impl AnalysisConfig {
                 return Err(Error::param(
                     "radius-cap",
                     format!(
-                        "the search-box cap must be a finite number of px >= 1, got {cap:?} (for \
-                         no cap give the image side)"
+                        "the search-box cap must be a finite number of px >= 1, got {cap_s} (for \
+                         no cap give the image side)",
+                        cap_s = crate::error::short(cap)
                     ),
                 ));
             }

@@ -194,7 +194,7 @@ impl CorrelationConfig {
         {
             return Err(Error::param(
                 "max-dx",
-                format!("must be >= 1 px, got {m:?}"),
+                format!("must be >= 1 px, got {m_s}", m_s = crate::error::short(m)),
             ));
         }
         if !(self.eps >= 0.0 && self.eps < 1.0) {
@@ -569,7 +569,10 @@ impl CorrelationPlan {
         if !(max_dx >= 1.0 && max_dx <= limit) {
             return Err(Error::param(
                 "max-dx",
-                format!("{max_dx} px is outside [1, {limit}] for a {dy}x{dx} domain"),
+                format!(
+                    "{} px is outside [1, {limit}] for a {dy}x{dx} domain",
+                    crate::error::short(max_dx)
+                ),
             ));
         }
         let maxlag = max_dx.floor() as usize;

@@ -149,15 +149,18 @@ impl KernelConfig {
         if !(self.p_max > 0.0 && self.p_max <= 200.0) {
             return Err(Error::param(
                 "p-max",
-                format!("must be in (0, 200], got {:?}", self.p_max),
+                format!(
+                    "must be in (0, 200], got {}",
+                    crate::error::short(self.p_max)
+                ),
             ));
         }
         if !(self.dp > 0.0 && self.dp <= self.p_max) || self.p_max / self.dp > 20_000.0 {
             return Err(Error::param(
                 "dp",
                 format!(
-                    "must be in (0, p-max] with at most 20000 steps, got {:?}",
-                    self.dp
+                    "must be in (0, p-max] with at most 20000 steps, got {}",
+                    crate::error::short(self.dp)
                 ),
             ));
         }

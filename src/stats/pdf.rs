@@ -211,8 +211,8 @@ impl PdfConfig {
             return Err(Error::param(
                 "lnm-bin",
                 format!(
-                    "bin width of ln M must be in (1e-4, 2], got {:?}",
-                    self.dlnm
+                    "bin width of ln M must be in (1e-4, 2], got {}",
+                    crate::error::short(self.dlnm)
                 ),
             ));
         }
@@ -519,7 +519,10 @@ pub fn wtmmm_pdfs(h: &WtmmmHistograms, opts: &PdfOptions) -> Result<Vec<ScalePdf
     if !(opts.joint_quantile > 0.0 && opts.joint_quantile <= 1.0) {
         return Err(Error::param(
             "joint-quantile",
-            format!("must be in (0, 1], got {:?}", opts.joint_quantile),
+            format!(
+                "must be in (0, 1], got {}",
+                crate::error::short(opts.joint_quantile)
+            ),
         ));
     }
     if !opts.h0.is_finite() {

@@ -27,7 +27,10 @@ impl FbmParams {
         if !(self.hurst > 0.0 && self.hurst < 1.0) {
             return Err(Error::param(
                 "hurst",
-                format!("H must be in (0, 1), got {:?}", self.hurst),
+                format!(
+                    "H must be in (0, 1), got {}",
+                    crate::error::short(self.hurst)
+                ),
             ));
         }
         Ok(())

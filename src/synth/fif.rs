@@ -133,15 +133,18 @@ impl FifParams {
         if !(self.alpha > 0.0 && self.alpha <= 2.0) {
             return Err(Error::param(
                 "alpha",
-                format!("α must be in (0, 2], got {:?}", self.alpha),
+                format!(
+                    "α must be in (0, 2], got {}",
+                    crate::error::short(self.alpha)
+                ),
             ));
         }
         if !(self.c1 >= 0.0 && self.c1 < D) {
             return Err(Error::param(
                 "c1",
                 format!(
-                    "C1 must be in [0, 2) (a codimension in the plane), got {:?}",
-                    self.c1
+                    "C1 must be in [0, 2) (a codimension in the plane), got {}",
+                    crate::error::short(self.c1)
                 ),
             ));
         }
@@ -151,8 +154,8 @@ impl FifParams {
             return Err(Error::param(
                 "hurst",
                 format!(
-                    "the order H of the fractional integration must be in [0, 3), got {:?}",
-                    self.hurst
+                    "the order H of the fractional integration must be in [0, 3), got {}",
+                    crate::error::short(self.hurst)
                 ),
             ));
         }
@@ -269,7 +272,10 @@ pub fn fractional_integrate(a: ArrayView2<f64>, order: f64) -> Result<Array2<f64
     if !order.is_finite() {
         return Err(Error::param(
             "order",
-            format!("must be finite, got {order:?}"),
+            format!(
+                "must be finite, got {order_s}",
+                order_s = crate::error::short(order)
+            ),
         ));
     }
     if a.iter().any(|v| !v.is_finite()) {

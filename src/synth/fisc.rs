@@ -55,8 +55,8 @@ impl FiscParams {
             return Err(Error::param(
                 "p",
                 format!(
-                    "p must be in (0, 1/2] (two children get p/2, two get (1-p)/2), got {:?}",
-                    self.p
+                    "p must be in (0, 1/2] (two children get p/2, two get (1-p)/2), got {}",
+                    crate::error::short(self.p)
                 ),
             ));
         }
@@ -64,8 +64,8 @@ impl FiscParams {
             return Err(Error::param(
                 "hstar",
                 format!(
-                    "H* must be in (0, 1) (II eq 5; A(H*) of eq 7 vanishes at 1), got {:?}",
-                    self.hstar
+                    "H* must be in (0, 1) (II eq 5; A(H*) of eq 7 vanishes at 1), got {}",
+                    crate::error::short(self.hstar)
                 ),
             ));
         }

@@ -58,7 +58,10 @@ pub fn validate_alpha(alpha: f64) -> Result<()> {
     if !(alpha > 0.0 && alpha <= 2.0) {
         return Err(Error::param(
             "alpha",
-            format!("the Lévy index must be in (0, 2], got {alpha:?}"),
+            format!(
+                "the Lévy index must be in (0, 2], got {alpha_s}",
+                alpha_s = crate::error::short(alpha)
+            ),
         ));
     }
     Ok(())

@@ -149,7 +149,10 @@ impl Law {
             if v.is_finite() {
                 Ok(())
             } else {
-                Err(Error::param(name, format!("must be finite, got {v:?}")))
+                Err(Error::param(
+                    name,
+                    format!("must be finite, got {v_s}", v_s = crate::error::short(v)),
+                ))
             }
         };
         match *self {
@@ -159,13 +162,19 @@ impl Law {
                 if sigma2 < 0.0 {
                     return Err(Error::param(
                         "sigma2",
-                        format!("the variance of ln M must be >= 0, got {sigma2:?}"),
+                        format!(
+                            "the variance of ln M must be >= 0, got {sigma2_s}",
+                            sigma2_s = crate::error::short(sigma2)
+                        ),
                     ));
                 }
                 if m >= 0.0 {
                     return Err(Error::param(
                         "m",
-                        format!("need m < 0 (II eq 31; h(0) = -m/ln2 > 0), got {m:?}"),
+                        format!(
+                            "need m < 0 (II eq 31; h(0) = -m/ln2 > 0), got {m_s}",
+                            m_s = crate::error::short(m)
+                        ),
                     ));
                 }
                 let (h_min, _) = self.h_range();
@@ -194,15 +203,19 @@ impl Law {
                     return Err(Error::param(
                         "lambda",
                         format!(
-                            "the Poisson mean must be in (0, {:e}), got {lambda:?}",
-                            Poisson::<f64>::MAX_LAMBDA
+                            "the Poisson mean must be in (0, {:e}), got {lambda_s}",
+                            Poisson::<f64>::MAX_LAMBDA,
+                            lambda_s = crate::error::short(lambda)
                         ),
                     ));
                 }
                 if !(beta > 0.0 && beta < 1.0) {
                     return Err(Error::param(
                         "beta",
-                        format!("need 0 < beta < 1 (ln M = Y ln beta + gamma), got {beta:?}"),
+                        format!(
+                            "need 0 < beta < 1 (ln M = Y ln beta + gamma), got {beta_s}",
+                            beta_s = crate::error::short(beta)
+                        ),
                     ));
                 }
                 let (h_min, _) = self.h_range();
@@ -426,7 +439,19 @@ pub fn wcascade_coefficients(
     if h0 * steps as f64 > 1000.0 {
         let (name, law) = match params.law {
             Law::LogNormal { .. } => ("m", "m"),
-            Law::LogPoisson { .. } => ("gamma", "gamma + lambda ln beta"),
+            // the larger of the two terms of h(0) names the flag
+            Law::LogPoisson {
+                gamma,
+                beta,
+                lambda,
+            } => (
+                if -gamma >= -lambda * beta.ln() {
+                    "gamma"
+                } else {
+                    "lambda"
+                },
+                "gamma + lambda ln beta",
+            ),
         };
         return Err(Error::param(
             name,
@@ -622,6 +647,23 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("`m`") && e.contains("underflow"), "{e}");
+        // log-Poisson: the flag of the larger term of h(0)
+        let lp = |gamma: f64, lambda: f64| WCascadeParams {
+            law: Law::LogPoisson {
+                gamma,
+                beta: 0.5,
+                lambda,
+            },
+            ..ln(-0.3, 0.01)
+        };
+        let e = wcascade(&lp(0.0, 2000.0), 64, 1, 0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`lambda`") && e.contains("underflow"), "{e}");
+        let e = wcascade(&lp(-2000.0, 2.0), 64, 1, 0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`gamma`") && e.contains("underflow"), "{e}");
     }
 
     /// Placement: the energy of the basis function of tree position m at

@@ -368,7 +368,11 @@ impl Model {
         if !(a_lo > 0.0 && a_hi >= a_lo) {
             return Err(Error::param(
                 "scales",
-                format!("need 0 < a_lo <= a_hi, got {a_lo:?}, {a_hi}"),
+                format!(
+                    "need 0 < a_lo <= a_hi, got {a_lo_s}, {a_hi_s}",
+                    a_lo_s = crate::error::short(a_lo),
+                    a_hi_s = crate::error::short(a_hi)
+                ),
             ));
         }
         // the finest level: W-cascade amplitudes stop one level above the

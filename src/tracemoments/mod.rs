@@ -280,7 +280,10 @@ impl TraceMomentConfig {
         {
             return Err(Error::param(
                 "diff-order",
-                format!("must be finite with |order| < 3, got {d:?}"),
+                format!(
+                    "must be finite with |order| < 3, got {d_s}",
+                    d_s = crate::error::short(d)
+                ),
             ));
         }
         Ok(())
@@ -359,7 +362,10 @@ impl TraceMomentFitConfig {
         if let Some(q) = self.q_fit_max
             && !(q.is_finite() && q > 0.0)
         {
-            return Err(Error::param("q-fit-max", format!("must be > 0, got {q:?}")));
+            return Err(Error::param(
+                "q-fit-max",
+                format!("must be > 0, got {q_s}", q_s = crate::error::short(q)),
+            ));
         }
         Ok(())
     }
@@ -562,7 +568,8 @@ impl TraceMomentAccumulator {
         for (v, &o) in p.iter_mut().zip(ok.iter()) {
             if o && !(v.is_finite() && *v >= 0.0) {
                 return Err(Error::Input(format!(
-                    "flux values must be finite and >= 0, got {v:?}"
+                    "flux values must be finite and >= 0, got {v_s}",
+                    v_s = crate::error::short(*v)
                 )));
             }
             if !o {
