@@ -44,7 +44,7 @@
 //! averaged over boxes of side `l = 2^k` px; `λ = L/l` with `L` the largest
 //! box (`2^floor(log2 min(ny, nx))`). Every level is averaged over the same
 //! region: windows whose sides are multiples of L, anchored at the corners
-//! of a non-power-of-two image ([`flux::windows`]; boxes tiled from one
+//! of a non-power-of-two image (`flux::windows`; boxes tiled from one
 //! corner covered less of the image the larger they were, and K(1) of a
 //! conserved flux read -0.055 +- 0.026 on a 511^2 crop). Trace moments (seed 000 eq 7):
 //!
