@@ -1908,6 +1908,19 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
     fn an(img: &str) -> Vec<&str> {
         vec!["analyze", img, "--octaves", "2", "--margin", "0"]
     }
+    // `CMD ok.npy --octaves 3 FLAG VALUE --out o`
+    let oct3 = |cmd: &'static str, flag: &'static str, v: &'static str| {
+        vec![
+            cmd,
+            ok.as_str(),
+            "--octaves",
+            "3",
+            flag,
+            v,
+            "--out",
+            out.as_str(),
+        ]
+    };
     fn sk<'a>(img: &'a str, scales: &'a str, out: &'a str) -> Vec<&'a str> {
         let grid = ["--octaves", "2", "--margin", "0"];
         [
@@ -2023,37 +2036,10 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         ],
         // Fig 29 pushes larger source scales onto the target given first
         // (the list used to be sorted, swapping them)
-        vec![
-            "kernel",
-            &ok,
-            "--octaves",
-            "3",
-            "--reconstruct",
-            "1,0",
-            "--out",
-            &out,
-        ],
+        oct3("kernel", "--reconstruct", "1,0"),
         // a pair given twice (or to 1e-9) would be computed and written twice
-        vec![
-            "kernel",
-            &ok,
-            "--octaves",
-            "3",
-            "--pairs",
-            "1:2,1.0000000001:2",
-            "--out",
-            &out,
-        ],
-        vec![
-            "correlate",
-            &ok,
-            "--octaves",
-            "3",
-            "--pairs",
-            "1:1,1:1",
-            "--out",
-            &out,
-        ],
+        oct3("kernel", "--pairs", "1:2,1.0000000001:2"),
+        oct3("correlate", "--pairs", "1:1,1:1"),
         // the size is checked before anything is allocated for it (an 80 GB
         // allocation aborted)
         vec![
