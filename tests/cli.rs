@@ -1125,6 +1125,16 @@ fn validate_uses_the_torus_on_periodic_models() {
         assert_eq!(run(&args), 0);
         let v = json(&Path::new(&o).join("validation.json"));
         assert_eq!(v["params"]["analysis"]["margin"], want);
+        // the correlation is also given for the images' own cascades (the
+        // sample of eq 76, through the same plan)
+        let note = v["criteria"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["name"].as_str().unwrap().contains("II eq 76"))
+            .map(|c| c["note"].as_str().unwrap().to_string())
+            .expect("a correlation criterion");
+        assert!(note.contains("the images' own cascades"), "{note}");
     }
 }
 

@@ -1218,6 +1218,25 @@ fn cwt_correlation_in(
                 .into(),
         ));
     }
+    Ok(centred_sums(plan, ws, valid, n_valid, "cwt", label))
+}
+
+/// The tail of [`cwt_correlation_in`] and [`field_correlation`]: the
+/// magnitudes `ws.fields[..ns]` (domain at the origin of the FFT grid)
+/// centred over the `n_valid > 0` valid points, zero elsewhere, then the
+/// binned sums of every pair.
+fn centred_sums(
+    plan: &CorrelationPlan,
+    ws: &mut Workspace,
+    valid: Vec<bool>,
+    n_valid: usize,
+    source: &str,
+    label: String,
+) -> CorrelationSums {
+    let cfg = &plan.cfg;
+    let (dy, dx) = (plan.y1 - plan.y0, plan.x1 - plan.x0);
+    let fx = plan.fft.fx;
+    let ns = cfg.scales.len();
     let all_valid = n_valid == dy * dx;
     let uniform = cfg.periodic && all_valid;
     // centre per image over the common valid points, zero elsewhere
@@ -1274,7 +1293,63 @@ fn cwt_correlation_in(
         means,
         totals: vec![n_valid as f64; ns],
     };
-    Ok(plan.sums_from_fields(ws, "cwt", label, fields))
+    plan.sums_from_fields(ws, source, label, fields)
+}
+
+/// The correlation sums of given magnitude fields, one `ny x nx` field per
+/// scale of the plan (e.g. the log-amplitudes of a generator's own cascade
+/// at the level each scale sees), every point valid: the same centring and
+/// binning as [`cwt_correlation`] applies to `ln M`, recorded as source
+/// `source` (sums merge only with sums of the same source).
+///
+/// **Errors** if the number or shape of the fields differs from the
+/// plan's, or a value is not finite.
+pub fn field_correlation(
+    fields: &[Array2<f64>],
+    plan: &CorrelationPlan,
+    source: &str,
+    label: impl Into<String>,
+) -> Result<CorrelationSums> {
+    let ns = plan.cfg.scales.len();
+    if fields.len() != ns {
+        return Err(Error::param(
+            "scales",
+            format!("{} fields for {ns} scales", fields.len()),
+        ));
+    }
+    for f in fields {
+        if f.dim() != (plan.ny, plan.nx) {
+            return Err(Error::Input(format!(
+                "field is {}x{} but the correlation plan is for {}x{}",
+                f.nrows(),
+                f.ncols(),
+                plan.ny,
+                plan.nx
+            )));
+        }
+        if f.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Input("a magnitude is not finite".into()));
+        }
+    }
+    let (y0, y1, x0, x1) = (plan.y0, plan.y1, plan.x0, plan.x1);
+    let (dy, dx) = (y1 - y0, x1 - x0);
+    let (fy, fx) = (plan.fft.fy, plan.fft.fx);
+    let mut ws = plan.take();
+    ws.size_fields(ns + 1, fy * fx, !(dy == fy && dx == fx));
+    for (w, f) in ws.fields[..ns].iter_mut().zip(fields) {
+        for y in 0..dy {
+            let row = f.row(y + y0);
+            for (o, v) in w[y * fx..y * fx + dx].iter_mut().zip(row.iter().skip(x0)) {
+                *o = *v;
+            }
+        }
+    }
+    let mut valid = std::mem::take(&mut ws.valid);
+    valid.clear();
+    valid.resize(dy * dx, true);
+    let out = centred_sums(plan, &mut ws, valid, dy * dx, source, label.into());
+    plan.give(ws);
+    Ok(out)
 }
 
 /// `out[i] = ½ ln |z_i|²` (`-inf` where `|z|²` is 0, subnormal or not
