@@ -1135,6 +1135,19 @@ fn validate_uses_the_torus_on_periodic_models() {
             .map(|c| c["note"].as_str().unwrap().to_string())
             .expect("a correlation criterion");
         assert!(note.contains("the images' own cascades"), "{note}");
+        let c2 = v["criteria"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["name"] == "kernel c2 (maxima lines)")
+            .expect("a c2 criterion");
+        assert!(
+            c2["note"]
+                .as_str()
+                .unwrap()
+                .contains("the images' own cascades: 0.0"),
+            "{c2}"
+        );
     }
 }
 
