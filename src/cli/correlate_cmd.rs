@@ -811,22 +811,17 @@ impl ValidationExtras {
         } else {
             None
         };
-        let (lo, hi) = (
+        // the fit range widened by half an octave each way, as the tau sample
+        let range = (
             self.a_min * self.fit.0.exp2() / std::f64::consts::SQRT_2,
             self.a_min * self.fit.1.exp2() * std::f64::consts::SQRT_2,
         );
-        // ascending cell sides 2^side px, side = 1 (the finest level) up
-        let sides: Vec<i64> = (1..n)
-            .filter(|&k| {
-                let c = (k as f64).exp2();
-                c >= lo && c <= hi
-            })
-            .collect();
-        let kern = if sides.len() >= 3 {
-            let scales: Vec<f64> = sides.iter().map(|&k| (k as f64).exp2()).collect();
-            let vals: Vec<Vec<f64>> = sides
-                .iter()
-                .map(|&k| levels[(n - k) as usize].iter().map(|d| d.ln()).collect())
+        let kern = if let Some(lv) = self.model.sample_levels(size, range)? {
+            // ascending scales: the finest level first
+            let scales: Vec<f64> = lv.clone().rev().map(|s| (size >> s) as f64).collect();
+            let vals: Vec<Vec<f64>> = lv
+                .rev()
+                .map(|s| levels[s].iter().map(|d| d.ln()).collect())
                 .collect();
             let one_p = KernelConfig {
                 p_max: 1.0,

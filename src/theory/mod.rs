@@ -346,6 +346,35 @@ impl Model {
         }
     }
 
+    /// The levels `s` of the generator's own cascade whose cells, `size /
+    /// 2^s` px, lie in `[a_lo, a_hi]`, from level 1 down to the finest
+    /// (W-cascade amplitudes stop one level above the pixel, at 2 px cells;
+    /// the p-model reaches it); `None` for fewer than 3 levels or a model
+    /// without a cascade. The levels of [`Model::sample_sums`] and of
+    /// `validate`'s own-cascade kernel.
+    ///
+    /// **Errors** on a size that is not a power of two.
+    pub fn sample_levels(
+        &self,
+        size: usize,
+        (a_lo, a_hi): (f64, f64),
+    ) -> Result<Option<std::ops::Range<usize>>> {
+        let below_pixel = match self {
+            Model::WCascade(_) => 1,
+            Model::Fisc(_) => 0,
+            Model::Fbm(_) | Model::Fif(_) => return Ok(None),
+        };
+        let n = crate::synth::fisc::steps_for_size(size)? as i64;
+        let finest = n - below_pixel;
+        // a_s = 2^(n - s) in [a_lo, a_hi]
+        let s_lo = (n as f64 - a_hi.log2() - 1e-9).ceil().max(1.0) as i64;
+        let s_hi = ((n as f64 - a_lo.log2() + 1e-9).floor() as i64).min(finest);
+        if s_hi - s_lo < 2 {
+            return Ok(None);
+        }
+        Ok(Some(s_lo as usize..(s_hi + 1) as usize))
+    }
+
     /// The partition sums of image `index`'s own multiplicative cascade, on
     /// the dyadic scales `size / 2^s` px that lie in `[a_lo, a_hi]`: a
     /// W-cascade's wavelet amplitudes, a FISC's p-model box masses times
@@ -375,22 +404,9 @@ impl Model {
                 ),
             ));
         }
-        // the finest level: W-cascade amplitudes stop one level above the
-        // pixel (level n - 1, 2 px); the p-model reaches the pixel (step n)
-        let below_pixel = match self {
-            Model::WCascade(_) => 1,
-            Model::Fisc(_) => 0,
-            Model::Fbm(_) | Model::Fif(_) => return Ok(None),
-        };
-        let n = crate::synth::fisc::steps_for_size(size)? as i64;
-        let finest = n - below_pixel;
-        // a_s = 2^(n - s) in [a_lo, a_hi]
-        let s_lo = (n as f64 - a_hi.log2() - 1e-9).ceil().max(1.0) as i64;
-        let s_hi = ((n as f64 - a_lo.log2() + 1e-9).floor() as i64).min(finest);
-        if s_hi - s_lo < 2 {
+        let Some(levels) = self.sample_levels(size, (a_lo, a_hi))? else {
             return Ok(None);
-        }
-        let levels = s_lo as usize..(s_hi + 1) as usize;
+        };
         let mut vals = match *self {
             Model::WCascade(p) => crate::synth::wcascade::wcascade_log2_amplitudes(
                 &p,
