@@ -1281,14 +1281,7 @@ fn kernel_lognormal_cascade_mexican_two_sided() {
 fn lognormal_magnitudes_follow_eq_76() {
     let model = Model::preset("paper-lognormal").unwrap().model;
     let n = 256;
-    let cfg = CorrelationConfig {
-        wavelet: Wavelet::Mexican,
-        scales: vec![1.5, 3.0],
-        pairs: vec![(1, 1), (0, 1)],
-        periodic: true,
-        ..Default::default()
-    };
-    let plan = CorrelationPlan::new(n, n, &cfg).unwrap();
+    let plan = torus_plan_1_5_and_3(n, Wavelet::Mexican);
     let mut acc: Option<CorrelationSums> = None;
     for i in 0..32 {
         let img = model.synthesize(n, 1, i).unwrap();
@@ -1299,6 +1292,19 @@ fn lognormal_magnitudes_follow_eq_76() {
         }
     }
     assert_on_eq_76(&acc.unwrap(), &model, n, "CWT");
+}
+
+/// The torus plan of the eq 76 checks: scales 1.5 and 3 px, pairs (3, 3)
+/// and (1.5, 3).
+fn torus_plan_1_5_and_3(n: usize, wavelet: Wavelet) -> CorrelationPlan {
+    let cfg = CorrelationConfig {
+        wavelet,
+        scales: vec![1.5, 3.0],
+        pairs: vec![(1, 1), (0, 1)],
+        periodic: true,
+        ..Default::default()
+    };
+    CorrelationPlan::new(n, n, &cfg).unwrap()
 }
 
 /// Every lag bin of the paper's window (8.3 sup(a1, a2) < Δx < L/4) of the
@@ -1343,13 +1349,8 @@ fn own_cascade_magnitudes_follow_eq_76() {
         panic!("a W-cascade preset")
     };
     let n = 256;
-    let cfg = CorrelationConfig {
-        scales: vec![1.5, 3.0],
-        pairs: vec![(1, 1), (0, 1)],
-        periodic: true,
-        ..Default::default()
-    };
-    let plan = CorrelationPlan::new(n, n, &cfg).unwrap();
+    // (the wavelet is unused: the fields are given)
+    let plan = torus_plan_1_5_and_3(n, Wavelet::Gauss);
     let mut acc: Option<CorrelationSums> = None;
     for i in 0..32 {
         let levels = wtmm::synth::wcascade::wcascade_moduli(&params, n, 1, i).unwrap();
