@@ -802,6 +802,23 @@ fn own_cascades_have_the_theoretical_tau() {
     let f = paper_fisc();
     let mu = fisc_measure(f, n, 9, 2).unwrap();
     let own = fisc_log2_amplitudes(f, n, 9, 2, 8..9).unwrap();
+    // scale ranges that are not finite are refused (inf wrapped the level
+    // arithmetic into a capacity overflow)
+    let m = wtmm::theory::Model::preset("paper-lognormal")
+        .unwrap()
+        .model;
+    assert!(m.sample_levels(32, (f64::INFINITY, f64::INFINITY)).is_err());
+    assert!(
+        m.sample_sums(32, 1, 0, &[1.0], (2.0, f64::INFINITY))
+            .is_err()
+    );
+    // a range far past the cascade is refused, not an unbounded allocation
+    assert!(fisc_log2_amplitudes(f, n, 9, 2, 0..usize::MAX).is_err());
+    assert!(wcascade_log2_amplitudes(&p, n, 9, 2, 0..usize::MAX).is_err());
+    assert_eq!(
+        wcascade_log2_amplitudes(&p, n, 9, 2, 8..9).unwrap(),
+        vec![Vec::<f64>::new()]
+    );
     let shift = (2.0 - f.hstar) * 8.0;
     let area = (n * n) as f64;
     for (v, m) in own[0].iter().zip(mu.iter()) {

@@ -755,3 +755,50 @@ fn experiment_chain_maxima_spacing() {
         );
     }
 }
+
+/// A search radius larger than any image (a huge proportional factor or
+/// minimum, which validation accepts) links as the whole image would: no
+/// division by zero in the bucket grid (its cell size wrapped to 0), and
+/// with `climb` no search over a box of 2e9 px a side (it never ended).
+#[test]
+fn a_radius_beyond_the_image_links_as_the_whole_image() {
+    use wtmm::skeleton::SearchRadius;
+    let img =
+        wtmm::synth::fbm::fbm(wtmm::synth::fbm::FbmParams { hurst: 0.4 }, 48, 48, 3, 0).unwrap();
+    let field = Field::new(img);
+    for (radius, climb) in [
+        (
+            SearchRadius::Proportional {
+                factor: 1e300,
+                min: 1.0,
+            },
+            false,
+        ),
+        (
+            SearchRadius::Proportional {
+                factor: 1.0,
+                min: 4294967295.0,
+            },
+            false,
+        ),
+        (
+            SearchRadius::Proportional {
+                factor: 1.0,
+                min: 1e9,
+            },
+            true,
+        ),
+    ] {
+        for margin in [0, 4] {
+            let mut c = cfg(Wavelet::Gauss, 2, margin);
+            c.link = LinkParams {
+                radius,
+                climb,
+                ..Default::default()
+            };
+            c.validate().unwrap();
+            let sk = skeleton_with(&field, &c, Parallelism::Serial, &[]).unwrap();
+            assert!(!sk.lines.is_empty(), "{radius:?} climb {climb}");
+        }
+    }
+}

@@ -369,6 +369,12 @@ fn reconstruction_of_a_pure_shift() {
     let err = reconstruct(&h, 0, &[1], &[c1, -0.004]).unwrap_err();
     assert!(err.to_string().contains("c2 = -0.004 < 0"), "{err}");
     assert!(reconstruct(&h, 0, &[1], &[c1, -0.004, 0.001]).is_err());
+    // a kernel moving ln M by e^100 and more is refused, not an FFT grid of
+    // 137 GB (c1 = 1e8) or an index wrapped past i64 (1e18, 1e300)
+    for big in [1e8, 1e18, 1e300] {
+        let err = reconstruct(&h, 0, &[1], &[big]).unwrap_err();
+        assert!(err.to_string().contains("moves ln M by"), "{err}");
+    }
     let shift = reconstruct(&h, 0, &[1], &[c1]).unwrap();
     let zero_c2 = reconstruct(&h, 0, &[1], &[c1, 0.0]).unwrap();
     assert!((shift[0].l1 - zero_c2[0].l1).abs() < 1e-9);

@@ -337,6 +337,9 @@ fn climb_targets(
             (w as usize + 1, h as usize + 1)
         }
     };
+    // a box wider than the image searches nothing more (a huge radius
+    // looped for ever)
+    let ri = ri.min(w.max(h) as i64);
     // chain pixel -> (chain, position along it)
     let mut label = vec![(u32::MAX, 0u32); w * h];
     for (ci, c) in sm.chains.iter().enumerate() {
@@ -516,7 +519,10 @@ impl Linker {
         let r = self.params.radius.at(sm.a);
         let max_d2 = self.params.radius.max_d2();
         let (lo, hi) = self.params.ratio;
-        let ri = r.floor() as i64;
+        // no image is wider than the pixel limit: a larger radius (a huge
+        // proportional factor or minimum) reaches as far, and its cell size
+        // must stay a u32 (it wrapped to 0, a division by zero)
+        let ri = r.min(crate::io::MAX_PIXELS as f64).floor() as i64;
         let cell = (ri.max(1) + 1) as u32;
         self.buckets.fill(sm, cell, self.period);
         // each alive line's nearest acceptable candidate

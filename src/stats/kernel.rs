@@ -1124,6 +1124,9 @@ pub struct Reconstruction {
     pub l1: f64,
 }
 
+/// Largest shift plus spread of `ln M` a [`reconstruct`] kernel may have.
+const MAX_KERNEL_REACH: f64 = 100.0;
+
 /// II eq 41 / Fig 29: the density of `ln M` at each source scale `from[i]`
 /// convolved with the kernel `Ĝ_aa'(p) = exp(ln(a'/a) Σ_n c_n (ip)^n/n!)`
 /// (the cumulants `c = [c1, c2(, c3 ...)]`; two give the Gaussian kernel of
@@ -1132,7 +1135,8 @@ pub struct Reconstruction {
 /// wraps around.
 ///
 /// **Errors** if a scale index is out of range, a source is not larger than
-/// the target, `c` is empty or not finite, `c2 < 0` (then `|Ĝ|` grows like
+/// the target, `c` is empty or not finite, the kernel moves `ln M` by more
+/// than 100 between the scales, `c2 < 0` (then `|Ĝ|` grows like
 /// `exp(|c2| s p^2 / 2)`: no probability density, and the counting noise
 /// of the histogram is amplified without bound; a measured c2 below 0, as
 /// on a monofractal, calls for the shift `c = [c1]`), or a histogram is
@@ -1185,7 +1189,23 @@ pub fn reconstruct(
         let s = (h.scales[fr] / h.scales[to]).ln();
         // kernel extent in bins: shift plus 12 standard deviations
         let var = (c.get(1).copied().unwrap_or(0.0) * s).max(0.0);
-        let ext = ((c[0] * s).abs() + 12.0 * var.sqrt()) / d + 8.0;
+        let reach = (c[0] * s).abs() + 12.0 * var.sqrt();
+        // a kernel that moves ln M by more than e^100 between two scales of
+        // one image is no kernel of these data (and its FFT grid would
+        // not fit in memory: c1 = 1e8 asked for 137 GB)
+        if !(reach <= MAX_KERNEL_REACH) {
+            return Err(Error::param(
+                "cumulants",
+                format!(
+                    "the kernel from a = {:.2} to {:.2} moves ln M by {} (|c1| s + 12 sqrt(c2 s)), \
+                     more than {MAX_KERNEL_REACH}: not a kernel of WTMMM moduli",
+                    h.scales[fr],
+                    h.scales[to],
+                    crate::error::short(reach)
+                ),
+            ));
+        }
+        let ext = reach / d + 8.0;
         let ext = ext.ceil() as i64;
         let lo = ht.lo.min(hf.lo) - ext;
         let hi = (ht.lo + ht.rows as i64).max(hf.lo + hf.rows as i64) + ext;

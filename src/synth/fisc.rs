@@ -171,7 +171,8 @@ pub fn fisc_measure(params: FiscParams, size: usize, seed: u64, index: u64) -> R
 /// ([`crate::theory::Model::sample_sums`]). Steps beyond `log2 size` are
 /// empty.
 ///
-/// **Errors** on invalid parameters or a size that is not a power of two.
+/// **Errors** on invalid parameters, a size that is not a power of two, or
+/// steps reaching past `log2 size + 1`.
 pub fn fisc_log2_amplitudes(
     params: FiscParams,
     size: usize,
@@ -181,6 +182,17 @@ pub fn fisc_log2_amplitudes(
 ) -> Result<Vec<Vec<f64>>> {
     params.validate()?;
     let steps = steps_for_size(size)?;
+    // one (possibly empty) list per level asked: a range far past the
+    // cascade would allocate without bound
+    if levels.end > steps + 1 {
+        return Err(Error::param(
+            "levels",
+            format!(
+                "{}..{} reaches past the {steps} steps of a {size} px cascade",
+                levels.start, levels.end
+            ),
+        ));
+    }
     let mut out: Vec<Vec<f64>> = levels.clone().map(|_| Vec::new()).collect();
     let shift = 2.0 - params.hstar;
     let mut rng = rng_for(seed, index);

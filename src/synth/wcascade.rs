@@ -512,7 +512,8 @@ pub fn wcascade_moduli(
 /// ([`crate::theory::Model::sample_sums`]). Levels at or beyond
 /// `log2 size` are empty.
 ///
-/// **Errors** on invalid parameters or a size that is not a power of two.
+/// **Errors** on invalid parameters, a size that is not a power of two, or
+/// levels reaching past `log2 size + 1`.
 pub fn wcascade_log2_amplitudes(
     params: &WCascadeParams,
     size: usize,
@@ -522,6 +523,17 @@ pub fn wcascade_log2_amplitudes(
 ) -> Result<Vec<Vec<f64>>> {
     params.validate()?;
     let steps = steps_for_size(size)?;
+    // one (possibly empty) list per level asked: a range far past the
+    // cascade would allocate without bound
+    if levels.end > steps + 1 {
+        return Err(Error::param(
+            "levels",
+            format!(
+                "{}..{} reaches past the {steps} steps of a {size} px cascade",
+                levels.start, levels.end
+            ),
+        ));
+    }
     let mut out: Vec<Vec<f64>> = levels
         .clone()
         .map(|s| {

@@ -353,12 +353,23 @@ impl Model {
     /// without a cascade. The levels of [`Model::sample_sums`] and of
     /// `validate`'s own-cascade kernel.
     ///
-    /// **Errors** on a size that is not a power of two.
+    /// **Errors** on a size that is not a power of two or a scale range
+    /// that is not finite and positive.
     pub fn sample_levels(
         &self,
         size: usize,
         (a_lo, a_hi): (f64, f64),
     ) -> Result<Option<std::ops::Range<usize>>> {
+        if !(a_lo > 0.0 && a_hi >= a_lo && a_hi.is_finite()) {
+            return Err(Error::param(
+                "scales",
+                format!(
+                    "need finite 0 < a_lo <= a_hi, got {}, {}",
+                    crate::error::short(a_lo),
+                    crate::error::short(a_hi)
+                ),
+            ));
+        }
         let below_pixel = match self {
             Model::WCascade(_) => 1,
             Model::Fisc(_) => 0,
@@ -394,16 +405,6 @@ impl Model {
         q: &[f64],
         (a_lo, a_hi): (f64, f64),
     ) -> Result<Option<crate::spectra::PartitionSums>> {
-        if !(a_lo > 0.0 && a_hi >= a_lo) {
-            return Err(Error::param(
-                "scales",
-                format!(
-                    "need 0 < a_lo <= a_hi, got {a_lo_s}, {a_hi_s}",
-                    a_lo_s = crate::error::short(a_lo),
-                    a_hi_s = crate::error::short(a_hi)
-                ),
-            ));
-        }
         let Some(levels) = self.sample_levels(size, (a_lo, a_hi))? else {
             return Ok(None);
         };
