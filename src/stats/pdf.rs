@@ -195,6 +195,13 @@ pub struct PdfConfig {
     pub arg_bins: usize,
 }
 
+/// The span of `ln M` one scale's histogram is sized for (e^60 between
+/// the smallest and the largest modulus, beyond any WTMMM of one scale).
+const LN_M_SPAN: f64 = 60.0;
+/// Most counts one scale's histogram may need over [`LN_M_SPAN`] (2^25:
+/// 256 MB).
+const MAX_HIST_CELLS: usize = 1 << 25;
+
 impl Default for PdfConfig {
     fn default() -> Self {
         PdfConfig {
@@ -205,7 +212,9 @@ impl Default for PdfConfig {
 }
 
 impl PdfConfig {
-    /// **Errors** naming the flag (`lnm-bin`, `arg-bins`).
+    /// **Errors** naming the flag (`lnm-bin`, `arg-bins`), also when the
+    /// two together would need more than 2^25 counts per scale over a span
+    /// of 60 in `ln M`.
     pub fn validate(&self) -> Result<()> {
         if !(self.dlnm > 1e-4 && self.dlnm <= 2.0) {
             return Err(Error::param(
@@ -221,6 +230,22 @@ impl PdfConfig {
                 "arg-bins",
                 format!(
                     "must be a multiple of 16 in 16..=4096, got {}",
+                    self.arg_bins
+                ),
+            ));
+        }
+        // the histogram of one scale holds (span of ln M / bin) x arg-bins
+        // counts: a fine bin with many argument bins asked for gigabytes
+        // per scale (an abort, not an error)
+        let cells = LN_M_SPAN / self.dlnm * self.arg_bins as f64;
+        if cells > MAX_HIST_CELLS as f64 {
+            return Err(Error::param(
+                "lnm-bin",
+                format!(
+                    "{} with {} argument bins gives {cells:.3e} counts per scale over a span \
+                     of {LN_M_SPAN} in ln M, more than {MAX_HIST_CELLS}: use a wider --lnm-bin \
+                     or fewer --arg-bins",
+                    crate::error::short(self.dlnm),
                     self.arg_bins
                 ),
             ));
@@ -659,6 +684,21 @@ fn joint_density(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> JointDens
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A fine ln M bin with many argument bins would need gigabytes per
+    /// scale (2e-4 x 4096: 226 GB for the moduli 1e-300 and 1e300): refused
+    /// up front; the default and the finest bin with few argument bins pass.
+    #[test]
+    fn histogram_size_is_bounded() {
+        PdfConfig::default().validate().unwrap();
+        let fine = |arg_bins| PdfConfig {
+            dlnm: 1.5e-4,
+            arg_bins,
+        };
+        fine(32).validate().unwrap();
+        let e = fine(4096).validate().unwrap_err().to_string();
+        assert!(e.contains("`lnm-bin`") && e.contains("per scale"), "{e}");
+    }
 
     #[test]
     fn arg_bins_and_sectors() {

@@ -265,7 +265,8 @@ impl Fft2 {
 /// k in rad/px, the mean (`k = 0`) set to 0); a negative order
 /// differentiates. Any size.
 ///
-/// **Errors** on a non-finite value or order, or a size below 4x4.
+/// **Errors** on a non-finite value or order, an order whose filter
+/// overflows (a non-finite result), or a size below 4x4.
 pub fn fractional_integrate(a: ArrayView2<f64>, order: f64) -> Result<Array2<f64>> {
     let (ny, nx) = a.dim();
     check_size(ny, nx)?;
@@ -287,6 +288,18 @@ pub fn fractional_integrate(a: ArrayView2<f64>, order: f64) -> Result<Array2<f64
     let mut t = fft.forward(a.iter().copied().collect());
     fft.power_filter(&mut t, order);
     let out = fft.inverse(t);
+    // |k|^-order over k in [2 pi / n, pi sqrt 2] spans beyond f64 for a
+    // large |order| (1e3 gave inf and NaN everywhere)
+    if out.iter().any(|v| !v.is_finite()) {
+        return Err(Error::param(
+            "order",
+            format!(
+                "{} overflows double precision on a {ny}x{nx} field (|k|^-order over its \
+                 wavenumbers)",
+                crate::error::short(order)
+            ),
+        ));
+    }
     Ok(Array2::from_shape_vec((ny, nx), out).expect("shape"))
 }
 
@@ -442,8 +455,9 @@ fn too_heavy(alpha: f64, ny: usize, nx: usize) -> Error {
 /// The conserved multifractal flux `φ = exp(Γ)` (`<φ> = 1`) of image `index`
 /// of ensemble `seed`, size `ny x nx` (any size >= 4x4).
 ///
-/// **Errors** on invalid parameters or size, C1 = 0 (a constant flux), or
-/// an α too small for the size (the noise overflows f64).
+/// **Errors** on invalid parameters or size, C1 = 0 or a C1 or α so small
+/// that the flux comes out constant, or an α too small for the size (the
+/// noise overflows f64).
 pub fn fif_flux(
     params: &FifParams,
     ny: usize,
@@ -462,6 +476,20 @@ pub fn fif_flux(
     let phi: Vec<f64> = gamma.into_iter().map(f64::exp).collect();
     if phi.iter().any(|v| !v.is_finite()) || phi.iter().all(|&v| v == 0.0) {
         return Err(too_heavy(params.alpha, ny, nx));
+    }
+    // a valid but tiny C1 or alpha: the noise's factor (C1/2 pi)^(1/alpha)
+    // underflows and the flux is as constant as with C1 = 0
+    if phi.iter().all(|&v| v == phi[0]) {
+        return Err(Error::param(
+            "c1",
+            format!(
+                "the flux comes out constant: (C1/2pi)^(1/alpha) = {} for C1 = {}, alpha = {} \
+                 is below double precision, so the field would be zero",
+                crate::error::short(kernel.c),
+                crate::error::short(params.c1),
+                crate::error::short(params.alpha)
+            ),
+        ));
     }
     Ok(Array2::from_shape_vec((ny, nx), phi).expect("shape"))
 }
@@ -505,6 +533,18 @@ mod tests {
         };
         let e = fif(&p, 64, 64, 1, 0).unwrap_err().to_string();
         assert!(e.contains("`c1`") && e.contains("constant flux"), "{e}");
+        // a valid C1 too small for double precision: the same, not zeros
+        let tiny = FifParams {
+            c1: 1e-300,
+            ..FifParams::TOPO
+        };
+        tiny.validate().unwrap();
+        let e = fif(&tiny, 16, 16, 1, 0).unwrap_err().to_string();
+        assert!(e.contains("`c1`") && e.contains("constant"), "{e}");
+        // an order whose |k|^-order filter overflows is refused
+        let f = ndarray::Array2::from_shape_fn((16, 16), |(y, x)| ((y * 16 + x) as f64).sin());
+        let e = fractional_integrate(f.view(), 1e3).unwrap_err().to_string();
+        assert!(e.contains("`order`") && e.contains("overflows"), "{e}");
         let p = FifParams {
             alpha: 0.1,
             ..FifParams::TOPO
