@@ -347,8 +347,9 @@ impl CwtPlan {
             return Err(Error::param(
                 "scales",
                 format!(
-                    "scale {a} px is below {:.2} px, where the {wavelet} wavelet's passband \
+                    "scale {} px is below {:.2} px, where the {wavelet} wavelet's passband \
                      passes the Nyquist wavenumber (the pixel grid cannot resolve it)",
+                    crate::error::short(*a),
                     wavelet.min_scale()
                 ),
             ));
@@ -357,8 +358,9 @@ impl CwtPlan {
         if 2.0 * wavelet.support_radius() * smallest > ny.min(nx) as f64 {
             return Err(Error::Input(format!(
                 "image {ny}x{nx} is smaller than the {wavelet} wavelet at its smallest scale \
-                 {smallest} px (support diameter {:.0} px)",
-                2.0 * wavelet.support_radius() * smallest
+                 {} px (support diameter {} px)",
+                crate::error::short(smallest),
+                crate::error::short((2.0 * wavelet.support_radius() * smallest).round())
             )));
         }
         let mut rp = RealFftPlanner::<f64>::new();

@@ -166,14 +166,15 @@ impl PartitionSums {
     /// get the same cells. For the generators' own cascades
     /// ([`crate::theory::Model::sample_sums`]).
     ///
-    /// **Errors** if the lengths differ, the scales are not ascending or a
-    /// value is not finite.
+    /// **Errors** if the lengths differ, the scales are not ascending, a
+    /// value is not finite, or on a q grid [`check_q`] refuses.
     pub fn from_log2_values(
         scales: &[f64],
         log2_values: &[Vec<f64>],
         q: &[f64],
         label: impl Into<String>,
     ) -> Result<Self> {
+        check_q(q)?;
         let ns = scales.len();
         if log2_values.len() != ns || ns == 0 {
             return Err(Error::param(
@@ -1177,6 +1178,9 @@ impl Spectra {
 
 /// One image through the pipeline: CWT → skeleton → partition sums.
 /// Serial inside (parallelise over images).
+///
+/// **Errors** on a q grid [`check_q`] refuses, or as
+/// [`crate::skeleton::skeleton_with`].
 pub fn image_sums(
     field: &crate::Field,
     cfg: &crate::skeleton::AnalysisConfig,
@@ -1198,8 +1202,25 @@ pub fn image_sums_with(
     label: impl Into<String>,
     par: crate::skeleton::Parallelism,
 ) -> Result<PartitionSums> {
+    // before the transform, not at the fit: a bad grid costs nothing
+    check_q(q)?;
     let sk = crate::skeleton::skeleton_with(field, cfg, par, &[])?;
     Ok(skeleton_sums(&sk, field, cfg, q, label))
+}
+
+/// A q grid the partition sums can use: non-empty, finite, strictly
+/// ascending (the Legendre transform differences neighbours; a repeated q
+/// would count twice).
+///
+/// **Errors** naming `q`.
+pub fn check_q(q: &[f64]) -> Result<()> {
+    if q.is_empty() || !q.iter().all(|x| x.is_finite()) || q.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(Error::param(
+            "q",
+            "must be a non-empty list of finite values in ascending order, none twice",
+        ));
+    }
+    Ok(())
 }
 
 /// [`image_sums`] of a skeleton already built from `field` with `cfg` (a

@@ -876,3 +876,27 @@ fn missing_pixels_do_not_bend_tau() {
         );
     }
 }
+
+/// A bad q grid is refused before the transform (it used to surface only
+/// at the fit, after the whole skeleton was computed).
+#[test]
+fn a_bad_q_grid_is_refused_up_front() {
+    let img =
+        wtmm::synth::fbm::fbm(wtmm::synth::fbm::FbmParams { hurst: 0.4 }, 64, 64, 1, 0).unwrap();
+    let field = wtmm::Field::new(img);
+    let cfg = wtmm::skeleton::AnalysisConfig {
+        octaves: 2,
+        ..Default::default()
+    };
+    for q in [vec![], vec![f64::NAN], vec![1.0, 0.0], vec![0.0, 0.0]] {
+        let e = wtmm::spectra::image_sums(&field, &cfg, &q, "a")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`q`"), "{q:?}: {e}");
+        let e = wtmm::spectra::PartitionSums::from_log2_values(&[2.0], &[vec![1.0]], &q, "a")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`q`"), "{q:?}: {e}");
+    }
+    assert!(wtmm::spectra::image_sums(&field, &cfg, &[0.0, 2.0], "a").is_ok());
+}
