@@ -182,17 +182,7 @@ pub fn fisc_log2_amplitudes(
 ) -> Result<Vec<Vec<f64>>> {
     params.validate()?;
     let steps = steps_for_size(size)?;
-    // one (possibly empty) list per level asked: a range far past the
-    // cascade would allocate without bound
-    if levels.end > steps + 1 {
-        return Err(Error::param(
-            "levels",
-            format!(
-                "{}..{} reaches past the {steps} steps of a {size} px cascade",
-                levels.start, levels.end
-            ),
-        ));
-    }
+    super::check_levels(&levels, steps, size)?;
     let mut out: Vec<Vec<f64>> = levels.clone().map(|_| Vec::new()).collect();
     let shift = 2.0 - params.hstar;
     let mut rng = rng_for(seed, index);

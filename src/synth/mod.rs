@@ -35,6 +35,27 @@ pub(crate) fn check_pixels(ny: usize, nx: usize) -> Result<()> {
     }
 }
 
+/// An error unless `levels` stays within a cascade of `steps` steps (up
+/// to `steps + 1`, the levels past the last being empty): the own-cascade
+/// functions return one (possibly empty) list per level asked, and a range
+/// far past the cascade would allocate without bound.
+pub(crate) fn check_levels(
+    levels: &std::ops::Range<usize>,
+    steps: usize,
+    size: usize,
+) -> Result<()> {
+    if levels.end > steps + 1 {
+        return Err(Error::param(
+            "levels",
+            format!(
+                "{}..{} reaches past the {steps} steps of a {size} px cascade",
+                levels.start, levels.end
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// SplitMix64 finaliser (Steele, Lea & Flood 2014), used to derive
 /// well-separated seeds.
 pub fn splitmix64(mut z: u64) -> u64 {
