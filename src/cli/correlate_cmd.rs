@@ -811,11 +811,11 @@ impl ValidationExtras {
         } else {
             None
         };
-        // the fit range widened by half an octave each way, as the tau sample
-        let range = (
-            self.a_min * self.fit.0.exp2() / std::f64::consts::SQRT_2,
-            self.a_min * self.fit.1.exp2() * std::f64::consts::SQRT_2,
-        );
+        // the fit range's cells, as the tau sample's
+        let range = Model::sample_range((
+            self.a_min * self.fit.0.exp2(),
+            self.a_min * self.fit.1.exp2(),
+        ));
         let kern = if let Some(lv) = self.model.sample_levels(size, range)? {
             // ascending scales: the finest level first
             let scales: Vec<f64> = lv.clone().rev().map(|s| (size >> s) as f64).collect();

@@ -146,10 +146,7 @@ fn sample_spectra(
     (a_lo, a_hi): (f64, f64),
 ) -> Result<Option<crate::spectra::Spectra>> {
     use rayon::prelude::*;
-    let range = (
-        a_lo / std::f64::consts::SQRT_2,
-        a_hi * std::f64::consts::SQRT_2,
-    );
+    let range = Model::sample_range((a_lo, a_hi));
     let parts: Vec<Option<crate::spectra::PartitionSums>> = (0..count)
         .into_par_iter()
         .map(|i| model.sample_sums(size, seed, i as u64, q, range))

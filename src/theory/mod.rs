@@ -346,6 +346,16 @@ impl Model {
         }
     }
 
+    /// The scale range, in px, of the own-cascade comparisons of a fit over
+    /// `(a_lo, a_hi)` px: widened by half an octave each way, so that the
+    /// dyadic cells nearest the fit's ends are in.
+    pub fn sample_range((a_lo, a_hi): (f64, f64)) -> (f64, f64) {
+        (
+            a_lo / std::f64::consts::SQRT_2,
+            a_hi * std::f64::consts::SQRT_2,
+        )
+    }
+
     /// The levels `s` of the generator's own cascade whose cells, `size /
     /// 2^s` px, lie in `[a_lo, a_hi]`, from level 1 down to the finest
     /// (W-cascade amplitudes stop one level above the pixel, at 2 px cells;
