@@ -1450,6 +1450,24 @@ fn validate_fills_the_published_q_range() {
         .find(|c| c["name"] == "kernel c3 (maxima lines)")
         .unwrap();
     assert!(c3.get("below").is_none(), "{c3}");
+    // beside each value: its standard error and the images' own cascades'
+    // value where the generator gives one (the kernel's from ln d, h(0) and
+    // the tau deviations from their partition function); none for beta
+    for name in [
+        "kernel c2 (maxima lines)",
+        "h(q=0)",
+        "D(h(q=0))",
+        "max |tau - theory|, q in [-4, 6]",
+    ] {
+        let c = crit.iter().find(|c| c["name"] == name).unwrap();
+        assert!(num(c, "stderr") > 0.0, "{c}");
+        assert!(num(c, "sample").is_finite(), "{c}");
+    }
+    let b = crit
+        .iter()
+        .find(|c| c["name"] == "beta (power spectrum)")
+        .unwrap();
+    assert!(b.get("sample").is_none(), "{b}");
     // the kernel's figures follow `kernel`'s defaults on this 3-octave grid
     // (pairs lowered onto its top); no pdfs, so no reconstruction file
     let k = json(&Path::new(&o).join("kernel").join("kernel.json"));
@@ -1530,6 +1548,17 @@ fn validate_replicates_summarise_independent_ensembles() {
             .map(|r| num(&r["criteria"][i], "value"))
             .collect();
         assert!((num(c, "mean") - 0.5 * (v[0] + v[1])).abs() < 1e-12, "{c}");
+        // the own cascades' values are summarised beside the estimates
+        let own: Vec<Option<f64>> = runs
+            .iter()
+            .map(|r| r["criteria"][i]["sample"].as_f64())
+            .collect();
+        match (own[0], own[1]) {
+            (Some(a), Some(b)) => {
+                assert!((num(c, "sample_mean") - 0.5 * (a + b)).abs() < 1e-12, "{c}")
+            }
+            _ => assert!(c.get("sample_mean").is_none(), "{c}"),
+        }
         let passes = runs
             .iter()
             .filter(|r| r["criteria"][i]["pass"] == true)

@@ -954,7 +954,10 @@ impl ValidationExtras {
                     ),
                     informational,
                     below,
-                };
+                    stderr: None,
+                    sample: None,
+                }
+                .with(Some(e.stderr), own_c.map(|(v, _, _)| v[n]));
                 cr.pass = cr.judge(e.value);
                 crit.push(cr);
             }
@@ -991,16 +994,21 @@ impl ValidationExtras {
             let tol = if fbm { 0.005 } else { 0.01 };
             // the images' own cascades through the same binning and window
             // (their distance from eq 76 is the sample's and the formula's)
-            let own_note = match own.as_ref().map(correlation_estimates).transpose()? {
-                Some(ro) => format!(
-                    "; the images' own cascades (ln d of the level of cells nearest each scale): {:.4}",
+            let own_v = own
+                .as_ref()
+                .map(correlation_estimates)
+                .transpose()?
+                .map(|ro| {
                     window_value(
                         &window_check(&ro, model, l, PAPER_UNIT),
-                        "max_abs_dev_C_ensemble"
+                        "max_abs_dev_C_ensemble",
                     )
-                ),
-                None => String::new(),
-            };
+                });
+            let own_note = own_v.map_or(String::new(), |v| {
+                format!(
+                    "; the images' own cascades (ln d of the level of cells nearest each scale): {v:.4}"
+                )
+            });
             // II Fig 30 tests eq 76 on the log-normal W-cascade (and C ~ 0 on
             // fBm); for the other cascades eq 76 holds with their own ln W
             // variance, and the comparison is shown, not judged
@@ -1019,6 +1027,8 @@ impl ValidationExtras {
                 pass: false,
                 informational: !published,
                 below: None,
+                stderr: None,
+                sample: own_v.filter(|x| x.is_finite()),
                 note: format!(
                     "4 pairs of II Fig 30, ensemble centring; per-image centring {v_img:.4}; from dx > max(a1,a2): {:.4}{}",
                     lit["max_abs_dev_C_ensemble"].as_f64().unwrap_or(f64::NAN),

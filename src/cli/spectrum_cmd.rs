@@ -14,7 +14,7 @@ use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
     CONVENTION, Detrend, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,
-    default_k_range, power_spectrum,
+    default_k_range, jackknife_beta_se, power_spectrum,
 };
 
 #[derive(Args, Debug)]
@@ -146,7 +146,18 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         [ny, nx]
     })));
     body["beta"] = json!(fit.beta);
-    body["beta_stderr"] = json!(fit.beta_stderr);
+    // as tau_stderr: a jackknife over the images when there are 3 or more,
+    // the regression's error otherwise (which measures how far the bins
+    // stray from a line, not the sampling error)
+    let jk = jackknife_beta_se(&spectra, k_lo, k_hi)?;
+    let (beta_se, se_method) = if jk.is_finite() {
+        (jk, "jackknife over images")
+    } else {
+        (fit.beta_stderr, "regression")
+    };
+    body["beta_stderr"] = json!(beta_se);
+    body["beta_stderr_method"] = json!(se_method);
+    body["beta_stderr_regression"] = json!(fit.beta_stderr);
     body["r2"] = json!(fit.line.r2);
     body["k_range"] = json!([k_lo, k_hi]);
     body["k_units"] = json!("rad/px");
@@ -191,7 +202,7 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
             "Power spectrum ({} images): beta = {:.3} ± {:.3}",
             fields.len(),
             fit.beta,
-            fit.beta_stderr
+            beta_se
         ),
         x_label: "log2 |k| (rad/px)".into(),
         y_label: "log2 S(|k|)".into(),

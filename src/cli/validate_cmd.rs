@@ -18,7 +18,9 @@ use crate::io::write_atomic;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::correlation::CorrelationSums;
 use crate::stats::fit::mean_std;
-use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, bins_in_range, default_k_range};
+use crate::stats::powspec::{
+    PowerSpectrum, PowerSpectrumConfig, bins_in_range, default_k_range, jackknife_beta_se,
+};
 use crate::theory::{Model, TheoryTable};
 
 #[derive(Args, Debug, Clone)]
@@ -78,6 +80,16 @@ pub struct Criterion {
     /// `tolerance` is NaN.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub below: Option<f64>,
+    /// Standard error of `value` where one is known (jackknife over the
+    /// images; for a τ criterion, at its worst q).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stderr: Option<f64>,
+    /// The same quantity from the images' own cascades (the generator's
+    /// W-cascade amplitudes, the FISC's p-model masses) through the same
+    /// estimator, where the generator gives them: its distance from the
+    /// theory is the sample's, which no estimator can remove.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sample: Option<f64>,
 }
 
 impl Criterion {
@@ -89,6 +101,14 @@ impl Criterion {
                 Some(b) => value < b,
                 None => (value - self.target).abs() <= self.tolerance,
             }
+    }
+
+    /// Sets [`Criterion::stderr`] and [`Criterion::sample`] (non-finite
+    /// values as unknown).
+    pub fn with(mut self, stderr: Option<f64>, sample: Option<f64>) -> Self {
+        self.stderr = stderr.filter(|x| x.is_finite());
+        self.sample = sample.filter(|x| x.is_finite());
+        self
     }
 
     /// The tolerance column of the tables.
@@ -114,6 +134,8 @@ fn criterion(name: &str, value: f64, target: f64, tolerance: f64, note: &str) ->
         note: note.into(),
         informational: false,
         below: None,
+        stderr: None,
+        sample: None,
     };
     c.pass = c.judge(value);
     c
@@ -259,6 +281,14 @@ struct ReplicatedCriterion {
     /// As [`Criterion::below`].
     #[serde(skip_serializing_if = "Option::is_none")]
     below: Option<f64>,
+    /// [`Criterion::sample`] of each ensemble, where every one has it.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    sample_values: Vec<f64>,
+    /// Their mean and its standard error.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sample_mean: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sample_stderr: Option<f64>,
 }
 
 fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
@@ -312,6 +342,12 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             let of_mean = first.tau_ranges.get(i).map(|&r| mean_dev(r).0);
             let of_pooled = pooled_corr.filter(|p| p.0 == i).map(|p| p.1);
             let judged = of_mean.or(of_pooled).unwrap_or(mean);
+            let sample_values: Vec<f64> = runs
+                .iter()
+                .map(|r| r.criteria[i].sample)
+                .collect::<Option<_>>()
+                .unwrap_or_default();
+            let own = (!sample_values.is_empty()).then(|| mean_std(&sample_values));
             ReplicatedCriterion {
                 name: c.name.clone(),
                 target: c.target,
@@ -325,6 +361,9 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
                 informational: c.informational,
                 below: c.below,
                 values,
+                sample_mean: own.map(|o| o.0),
+                sample_stderr: own.map(|o| o.1 / (n as f64).sqrt()),
+                sample_values,
             }
         })
         .collect();
@@ -340,13 +379,13 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     }
     let _ = writeln!(
         t,
-        "{:<52} {:>9} {:>8} {:>9} {:>9} {:>7}  mean",
-        "criterion", "mean", "se", "target", "tol", "passes"
+        "{:<52} {:>9} {:>8} {:>9} {:>9} {:>7}  {:<15} {:>8}",
+        "criterion", "mean", "se", "target", "tol", "passes", "verdict", "own mean"
     );
     for c in &summary {
         let _ = writeln!(
             t,
-            "{:<52} {:>9.4} {:>8.4} {:>9.4} {:>9} {:>3}/{:<3}  {}",
+            "{:<52} {:>9.4} {:>8.4} {:>9.4} {:>9} {:>3}/{:<3}  {:<15} {:>8}",
             c.name,
             c.mean,
             c.stderr,
@@ -354,7 +393,14 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
             tolerance_text(c.below, c.tolerance),
             c.passes,
             n,
-            verdict(c.informational, c.pass_mean)
+            verdict(c.informational, c.pass_mean),
+            c.sample_mean.map_or("-".into(), |v| format!("{v:.4}"))
+        );
+    }
+    if summary.iter().any(|c| c.sample_mean.is_some()) {
+        let _ = writeln!(
+            t,
+            "  own mean: the criterion on the images' own cascades, averaged over the ensembles"
         );
     }
     for (c, &r) in summary.iter().zip(&first.tau_ranges) {
@@ -499,6 +545,8 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         .map(|p| p.fit(k_lo, k_hi).map(|f| f.beta).unwrap_or(f64::NAN))
         .collect();
     let (_, beta_sd) = mean_std(&per_image_beta);
+    // NaN below 3 images (the criterion then shows no error)
+    let beta_se = jackknife_beta_se(&ens.spectra, k_lo, k_hi)?;
     // the exact expected spectrum of the finite cascade, where known: its β
     // over the same range is what the estimate should approach (the
     // theory's β belongs to the infinite cascade)
@@ -554,6 +602,14 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             })
             .unwrap_or_default()
     };
+    // the machine-readable companions of the notes: τ's standard error at
+    // the worst q, and the own cascades' value of the same criterion
+    let se_at = |qv: f64| {
+        s.q_index(qv)
+            .filter(|&i| s.q[i] == qv)
+            .map(|i| s.tau_stderr[i])
+    };
+    let own_dev = |lo: f64, hi: f64| sample.as_ref().map(|ss| dev_of(&ss.tau, lo, hi).0);
     let (core_lo, core_hi) = (pq_lo.max(-4.0), pq_hi.min(6.0));
     let (d_core, q_core) = dev(core_lo, core_hi);
     let (d_pub, q_pub) = dev(pq_lo, pq_hi);
@@ -561,6 +617,8 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         .q_index(0.0)
         .filter(|&i| s.q[i] == 0.0)
         .expect("the q grid holds the published range's half integers, 0 among them");
+    // the own cascades' spectra on the same q grid (they are computed on it)
+    let own_grid = sample.as_ref().filter(|ss| ss.q == s.q);
     // what the literature says, per model (SPEC §11)
     let (tau_said, h0_said) = match model {
         Model::WCascade(_) => (
@@ -588,7 +646,8 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
                 worst_note(q_core),
                 sample_note(core_lo, core_hi)
             ),
-        ),
+        )
+        .with(se_at(q_core), own_dev(core_lo, core_hi)),
         criterion(
             &format!("max |tau - theory|, q in [{pq_lo}, {pq_hi}] (published range)"),
             d_pub,
@@ -599,14 +658,16 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
                 worst_note(q_pub),
                 sample_note(pq_lo, pq_hi)
             ),
-        ),
+        )
+        .with(se_at(q_pub), own_dev(pq_lo, pq_hi)),
         criterion(
             "h(q=0)",
             s.h[i0],
             th.h_of_q0,
             0.02,
             &format!("+- {:.4} ({}); {h0_said}", s.h_stderr[i0], s.stderr_method),
-        ),
+        )
+        .with(Some(s.h_stderr[i0]), own_grid.map(|ss| ss.h[i0])),
         criterion(
             "D(h(q=0))",
             s.d[i0],
@@ -616,7 +677,8 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
                 "+- {:.4} ({}); surfaces singular everywhere: D(h(0)) = 2",
                 s.d_stderr[i0], s.stderr_method
             ),
-        ),
+        )
+        .with(Some(s.d_stderr[i0]), own_grid.map(|ss| ss.d[i0])),
         criterion(
             "beta (power spectrum)",
             beta_fit.beta,
@@ -625,7 +687,8 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             &format!(
                 "angle-averaged, k in [{k_lo:.3}, {k_hi:.3}] rad/px; per-image sd {beta_sd:.3}{finite_note}"
             ),
-        ),
+        )
+        .with(Some(beta_se), None),
     ];
     // fBm: the published range is the core range, judged once
     if (pq_lo, pq_hi) == (core_lo, core_hi) {
@@ -721,7 +784,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     body["criteria"] = json!(crit);
     body["pass"] = json!(all_pass);
     body["wall_seconds"] = json!(wall);
-    body["beta"] = json!({"value": beta_fit.beta, "stderr": beta_fit.beta_stderr, "per_image_sd": beta_sd, "theory": th.beta, "k_range": [k_lo, k_hi], "convention": "angle-averaged"});
+    body["beta"] = json!({"value": beta_fit.beta, "stderr": beta_se, "stderr_method": if beta_se.is_finite() { "jackknife over images" } else { "none (fewer than 3 images)" }, "stderr_regression": beta_fit.beta_stderr, "per_image_sd": beta_sd, "theory": th.beta, "k_range": [k_lo, k_hi], "convention": "angle-averaged"});
     body["theory"] = serde_json::to_value(&th).map_err(|e| Error::Input(e.to_string()))?;
     body["estimates"] = json!({"q": s.q, "tau": s.tau, "tau_stderr": s.tau_stderr, "h": s.h, "D": s.d,
         "alternate_rule": {"rule": other.rule, "tau": other.tau, "h": other.h, "D": other.d},
@@ -748,20 +811,32 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         s.fit_scales.0,
         s.fit_scales.1
     );
+    // `se`: standard error (jackknife over the images; τ: at the worst q);
+    // `own`: the images' own cascades through the same estimator
     let _ = writeln!(
         t,
-        "{:<52} {:>9} {:>9} {:>9}  result",
-        "criterion", "value", "target", "tol"
+        "{:<52} {:>9} {:>7} {:>9} {:>9}  {:<15} {:>8}",
+        "criterion", "value", "se", "target", "tol", "result", "own"
     );
+    let opt = |x: Option<f64>, w: usize| x.map_or(format!("{:>w$}", "-"), |v| format!("{v:>w$.4}"));
     for c in &crit {
         let _ = writeln!(
             t,
-            "{:<52} {:>9.4} {:>9.4} {:>9}  {}",
+            "{:<52} {:>9.4} {} {:>9.4} {:>9}  {:<15} {}",
             c.name,
             c.value,
+            opt(c.stderr, 7),
             c.target,
             c.tolerance_text(),
-            verdict(c.informational, c.pass)
+            verdict(c.informational, c.pass),
+            opt(c.sample, 8)
+        );
+    }
+    if crit.iter().any(|c| c.sample.is_some()) {
+        let _ = writeln!(
+            t,
+            "(se: standard error, jackknife over the images, for tau at its worst q; own: the \
+             same criterion on the images' own cascades, the sample's part of the distance)"
         );
     }
     let _ = writeln!(t, "\nnotes:");

@@ -195,6 +195,38 @@ impl PowerSpectrum {
     }
 }
 
+/// Delete-one jackknife standard error of the ensemble β: the fit to the
+/// pooled sums of `parts` (one spectrum per image), redone with each image
+/// left out. The regression error of [`SpectrumFit::beta_stderr`] measures
+/// how far the bins stray from a line, not how much β would move with
+/// another sample; this does. NaN below 3 images or when a leave-one-out
+/// fit fails.
+pub fn jackknife_beta_se(parts: &[PowerSpectrum], k_lo: f64, k_hi: f64) -> Result<f64> {
+    if parts.len() < 3 {
+        return Ok(f64::NAN);
+    }
+    let mut total = PowerSpectrum::default();
+    for p in parts {
+        total.merge(p)?;
+    }
+    // each leave-one-out spectrum is the total minus one image's sums
+    // (counts exactly; the power sums to rounding, far below the error)
+    let loo: Vec<f64> = parts
+        .iter()
+        .map(|p| {
+            let mut t = total.clone();
+            for b in 0..p.sum_s.len() {
+                t.sum_s[b] -= p.sum_s[b];
+                t.sum_lnk[b] -= p.sum_lnk[b];
+                t.count[b] -= p.count[b];
+            }
+            t.images -= p.images;
+            t.fit(k_lo, k_hi).map_or(f64::NAN, |f| f.beta)
+        })
+        .collect();
+    Ok(crate::stats::fit::jackknife_se(&loo))
+}
+
 /// A fitted spectral exponent.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SpectrumFit {
@@ -258,7 +290,9 @@ impl PowerSpectrum {
 /// Default fit range for an image whose smaller side is `n` pixels:
 /// from 8 cycles per image (the first few modes are too few and too
 /// affected by the window) to a quarter of Nyquist (above it the
-/// grid's anisotropy and any aliasing bend the spectrum).
+/// grid's anisotropy and any aliasing bend the spectrum). Empty
+/// (`lo >= hi`) for `n <= 64`: a fit there finds no bins and says so
+/// ([`bins_in_range`] lets callers refuse such a size up front).
 pub fn default_k_range(n: usize) -> (f64, f64) {
     let pi = std::f64::consts::PI;
     (2.0 * pi * 8.0 / n as f64, pi / 4.0)
@@ -453,6 +487,50 @@ mod tests {
         let ps = power_spectrum(f.view(), &cfg).unwrap();
         let fit = ps.fit(0.1, 1.5).unwrap();
         assert!((fit.beta - beta).abs() < 0.05, "beta {}", fit.beta);
+    }
+
+    /// The jackknife of β equals leave-one-out fits of the other images'
+    /// merged spectra, and estimates the same sampling error as the spread
+    /// of the per-image fits (fBm, H = 0.4, 16 images of 128²).
+    #[test]
+    fn jackknife_beta_is_the_leave_one_out_spread() {
+        let cfg = PowerSpectrumConfig::for_field(false);
+        let params = crate::synth::fbm::FbmParams { hurst: 0.4 };
+        let parts: Vec<PowerSpectrum> = (0..16)
+            .map(|i| {
+                let f = crate::synth::fbm::fbm(params, 128, 128, 7, i).unwrap();
+                power_spectrum(f.view(), &cfg).unwrap()
+            })
+            .collect();
+        let (lo, hi) = default_k_range(128);
+        let se = jackknife_beta_se(&parts, lo, hi).unwrap();
+        // brute force: merge the others
+        let loo: Vec<f64> = (0..parts.len())
+            .map(|i| {
+                let mut t = PowerSpectrum::default();
+                for (j, p) in parts.iter().enumerate() {
+                    if j != i {
+                        t.merge(p).unwrap();
+                    }
+                }
+                t.fit(lo, hi).unwrap().beta
+            })
+            .collect();
+        let brute = crate::stats::fit::jackknife_se(&loo);
+        assert!((se - brute).abs() < 1e-9 * brute, "{se} vs {brute}");
+        // the per-image spread / sqrt(n) estimates the same error; with 16
+        // images each estimate is uncertain by about a fifth, so within 2x
+        let per: Vec<f64> = parts.iter().map(|p| p.fit(lo, hi).unwrap().beta).collect();
+        let m = per.iter().sum::<f64>() / 16.0;
+        let sd = (per.iter().map(|b| (b - m) * (b - m)).sum::<f64>() / 15.0).sqrt();
+        let ratio = se / (sd / 4.0);
+        assert!(
+            (0.5..2.0).contains(&ratio),
+            "jackknife {se}, sd/sqrt(n) {}",
+            sd / 4.0
+        );
+        // too few images: no error
+        assert!(jackknife_beta_se(&parts[..2], lo, hi).unwrap().is_nan());
     }
 
     /// `from_density` of an image's own `|f̂|²/(nx ny)` (direct DFT) bins it
