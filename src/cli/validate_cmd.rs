@@ -703,6 +703,10 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             th.beta,
             0.1,
             "isotropic spectral exponent from the partition function",
+        )
+        .with(
+            Some(s.tau_stderr[i2]),
+            own_grid.map(|ss| ss.tau[i2] + 4.0),
         );
         // a consistency check, not one of the published criteria
         c.informational = true;
