@@ -508,6 +508,9 @@ impl CwtPlan {
 
     /// `T1 + i T2` at scale index `j`, in `ws`'s output buffer (`[y][x]`).
     /// Allocates nothing.
+    ///
+    /// **Panics** if `j` is not an index of [`scales`](Self::scales), or if
+    /// `fi` or `ws` were made by a plan of another image size.
     pub fn scale<'w>(
         &self,
         fi: &FourierImage,
@@ -542,6 +545,8 @@ impl CwtPlan {
     /// of the filtered spectrum and finishing its FFTs in cache lets a
     /// consumer that needs only neighbouring rows (the WTMM detection) work
     /// while the rows are hot, and rows outside `rows` cost no FFT at all.
+    ///
+    /// **Panics** as [`scale`](Self::scale) does.
     pub fn scale_rows<F>(
         &self,
         fi: &FourierImage,
@@ -885,7 +890,10 @@ pub fn modulus_argument(t: &Array2<Complex64>) -> (Array2<f64>, Array2<f64>) {
 
 /// Direct (slow) spatial evaluation of `T` at pixel `(y, x)` with the sampled
 /// continuous wavelet, periodic boundary: a reference for tests (SPEC §1).
-/// Truncated at radius `10 a` where the Gaussian is below e^-50.
+/// Truncated at radius `10 a` where the Gaussian is below e^-50; costs
+/// `(20 a)²` evaluations.
+///
+/// **Panics** if `(y, x)` is outside `img` (an empty image included).
 pub fn direct_transform_at(
     img: ArrayView2<f64>,
     wavelet: Wavelet,

@@ -947,6 +947,9 @@ impl Estimates {
 /// at the ends, so second-order everywhere on non-uniform grids; two
 /// points give their chord), `D = q h - τ` (SPEC §4).
 ///
+/// `q` must be strictly increasing, as [`check_q`] ensures for every grid
+/// the crate builds: a repeated q gives a non-finite `h` there.
+///
 /// **Panics** if `q` and `tau` differ in length.
 pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {
     let n = q.len();

@@ -355,6 +355,21 @@ fn writers_round_trip_with_nan() {
     }
 }
 
+/// An empty array is refused by every writer, as by every reader, and no
+/// file is left behind (write_npy wrote a 0x0 file the reader refused).
+#[test]
+fn writers_refuse_an_empty_array() {
+    let dir = scratch("empty");
+    let e = Array2::<f64>::zeros((0, 0));
+    let p = dir.join("e.npy");
+    let err = write_npy(&p, &e).unwrap_err().to_string();
+    assert!(err.contains("e.npy") && err.contains("empty"), "{err}");
+    assert!(write_tiff_f32(&dir.join("e.tif"), &e).is_err());
+    assert!(write_png16(&dir.join("e.png"), &e).is_err());
+    assert!(write_npy(&p, &Array2::<f64>::zeros((0, 5))).is_err());
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
+}
+
 #[test]
 fn write_field_dispatches_and_writes_masks() {
     let dir = scratch("write_field");

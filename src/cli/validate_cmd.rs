@@ -704,10 +704,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             0.1,
             "isotropic spectral exponent from the partition function",
         )
-        .with(
-            Some(s.tau_stderr[i2]),
-            own_grid.map(|ss| ss.tau[i2] + 4.0),
-        );
+        .with(Some(s.tau_stderr[i2]), own_grid.map(|ss| ss.tau[i2] + 4.0));
         // a consistency check, not one of the published criteria
         c.informational = true;
         crit.push(c);

@@ -165,7 +165,20 @@ pub fn write_field(path: &Path, field: &Field) -> Result<()> {
 }
 
 /// Writes a 2D array as float64 `.npy` (atomically).
+///
+/// **Errors** on an empty array (the readers refuse one, so it is not
+/// written), or if the file cannot be written.
 pub fn write_npy(path: &Path, a: &Array2<f64>) -> Result<()> {
+    if a.is_empty() {
+        return Err(Error::format(
+            path,
+            format!(
+                "refusing to write an empty {}x{} array",
+                a.nrows(),
+                a.ncols()
+            ),
+        ));
+    }
     let mut buf = Vec::new();
     a.write_npy(&mut buf)
         .map_err(|e| Error::format(path, format!("cannot encode .npy: {e}")))?;

@@ -286,11 +286,25 @@ pub struct WtmmmHistograms {
 impl WtmmmHistograms {
     /// Empty histograms for the given scales (no image yet).
     ///
-    /// **Errors** on an invalid binning or an empty scale list.
+    /// **Errors** on an invalid binning, or a scale list that is empty,
+    /// holds a non-positive or non-finite scale, or is not increasing (the
+    /// kernel and the rescaling test read it as smallest first).
     pub fn new(scales: &[f64], config: PdfConfig) -> Result<Self> {
         config.validate()?;
         if scales.is_empty() {
             return Err(Error::param("scales", "no scale given"));
+        }
+        if let Some(a) = scales.iter().find(|a| !(a.is_finite() && **a > 0.0)) {
+            return Err(Error::param(
+                "scales",
+                format!("scales must be > 0, got {}", crate::error::short(*a)),
+            ));
+        }
+        if scales.windows(2).any(|w| w[1] <= w[0]) {
+            return Err(Error::param(
+                "scales",
+                "scales must be increasing (smallest first)",
+            ));
         }
         Ok(WtmmmHistograms {
             version: crate::VERSION.to_string(),
@@ -698,6 +712,24 @@ mod tests {
         fine(32).validate().unwrap();
         let e = fine(4096).validate().unwrap_err().to_string();
         assert!(e.contains("`lnm-bin`") && e.contains("per scale"), "{e}");
+    }
+
+    /// The scales must be positive, finite and increasing (the kernel and
+    /// the rescaling test read them smallest first).
+    #[test]
+    fn histogram_scales_are_checked() {
+        let c = PdfConfig::default();
+        WtmmmHistograms::new(&[1.5, 3.0], c).unwrap();
+        for bad in [
+            &[3.0, 1.5][..],
+            &[1.5, 1.5],
+            &[f64::NAN, 3.0],
+            &[0.0, 1.0],
+            &[],
+        ] {
+            let e = WtmmmHistograms::new(bad, c).unwrap_err().to_string();
+            assert!(e.contains("`scales`"), "{bad:?}: {e}");
+        }
     }
 
     #[test]
