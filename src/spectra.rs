@@ -703,8 +703,29 @@ impl PartitionSums {
             ));
         }
         if ens.lines[last_fit] < 100 {
+            // the border margin is often why: say how much of the image it
+            // leaves (a 400^2 DEM keeps 92^2 px at the default 5 octaves)
+            let margin_note = self
+                .analysis
+                .as_ref()
+                .map(|a| (a.margin_px(), a.scale_list().last().copied().unwrap_or(0.0)))
+                .filter(|&(m, _)| m > 0)
+                .and_then(|(m, a_max)| {
+                    let (ny, nx) = image_shapes
+                        .iter()
+                        .map(|c| (c.ny, c.nx))
+                        .min_by_key(|&(ny, nx)| ny * nx)?;
+                    Some(format!(
+                        " (the counting domain of a {ny}x{nx} image is {}x{} px: a margin of \
+                         {m} px on every side, set by the largest analysed scale {a_max:.1} px; \
+                         fewer --octaves or a smaller --margin keep more of it)",
+                        ny.saturating_sub(2 * m),
+                        nx.saturating_sub(2 * m)
+                    ))
+                })
+                .unwrap_or_default();
             warnings.push(format!(
-                "only {} maxima lines alive at the largest fitted scale a = {:.2}",
+                "only {} maxima lines alive at the largest fitted scale a = {:.2}{margin_note}",
                 ens.lines[last_fit], self.scales[last_fit]
             ));
         }

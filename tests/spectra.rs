@@ -900,3 +900,38 @@ fn a_bad_q_grid_is_refused_up_front() {
     }
     assert!(wtmm::spectra::image_sums(&field, &cfg, &[0.0, 2.0], "a").is_ok());
 }
+
+/// Few lines at the top of the fit on a small image: the warning says how
+/// much of the image the border margin left to count in (a 400^2 DEM keeps
+/// 112^2 px at the default 5 octaves, and the user could not tell why).
+#[test]
+fn few_lines_warning_names_the_counting_domain() {
+    let img = fbm(FbmParams { hurst: 0.4 }, 160, 200, 1, 0).unwrap();
+    let cfg = AnalysisConfig {
+        octaves: 3,
+        ..Default::default()
+    };
+    let m = cfg.margin_px();
+    let s = image_sums(&Field::new(img), &cfg, &[0.0, 2.0], "a").unwrap();
+    let sp = s.spectra(Rule::Plain, (0.5, 2.5)).unwrap();
+    let w = sp
+        .warnings
+        .iter()
+        .find(|w| w.contains("maxima lines alive"))
+        .expect("a 160x200 image has few lines at 12 px");
+    let want = format!(
+        "counting domain of a 160x200 image is {}x{} px: a margin of {m} px",
+        160 - 2 * m,
+        200 - 2 * m
+    );
+    assert!(w.contains(&want), "{w}");
+    // the whole torus has no margin to blame
+    let img = fbm(FbmParams { hurst: 0.4 }, 64, 64, 1, 0).unwrap();
+    let torus = AnalysisConfig {
+        margin: Some(0),
+        ..cfg
+    };
+    let s = image_sums(&Field::new(img), &torus, &[0.0, 2.0], "a").unwrap();
+    let sp = s.spectra(Rule::Plain, (0.5, 2.5)).unwrap();
+    assert!(!sp.warnings.iter().any(|w| w.contains("counting domain")));
+}
