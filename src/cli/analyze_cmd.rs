@@ -14,7 +14,7 @@ use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::skeleton::{AnalysisConfig, LinkParams, Parallelism, SearchRadius};
-use crate::spectra::{PartitionSums, Rule, Spectra, image_sums_with};
+use crate::spectra::{PartitionSums, Rule, Spectra, default_tile_side, image_sums_tiled};
 use crate::theory::{Model, TheoryTable};
 
 /// Options of every command that builds maxima lines: the scale grid and
@@ -300,7 +300,14 @@ pub fn analyze_paths(
         .par_iter()
         .map(|p| {
             let field = super::common::read_image(p)?;
-            let s = image_sums_with(&field, cfg, q, p.display().to_string(), par)
+            // fewer than 3 images: the jackknife runs over tiles
+            let side = if paths.len() < 3 {
+                let (ny, nx) = field.dim();
+                default_tile_side(cfg, ny, nx)
+            } else {
+                0
+            };
+            let s = image_sums_tiled(&field, cfg, q, p.display().to_string(), par, side)
                 .map_err(|e| super::common::in_file(p, e))?;
             if s.images[0].lines[0] == 0 {
                 return Err(Error::format(p, super::common::no_maxima(&field, cfg)));

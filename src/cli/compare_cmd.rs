@@ -50,7 +50,8 @@ use crate::error::{Error, Result};
 use crate::field::Field;
 use crate::io::write_atomic;
 use crate::plot::{Chart, Series, Style, save_chart};
-use crate::spectra::{PartitionSums, Rule, Spectra, image_sums};
+use crate::skeleton::Parallelism;
+use crate::spectra::{PartitionSums, Rule, Spectra, default_tile_side, image_sums_tiled};
 use crate::stats::fit::mean_std;
 use crate::theory::{Model, TheoryTable};
 use crate::tracemoments::{
@@ -283,7 +284,21 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
             let field = Field::new(model.synthesize(args.size, args.seed, i as u64)?);
             let t_gen = t.elapsed().as_secs_f64();
             let t = Instant::now();
-            let sums = image_sums(&field, &cfg, &q, format!("{name} image {i}"))?;
+            // fewer than 3 images: the jackknife runs over tiles
+            let side = if args.count < 3 {
+                let (ny, nx) = field.dim();
+                default_tile_side(&cfg, ny, nx)
+            } else {
+                0
+            };
+            let sums = image_sums_tiled(
+                &field,
+                &cfg,
+                &q,
+                format!("{name} image {i}"),
+                Parallelism::Serial,
+                side,
+            )?;
             let t_wtmm = t.elapsed().as_secs_f64();
             let t = Instant::now();
             let mut acc = TraceMomentAccumulator::new(tm_cfg.clone())?;

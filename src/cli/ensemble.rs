@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use crate::error::Result;
 use crate::field::Field;
 use crate::skeleton::{AnalysisConfig, Parallelism, Skeleton, Wtmmm, skeleton_and_wtmmm};
-use crate::spectra::{PartitionSums, skeleton_sums};
+use crate::spectra::{PartitionSums, default_tile_side, skeleton_sums_tiled};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, power_spectrum};
 
 /// Partition sums and power spectrum of an ensemble.
@@ -49,7 +49,14 @@ where
             let field = Field::new(img);
             let (sk, wtmmm) =
                 skeleton_and_wtmmm(&field, cfg, Parallelism::Serial, wtmmm_scales, true)?;
-            let sums = skeleton_sums(&sk, &field, cfg, q, format!("image {i}"));
+            // fewer than 3 images: the jackknife runs over tiles
+            let side = if count < 3 {
+                let (ny, nx) = field.dim();
+                default_tile_side(cfg, ny, nx)
+            } else {
+                0
+            };
+            let sums = skeleton_sums_tiled(&sk, &field, cfg, q, format!("image {i}"), side);
             let x = extra(i, &field, &sk, wtmmm)?;
             tick();
             Ok((sums, ps, x))

@@ -23,7 +23,7 @@ mod tiff;
 
 pub use atomic::{
     OutputBatch, Protected, file_identity, outputs_committed, protect, remove_temporaries,
-    write_atomic, write_json,
+    write_atomic, write_json, write_json_compact,
 };
 pub use png::{PNG16_NODATA, Png16Mapping};
 

@@ -87,6 +87,41 @@ pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<Strin
     format!("jackknife over images; regression for {list}")
 }
 
+/// The `stderr_method` label of the estimates of fewer than 3 images whose
+/// jackknife ran over `n_tiles` tiles of side about `side` px of their
+/// domains (`PartitionSums::spectra`), with the warning that such errors
+/// treat neighbouring tiles as independent, as the trace moments' tiles do.
+pub fn stderr_method_tiles(
+    n_img: usize,
+    n_tiles: usize,
+    side: usize,
+    fallback: &[String],
+    warnings: &mut Vec<String>,
+) -> String {
+    let what = format!(
+        "a jackknife over {n_tiles} tiles of about {side} px of {n_img} image{}",
+        if n_img == 1 { "" } else { "s" }
+    );
+    warnings.push(format!(
+        "the standard errors come from {what}: a tile's maxima are counted where they lie at \
+         each scale, and tiles are treated as independent, which fields correlated over long \
+         distances (cascades) are not, so they may still understate"
+    ));
+    if let Some(w) = few_groups_warning(n_tiles, &what) {
+        warnings.push(w);
+    }
+    let label = format!("jackknife over {n_tiles} tiles ({side} px)");
+    if fallback.is_empty() {
+        return label;
+    }
+    let list = fallback.join(", ");
+    warnings.push(format!(
+        "{list}: a leave-one-tile-out estimate is not finite, so the standard error is the \
+         regression's"
+    ));
+    format!("{label}; regression for {list}")
+}
+
 /// The points `(x, y)` where both are finite.
 ///
 /// **Panics** (naming `who`) if `x` and `y` differ in length.
