@@ -102,6 +102,55 @@ fn is_zero(n: &usize) -> bool {
     *n == 0
 }
 
+/// Square tiles of about `side` px over a counting domain `(y0, y1, x0,
+/// x1)`: as many whole tiles as fit along each side, stretched to cover it
+/// (the jackknife groups of a lone image: [`ImagePartial::tiles`], and the
+/// kernel's `KernelImage::tiles`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TileGrid {
+    y0: usize,
+    x0: usize,
+    h: usize,
+    w: usize,
+    nty: usize,
+    ntx: usize,
+}
+
+impl TileGrid {
+    /// `None` when `side` is 0 or fewer than 2 tiles fit.
+    pub fn new((y0, y1, x0, x1): (usize, usize, usize, usize), side: usize) -> Option<Self> {
+        let (h, w) = (y1.saturating_sub(y0), x1.saturating_sub(x0));
+        let nty = h.checked_div(side)?.max(1);
+        let ntx = w.checked_div(side)?.max(1);
+        (nty * ntx >= 2).then_some(TileGrid {
+            y0,
+            x0,
+            h,
+            w,
+            nty,
+            ntx,
+        })
+    }
+
+    /// Number of tiles.
+    pub fn len(&self) -> usize {
+        self.nty * self.ntx
+    }
+
+    /// Always false (a grid has at least 2 tiles).
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// The tile holding pixel `(x, y)` (row-major; points outside the
+    /// domain go to the nearest tile).
+    pub fn index(&self, x: u32, y: u32) -> usize {
+        let ty = ((y as usize).saturating_sub(self.y0) * self.nty / self.h).min(self.nty - 1);
+        let tx = ((x as usize).saturating_sub(self.x0) * self.ntx / self.w).min(self.ntx - 1);
+        ty * self.ntx + tx
+    }
+}
+
 /// The partial sums of one tile of an image ([`ImagePartial::tiles`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TilePartial {
@@ -158,18 +207,8 @@ impl PartitionSums {
         let mut plain = vec![Cell::EMPTY; nq * ns];
         let mut lines = vec![0u64; ns];
         // the tile grid over the counting domain
-        let (y0, y1, x0, x1) = sk.domain;
-        let (h, w) = (y1.saturating_sub(y0), x1.saturating_sub(x0));
-        let (nty, ntx) = match (h.checked_div(tile_side), w.checked_div(tile_side)) {
-            (Some(a), Some(b)) => (a.max(1), b.max(1)),
-            _ => (1, 1),
-        };
-        let n_tiles = if nty * ntx >= 2 { nty * ntx } else { 0 };
-        let tile_of = |x: u32, y: u32| {
-            let ty = ((y as usize - y0) * nty / h).min(nty - 1);
-            let tx = ((x as usize - x0) * ntx / w).min(ntx - 1);
-            ty * ntx + tx
-        };
+        let grid = TileGrid::new(sk.domain, tile_side);
+        let n_tiles = grid.map_or(0, |g| g.len());
         let mut tiles = vec![
             TilePartial {
                 lines: vec![0; ns],
@@ -200,8 +239,8 @@ impl PartitionSums {
                 }
                 lp.push(p.m.log2());
                 ls.push(p.sup.log2());
-                if n_tiles > 0 {
-                    let t = &mut by_tile[tile_of(p.x, p.y)];
+                if let Some(g) = &grid {
+                    let t = &mut by_tile[g.index(p.x, p.y)];
                     t.0.push(p.m.log2());
                     t.1.push(p.sup.log2());
                 }

@@ -643,6 +643,9 @@ pub struct ValidationExtras {
     plan: CorrelationPlan,
     th_c: Option<[f64; 3]>,
     has_corr: bool,
+    /// The tiles of the kernel's jackknife for fewer than 3 images (those
+    /// of the spectra; 0 otherwise).
+    tile_side: usize,
 }
 
 /// One image's share of [`ValidationExtras`].
@@ -681,6 +684,11 @@ impl ValidationExtras {
         if periodic && kcfg_a.margin.is_none() {
             kcfg_a.margin = Some(0);
         }
+        // the spectra's analysis (the full grid), for their tiles
+        let periodic_cfg = AnalysisConfig {
+            margin: kcfg_a.margin,
+            ..cfg.clone()
+        };
         // keep the margin of the full grid (the spectra's), but the kernel
         // sees the lines only up to the fit range
         kcfg_a.margin = Some(kcfg_a.margin_px());
@@ -727,6 +735,11 @@ impl ValidationExtras {
             plan,
             th_c,
             has_corr,
+            tile_side: if count < 3 {
+                crate::spectra::default_tile_side(&periodic_cfg, size, size)
+            } else {
+                0
+            },
         }))
     }
 
@@ -752,8 +765,17 @@ impl ValidationExtras {
     ) -> Result<ImageExtras> {
         let label = format!("{} image {i}", self.input.name);
         let w = ImageWtmmm::from_skeleton(sk, all);
-        let sums =
-            |set| KernelSums::from_points(&self.sk_scales, self.kcfg, set, w.set(set), &label);
+        let sums = |set| {
+            KernelSums::from_points_tiled(
+                &self.sk_scales,
+                self.kcfg,
+                set,
+                w.set(set),
+                &label,
+                w.domain,
+                self.tile_side,
+            )
+        };
         let (own, own_kernel) = self.own_cascade(i, &label)?;
         Ok(ImageExtras {
             lines: sums(WtmmmSet::Lines)?,

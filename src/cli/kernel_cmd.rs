@@ -182,6 +182,8 @@ fn collect(
 ) -> Result<Acc> {
     let scales = cfg.scale_list();
     let empty = WtmmmHistograms::new(&scales, PdfConfig::default())?;
+    // fewer than 3 images: the jackknife runs over tiles of each domain
+    let lone = input.len() < 3;
     input.fold(
         quiet,
         "kernel",
@@ -196,8 +198,16 @@ fn collect(
             if w.all.first().is_none_or(|v| v.is_empty()) {
                 return Err(no_maxima(input, label, field, cfg));
             }
-            let m = KernelSums::from_points(&scales, kcfg, set, w.set(set), label)?;
-            let o = KernelSums::from_points(&scales, kcfg, set.other(), w.set(set.other()), label)?;
+            let side = if lone {
+                let (ny, nx) = field.dim();
+                crate::spectra::default_tile_side(cfg, ny, nx)
+            } else {
+                0
+            };
+            let tiled = |s: WtmmmSet| {
+                KernelSums::from_points_tiled(&scales, kcfg, s, w.set(s), label, w.domain, side)
+            };
+            let (m, o) = (tiled(set)?, tiled(set.other())?);
             merge_opt(&mut acc.main, Some(m))?;
             merge_opt(&mut acc.alt, Some(o))?;
             acc.hist.merge(&WtmmmHistograms::from_points(

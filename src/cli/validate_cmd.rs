@@ -836,8 +836,9 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     if crit.iter().any(|c| c.sample.is_some()) {
         let _ = writeln!(
             t,
-            "(se: standard error, jackknife over the images, for tau at its worst q; own: the \
-             same criterion on the images' own cascades, the sample's part of the distance)"
+            "(se: standard error, jackknife over the images (below 3 images over tiles of them), \
+             for tau at its worst q; own: the same criterion on the images' own cascades, the \
+             sample's part of the distance)"
         );
     }
     let _ = writeln!(t, "\nnotes:");

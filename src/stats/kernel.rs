@@ -50,7 +50,8 @@
 //! and characteristic-function sums per scale). Ensemble values combine the
 //! images in a canonical order (so merging is order-independent to the last
 //! bit) and a delete-one jackknife over images gives the standard errors, as
-//! in [`crate::spectra`].
+//! in [`crate::spectra`] (with fewer than 3 images, over the tiles of their
+//! domains when the sums were split: [`KernelSums::from_points_tiled`]).
 //!
 //! **The paper's protocol (II §4.2, Figs 25-28).** WTMMM of the skeleton
 //! (the maxima lines: [`WtmmmSet::Lines`]), the modulus `M` at each WTMMM
@@ -267,6 +268,19 @@ pub struct KernelImage {
     pub cf_re: Vec<f64>,
     /// `Σ sin(p_k ln M)`, same layout as `cf_re`.
     pub cf_im: Vec<f64>,
+    /// The moments per scale of each tile of the counting domain (each
+    /// WTMMM in the tile holding it): the jackknife groups of an ensemble
+    /// of fewer than 3 images, as for the spectra
+    /// ([`crate::spectra::ImagePartial::tiles`]). Empty unless asked for.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tiles: Vec<Vec<Moments>>,
+    /// Side of the tiles in px (0 without tiles).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub tile_side: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// Mergeable kernel sums of an ensemble (one partial per image).
@@ -313,6 +327,8 @@ impl KernelSums {
             moments: Vec::with_capacity(scales.len()),
             cf_re: vec![0.0; np * scales.len()],
             cf_im: vec![0.0; np * scales.len()],
+            tiles: Vec::new(),
+            tile_side: 0,
         };
         let mut u: Vec<f64> = Vec::new();
         for (j, vals) in ln_m.iter().enumerate() {
@@ -350,6 +366,76 @@ impl KernelSums {
             .map(|ps| ps.iter().filter(|p| p.m > 0.0).map(|p| p.m.ln()).collect())
             .collect();
         Self::from_ln_m(scales, config, set, &ln_m, label)
+    }
+
+    /// [`from_points`](Self::from_points), also split over tiles of about
+    /// `tile_side` px of the counting domain `domain` (`(y0, y1, x0, x1)`,
+    /// [`crate::spectra::TileGrid`]; no tiles when fewer than 2 fit): the
+    /// jackknife groups of a lone image.
+    ///
+    /// **Errors** as [`from_points`](Self::from_points).
+    pub fn from_points_tiled(
+        scales: &[f64],
+        config: KernelConfig,
+        set: WtmmmSet,
+        points: &[Vec<Point>],
+        label: impl Into<String>,
+        domain: (usize, usize, usize, usize),
+        tile_side: usize,
+    ) -> Result<Self> {
+        let mut s = Self::from_points(scales, config, set, points, label)?;
+        if let Some(g) = crate::spectra::TileGrid::new(domain, tile_side) {
+            let mut vals: Vec<Vec<f64>> = vec![Vec::new(); g.len()];
+            let mut tiles = vec![Vec::with_capacity(scales.len()); g.len()];
+            for ps in points {
+                vals.iter_mut().for_each(Vec::clear);
+                for p in ps.iter().filter(|p| p.m > 0.0 && p.m.is_finite()) {
+                    vals[g.index(p.x, p.y)].push(p.m.ln());
+                }
+                for (t, v) in tiles.iter_mut().zip(&vals) {
+                    t.push(Moments::of(v));
+                }
+            }
+            s.images[0].tiles = tiles;
+            s.images[0].tile_side = tile_side;
+        }
+        Ok(s)
+    }
+
+    /// The leave-one-out moments per scale over the jackknife groups: the
+    /// images when there are 3 or more, else the tiles of every image when
+    /// each has them and there are 3 or more in all (`None` otherwise), with
+    /// the number of tiles.
+    fn tile_replicates(&self) -> Option<Vec<Vec<Moments>>> {
+        if self.images.len() >= 3 || self.images.iter().any(|im| im.tiles.is_empty()) {
+            return None;
+        }
+        // in the images' canonical order, tiles in their own order
+        let tiles: Vec<&Vec<Moments>> = self
+            .canonical()
+            .into_iter()
+            .flat_map(|i| self.images[i].tiles.iter())
+            .collect();
+        if tiles.len() < 3 {
+            return None;
+        }
+        Some(
+            (0..tiles.len())
+                .map(|skip| {
+                    (0..self.scales.len())
+                        .map(|j| {
+                            tiles
+                                .iter()
+                                .enumerate()
+                                .filter(|&(t, _)| t != skip)
+                                .fold(Moments::default(), |acc, (_, m)| {
+                                    Moments::combine(&acc, &m[j])
+                                })
+                        })
+                        .collect()
+                })
+                .collect(),
+        )
     }
 
     /// Adds `other`'s images (order-independent once evaluated).
@@ -563,7 +649,8 @@ pub struct Estimate {
     /// The fitted `c_n` (natural-log convention of the module doc).
     pub value: f64,
     /// Its standard error: delete-one jackknife over images (>= 3 images),
-    /// else the regression's (`pooled`: jackknife only, NaN with < 3 images).
+    /// or over tiles (fewer images, split), else the regression's
+    /// (`pooled`: jackknife only, NaN without one).
     pub stderr: f64,
     /// R² of the regression of `κ_n` on `ln a`.
     pub r2: f64,
@@ -674,9 +761,10 @@ pub struct KernelResult {
     pub fit_scales: (f64, f64),
     /// `c_n = -dκ_n/d ln a` over the fit range (SPEC §5; JSON `cumulants`).
     pub cumulants: FittedCumulants,
-    /// "jackknife over images" (>= 3 images), "regression", or
-    /// "jackknife over images; regression for c2, ..." naming the cumulants
-    /// whose leave-one-out fits were not all finite (also a warning).
+    /// "jackknife over images" (>= 3 images), "jackknife over N tiles (S
+    /// px)" (fewer, split into tiles), "regression", or either jackknife
+    /// followed by "; regression for c2, ..." naming the cumulants whose
+    /// leave-one-out fits were not all finite (also a warning).
     pub stderr_method: String,
     /// One `C_n(a, a')` table per reference scale (II Figs 26, 28).
     pub tables: Vec<CnTable>,
@@ -878,11 +966,15 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     // delete-one jackknife over images
     let n_img = s.images.len();
     let mut reps: Vec<Vec<[f64; 3]>> = Vec::new();
+    // fewer than 3 images: over the tiles of their domains, if split
+    let tile_reps = s.tile_replicates();
     if n_img >= 3 {
         // in the canonical order, so that the errors do not depend on merges
         for &i in &order {
             reps.push(cumulants_of(&s.ensemble_moments(&order, Some(i))));
         }
+    } else if let Some(t) = &tile_reps {
+        reps = t.iter().map(|m| cumulants_of(m)).collect();
     }
     let jk = |vals: &[f64]| -> f64 {
         if vals.len() < 3 {
@@ -1075,13 +1167,22 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     // regression error (`est` above): said, not silent
     let fallback: Vec<String> = (0..3)
         .filter(|&n| {
-            n_img >= 3
+            reps.len() >= 3
                 && main[n].0.is_finite()
                 && !jk(&rep_fits.iter().map(|r| r[n].0).collect::<Vec<_>>()).is_finite()
         })
         .map(|n| format!("c{}", n + 1))
         .collect();
-    let stderr_method = crate::stats::fit::stderr_method(n_img, &fallback, &mut warnings);
+    let stderr_method = match &tile_reps {
+        Some(t) => crate::stats::fit::stderr_method_tiles(
+            n_img,
+            t.len(),
+            s.images[0].tile_side,
+            &fallback,
+            &mut warnings,
+        ),
+        None => crate::stats::fit::stderr_method(n_img, &fallback, &mut warnings),
+    };
     Ok(KernelResult {
         set: s.set,
         images: n_img,

@@ -104,6 +104,8 @@ pub struct ImageWtmmm {
     pub scales: Vec<f64>,
     /// `(ny, nx)` of the image.
     pub shape: (usize, usize),
+    /// The counting domain `(y0, y1, x0, x1)` of the skeleton.
+    pub domain: (usize, usize, usize, usize),
     /// Every WTMMM, per scale.
     pub all: Vec<Vec<Point>>,
     /// The WTMMM on maxima lines, per scale (empty lists without linking).
@@ -175,6 +177,7 @@ impl ImageWtmmm {
         ImageWtmmm {
             scales: sk.scales[..n].to_vec(),
             shape: sk.shape,
+            domain: sk.domain,
             all: all
                 .into_iter()
                 .take(n)
