@@ -969,16 +969,46 @@ fn experiment_lone_image_errors() {
     let sides: Vec<usize> = std::iter::once(0)
         .chain(factors.iter().map(|f| (f * a_max).ceil() as usize))
         .collect();
-    // per image, per side: (tau, se) per q
-    // per image, per side: tau, its standard error, the error's method
-    type Fit = (Vec<f64>, Vec<f64>, String);
-    let per: Vec<Vec<Fit>> = (0..n)
+    let per = lone_image_fits(
+        |i| model.synthesize(size, 1, i).unwrap(),
+        n,
+        &cfg,
+        &q,
+        fit,
+        &sides,
+    );
+    for (k, side) in sides.iter().enumerate() {
+        println!("side {side} px ({})", per[0][k].2);
+        for (qi, qv) in q.iter().enumerate() {
+            let (sd, rms) = scatter_and_rms(&per, k, qi);
+            println!(
+                "  q = {qv:>4}: scatter of tau {sd:.4}, reported se (rms) {rms:.4}, ratio {:.2}",
+                rms / sd
+            );
+        }
+    }
+}
+
+/// Per image, per tile side: tau, its standard error, the error's method.
+type LoneFit = (Vec<f64>, Vec<f64>, String);
+
+/// Images `make(0..n)` each analysed on its own, the sums split over tiles
+/// of each side in `sides` (0: none).
+fn lone_image_fits(
+    make: impl Fn(u64) -> ndarray::Array2<f64> + Sync,
+    n: u64,
+    cfg: &AnalysisConfig,
+    q: &[f64],
+    fit: (f64, f64),
+    sides: &[usize],
+) -> Vec<Vec<LoneFit>> {
+    (0..n)
         .into_par_iter()
         .map(|i| {
-            let field = Field::new(model.synthesize(size, 1, i).unwrap());
+            let field = Field::new(make(i));
             let sk = wtmm::skeleton::skeleton_with(
                 &field,
-                &cfg,
+                cfg,
                 wtmm::skeleton::Parallelism::Serial,
                 &[],
             )
@@ -986,26 +1016,24 @@ fn experiment_lone_image_errors() {
             sides
                 .iter()
                 .map(|&side| {
-                    let s = wtmm::spectra::skeleton_sums_tiled(&sk, &field, &cfg, &q, "a", side);
+                    let s = wtmm::spectra::skeleton_sums_tiled(&sk, &field, cfg, q, "a", side);
                     let sp = s.spectra(Rule::Plain, fit).unwrap();
                     (sp.tau, sp.tau_stderr, sp.stderr_method)
                 })
                 .collect()
         })
-        .collect();
-    for (k, side) in sides.iter().enumerate() {
-        println!("side {side} px ({})", per[0][k].2);
-        for (qi, qv) in q.iter().enumerate() {
-            let t: Vec<f64> = per.iter().map(|p| p[k].0[qi]).collect();
-            let m = t.iter().sum::<f64>() / n as f64;
-            let sd = (t.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1) as f64).sqrt();
-            let rms = (per.iter().map(|p| p[k].1[qi].powi(2)).sum::<f64>() / n as f64).sqrt();
-            println!(
-                "  q = {qv:>4}: scatter of tau {sd:.4}, reported se (rms) {rms:.4}, ratio {:.2}",
-                rms / sd
-            );
-        }
-    }
+        .collect()
+}
+
+/// The scatter (sd) of tau(q[qi]) between the images, and the
+/// root-mean-square of the error they report, with tile side `k`.
+fn scatter_and_rms(per: &[Vec<LoneFit>], k: usize, qi: usize) -> (f64, f64) {
+    let n = per.len() as f64;
+    let t: Vec<f64> = per.iter().map(|p| p[k].0[qi]).collect();
+    let m = t.iter().sum::<f64>() / n;
+    let sd = (t.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0)).sqrt();
+    let rms = (per.iter().map(|p| p[k].1[qi].powi(2)).sum::<f64>() / n).sqrt();
+    (sd, rms)
 }
 
 /// The tiles of a lone image partition its counted maxima: their line
@@ -1084,32 +1112,18 @@ fn a_lone_image_reports_believable_errors() {
     };
     let q = vec![-2.0, 0.0, 2.0, 4.0];
     let side = wtmm::spectra::default_tile_side(&cfg, 256, 256);
-    let per: Vec<[(Vec<f64>, Vec<f64>); 2]> = (0..24u64)
-        .into_par_iter()
-        .map(|i| {
-            let field = Field::new(fbm(FbmParams { hurst: 0.4 }, 256, 256, 11, i).unwrap());
-            let sk = wtmm::skeleton::skeleton_with(
-                &field,
-                &cfg,
-                wtmm::skeleton::Parallelism::Serial,
-                &[],
-            )
-            .unwrap();
-            [0, side].map(|s| {
-                let sp = wtmm::spectra::skeleton_sums_tiled(&sk, &field, &cfg, &q, "a", s)
-                    .spectra(Rule::Plain, (0.5, 3.0))
-                    .unwrap();
-                (sp.tau, sp.tau_stderr)
-            })
-        })
-        .collect();
-    let n = per.len() as f64;
+    let per = lone_image_fits(
+        |i| fbm(FbmParams { hurst: 0.4 }, 256, 256, 11, i).unwrap(),
+        24,
+        &cfg,
+        &q,
+        (0.5, 3.0),
+        &[0, side],
+    );
     for (qi, qv) in q.iter().enumerate() {
-        let t: Vec<f64> = per.iter().map(|p| p[0].0[qi]).collect();
-        let m = t.iter().sum::<f64>() / n;
-        let sd = (t.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0)).sqrt();
-        let rms = |k: usize| (per.iter().map(|p| p[k].1[qi].powi(2)).sum::<f64>() / n).sqrt();
-        let (reg, tiles) = (rms(0) / sd, rms(1) / sd);
+        let (sd, reg) = scatter_and_rms(&per, 0, qi);
+        let (_, tiles) = scatter_and_rms(&per, 1, qi);
+        let (reg, tiles) = (reg / sd, tiles / sd);
         eprintln!("q = {qv}: regression {reg:.2}, tiles {tiles:.2} of the scatter {sd:.4}");
         assert!((0.5..2.0).contains(&tiles), "q = {qv}: tiles {tiles:.2}");
         assert!(reg < 0.5, "q = {qv}: regression {reg:.2}");
