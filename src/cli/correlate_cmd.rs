@@ -1007,6 +1007,7 @@ impl ValidationExtras {
         let l = size as f64;
         if has_corr {
             let chk = window_check(&r, model, l, PAPER_UNIT);
+            let worst = r.compare_theory(model, l, PAPER_UNIT).worst_ensemble;
             let lit = window_check(&r, model, l, 1.0);
             let fbm = matches!(model, Model::Fbm(_));
             let (v, v_img) = (
@@ -1049,10 +1050,15 @@ impl ValidationExtras {
                 pass: false,
                 informational: !published,
                 below: None,
-                stderr: None,
+                // the worst bin and its error: whether the miss is noise
+                stderr: worst.map(|w| w.stderr).filter(|x| x.is_finite()),
                 sample: own_v.filter(|x| x.is_finite()),
                 note: format!(
-                    "4 pairs of II Fig 30, ensemble centring; per-image centring {v_img:.4}; from dx > max(a1,a2): {:.4}{}",
+                    "4 pairs of II Fig 30, ensemble centring{}; per-image centring {v_img:.4}; from dx > max(a1,a2): {:.4}{}",
+                    worst.map_or(String::new(), |w| format!(
+                        ", worst at dx = {:.1} px for a1, a2 = {}, {} px (C - theory = {:+.4} +- {:.4})",
+                        w.dx, w.a1, w.a2, w.dev, w.stderr
+                    )),
                     lit["max_abs_dev_C_ensemble"].as_f64().unwrap_or(f64::NAN),
                     own_note
                 ),

@@ -837,7 +837,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         let _ = writeln!(
             t,
             "(se: standard error, jackknife over the images (below 3 images over tiles of them), \
-             for tau at its worst q; own: the same criterion on the images' own cascades, the \
+             for tau at its worst q, for the correlation at its worst lag bin; own: the same criterion on the images' own cascades, the \
              sample's part of the distance)"
         );
     }

@@ -1650,6 +1650,26 @@ pub struct TheoryCheck {
     pub max_abs_dev_ensemble: f64,
     /// Per pair.
     pub pairs: Vec<PairCheck>,
+    /// Where the ensemble-centred deviation is largest, with its jackknife
+    /// error there (`None` without a bin in the window).
+    #[serde(default)]
+    pub worst_ensemble: Option<WorstBin>,
+}
+
+/// One lag bin of a [`TheoryCheck`]: where the deviation from the theory
+/// is largest, whether that is beyond the noise.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorstBin {
+    /// The pair's scales, in pixels.
+    pub a1: f64,
+    /// See `a1`.
+    pub a2: f64,
+    /// The bin's lag, in pixels.
+    pub dx: f64,
+    /// `C - theory` there (signed).
+    pub dev: f64,
+    /// Jackknife standard error of `C` there (NaN with < 3 images).
+    pub stderr: f64,
 }
 
 impl CorrelationResult {
@@ -1665,6 +1685,7 @@ impl CorrelationResult {
             max_abs_dev: 0.0,
             max_abs_dev_ensemble: 0.0,
             pairs: Vec::with_capacity(self.pairs.len()),
+            worst_ensemble: None,
         };
         for p in &self.pairs {
             let lo = factor * p.a1.max(p.a2);
@@ -1686,6 +1707,16 @@ impl CorrelationResult {
                     pc.max_abs_dev_ensemble =
                         pc.max_abs_dev_ensemble.max((p.c_ensemble[i] - t).abs());
                     pc.bins += 1;
+                    let dev = p.c_ensemble[i] - t;
+                    if out.worst_ensemble.is_none_or(|w| dev.abs() > w.dev.abs()) {
+                        out.worst_ensemble = Some(WorstBin {
+                            a1: p.a1,
+                            a2: p.a2,
+                            dx,
+                            dev,
+                            stderr: p.c_ensemble_stderr[i],
+                        });
+                    }
                 }
             }
             out.max_abs_dev = out.max_abs_dev.max(pc.max_abs_dev);
@@ -1858,7 +1889,7 @@ mod tests {
             c: t.iter().zip(off).map(|(t, o)| t + o).collect(),
             c_stderr: vec![0.0; 5],
             c_ensemble: t.iter().zip(off).map(|(t, o)| t - 2.0 * o).collect(),
-            c_ensemble_stderr: vec![0.0; 5],
+            c_ensemble_stderr: vec![0.001, 0.002, 0.003, 0.004, 0.005],
             pairs: vec![1.0; 5],
             c0: 0.0,
             c0_ensemble: 0.0,
@@ -1885,6 +1916,10 @@ mod tests {
         assert!((c.pairs[1].max_abs_dev - 0.004).abs() < 1e-12);
         assert!((c.max_abs_dev - 0.02).abs() < 1e-12);
         assert!((c.max_abs_dev_ensemble - 0.04).abs() < 1e-12);
+        // the worst ensemble-centred bin, signed, with its error
+        let w = c.worst_ensemble.unwrap();
+        assert_eq!((w.a1, w.a2, w.dx, w.stderr), (3.0, 3.0, 60.0, 0.003));
+        assert!((w.dev + 0.04).abs() < 1e-12);
         // read literally (dx > sup(a1, a2) px) the 10 px bin counts
         assert!((r.compare_theory(&m, l, 1.0).max_abs_dev - 1.0).abs() < 1e-12);
     }
