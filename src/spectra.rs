@@ -102,6 +102,16 @@ fn is_zero(n: &usize) -> bool {
     *n == 0
 }
 
+/// "180" or "90-180": the tile sides of the images, for the labels.
+pub(crate) fn tile_sides(sides: impl Iterator<Item = usize>) -> String {
+    let (lo, hi) = sides.fold((usize::MAX, 0), |(a, b), s| (a.min(s), b.max(s)));
+    if lo == hi {
+        format!("{lo}")
+    } else {
+        format!("{lo}-{hi}")
+    }
+}
+
 /// Square tiles of about `side` px over a counting domain `(y0, y1, x0,
 /// x1)`: as many whole tiles as fit along each side, stretched to cover it
 /// (the jackknife groups of a lone image: [`ImagePartial::tiles`], and the
@@ -117,9 +127,13 @@ pub struct TileGrid {
 }
 
 impl TileGrid {
-    /// `None` when `side` is 0 or fewer than 2 tiles fit.
+    /// `None` when `side` is 0, the domain is empty or fewer than 2 tiles
+    /// fit.
     pub fn new((y0, y1, x0, x1): (usize, usize, usize, usize), side: usize) -> Option<Self> {
         let (h, w) = (y1.saturating_sub(y0), x1.saturating_sub(x0));
+        if h == 0 || w == 0 {
+            return None;
+        }
         let nty = h.checked_div(side)?.max(1);
         let ntx = w.checked_div(side)?.max(1);
         (nty * ntx >= 2).then_some(TileGrid {
@@ -373,6 +387,15 @@ impl PartitionSums {
             _ => {}
         }
         self.images.extend(other.images.iter().cloned());
+        // tiles are the jackknife groups of fewer than 3 images only: from 3
+        // on they would never be read again (and would multiply the size
+        // of sums.json by the number of tiles)
+        if self.images.len() >= 3 {
+            for im in &mut self.images {
+                im.tiles = Vec::new();
+                im.tile_side = 0;
+            }
+        }
         Ok(())
     }
 
@@ -435,6 +458,40 @@ impl PartitionSums {
             return Err("no images".into());
         }
         let (ns, nc) = (self.scales.len(), self.q.len() * self.scales.len());
+        // tiles partition their image: at least 2, a side, and line counts
+        // adding up to the image's at every scale (a tile deleted from the
+        // file would change the errors silently)
+        for (i, im) in self.images.iter().enumerate() {
+            if im.tiles.is_empty() {
+                continue;
+            }
+            let at = format!("image {i} ({:?})", im.label);
+            if im.tiles.len() < 2 || im.tile_side == 0 {
+                return Err(format!(
+                    "{at}: {} tile(s) of side {} px (tiles come at least in pairs, with a side)",
+                    im.tiles.len(),
+                    im.tile_side
+                ));
+            }
+            if im.lines.len() != ns || im.tiles.iter().any(|t| t.lines.len() != ns) {
+                continue; // said below, tile by tile
+            }
+            let in_tiles = |j: usize| {
+                im.tiles
+                    .iter()
+                    .map(|t| t.lines[j])
+                    .fold(0u64, u64::saturating_add)
+            };
+            if let Some(j) = (0..ns).find(|&j| in_tiles(j) != im.lines[j]) {
+                return Err(format!(
+                    "{at}: its tiles hold {} maxima at scale {} px, the image {}: the tiles must \
+                     cover the image",
+                    in_tiles(j),
+                    self.scales[j],
+                    im.lines[j]
+                ));
+            }
+        }
         // an image and each of its tiles (the jackknife groups of a lone
         // image) hold the same arrays
         let parts = self.images.iter().enumerate().flat_map(|(i, im)| {
@@ -449,6 +506,11 @@ impl PartitionSums {
         for (at, lines, plain, sup) in parts {
             if lines.len() != ns {
                 return Err(format!("{at}: {} line counts for {ns} scales", lines.len()));
+            }
+            // no image holds 2^40 maxima at one scale (2^28 pixels at most):
+            // a larger count is corrupt, and sums of such would overflow
+            if lines.iter().any(|&n| n > 1 << 40) {
+                return Err(format!("{at}: a line count above 2^40"));
             }
             for (name, cells) in [("plain", plain), ("sup", sup)] {
                 if cells.len() != nc {
@@ -918,21 +980,30 @@ impl PartitionSums {
         }
         if ens.lines[last_fit] < 100 {
             // the border margin is often why: say how much of the image it
-            // leaves (a 400^2 DEM keeps 92^2 px at the default 5 octaves)
+            // leaves (a 400^2 DEM keeps 112^2 px at the default 5 octaves)
             let margin_note = self
                 .analysis
                 .as_ref()
-                .map(|a| (a.margin_px(), a.scale_list().last().copied().unwrap_or(0.0)))
-                .filter(|&(m, _)| m > 0)
-                .and_then(|(m, a_max)| {
+                .map(|a| {
+                    let a_max = a.scale_list().last().copied().unwrap_or(0.0);
+                    let why = match a.margin {
+                        Some(_) => "as given (--margin)".to_string(),
+                        None => format!(
+                            "set by the largest analysed scale {a_max:.1} px; fewer --octaves \
+                             or a smaller --margin keep more of it"
+                        ),
+                    };
+                    (a.margin_px(), why)
+                })
+                .filter(|(m, _)| *m > 0)
+                .and_then(|(m, why)| {
                     let (ny, nx) = image_shapes
                         .iter()
                         .map(|c| (c.ny, c.nx))
                         .min_by_key(|&(ny, nx)| ny * nx)?;
                     Some(format!(
                         " (the counting domain of a {ny}x{nx} image is {}x{} px: a margin of \
-                         {m} px on every side, set by the largest analysed scale {a_max:.1} px; \
-                         fewer --octaves or a smaller --margin keep more of it)",
+                         {m} px on every side, {why})",
                         ny.saturating_sub(2 * m),
                         nx.saturating_sub(2 * m)
                     ))
@@ -958,11 +1029,26 @@ impl PartitionSums {
             Some(t) => crate::stats::fit::stderr_method_tiles(
                 n_img,
                 t.images.len(),
-                self.images[0].tile_side,
+                &tile_sides(self.images.iter().map(|im| im.tile_side)),
                 &fallback,
                 &mut warnings,
             ),
-            None => crate::stats::fit::stderr_method(n_img, &fallback, &mut warnings),
+            None => {
+                // why a lone image got no tiles: said with the regression
+                let with = self.images.iter().filter(|im| !im.tiles.is_empty()).count();
+                let why = if n_img >= 3 {
+                    ""
+                } else if with == 0 {
+                    ", and the counting domain was not split into jackknife tiles: it holds \
+                     fewer than 2 tiles of twice the largest scale (fewer --octaves or a smaller \
+                     --margin leave room), or the sums come from an older version"
+                } else if with < n_img {
+                    ", and only some of the merged images were split into jackknife tiles"
+                } else {
+                    ", and there are fewer than 3 jackknife tiles"
+                };
+                crate::stats::fit::stderr_method_why(n_img, &fallback, &mut warnings, why)
+            }
         };
         let cell = |v: &Vec<f64>| -> Vec<Vec<f64>> {
             (0..nq)
@@ -1637,6 +1723,76 @@ fn round9(x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The batched leave-one-out ensembles are `ensemble(rule, Some(i))`
+    /// to the bit: random cells with repeats (equal cells), empty cells and
+    /// exponents far apart, 3-152 images, whole and partial batches (an
+    /// independent review's probe).
+    #[test]
+    fn batched_leave_one_out_is_bit_identical() {
+        let mut seed = 7u64;
+        let mut next = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            seed >> 11
+        };
+        for _ in 0..60 {
+            let n_img = 3 + (next() % 150) as usize;
+            let (ns, q) = (4, vec![-2.0, 0.0, 3.0]);
+            let nc = q.len() * ns;
+            let pool: Vec<Cell> = (0..6)
+                .map(|k| Cell {
+                    e: (next() % 5) as i32 - 2,
+                    z: 0.5 + k as f64 * 0.1 + (next() % 1000) as f64 * 1e-3,
+                    zl: (next() % 1000) as f64 * 1e-2 - 5.0,
+                    z2: 0.3,
+                })
+                .collect();
+            let mut cell = || match next() % 10 {
+                0 | 1 => Cell::EMPTY,
+                2..=4 => pool[(next() % 6) as usize],
+                _ => Cell {
+                    e: (next() % 40) as i32 - 20,
+                    z: 1.0 + (next() % 1_000_000) as f64 / 7.0,
+                    zl: (next() % 1_000_000) as f64 / 3.0 - 1e5,
+                    z2: (next() % 1_000_000) as f64 / 11.0,
+                },
+            };
+            let images: Vec<ImagePartial> = (0..n_img)
+                .map(|i| ImagePartial {
+                    label: format!("{i}"),
+                    shape: None,
+                    missing: 0,
+                    lines: vec![5; ns],
+                    sup: (0..nc).map(|_| cell()).collect(),
+                    plain: (0..nc).map(|_| cell()).collect(),
+                    tiles: vec![],
+                    tile_side: 0,
+                })
+                .collect();
+            let s = PartitionSums {
+                version: "1".into(),
+                analysis: None,
+                q,
+                scales: vec![1.0, 2.0, 4.0, 8.0],
+                images,
+            };
+            for rule in [Rule::Sup, Rule::Plain] {
+                for range in [0..n_img, 1..3] {
+                    let batch = s.ensembles_leaving_out(rule, range.clone());
+                    for (b, i) in batch.iter().zip(range) {
+                        let one = s.ensemble(rule, Some(i));
+                        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                        assert_eq!(bits(&one.log2_z), bits(&b.log2_z));
+                        assert_eq!(bits(&one.h), bits(&b.h));
+                        assert_eq!(bits(&one.n_eff), bits(&b.n_eff));
+                        assert_eq!(one.lines, b.lines);
+                    }
+                }
+            }
+        }
+    }
 
     /// Lines whose modulus grows like a^h at every q; the sums say which
     /// wavelet made them.

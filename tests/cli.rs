@@ -1468,6 +1468,20 @@ fn validate_fills_the_published_q_range() {
         .find(|c| c["name"] == "beta (power spectrum)")
         .unwrap();
     assert!(b.get("sample").is_none(), "{b}");
+    // one image: those errors come from its tiles, not the regression
+    let sp = json(&Path::new(&o).join("spectra.json"));
+    let how = sp["stderr_method"].as_str().unwrap();
+    assert_eq!(
+        how, "jackknife over 25 tiles (45 px)",
+        "4 x 11.2 px on the 256 px torus"
+    );
+    let k = json(&Path::new(&o).join("kernel").join("kernel.json"));
+    assert_eq!(
+        k["stderr_method"].as_str(),
+        Some(how),
+        "{}",
+        k["stderr_method"]
+    );
     // the kernel's figures follow `kernel`'s defaults on this 3-octave grid
     // (pairs lowered onto its top); no pdfs, so no reconstruction file
     let k = json(&Path::new(&o).join("kernel").join("kernel.json"));

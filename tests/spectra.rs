@@ -933,7 +933,7 @@ fn few_lines_warning_names_the_counting_domain() {
     };
     let s = image_sums(&Field::new(img), &torus, &[0.0, 2.0], "a").unwrap();
     let sp = s.spectra(Rule::Plain, (0.5, 2.5)).unwrap();
-    assert!(!sp.warnings.iter().any(|w| w.contains("counting domain")));
+    assert!(!sp.warnings.iter().any(|w| w.contains("a margin of")));
 }
 
 /// Are a lone image's error bars believable? Each of N images analysed on
@@ -1081,18 +1081,52 @@ fn tiles_partition_a_lone_image() {
         back.spectra(Rule::Plain, (0.5, 3.0)).unwrap().tau_stderr,
         b.tau_stderr
     );
-    // a tile too short for the scales is refused on reading
+    // files whose tiles were cut or no longer cover the image are refused
+    // on reading, naming the tile or the scale
+    let refused = |bad: &PartitionSums, want: &str| {
+        bad.write_json(&p).unwrap();
+        let e = PartitionSums::read_json(&p).unwrap_err().to_string();
+        assert!(e.contains(want), "{want}: {e}");
+    };
     let mut bad = tiled.clone();
     bad.images[0].tiles[3].lines.pop();
-    let e = bad
-        .spectra(Rule::Plain, (0.5, 3.0))
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("tile 3"), "{e}");
+    refused(&bad, "tile 3");
+    let mut bad = tiled.clone();
+    bad.images[0].tiles.remove(5);
+    refused(&bad, "the tiles must cover the image");
+    let mut bad = tiled.clone();
+    bad.images[0].tile_side = 0;
+    refused(&bad, "tiles come at least in pairs");
     let _ = std::fs::remove_dir_all(&dir);
-    // no room for two tiles: none
+    // no room for two tiles: none, and the regression's warning says why
     let one = wtmm::spectra::skeleton_sums_tiled(&sk, &field, &cfg, &q, "a", 200);
     assert!(one.images[0].tiles.is_empty());
+    let w = one.spectra(Rule::Plain, (0.5, 3.0)).unwrap().warnings;
+    assert!(
+        w.iter()
+            .any(|w| w.contains("regression's") && w.contains("not split into jackknife tiles")),
+        "{w:?}"
+    );
+    // from 3 images on, the tiles are dropped (never read again)
+    let mut three = tiled.clone();
+    three.merge(&tiled).unwrap();
+    assert_eq!(three.images[0].tiles.len(), 16, "2 images keep theirs");
+    three.merge(&tiled).unwrap();
+    assert!(
+        three
+            .images
+            .iter()
+            .all(|im| im.tiles.is_empty() && im.tile_side == 0)
+    );
+    assert_eq!(
+        three
+            .spectra(Rule::Plain, (0.5, 3.0))
+            .unwrap()
+            .stderr_method,
+        "jackknife over images"
+    );
+    // an empty domain has no tiles
+    assert!(wtmm::spectra::TileGrid::new((10, 10, 0, 100), 10).is_none());
 }
 
 /// A lone image's error bars against the truth: 24 fBm images of 256^2

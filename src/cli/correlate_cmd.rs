@@ -1051,13 +1051,17 @@ impl ValidationExtras {
                 informational: !published,
                 below: None,
                 // the worst bin and its error: whether the miss is noise
-                stderr: worst.map(|w| w.stderr).filter(|x| x.is_finite()),
+                stderr: worst.and_then(|w| w.stderr),
                 sample: own_v.filter(|x| x.is_finite()),
                 note: format!(
                     "4 pairs of II Fig 30, ensemble centring{}; per-image centring {v_img:.4}; from dx > max(a1,a2): {:.4}{}",
                     worst.map_or(String::new(), |w| format!(
-                        ", worst at dx = {:.1} px for a1, a2 = {}, {} px (C - theory = {:+.4} +- {:.4})",
-                        w.dx, w.a1, w.a2, w.dev, w.stderr
+                        ", worst at dx = {:.1} px for a1, a2 = {}, {} px (C - theory = {:+.4}{})",
+                        w.dx,
+                        w.a1,
+                        w.a2,
+                        w.dev,
+                        w.stderr.map_or(String::new(), |se| format!(" +- {se:.4}"))
                     )),
                     lit["max_abs_dev_C_ensemble"].as_f64().unwrap_or(f64::NAN),
                     own_note

@@ -785,7 +785,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     body["criteria"] = json!(crit);
     body["pass"] = json!(all_pass);
     body["wall_seconds"] = json!(wall);
-    body["beta"] = json!({"value": beta_fit.beta, "stderr": beta_se, "stderr_method": if beta_se.is_finite() { "jackknife over images" } else { "none (fewer than 3 images)" }, "stderr_regression": beta_fit.beta_stderr, "per_image_sd": beta_sd, "theory": th.beta, "k_range": [k_lo, k_hi], "convention": "angle-averaged"});
+    body["beta"] = json!({"value": beta_fit.beta, "stderr": beta_se, "stderr_method": if beta_se.is_finite() { "jackknife over images" } else if args.count < 3 { "none (fewer than 3 images)" } else { "none (a leave-one-image-out fit failed)" }, "stderr_regression": beta_fit.beta_stderr, "per_image_sd": beta_sd, "theory": th.beta, "k_range": [k_lo, k_hi], "convention": "angle-averaged"});
     body["theory"] = serde_json::to_value(&th).map_err(|e| Error::Input(e.to_string()))?;
     body["estimates"] = json!({"q": s.q, "tau": s.tau, "tau_stderr": s.tau_stderr, "h": s.h, "D": s.d,
         "alternate_rule": {"rule": other.rule, "tau": other.tau, "h": other.h, "D": other.d},

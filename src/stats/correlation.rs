@@ -1668,8 +1668,8 @@ pub struct WorstBin {
     pub dx: f64,
     /// `C - theory` there (signed).
     pub dev: f64,
-    /// Jackknife standard error of `C` there (NaN with < 3 images).
-    pub stderr: f64,
+    /// Jackknife standard error of `C` there (`None` with < 3 images).
+    pub stderr: Option<f64>,
 }
 
 impl CorrelationResult {
@@ -1708,13 +1708,15 @@ impl CorrelationResult {
                         pc.max_abs_dev_ensemble.max((p.c_ensemble[i] - t).abs());
                     pc.bins += 1;
                     let dev = p.c_ensemble[i] - t;
-                    if out.worst_ensemble.is_none_or(|w| dev.abs() > w.dev.abs()) {
+                    if dev.is_finite() && out.worst_ensemble.is_none_or(|w| dev.abs() > w.dev.abs())
+                    {
+                        let se = p.c_ensemble_stderr[i];
                         out.worst_ensemble = Some(WorstBin {
                             a1: p.a1,
                             a2: p.a2,
                             dx,
                             dev,
-                            stderr: p.c_ensemble_stderr[i],
+                            stderr: se.is_finite().then_some(se),
                         });
                     }
                 }
@@ -1918,7 +1920,7 @@ mod tests {
         assert!((c.max_abs_dev_ensemble - 0.04).abs() < 1e-12);
         // the worst ensemble-centred bin, signed, with its error
         let w = c.worst_ensemble.unwrap();
-        assert_eq!((w.a1, w.a2, w.dx, w.stderr), (3.0, 3.0, 60.0, 0.003));
+        assert_eq!((w.a1, w.a2, w.dx, w.stderr), (3.0, 3.0, 60.0, Some(0.003)));
         assert!((w.dev + 0.04).abs() < 1e-12);
         // read literally (dx > sup(a1, a2) px) the 10 px bin counts
         assert!((r.compare_theory(&m, l, 1.0).max_abs_dev - 1.0).abs() < 1e-12);

@@ -60,6 +60,17 @@ pub fn few_groups_warning(n: usize, how: &str) -> Option<String> {
 /// jackknife errors over fewer than [`FEW_IMAGES`] images, are flagged
 /// too: neither is an error bar to put in a paper as it stands.
 pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<String>) -> String {
+    stderr_method_why(n_img, fallback, warnings, "")
+}
+
+/// [`stderr_method`], `why` (e.g. "; the images were not split into
+/// tiles: ...") appended to the warning of fewer than 3 images.
+pub fn stderr_method_why(
+    n_img: usize,
+    fallback: &[String],
+    warnings: &mut Vec<String>,
+    why: &str,
+) -> String {
     if n_img < 3 {
         // The fitted scales of one image see the same structures, so the
         // residuals are correlated and the regression error only measures
@@ -67,8 +78,8 @@ pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<Strin
         // it was 4-7 times below the scatter of tau(q) between images.
         warnings.push(format!(
             "the standard errors are the regression's ({n_img} image{}; a jackknife needs 3 or \
-             more): the fitted scales are not independent, so they understate the uncertainty \
-             several times over",
+             more{why}): the fitted scales are not independent, so they understate the \
+             uncertainty several times over",
             if n_img == 1 { "" } else { "s" }
         ));
         return "regression".into();
@@ -94,7 +105,7 @@ pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<Strin
 pub fn stderr_method_tiles(
     n_img: usize,
     n_tiles: usize,
-    side: usize,
+    side: &str,
     fallback: &[String],
     warnings: &mut Vec<String>,
 ) -> String {

@@ -461,6 +461,13 @@ impl KernelSums {
             ));
         }
         self.images.extend(other.images.iter().cloned());
+        // tiles serve fewer than 3 images only (as PartitionSums::merge)
+        if self.images.len() >= 3 {
+            for im in &mut self.images {
+                im.tiles = Vec::new();
+                im.tile_side = 0;
+            }
+        }
         Ok(())
     }
 
@@ -1177,11 +1184,21 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         Some(t) => crate::stats::fit::stderr_method_tiles(
             n_img,
             t.len(),
-            s.images[0].tile_side,
+            &crate::spectra::tile_sides(s.images.iter().map(|im| im.tile_side)),
             &fallback,
             &mut warnings,
         ),
-        None => crate::stats::fit::stderr_method(n_img, &fallback, &mut warnings),
+        None => {
+            let why = if n_img < 3 && s.images.iter().all(|im| im.tiles.is_empty()) {
+                ", and the counting domain was not split into jackknife tiles (it holds fewer \
+                 than 2 tiles of twice the largest scale, or the sums were made without them)"
+            } else if n_img < 3 {
+                ", and not every image was split into jackknife tiles"
+            } else {
+                ""
+            };
+            crate::stats::fit::stderr_method_why(n_img, &fallback, &mut warnings, why)
+        }
     };
     Ok(KernelResult {
         set: s.set,
