@@ -265,7 +265,10 @@ impl Input {
             Ok((Field::new(img), format!("{} image {i}", self.name)))
         } else {
             let p = &self.images[i];
-            Ok((super::common::read_image(p)?, p.display().to_string()))
+            let field = super::common::read_image(p)?;
+            let (ny, nx) = field.dim();
+            super::common::check_image_memory(p, ny, nx, self.images.len() == 1)?;
+            Ok((field, p.display().to_string()))
         }
     }
 
