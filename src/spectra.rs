@@ -98,7 +98,7 @@ pub struct ImagePartial {
     pub tile_side: usize,
 }
 
-fn is_zero(n: &usize) -> bool {
+pub(crate) fn is_zero(n: &usize) -> bool {
     *n == 0
 }
 

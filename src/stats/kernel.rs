@@ -275,12 +275,8 @@ pub struct KernelImage {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tiles: Vec<Vec<Moments>>,
     /// Side of the tiles in px (0 without tiles).
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::spectra::is_zero")]
     pub tile_side: usize,
-}
-
-fn is_zero(n: &usize) -> bool {
-    *n == 0
 }
 
 /// Mergeable kernel sums of an ensemble (one partial per image).
