@@ -1034,19 +1034,8 @@ impl PartitionSums {
                 &mut warnings,
             ),
             None => {
-                // why a lone image got no tiles: said with the regression
                 let with = self.images.iter().filter(|im| !im.tiles.is_empty()).count();
-                let why = if n_img >= 3 {
-                    ""
-                } else if with == 0 {
-                    ", and the counting domain was not split into jackknife tiles: it holds \
-                     fewer than 2 tiles of twice the largest scale (fewer --octaves or a smaller \
-                     --margin leave room), or the sums come from an older version"
-                } else if with < n_img {
-                    ", and only some of the merged images were split into jackknife tiles"
-                } else {
-                    ", and there are fewer than 3 jackknife tiles"
-                };
+                let why = crate::stats::fit::no_tiles_why(n_img, with);
                 crate::stats::fit::stderr_method_why(n_img, &fallback, &mut warnings, why)
             }
         };

@@ -63,6 +63,23 @@ pub fn stderr_method(n_img: usize, fallback: &[String], warnings: &mut Vec<Strin
     stderr_method_why(n_img, fallback, warnings, "")
 }
 
+/// Why fewer than 3 images (`n_img`, `with_tiles` of them split into
+/// tiles) got no tile jackknife, for [`stderr_method_why`]; empty from 3
+/// images on. One text for the spectra and the kernel.
+pub fn no_tiles_why(n_img: usize, with_tiles: usize) -> &'static str {
+    if n_img >= 3 {
+        ""
+    } else if with_tiles == 0 {
+        ", and the counting domain was not split into jackknife tiles: it holds fewer than 2 \
+         tiles of twice the largest scale (fewer --octaves or a smaller --margin leave room), \
+         or the sums were made without them"
+    } else if with_tiles < n_img {
+        ", and only some of the images were split into jackknife tiles"
+    } else {
+        ", and there are fewer than 3 jackknife tiles"
+    }
+}
+
 /// [`stderr_method`], `why` (e.g. "; the images were not split into
 /// tiles: ...") appended to the warning of fewer than 3 images.
 pub fn stderr_method_why(

@@ -1185,14 +1185,8 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             &mut warnings,
         ),
         None => {
-            let why = if n_img < 3 && s.images.iter().all(|im| im.tiles.is_empty()) {
-                ", and the counting domain was not split into jackknife tiles (it holds fewer \
-                 than 2 tiles of twice the largest scale, or the sums were made without them)"
-            } else if n_img < 3 {
-                ", and not every image was split into jackknife tiles"
-            } else {
-                ""
-            };
+            let with = s.images.iter().filter(|im| !im.tiles.is_empty()).count();
+            let why = crate::stats::fit::no_tiles_why(n_img, with);
             crate::stats::fit::stderr_method_why(n_img, &fallback, &mut warnings, why)
         }
     };
