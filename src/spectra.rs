@@ -156,6 +156,20 @@ impl TileGrid {
         false
     }
 
+    /// Rows `[ya, yb)` and columns `[xa, xb)` of tile `k`: the pixels of
+    /// the domain that [`Self::index`] puts in it.
+    pub fn bounds(&self, k: usize) -> (usize, usize, usize, usize) {
+        let (ty, tx) = (k / self.ntx, k % self.ntx);
+        // y is in row ty iff ty h <= (y - y0) nty < (ty + 1) h
+        let lo = |t: usize, len: usize, n: usize| (t * len).div_ceil(n);
+        (
+            self.y0 + lo(ty, self.h, self.nty),
+            self.y0 + lo(ty + 1, self.h, self.nty),
+            self.x0 + lo(tx, self.w, self.ntx),
+            self.x0 + lo(tx + 1, self.w, self.ntx),
+        )
+    }
+
     /// The tile holding pixel `(x, y)` (row-major; points outside the
     /// domain go to the nearest tile).
     pub fn index(&self, x: u32, y: u32) -> usize {
@@ -1712,6 +1726,32 @@ fn round9(x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A tile's bounds hold exactly the domain's pixels `index` puts in it,
+    /// for sides that do and do not divide the domain.
+    #[test]
+    fn tile_bounds_agree_with_index() {
+        for (dom, side) in [
+            ((0, 20, 0, 31), 7),
+            ((3, 40, 5, 17), 12),
+            ((0, 9, 0, 9), 3),
+            ((2, 29, 1, 30), 10),
+        ] {
+            let g = TileGrid::new(dom, side).unwrap();
+            let mut seen = 0;
+            for k in 0..g.len() {
+                let (ya, yb, xa, xb) = g.bounds(k);
+                assert!(ya < yb && xa < xb, "{dom:?} {side}: tile {k} empty");
+                for y in ya..yb {
+                    for x in xa..xb {
+                        assert_eq!(g.index(x as u32, y as u32), k, "{dom:?} {side}");
+                        seen += 1;
+                    }
+                }
+            }
+            assert_eq!(seen, (dom.1 - dom.0) * (dom.3 - dom.2), "{dom:?} {side}");
+        }
+    }
 
     /// The batched leave-one-out ensembles are `ensemble(rule, Some(i))`
     /// to the bit: random cells with repeats (equal cells), empty cells and

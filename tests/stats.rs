@@ -11,7 +11,8 @@ use wtmm::cwt::{CwtPlan, Wavelet, modulus};
 use wtmm::skeleton::{AnalysisConfig, Parallelism};
 use wtmm::stats::correlation::{
     CorrelationConfig, CorrelationPlan, CorrelationSums, Magnitude, correlation_estimates,
-    cwt_correlation, field_correlation, wtmmm_correlation,
+    cwt_correlation, cwt_correlation_tiled, field_correlation, wtmmm_correlation,
+    wtmmm_correlation_tiled,
 };
 use wtmm::stats::kernel::{KernelConfig, KernelOptions, KernelSums, kernel_estimates, reconstruct};
 use wtmm::stats::pdf::{
@@ -1046,6 +1047,303 @@ fn brute_force_check(magnitude: Magnitude, scales: Vec<f64>) {
                 assert!(
                     (pc.c_ensemble[o] - be.num[k] / be.cnt[k]).abs() <= tol(ne),
                     "{ctx}: C_ensemble"
+                );
+            }
+        }
+    }
+}
+
+/// Delete-one-tile jackknife of the correlation, by brute force: each
+/// replicate leaves out the pairs whose first point lies in one tile and
+/// centres every point again on the mean of the points outside it (per
+/// image for `C`, pooled over the images for `C_ensemble`). `pts[i][s]` are
+/// image i's points at scale s (domain coordinates for the tile), not
+/// centred. Returns, per pair and bin, the errors of `C` and `C_ensemble`.
+/// Points `(y, x, value)` of each image at each scale.
+type ImagePoints = Vec<Vec<(usize, usize, f64)>>;
+
+#[allow(clippy::too_many_arguments)]
+fn brute_tile_errors(
+    pts: &[ImagePoints],
+    tile_of: &dyn Fn(usize, usize) -> usize,
+    n_tiles: usize,
+    pairs: &[(usize, usize)],
+    shape: (usize, usize),
+    periodic: bool,
+    max_dx: f64,
+    bpo: usize,
+    nbins: usize,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let ns = pts[0].len();
+    let mean = |v: &[&(usize, usize, f64)]| v.iter().map(|p| p.2).sum::<f64>() / v.len() as f64;
+    // one replicate per (image, tile): (C, C_ensemble) per pair and bin
+    let mut reps: Vec<Vec<(Vec<f64>, Vec<f64>)>> = Vec::new();
+    for i in 0..pts.len() {
+        for t in 0..n_tiles {
+            let out_of = |j: usize, p: &(usize, usize, f64)| j != i || tile_of(p.0, p.1) != t;
+            // per image and scale: the mean of the points left
+            let own: Vec<Vec<f64>> = (0..pts.len())
+                .map(|j| {
+                    (0..ns)
+                        .map(|s| {
+                            let v: Vec<_> = pts[j][s].iter().filter(|p| out_of(j, p)).collect();
+                            mean(&v)
+                        })
+                        .collect()
+                })
+                .collect();
+            let pooled: Vec<f64> = (0..ns)
+                .map(|s| {
+                    let v: Vec<_> = (0..pts.len())
+                        .flat_map(|j| pts[j][s].iter().filter(move |p| out_of(j, p)))
+                        .collect();
+                    mean(&v)
+                })
+                .collect();
+            let rep = pairs
+                .iter()
+                .map(|&(s1, s2)| {
+                    let mut c = (vec![0.0; nbins], vec![0.0; nbins]);
+                    for (which, out) in [&mut c.0, &mut c.1].into_iter().enumerate() {
+                        let mut b = Brute {
+                            num: vec![0.0; nbins],
+                            cnt: vec![0.0; nbins],
+                            lc: vec![0.0; nbins],
+                        };
+                        for j in 0..pts.len() {
+                            let m = |s: usize| if which == 0 { own[j][s] } else { pooled[s] };
+                            let first: Vec<_> = pts[j][s1]
+                                .iter()
+                                .filter(|p| out_of(j, p))
+                                .map(|&(y, x, v)| (y, x, v - m(s1)))
+                                .collect();
+                            let second: Vec<_> = pts[j][s2]
+                                .iter()
+                                .map(|&(y, x, v)| (y, x, v - m(s2)))
+                                .collect();
+                            brute_pairs(
+                                &first, &second, shape, periodic, max_dx, bpo, nbins, &mut b,
+                            );
+                        }
+                        for ((o, n), c) in out.iter_mut().zip(&b.num).zip(&b.cnt) {
+                            *o = n / c;
+                        }
+                    }
+                    c
+                })
+                .collect();
+            reps.push(rep);
+        }
+    }
+    let se = |v: Vec<f64>| {
+        let n = v.len() as f64;
+        let m = v.iter().sum::<f64>() / n;
+        ((n - 1.0) / n * v.iter().map(|x| (x - m).powi(2)).sum::<f64>()).sqrt()
+    };
+    (0..pairs.len())
+        .map(|p| {
+            let per = |which: usize| -> Vec<f64> {
+                (0..nbins)
+                    .map(|k| {
+                        se(reps
+                            .iter()
+                            .map(|r| if which == 0 { r[p].0[k] } else { r[p].1[k] })
+                            .collect())
+                    })
+                    .collect()
+            };
+            (per(0), per(1))
+        })
+        .collect()
+}
+
+/// A lone image's correlation errors (and two images') come from a
+/// jackknife over tiles of its domain: the tile sums add up to the image's
+/// (pair counts exactly), and the errors equal a brute-force
+/// leave-one-tile-out over every pair, re-centred, on the torus and the
+/// interior, with every point valid and with a mask (eps), for ln M on the
+/// CWT grid and for the skeleton's WTMMM.
+#[test]
+fn tile_jackknife_of_the_correlation_equals_brute_force() {
+    let (ny, nx) = (26, 31);
+    let scales = vec![1.3, 2.1];
+    let pairs = vec![(0, 0), (1, 0), (0, 1)];
+    let bpo = 3;
+    for (periodic, margin, max_dx, eps, n_img) in [
+        (true, 0, 11.0, 1e-7, 1),
+        (false, 3, 9.5, 1e-7, 1),
+        (true, 0, 11.0, 0.3, 2),
+        (false, 3, 9.5, 0.3, 1),
+    ] {
+        let ctx = format!("periodic={periodic} eps={eps} images={n_img}");
+        let cfg = CorrelationConfig {
+            scales: scales.clone(),
+            pairs: pairs.clone(),
+            periodic,
+            margin: Some(margin),
+            bins_per_octave: bpo,
+            max_dx: Some(max_dx),
+            eps,
+            ..Default::default()
+        };
+        let plan = CorrelationPlan::new(ny, nx, &cfg).unwrap();
+        let dom = (margin, ny - margin, margin, nx - margin);
+        let (dy, dx) = (dom.1 - dom.0, dom.3 - dom.2);
+        // 3 x 3 tiles of a domain of 20-31 px
+        let side = dy.min(dx) / 3;
+        let grid = wtmm::spectra::TileGrid::new((0, dy, 0, dx), side).unwrap();
+        let imgs: Vec<Array2<f64>> = (0..n_img)
+            .map(|i| noise_field(ny, nx, 300 + i as u64))
+            .collect();
+        let mut sums: Option<CorrelationSums> = None;
+        for (i, img) in imgs.iter().enumerate() {
+            let s = cwt_correlation_tiled(&Field::new(img.clone()), &plan, format!("{i}"), side)
+                .unwrap();
+            let im = &s.images[0];
+            assert_eq!((im.tiles.len(), im.tile_side), (grid.len(), side), "{ctx}");
+            // the tiles add up to the image
+            for (s_, &n) in im.n.iter().enumerate() {
+                let tn: f64 = im.tiles.iter().map(|t| t.n[s_]).sum();
+                let tw: f64 = im.tiles.iter().map(|t| t.wsum[s_]).sum();
+                assert_eq!(tn, n, "{ctx}");
+                assert!(tw.abs() < 1e-9 * n, "{ctx}: sum of w̃ {tw}");
+            }
+            for (p, ps) in im.pairs.iter().enumerate() {
+                let add = |f: &dyn Fn(&wtmm::stats::correlation::PairSums) -> &Vec<f64>| {
+                    let mut v = vec![0.0; f(ps).len()];
+                    for t in &im.tiles {
+                        for (a, b) in v.iter_mut().zip(f(&t.pairs[p])) {
+                            *a += b;
+                        }
+                    }
+                    v
+                };
+                assert_eq!(add(&|q| &q.count), ps.count, "{ctx}: counts");
+                for (a, b) in add(&|q| &q.lcount).iter().zip(&ps.lcount) {
+                    assert!((a - b).abs() < 1e-9 * b.abs().max(1.0), "{ctx}: lcount");
+                }
+                type Get = fn(&wtmm::stats::correlation::PairSums) -> &Vec<f64>;
+                let gets: [Get; 3] = [|q| &q.ww, |q| &q.wm, |q| &q.mw];
+                for f in gets {
+                    let scale = ps.count.iter().fold(1.0f64, |m, v| m.max(*v));
+                    for (a, b) in add(&f).iter().zip(f(ps)) {
+                        // f32 FFTs of fields of order 1: 1e-5 of the pair count
+                        assert!((a - b).abs() < 1e-5 * scale, "{ctx}: {a} vs {b}");
+                    }
+                }
+            }
+            match &mut sums {
+                None => sums = Some(s),
+                Some(a) => a.merge(&s).unwrap(),
+            }
+        }
+        let r = correlation_estimates(&sums.unwrap()).unwrap();
+        assert_eq!(
+            r.stderr_method,
+            format!("jackknife over {} tiles ({side} px)", n_img * grid.len()),
+            "{ctx}"
+        );
+        let raw: Vec<Vec<Vec<(usize, usize, f64)>>> = imgs
+            .iter()
+            .map(|im| magnitude_points(im, &scales, dom, eps, Magnitude::Lnm))
+            .collect();
+        let nbins = bin_of(max_dx, bpo) + 1;
+        let tile_of = |y: usize, x: usize| grid.index((x - margin) as u32, (y - margin) as u32);
+        let want = brute_tile_errors(
+            &raw,
+            &tile_of,
+            grid.len(),
+            &pairs,
+            (ny, nx),
+            periodic,
+            max_dx,
+            bpo,
+            nbins,
+        );
+        let mut checked = 0;
+        for (p, (se, se_e)) in want.iter().enumerate() {
+            let pc = &r.pairs[p];
+            let keep: Vec<usize> = (0..nbins).filter(|&k| se[k].is_finite()).collect();
+            assert_eq!(pc.c_stderr.len(), keep.len(), "{ctx}");
+            for (o, &k) in keep.iter().enumerate() {
+                // the replicates' f32 rounding (about 1e-7 of C) against
+                // errors of order 1e-2
+                let (a, b) = (pc.c_stderr[o], se[k]);
+                assert!(
+                    (a - b).abs() < 1e-4 * b + 1e-6,
+                    "{ctx} pair {p} bin {k}: {a} vs {b}"
+                );
+                let (a, b) = (pc.c_ensemble_stderr[o], se_e[k]);
+                assert!(
+                    (a - b).abs() < 1e-4 * b + 1e-6,
+                    "{ctx} pair {p} bin {k}: {a} vs {b}"
+                );
+                checked += (b > 1e-3) as usize;
+            }
+        }
+        assert!(checked > 10, "{ctx}: {checked} bins with an error to check");
+    }
+    // the skeleton's points (per-scale weights): random WTMMM, one image
+    let mut rng = rng_for(9, 0);
+    let u = Normal::<f64>::new(0.0, 1.0).unwrap();
+    let (ny, nx) = (30, 27);
+    let pts: Vec<Vec<Point>> = (0..2)
+        .map(|_| {
+            (0..160)
+                .map(|_| Point {
+                    y: ((u.sample(&mut rng).abs() * 1e6) as usize % ny) as u32,
+                    x: ((u.sample(&mut rng).abs() * 1e6) as usize % nx) as u32,
+                    m: u.sample(&mut rng).exp(),
+                    arg: 0.0,
+                })
+                .collect()
+        })
+        .collect();
+    for periodic in [true, false] {
+        let cfg = CorrelationConfig {
+            scales: vec![1.5, 3.0],
+            pairs: vec![(0, 1), (1, 1)],
+            periodic,
+            margin: Some(0),
+            bins_per_octave: 4,
+            max_dx: Some(12.0),
+            ..Default::default()
+        };
+        let plan = CorrelationPlan::new(ny, nx, &cfg).unwrap();
+        let refs: Vec<&[Point]> = pts.iter().map(|v| v.as_slice()).collect();
+        let s = wtmmm_correlation_tiled(&refs, &plan, "x", 10).unwrap();
+        let grid = wtmm::spectra::TileGrid::new((0, ny, 0, nx), 10).unwrap();
+        assert_eq!(s.images[0].tiles.len(), 6);
+        let r = correlation_estimates(&s).unwrap();
+        let raw = vec![
+            pts.iter()
+                .map(|v| {
+                    v.iter()
+                        .map(|q| (q.y as usize, q.x as usize, q.m.ln()))
+                        .collect()
+                })
+                .collect::<Vec<_>>(),
+        ];
+        let nbins = bin_of(12.0, 4) + 1;
+        let tile_of = |y: usize, x: usize| grid.index(x as u32, y as u32);
+        let want = brute_tile_errors(
+            &raw,
+            &tile_of,
+            grid.len(),
+            &cfg.pairs,
+            (ny, nx),
+            periodic,
+            12.0,
+            4,
+            nbins,
+        );
+        for (p, (se, _)) in want.iter().enumerate() {
+            let keep: Vec<usize> = (0..nbins).filter(|&k| se[k].is_finite()).collect();
+            for (o, &k) in keep.iter().enumerate() {
+                let (a, b) = (r.pairs[p].c_stderr[o], se[k]);
+                assert!(
+                    (a - b).abs() < 1e-4 * b + 1e-6,
+                    "wtmmm periodic={periodic} pair {p} bin {k}: {a} vs {b}"
                 );
             }
         }

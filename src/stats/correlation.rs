@@ -320,13 +320,27 @@ impl RFft2 {
         row: &mut [f32],
         scratch: &mut [Complex32],
     ) {
+        self.forward_rows(field, 0..self.rows_in, half, out, row, scratch);
+    }
+
+    /// [`Self::forward`] of a field known to be zero outside `rows` (a
+    /// tile's band): the other rows cost no row FFT.
+    fn forward_rows(
+        &self,
+        field: &[f64],
+        rows: std::ops::Range<usize>,
+        half: &mut [Complex32],
+        out: &mut [Complex32],
+        row: &mut [f32],
+        scratch: &mut [Complex32],
+    ) {
         let (fx, fy, nh, cs) = (self.fx, self.fy, self.nh, self.cs);
         for (y, (src, h)) in field
             .chunks_exact(fx)
             .zip(half.chunks_exact_mut(nh))
             .enumerate()
         {
-            if y >= self.rows_in {
+            if !rows.contains(&y) || y >= self.rows_in {
                 h.fill(Complex32::default());
                 continue;
             }
@@ -794,32 +808,39 @@ impl CorrelationPlan {
         let mut out = Vec::with_capacity(requests.len());
         for &(a, b, counts) in requests {
             self.fft.correlate(&spec[a], &spec[b], x, half, r, scratch);
-            if counts {
-                for run in &self.runs {
-                    let (i, n) = (run.start as usize, run.len as usize);
-                    r[i..i + n].iter_mut().for_each(|v| *v = v.round());
-                }
-            }
-            let mut s = vec![0.0; self.n_bins + 1];
-            let mut sl = Vec::new();
-            for run in &self.runs {
-                let (i, n) = (run.start as usize, run.len as usize);
-                s[run.bin as usize] += slice_sum(&r[i..i + n]);
-            }
-            if counts {
-                sl = vec![0.0; self.n_bins + 1];
-                for run in &self.runs {
-                    let (i, n) = (run.start as usize, run.len as usize);
-                    sl[run.bin as usize] += r[i..i + n]
-                        .iter()
-                        .zip(&self.l2[i..i + n])
-                        .map(|(&v, &l)| v as f64 * l as f64)
-                        .sum::<f64>();
-                }
-            }
-            out.push((s, sl));
+            out.push(self.bin(r, counts));
         }
         out
+    }
+
+    /// Bins one correlation `r` (lags on the FFT grid): per bin `Σ r` and,
+    /// if `counts` (integer weights: `r` is rounded first, see
+    /// [`Self::binned`]), `Σ r log2 |d|` (else empty).
+    fn bin(&self, r: &mut [f32], counts: bool) -> (Vec<f64>, Vec<f64>) {
+        if counts {
+            for run in &self.runs {
+                let (i, n) = (run.start as usize, run.len as usize);
+                r[i..i + n].iter_mut().for_each(|v| *v = v.round());
+            }
+        }
+        let mut s = vec![0.0; self.n_bins + 1];
+        let mut sl = Vec::new();
+        for run in &self.runs {
+            let (i, n) = (run.start as usize, run.len as usize);
+            s[run.bin as usize] += slice_sum(&r[i..i + n]);
+        }
+        if counts {
+            sl = vec![0.0; self.n_bins + 1];
+            for run in &self.runs {
+                let (i, n) = (run.start as usize, run.len as usize);
+                sl[run.bin as usize] += r[i..i + n]
+                    .iter()
+                    .zip(&self.l2[i..i + n])
+                    .map(|(&v, &l)| v as f64 * l as f64)
+                    .sum::<f64>();
+            }
+        }
+        (s, sl)
     }
 
     /// Per-image sums from per-scale fields (values `w̃_s m_s` on the FFT
@@ -887,7 +908,21 @@ impl CorrelationPlan {
                 }
             }
         }
-        let res = self.binned(ws, n_fields, &requests);
+        let (dy, dx) = (self.y1 - self.y0, self.x1 - self.x0);
+        let grid = crate::spectra::TileGrid::new((0, dy, 0, dx), f.tile_side);
+        let saved = grid
+            .as_ref()
+            .map(|g| self.tile_inputs(ws, g, &f.weights, ns, n_fields));
+        // a tiled image with uniform weights FFTs its domain's indicator too
+        let n_fwd = match (&saved, &f.weights) {
+            (Some(_), Weights::Uniform | Weights::Rect) => n_fields + 1,
+            _ => n_fields,
+        };
+        let res = self.binned(ws, n_fwd, &requests);
+        let tiles = match (grid, saved) {
+            (Some(g), Some(sv)) => self.tile_sums(ws, &g, &f.weights, ns, sv),
+            _ => Vec::new(),
+        };
         let (lag_n, lag_l) = (&self.lag_n, &self.lag_l);
         let nb = self.n_bins + 1;
         let pairs = (0..np)
@@ -931,9 +966,158 @@ impl CorrelationPlan {
             mean: f.means,
             n: f.totals,
             pairs,
+            tile_side: if tiles.is_empty() { 0 } else { f.tile_side },
+            tiles,
         });
         s
     }
+
+    /// Before the image's FFTs destroy its fields: per tile and scale the
+    /// points and `Σ w̃`, and copies of the fields a tile's first points
+    /// need (the values of the pairs' first scales and their weights). With
+    /// uniform weights, writes the domain's indicator as field `ns` (which
+    /// the image's FFTs then transform).
+    fn tile_inputs(
+        &self,
+        ws: &mut Workspace,
+        g: &crate::spectra::TileGrid,
+        weights: &Weights,
+        ns: usize,
+        n_fields: usize,
+    ) -> TileInputs {
+        let (dy, dx, fx) = (self.y1 - self.y0, self.x1 - self.x0, self.fft.fx);
+        let mut firsts: Vec<usize> = self.cfg.pairs.iter().map(|p| p.0).collect();
+        firsts.sort_unstable();
+        firsts.dedup();
+        if matches!(weights, Weights::Uniform | Weights::Rect) {
+            while ws.fields.len() <= n_fields {
+                ws.fields.push(Vec::new());
+            }
+            let m = &mut ws.fields[n_fields];
+            m.clear();
+            m.resize(self.fft.fy * fx, 0.0);
+            for y in 0..dy {
+                m[y * fx..y * fx + dx].fill(1.0);
+            }
+        }
+        // the weight field of scale s: the domain's indicator (field ns
+        // above), the common mask (ns) or the scale's own (ns + s)
+        let wf = |s: usize| match weights {
+            Weights::PerScale => ns + s,
+            _ => ns,
+        };
+        let mut n = vec![vec![0.0; ns]; g.len()];
+        let mut wsum = vec![vec![0.0; ns]; g.len()];
+        for s in 0..ns {
+            let (v, m) = (&ws.fields[s], &ws.fields[wf(s)]);
+            for y in 0..dy {
+                for x in 0..dx {
+                    let k = y * fx + x;
+                    let t = g.index(x as u32, y as u32);
+                    n[t][s] += m[k];
+                    wsum[t][s] += v[k];
+                }
+            }
+        }
+        let values = firsts.iter().map(|&s| ws.fields[s].clone()).collect();
+        let mut wts: Vec<usize> = firsts.iter().map(|&s| wf(s)).collect();
+        wts.dedup();
+        let weights = wts.iter().map(|&j| ws.fields[j].clone()).collect();
+        TileInputs {
+            firsts,
+            values,
+            weights,
+            n,
+            wsum,
+        }
+    }
+
+    /// Per tile, the pair sums whose first point lies in it: the first
+    /// scale's values and weights cut to the tile, correlated with the
+    /// whole image's spectra (`ws.spec`, left by [`Self::binned`]).
+    fn tile_sums(
+        &self,
+        ws: &mut Workspace,
+        g: &crate::spectra::TileGrid,
+        weights: &Weights,
+        ns: usize,
+        inp: TileInputs,
+    ) -> Vec<CorrelationTile> {
+        let (fy, fx, nh, cs) = (self.fft.fy, self.fft.fx, self.fft.nh, self.fft.cs);
+        let full = std::mem::take(&mut ws.spec);
+        let wfull = |s: usize| match weights {
+            Weights::PerScale => ns + s,
+            _ => ns,
+        };
+        let nv = inp.firsts.len();
+        let n_tf = nv + inp.weights.len();
+        let mut spec: Vec<Vec<Complex32>> = vec![vec![Complex32::default(); nh * cs]; n_tf];
+        let mut cut = vec![0.0f64; fy * fx];
+        let mut out = Vec::with_capacity(g.len());
+        for t in 0..g.len() {
+            let (ya, yb, xa, xb) = g.bounds(t);
+            for (src, sp) in inp.values.iter().chain(&inp.weights).zip(spec.iter_mut()) {
+                cut.fill(0.0);
+                for y in ya..yb {
+                    cut[y * fx + xa..y * fx + xb].copy_from_slice(&src[y * fx + xa..y * fx + xb]);
+                }
+                self.fft
+                    .forward_rows(&cut, ya..yb, &mut ws.half, sp, &mut ws.row, &mut ws.scratch);
+            }
+            let pairs = self
+                .cfg
+                .pairs
+                .iter()
+                .map(|&(s1, s2)| {
+                    let jv = inp.firsts.iter().position(|&s| s == s1).expect("listed");
+                    // the first scale's weights in the tile
+                    let jm = nv + if inp.weights.len() == 1 { 0 } else { jv };
+                    let mut one = |a: &[Complex32], b: &[Complex32], counts: bool| {
+                        self.fft.correlate(
+                            a,
+                            b,
+                            &mut ws.x,
+                            &mut ws.half,
+                            &mut ws.r,
+                            &mut ws.scratch,
+                        );
+                        self.bin(&mut ws.r, counts)
+                    };
+                    let ww = one(&spec[jv], &full[s2], false).0;
+                    let wm = one(&spec[jv], &full[wfull(s2)], false).0;
+                    let mw = one(&spec[jm], &full[s2], false).0;
+                    let (count, lcount) = one(&spec[jm], &full[wfull(s2)], true);
+                    PairSums {
+                        ww,
+                        wm,
+                        mw,
+                        count,
+                        lcount,
+                    }
+                })
+                .collect();
+            out.push(CorrelationTile {
+                n: inp.n[t].clone(),
+                wsum: inp.wsum[t].clone(),
+                pairs,
+            });
+        }
+        ws.spec = full;
+        out
+    }
+}
+
+/// What [`CorrelationPlan::tile_sums`] needs of an image's fields.
+struct TileInputs {
+    /// The distinct first scales of the pairs.
+    firsts: Vec<usize>,
+    /// Their value fields, in the order of `firsts`.
+    values: Vec<Vec<f64>>,
+    /// Their weight fields: one shared, or one per first scale.
+    weights: Vec<Vec<f64>>,
+    /// Per tile and scale: points and `Σ w̃`.
+    n: Vec<Vec<f64>>,
+    wsum: Vec<Vec<f64>>,
 }
 
 /// Weights `m_s` of the per-scale fields `ws.fields[s]`, `s < n_vals`.
@@ -992,6 +1176,8 @@ struct ScaleFields {
     weights: Weights,
     means: Vec<f64>,
     totals: Vec<f64>,
+    /// Side of the jackknife tiles (px; 0: none).
+    tile_side: usize,
 }
 
 /// Binned sums of one pair of scales for one image; index 0 is lag 0,
@@ -1022,6 +1208,85 @@ pub struct CorrelationImage {
     pub n: Vec<f64>,
     /// One set of binned sums per pair of scales, in the order of `pairs`.
     pub pairs: Vec<PairSums>,
+    /// The same sums split by the tile of the pair's first point (the
+    /// jackknife groups of fewer than 3 images; empty unless asked for).
+    /// They add up to `pairs`, and their `n` to `n`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tiles: Vec<CorrelationTile>,
+    /// Side of the tiles in px (0 without tiles).
+    #[serde(default, skip_serializing_if = "crate::spectra::is_zero")]
+    pub tile_side: usize,
+}
+
+/// The part of a [`CorrelationImage`] whose first points lie in one tile
+/// of the domain. Values are centred with the image's mean, as the image's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CorrelationTile {
+    /// Valid points in the tile, per scale.
+    pub n: Vec<f64>,
+    /// `Σ w̃` over the tile's points, per scale.
+    pub wsum: Vec<f64>,
+    /// Per pair of scales, the sums over the pairs whose first point is in
+    /// the tile.
+    pub pairs: Vec<PairSums>,
+}
+
+impl CorrelationImage {
+    /// The image without the pairs whose first point lies in tile `k`,
+    /// centred again on the mean of the points outside the tile: a
+    /// leave-one-tile-out replicate. `pairs` are the sums' scale pairs.
+    fn without_tile(&self, k: usize, pairs: &[(usize, usize)]) -> CorrelationImage {
+        let t = &self.tiles[k];
+        let n: Vec<f64> = self.n.iter().zip(&t.n).map(|(a, b)| a - b).collect();
+        // w̃ sums to 0 over the image, so the points left sum to -wsum:
+        // their mean is the image's plus e, and w̃ becomes w̃ - e
+        let e: Vec<f64> = t
+            .wsum
+            .iter()
+            .zip(&n)
+            .map(|(w, n)| if *n > 0.0 { -w / n } else { 0.0 })
+            .collect();
+        let mean = self.mean.iter().zip(&e).map(|(m, e)| m + e).collect();
+        let pairs = self
+            .pairs
+            .iter()
+            .zip(&t.pairs)
+            .zip(pairs)
+            .map(|((a, b), &(s1, s2))| {
+                let (e1, e2) = (e[s1], e[s2]);
+                let nb = a.ww.len();
+                let mut o = PairSums {
+                    ww: vec![0.0; nb],
+                    wm: vec![0.0; nb],
+                    mw: vec![0.0; nb],
+                    count: vec![0.0; nb],
+                    lcount: vec![0.0; nb],
+                };
+                for i in 0..nb {
+                    let (ww, wm, mw, c) = (
+                        a.ww[i] - b.ww[i],
+                        a.wm[i] - b.wm[i],
+                        a.mw[i] - b.mw[i],
+                        a.count[i] - b.count[i],
+                    );
+                    o.ww[i] = ww - e2 * wm - e1 * mw + e1 * e2 * c;
+                    o.wm[i] = wm - e1 * c;
+                    o.mw[i] = mw - e2 * c;
+                    o.count[i] = c;
+                    o.lcount[i] = a.lcount[i] - b.lcount[i];
+                }
+                o
+            })
+            .collect();
+        CorrelationImage {
+            label: self.label.clone(),
+            mean,
+            n,
+            pairs,
+            tiles: Vec::new(),
+            tile_side: 0,
+        }
+    }
 }
 
 /// Mergeable correlation sums of an ensemble (one partial per image).
@@ -1078,6 +1343,13 @@ impl CorrelationSums {
             ));
         }
         self.images.extend(other.images.iter().cloned());
+        // tiles serve fewer than 3 images only (as PartitionSums::merge)
+        if self.images.len() >= 3 {
+            for im in &mut self.images {
+                im.tiles = Vec::new();
+                im.tile_side = 0;
+            }
+        }
         Ok(())
     }
 }
@@ -1095,6 +1367,23 @@ pub fn cwt_correlation(
     plan: &CorrelationPlan,
     label: impl Into<String>,
 ) -> Result<CorrelationSums> {
+    cwt_correlation_tiled(field, plan, label, 0)
+}
+
+/// [`cwt_correlation`], with the sums also split by the tile of each
+/// pair's first point, tiles of about `tile_side` px over the domain
+/// ([`crate::spectra::TileGrid`]; none when fewer than 2 fit or the side
+/// is 0): the jackknife groups of a lone image
+/// ([`correlation_estimates`]). Each tile costs one FFT per distinct first
+/// scale plus one, and four inverse FFTs per pair.
+///
+/// **Errors** as [`cwt_correlation`].
+pub fn cwt_correlation_tiled(
+    field: &Field,
+    plan: &CorrelationPlan,
+    label: impl Into<String>,
+    tile_side: usize,
+) -> Result<CorrelationSums> {
     let (ny, nx) = field.dim();
     if (ny, nx) != (plan.ny, plan.nx) {
         return Err(Error::Input(format!(
@@ -1105,7 +1394,7 @@ pub fn cwt_correlation(
     let img = field.filled()?;
     let fi = plan.cwt.forward(img.view())?;
     let mut ws = plan.take();
-    let out = cwt_correlation_in(field, &fi, plan, &mut ws, label.into());
+    let out = cwt_correlation_in(field, &fi, plan, &mut ws, label.into(), tile_side);
     plan.give(ws);
     out
 }
@@ -1116,6 +1405,7 @@ fn cwt_correlation_in(
     plan: &CorrelationPlan,
     ws: &mut Workspace,
     label: String,
+    tile_side: usize,
 ) -> Result<CorrelationSums> {
     let nx = plan.nx;
     let cfg = &plan.cfg;
@@ -1218,7 +1508,9 @@ fn cwt_correlation_in(
                 .into(),
         ));
     }
-    Ok(centred_sums(plan, ws, valid, n_valid, "cwt", label))
+    Ok(centred_sums(
+        plan, ws, valid, n_valid, "cwt", label, tile_side,
+    ))
 }
 
 /// The tail of [`cwt_correlation_in`] and [`field_correlation`]: the
@@ -1232,6 +1524,7 @@ fn centred_sums(
     n_valid: usize,
     source: &str,
     label: String,
+    tile_side: usize,
 ) -> CorrelationSums {
     let cfg = &plan.cfg;
     let (dy, dx) = (plan.y1 - plan.y0, plan.x1 - plan.x0);
@@ -1292,6 +1585,7 @@ fn centred_sums(
         weights,
         means,
         totals: vec![n_valid as f64; ns],
+        tile_side,
     };
     plan.sums_from_fields(ws, source, label, fields)
 }
@@ -1347,7 +1641,7 @@ pub fn field_correlation(
     let mut valid = std::mem::take(&mut ws.valid);
     valid.clear();
     valid.resize(dy * dx, true);
-    let out = centred_sums(plan, &mut ws, valid, dy * dx, source, label.into());
+    let out = centred_sums(plan, &mut ws, valid, dy * dx, source, label.into(), 0);
     plan.give(ws);
     Ok(out)
 }
@@ -1485,6 +1779,18 @@ pub fn wtmmm_correlation(
     plan: &CorrelationPlan,
     label: impl Into<String>,
 ) -> Result<CorrelationSums> {
+    wtmmm_correlation_tiled(points, plan, label, 0)
+}
+
+/// [`wtmmm_correlation`], split by tiles as [`cwt_correlation_tiled`].
+///
+/// **Errors** as [`wtmmm_correlation`].
+pub fn wtmmm_correlation_tiled(
+    points: &[&[Point]],
+    plan: &CorrelationPlan,
+    label: impl Into<String>,
+    tile_side: usize,
+) -> Result<CorrelationSums> {
     let cfg = &plan.cfg;
     if points.len() != cfg.scales.len() {
         return Err(Error::param(
@@ -1542,6 +1848,7 @@ pub fn wtmmm_correlation(
         weights: Weights::PerScale,
         means,
         totals,
+        tile_side,
     };
     let out = plan.sums_from_fields(&mut ws, "wtmmm", label.into(), fields);
     plan.give(ws);
@@ -1562,13 +1869,14 @@ pub struct PairCorrelation {
     /// `C(Δx; a1, a2)`, centred per image (SPEC §6), with jackknife errors.
     #[serde(rename = "C")]
     pub c: Vec<f64>,
-    /// Jackknife standard error of `c` over images (NaN with < 3 images).
+    /// Jackknife standard error of `c`: over images, or with fewer than 3
+    /// over the tiles of their domains (NaN without either).
     #[serde(rename = "C_stderr")]
     pub c_stderr: Vec<f64>,
     /// The same centred with the ensemble mean (II eq 68).
     #[serde(rename = "C_ensemble")]
     pub c_ensemble: Vec<f64>,
-    /// Jackknife standard error of `c_ensemble` (NaN with < 3 images).
+    /// Jackknife standard error of `c_ensemble` (as `c_stderr`).
     #[serde(rename = "C_ensemble_stderr")]
     pub c_ensemble_stderr: Vec<f64>,
     /// Number of pairs per bin (all images).
@@ -1597,7 +1905,8 @@ pub struct CorrelationResult {
     pub mean: Vec<f64>,
     /// One correlation function per pair of scales, in the order of the sums.
     pub pairs: Vec<PairCorrelation>,
-    /// "jackknife over images" (>= 3 images) or "none".
+    /// "jackknife over images" (>= 3 images), "jackknife over N tiles (S
+    /// px)" (fewer, split into tiles) or "none".
     pub stderr_method: String,
     /// What the reader should know (few images for the error bars).
     #[serde(default)]
@@ -1752,38 +2061,28 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
     });
     let ns = s.scales.len();
     // ensemble mean per scale, pooled over points
-    let pooled = |skip: Option<usize>| -> Vec<f64> {
+    let pooled = |imgs: &[&CorrelationImage]| -> Vec<f64> {
         (0..ns)
             .map(|k| {
                 let (mut sw, mut sn) = (0.0, 0.0);
-                for &i in &order {
-                    if Some(i) == skip {
-                        continue;
-                    }
-                    sw += s.images[i].mean[k] * s.images[i].n[k];
-                    sn += s.images[i].n[k];
+                for im in imgs {
+                    sw += im.mean[k] * im.n[k];
+                    sn += im.n[k];
                 }
                 sw / sn
             })
             .collect()
     };
-    let mu = pooled(None);
+    let all: Vec<&CorrelationImage> = order.iter().map(|&i| &s.images[i]).collect();
+    let mu = pooled(&all);
     let nb = s.images[0].pairs[0].ww.len();
-    // per pair, per bin: (C, C_ens, count, lcount) leaving out `skip`
-    let eval = |p: usize, skip: Option<usize>| -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
-        let mu = if skip.is_some() {
-            pooled(skip)
-        } else {
-            mu.clone()
-        };
+    // per pair, per bin: (C, C_ens, count, lcount) of the images `imgs`
+    let eval = |p: usize, imgs: &[&CorrelationImage]| -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
+        let mu = pooled(imgs);
         let (s1, s2) = s.pairs[p];
         let (mut ww, mut ens, mut cnt, mut lc) =
             (vec![0.0; nb], vec![0.0; nb], vec![0.0; nb], vec![0.0; nb]);
-        for &i in &order {
-            if Some(i) == skip {
-                continue;
-            }
-            let im = &s.images[i];
+        for im in imgs {
             let ps = &im.pairs[p];
             let (d1, d2) = (im.mean[s1] - mu[s1], im.mean[s2] - mu[s2]);
             for b in 0..nb {
@@ -1798,6 +2097,63 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
         (c, ce, cnt, lc)
     };
     let n_img = s.images.len();
+    // the jackknife's replicates: leave one image out (3 or more images),
+    // else one tile of one image (its pairs' first points), re-centred
+    let n_tiles: usize = s.images.iter().map(|im| im.tiles.len()).sum();
+    let tiled = n_img < 3 && s.images.iter().all(|im| !im.tiles.is_empty()) && n_tiles >= 3;
+    let replicates: Vec<Vec<CorrelationImage>> = if n_img >= 3 {
+        Vec::new()
+    } else if tiled {
+        order
+            .iter()
+            .flat_map(|&i| {
+                let im = &s.images[i];
+                (0..im.tiles.len()).map(move |k| vec![im.without_tile(k, &s.pairs)])
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let reps_of = |p: usize| -> Vec<(Vec<f64>, Vec<f64>)> {
+        if n_img >= 3 {
+            return order
+                .iter()
+                .map(|&i| {
+                    let rest: Vec<&CorrelationImage> = order
+                        .iter()
+                        .filter(|&&j| j != i)
+                        .map(|&j| &s.images[j])
+                        .collect();
+                    let r = eval(p, &rest);
+                    (r.0, r.1)
+                })
+                .collect();
+        }
+        let mut out = Vec::with_capacity(replicates.len());
+        let mut r = 0;
+        for &i in &order {
+            for _ in 0..s.images[i].tiles.len() {
+                if !tiled {
+                    break;
+                }
+                // the other image whole, this one without the tile
+                let imgs: Vec<&CorrelationImage> = order
+                    .iter()
+                    .map(|&j| {
+                        if j == i {
+                            &replicates[r][0]
+                        } else {
+                            &s.images[j]
+                        }
+                    })
+                    .collect();
+                let e = eval(p, &imgs);
+                out.push((e.0, e.1));
+                r += 1;
+            }
+        }
+        out
+    };
     let jk = |vals: &[f64]| -> f64 {
         if vals.len() < 3 {
             return f64::NAN;
@@ -1806,18 +2162,8 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
     };
     let pairs = (0..s.pairs.len())
         .map(|p| {
-            let (c, ce, cnt, lc) = eval(p, None);
-            let reps: Vec<(Vec<f64>, Vec<f64>)> = if n_img >= 3 {
-                order
-                    .iter()
-                    .map(|&i| {
-                        let r = eval(p, Some(i));
-                        (r.0, r.1)
-                    })
-                    .collect()
-            } else {
-                Vec::new()
-            };
+            let (c, ce, cnt, lc) = eval(p, &all);
+            let reps = reps_of(p);
             let keep: Vec<usize> = (1..nb).filter(|&b| cnt[b] > 0.0).collect();
             let err = |which: usize, b: usize| -> f64 {
                 let v: Vec<f64> = reps
@@ -1846,9 +2192,43 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
     let stderr_method = if n_img >= 3 {
         // flags jackknife errors over few images, as the spectra do
         crate::stats::fit::stderr_method(n_img, &[], &mut warnings)
-    } else {
+    } else if tiled {
+        let sides: Vec<usize> = s.images.iter().map(|im| im.tile_side).collect();
+        let (lo, hi) = (
+            sides.iter().copied().min().unwrap_or(0),
+            sides.iter().copied().max().unwrap_or(0),
+        );
+        let side = if lo == hi {
+            lo.to_string()
+        } else {
+            format!("{lo}-{hi}")
+        };
+        let what = format!(
+            "a jackknife over {n_tiles} tiles of about {side} px of {n_img} image{}",
+            if n_img == 1 { "" } else { "s" }
+        );
         warnings.push(format!(
-            "no standard errors: {n_img} image{} (a jackknife needs 3 or more)",
+            "the standard errors come from {what}: a replicate leaves out the pairs whose \
+             first point lies in one tile and centres the rest again; tiles are treated as \
+             independent, which fields correlated over long distances (cascades) are not, and \
+             a lag longer than a tile reaches into the others, so the errors of the longest \
+             lags are the least reliable"
+        ));
+        if let Some(w) = crate::stats::fit::few_groups_warning(n_tiles, &what) {
+            warnings.push(w);
+        }
+        format!("jackknife over {n_tiles} tiles ({side} px)")
+    } else {
+        let with = s.images.iter().filter(|im| !im.tiles.is_empty()).count();
+        let why = if with == 0 {
+            ", and the domain was not split into jackknife tiles"
+        } else if with < n_img {
+            ", and only some of the images were split into jackknife tiles"
+        } else {
+            ", and there are fewer than 3 jackknife tiles"
+        };
+        warnings.push(format!(
+            "no standard errors: {n_img} image{} (a jackknife needs 3 or more{why})",
             if n_img == 1 { "" } else { "s" }
         ));
         "none".into()
