@@ -1482,6 +1482,18 @@ fn validate_fills_the_published_q_range() {
         "{}",
         k["stderr_method"]
     );
+    // and the correlation's from 4 x 4 tiles of its domain (the torus)
+    let c = json(&Path::new(&o).join("correlation").join("correlation.json"));
+    assert_eq!(
+        c["cwt"]["stderr_method"], "jackknife over 16 tiles (64 px)",
+        "{}",
+        c["cwt"]["stderr_method"]
+    );
+    let corr = crit
+        .iter()
+        .find(|c| c["name"].as_str().unwrap().starts_with("max |C(dx)"))
+        .unwrap();
+    assert!(num(corr, "stderr") > 0.0, "{corr}");
     // the kernel's figures follow `kernel`'s defaults on this 3-octave grid
     // (pairs lowered onto its top); no pdfs, so no reconstruction file
     let k = json(&Path::new(&o).join("kernel").join("kernel.json"));

@@ -37,7 +37,8 @@ use crate::plot::{Chart, Series, Style, save_chart};
 use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::correlation::{
     CorrelationConfig, CorrelationPlan, CorrelationResult, CorrelationSums, Magnitude,
-    correlation_estimates, cwt_correlation, field_correlation, wtmmm_correlation,
+    correlation_estimates, cwt_correlation, cwt_correlation_tiled, default_tile_side,
+    field_correlation, wtmmm_correlation_tiled,
 };
 use crate::stats::kernel::{
     KernelConfig, KernelOptions, KernelSums, check_wtmmm_counts, kernel_estimates, nearest_scale,
@@ -146,12 +147,27 @@ fn merge_c(a: &mut Option<CorrelationSums>, b: Option<CorrelationSums>) -> Resul
 }
 
 impl Runner {
-    fn image(&self, field: &Field, label: &str, par: Parallelism, do_cwt: bool) -> Result<Sums> {
+    /// One image's sums; with `tiles` (fewer than 3 images) split over
+    /// the jackknife tiles of its domain.
+    fn image(
+        &self,
+        field: &Field,
+        label: &str,
+        par: Parallelism,
+        do_cwt: bool,
+        tiles: bool,
+    ) -> Result<Sums> {
         let shape = field.dim();
         let mut out = Sums::default();
+        let side = |dom| if tiles { default_tile_side(dom) } else { 0 };
         if do_cwt {
             let plan = plan_for(&self.cwt_plans, shape, &self.ccfg)?;
-            out.cwt = Some(cwt_correlation(field, &plan, label)?);
+            out.cwt = Some(cwt_correlation_tiled(
+                field,
+                &plan,
+                label,
+                side(plan.domain()),
+            )?);
         }
         if let Some((acfg, idx, set)) = &self.skel {
             let w = image_wtmmm(field, acfg, par, *set == WtmmmSet::Lines)?;
@@ -161,7 +177,13 @@ impl Runner {
                 ..self.ccfg.clone()
             };
             let plan = plan_for(&self.sk_plans, shape, &scfg)?;
-            out.wtmmm = Some(wtmmm_correlation(&pts, &plan, label)?);
+            out.wtmmm = Some(wtmmm_correlation_tiled(
+                &pts,
+                &plan,
+                label,
+                w.domain,
+                side(w.domain),
+            )?);
         }
         Ok(out)
     }
@@ -241,6 +263,8 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         cwt_plans: Default::default(),
         sk_plans: Default::default(),
     };
+    // fewer than 3 images: their errors come from tiles of their domains
+    let tiles = input.len() < 3;
     let t0 = std::time::Instant::now();
     // lags are binned on one grid and centred per ensemble: one image size
     let first_shape = std::sync::Mutex::new(None::<((usize, usize), String)>);
@@ -263,7 +287,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
                     _ => {}
                 }
             }
-            let s = runner.image(field, label, par, do_cwt)?;
+            let s = runner.image(field, label, par, do_cwt, tiles)?;
             merge_c(&mut acc.cwt, s.cwt)?;
             merge_c(&mut acc.wtmmm, s.wtmmm)
         },
@@ -646,6 +670,8 @@ pub struct ValidationExtras {
     /// The tiles of the kernel's jackknife for fewer than 3 images (those
     /// of the spectra; 0 otherwise).
     tile_side: usize,
+    /// The same for the correlation (a quarter of its domain).
+    corr_tile_side: usize,
 }
 
 /// One image's share of [`ValidationExtras`].
@@ -732,7 +758,6 @@ impl ValidationExtras {
             fit,
             kcfg: KernelConfig::default(),
             ccfg,
-            plan,
             th_c,
             has_corr,
             tile_side: if count < 3 {
@@ -740,6 +765,12 @@ impl ValidationExtras {
             } else {
                 0
             },
+            corr_tile_side: if count < 3 {
+                default_tile_side(plan.domain())
+            } else {
+                0
+            },
+            plan,
         }))
     }
 
@@ -780,7 +811,7 @@ impl ValidationExtras {
         Ok(ImageExtras {
             lines: sums(WtmmmSet::Lines)?,
             all: sums(WtmmmSet::All)?,
-            corr: cwt_correlation(field, &self.plan, &label)?,
+            corr: cwt_correlation_tiled(field, &self.plan, &label, self.corr_tile_side)?,
             own,
             own_kernel,
         })
