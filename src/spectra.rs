@@ -742,10 +742,11 @@ impl PartitionSums {
         let mut jk_tau = vec![f64::NAN; nq];
         let mut jk_h = vec![f64::NAN; nq];
         let mut jk_d = vec![f64::NAN; nq];
+        let mut reps: Vec<Estimates> = Vec::new();
         if n_groups >= 3 {
             // in batches: the replicates of a batch share one sort per cell,
             // and memory stays bounded whatever the number of groups
-            let reps: Vec<Estimates> = (0..n_groups)
+            reps = (0..n_groups)
                 .step_by(64)
                 .flat_map(|i0| {
                     groups
@@ -965,6 +966,7 @@ impl PartitionSums {
                 ));
             }
         }
+        warnings.extend(legendre_warnings(&self.q, &est, &reps));
         let holed: Vec<u64> = self
             .images
             .iter()
@@ -1608,6 +1610,97 @@ pub fn default_tile_side(cfg: &crate::skeleton::AnalysisConfig, ny: usize, nx: u
     }
 }
 
+/// Standard errors (as multiples) beyond which [`legendre_warnings`] calls
+/// a departure real: the largest of many q (or pairs of q) is taken, so
+/// two standard errors would be crossed by chance too often. Between one
+/// and this many, the warning says the departure may be noise.
+const LEGENDRE_WARN_SE: f64 = 3.0;
+
+/// How a departure of `k` standard errors reads in [`legendre_warnings`].
+fn departure(k: f64) -> String {
+    if k > LEGENDRE_WARN_SE {
+        format!("{k:.1} standard errors")
+    } else {
+        format!("{k:.1} standard errors, so it may be noise, but the plotted spectrum shows it")
+    }
+}
+
+/// Warnings where the spectra cannot be a Legendre spectrum of a surface:
+/// h(q) rising with q (tau(q) not concave, so D(h) folds back) or D(q)
+/// above 2, the dimension of the support, each by more than one jackknife
+/// error (`reps`: the replicates; without them the regression errors,
+/// summed for a difference), said as real beyond [`LEGENDRE_WARN_SE`].
+fn legendre_warnings(q: &[f64], est: &Estimates, reps: &[Estimates]) -> Vec<String> {
+    let nq = q.len();
+    let jk = |get: &dyn Fn(&Estimates) -> f64| -> f64 {
+        if reps.len() >= 3 {
+            crate::stats::jackknife_se(&reps.iter().map(get).collect::<Vec<_>>())
+        } else {
+            f64::NAN
+        }
+    };
+    let mut out = Vec::new();
+    // the largest rise h(q_j) - h(q_i), i < j
+    let mut rise: Option<(usize, usize, f64)> = None;
+    let mut lowest: Option<usize> = None;
+    for j in 0..nq {
+        if !est.h[j].is_finite() {
+            continue;
+        }
+        if let Some(i) = lowest {
+            let r = est.h[j] - est.h[i];
+            if r > rise.map_or(0.0, |x| x.2) {
+                rise = Some((i, j, r));
+            }
+        }
+        if lowest.is_none_or(|i| est.h[j] < est.h[i]) {
+            lowest = Some(j);
+        }
+    }
+    if let Some((i, j, r)) = rise {
+        let se = jk(&|e: &Estimates| e.h[j] - e.h[i]);
+        let se = if se.is_finite() {
+            se
+        } else {
+            est.h_se[i] + est.h_se[j]
+        };
+        if r > se {
+            let dmax = (i..=j).map(|k| est.d[k]).fold(f64::MIN, f64::max);
+            out.push(format!(
+                "h(q) rises from {:.3} at q = {} to {:.3} at q = {} ({r:+.3} +- {se:.3}, {}): \
+                 tau(q) is not concave there, so D(h) folds back and is not a Legendre spectrum \
+                 over those q (D reaches {dmax:.3}); the fit range often mixes two scaling \
+                 regimes (see the straight-line warnings) or a few lines dominate: narrow --fit \
+                 or --q",
+                est.h[i],
+                q[i],
+                est.h[j],
+                q[j],
+                departure(r / se)
+            ));
+        }
+    }
+    // D(q) above 2 by more than its error
+    let above: Vec<(usize, f64, f64)> = (0..nq)
+        .filter_map(|k| {
+            let se = jk(&|e: &Estimates| e.d[k]);
+            let se = if se.is_finite() { se } else { est.d_se[k] };
+            (est.d[k] - 2.0 > se).then_some((k, est.d[k], se))
+        })
+        .collect();
+    if let Some(&(k, d, se)) = above.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
+        out.push(format!(
+            "D(q) > 2 at {} of the q (up to D = {d:.3} +- {se:.3} at q = {}, {}): a dimension \
+             above that of the image's support, so there D is not the dimension of a set of \
+             singularities (a bias of the estimator, or a fit over mixed regimes)",
+            above.len(),
+            q[k],
+            departure((d - 2.0) / se)
+        ));
+    }
+    out
+}
+
 /// A q grid the partition sums can use: non-empty, finite, strictly
 /// ascending (the Legendre transform differences neighbours; a repeated q
 /// would count twice).
@@ -1726,6 +1819,79 @@ fn round9(x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// h(q) rising with q and D(q) above 2 are said when they exceed their
+    /// errors, as real beyond 3 of them, and not for a concave spectrum.
+    #[test]
+    fn legendre_warnings_read_the_errors() {
+        let q = [-2.0, -1.0, 0.0, 1.0, 2.0];
+        let est = |h: &[f64], d: &[f64], se: f64| Estimates {
+            tau: vec![0.0; 5],
+            tau_se: vec![se; 5],
+            r2: vec![1.0; 5],
+            slope_change: vec![0.0; 5],
+            h: h.to_vec(),
+            h_se: vec![se; 5],
+            d: d.to_vec(),
+            d_se: vec![se; 5],
+        };
+        // concave (h falls) and D <= 2: nothing
+        let ok = est(
+            &[0.5, 0.45, 0.4, 0.35, 0.3],
+            &[1.8, 1.95, 2.0, 1.95, 1.8],
+            0.01,
+        );
+        assert!(legendre_warnings(&q, &ok, &[]).is_empty());
+        // h rises by 0.2 from q = -1 to 2, D reaches 2.2: with errors of
+        // 0.01 (0.02 for the difference) that is 10 errors, real
+        let h = [0.5, 0.3, 0.35, 0.4, 0.5];
+        let d = [1.8, 1.95, 2.0, 2.1, 2.2];
+        let w = legendre_warnings(&q, &est(&h, &d, 0.01), &[]);
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(
+            w[0].starts_with(
+                "h(q) rises from 0.300 at q = -1 to 0.500 at q = 2 (+0.200 +- 0.020, \
+                 10.0 standard errors)"
+            ),
+            "{}",
+            w[0]
+        );
+        assert!(
+            w[1].starts_with("D(q) > 2 at 2 of the q (up to D = 2.200 +- 0.010 at q = 2, 20.0"),
+            "{}",
+            w[1]
+        );
+        // errors of 0.08 (0.16 for the difference): the rise is 1.25
+        // errors, D 2.5 above 2, both said as possibly noise
+        let w = legendre_warnings(&q, &est(&h, &d, 0.08), &[]);
+        assert!(
+            w[0].contains("1.2 standard errors, so it may be noise"),
+            "{}",
+            w[0]
+        );
+        assert!(
+            w[1].contains("2.5 standard errors, so it may be noise"),
+            "{}",
+            w[1]
+        );
+        // errors of 0.21: within one error, nothing
+        assert!(legendre_warnings(&q, &est(&h, &d, 0.21), &[]).is_empty());
+        // 3 or more jackknife replicates give the difference's own error:
+        // h(2) - h(-1) = 0.2 + 0.1 k over 4 replicates, se sqrt(3/4 x 0.05)
+        let reps: Vec<Estimates> = (0..4)
+            .map(|k| {
+                let mut hk = h;
+                hk[4] += 0.1 * k as f64;
+                est(&hk, &d, 0.01)
+            })
+            .collect();
+        let w = legendre_warnings(&q, &est(&h, &d, 0.01), &reps);
+        assert!(
+            w[0].contains("(+0.200 +- 0.194, 1.0 standard errors"),
+            "{}",
+            w[0]
+        );
+    }
 
     /// A tile's bounds hold exactly the domain's pixels `index` puts in it,
     /// for sides that do and do not divide the domain.
