@@ -573,6 +573,43 @@ fn run_bin_stderr(args: &[&str]) -> (i32, String) {
     (o.status.code().unwrap_or(-1), err)
 }
 
+/// A negative number given to an option is refused by that option's
+/// parser, named, not taken for an unknown flag (clap's tip `-- -1` would
+/// not help); a negative value where one is valid still parses.
+#[test]
+fn negative_values_name_their_option() {
+    let dir = scratch("negative_values");
+    let o = dir.join("o").display().to_string();
+    for (flag, v) in [("--octaves", "-1"), ("--margin", "-5"), ("--voices", "-3")] {
+        let (code, err) = run_bin_stderr(&["analyze", "x.npy", flag, v, "--out", &o]);
+        assert_eq!(code, 2, "{err}");
+        assert!(
+            err.contains(&format!("invalid value '{v}' for '{flag}")),
+            "{flag}: {err}"
+        );
+        assert!(!err.contains("-- "), "{err}");
+    }
+    assert!(!dir.join("o").exists());
+    // a negative fit start is a value, refused by the range check
+    let (code, err) = run_bin_stderr(&[
+        "validate",
+        "--preset",
+        "paper-lognormal",
+        "--count",
+        "1",
+        "--size",
+        "128",
+        "--octaves",
+        "3",
+        "--fit",
+        "-1:2",
+        "--out",
+        &o,
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("fit"), "{err}");
+}
+
 /// `kernel` refuses scales of the fit without enough WTMMM (they used to
 /// drop out of the fit silently, or fill kernel_curves.csv with NaN): exit
 /// 2, the input named (file or preset), nothing written. A few WTMMM at

@@ -438,7 +438,15 @@ where
     I: IntoIterator<Item = T>,
     T: Into<std::ffi::OsString> + Clone,
 {
-    let cli = match Cli::try_parse_from(args) {
+    // options take negative numbers as values, so that `--octaves -1` is
+    // refused by its parser, naming the option ("invalid value '-1' for
+    // '--octaves'"), rather than read as an unknown flag with clap's tip
+    // of `-- -1`, which would not help (clap sets this per argument only)
+    let cmd = negative_values(<Cli as clap::CommandFactory>::command());
+    let parsed = cmd
+        .try_get_matches_from(args)
+        .and_then(|m| <Cli as clap::FromArgMatches>::from_arg_matches(&m));
+    let cli = match parsed {
         Ok(c) => c,
         Err(e) => {
             let code = if e.use_stderr() { 2 } else { 0 };
@@ -454,6 +462,20 @@ where
             2
         }
     }
+}
+
+/// `cmd` and its subcommands with every value-taking option accepting a
+/// negative number as its value.
+fn negative_values(cmd: clap::Command) -> clap::Command {
+    let ids: Vec<clap::Id> = cmd
+        .get_arguments()
+        .filter(|a| !a.is_positional() && a.get_action().takes_values())
+        .map(|a| a.get_id().clone())
+        .collect();
+    let cmd = ids.into_iter().fold(cmd, |c, id| {
+        c.mut_arg(id, |a| a.allow_negative_numbers(true))
+    });
+    cmd.mut_subcommands(negative_values)
 }
 
 /// Output directory argument shared by every command.
