@@ -977,6 +977,91 @@ fn merge_checks_the_content_of_each_shard() {
     );
 }
 
+/// `merge` given another file than partition sums (the review's
+/// `merge DIR/spectra.json`, which gave serde's "invalid type: integer
+/// `1`, expected a sequence") names it, says what it is and which files
+/// merge reads, points to the sums.json beside it, and keeps serde's
+/// detail last. The sums.json of analyze, merge and compare's wtmm/ merge.
+#[test]
+fn merge_says_which_files_it_reads() {
+    let (dir, _, ja, _) = two_shards("merge_wrong_file");
+    let m = dir.join("m");
+    let ms = m.display().to_string();
+    let spectra = dir.join("A/spectra.json").display().to_string();
+    let (code, err) = run_bin_stderr(&["merge", &spectra, "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    let want = format!(
+        "{spectra}: not a partition-sums file (the spectra.json of `wtmm analyze`): merge reads \
+         the sums.json (partition sums) that analyze, validate, demo and merge write, and compare \
+         in its wtmm/; {} is beside it: invalid type:",
+        dir.join("A/sums.json").display()
+    );
+    assert!(err.contains(&want), "{err}");
+    assert!(
+        err.trim_end().ends_with(|c: char| c.is_ascii_digit()),
+        "serde's position last: {err}"
+    );
+    assert!(!m.exists());
+    // not JSON at all: the same guidance, serde's detail last
+    let junk = dir.join("junk.json");
+    std::fs::write(&junk, "<html>").unwrap();
+    let js = junk.display().to_string();
+    let (code, err) = run_bin_stderr(&["merge", &js, "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains(&format!(
+            "{js}: not a partition-sums file: merge reads the sums.json"
+        )) && err.contains("wtmm/: expected value at line 1 column 1"),
+        "{err}"
+    );
+    // a sums file that fails its checks keeps the library's message
+    let mut v = json(Path::new(&ja));
+    v["q"] = serde_json::json!([]);
+    let bad = dir.join("bad_q.json");
+    std::fs::write(&bad, serde_json::to_string(&v).unwrap()).unwrap();
+    let (code, err) = run_bin_stderr(&["merge", bad.to_str().unwrap(), "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("invalid partition sums") && !err.contains("merge reads"),
+        "{err}"
+    );
+    // what merge names: merge's own sums.json and compare's wtmm/sums.json
+    assert_eq!(run(&["merge", &ja, "--fit", "0.5:2", "--out", &ms]), 0);
+    let again = dir.join("m2").display().to_string();
+    let msums = m.join("sums.json").display().to_string();
+    assert_eq!(
+        run(&["merge", &msums, "--fit", "0.5:2", "--out", &again]),
+        0
+    );
+    let cmp = dir.join("cmp");
+    let cs = cmp.display().to_string();
+    let args = [
+        "compare",
+        "--preset",
+        "paper-fbm",
+        "--count",
+        "2",
+        "--size",
+        "128",
+        "--octaves",
+        "3",
+        "--voices",
+        "4",
+        "--fit",
+        "0:3",
+        "--q",
+        "0:2:1",
+        "--eta",
+        "1",
+        "--out",
+        &cs,
+    ];
+    assert_eq!(run(&args), 0);
+    let wsums = cmp.join("wtmm/sums.json").display().to_string();
+    let third = dir.join("m3").display().to_string();
+    assert_eq!(run(&["merge", &wsums, "--fit", "0:3", "--out", &third]), 0);
+}
+
 /// Without --fit, merge fits 0.5:min(4, octaves of the sums), as analyze,
 /// and prints the fit's warnings as analyze does.
 #[test]
