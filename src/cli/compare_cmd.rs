@@ -25,7 +25,11 @@
 //! of consecutive images; each method is also run on every sub-ensemble.
 //! bias = full-ensemble estimate - theory; sd = standard deviation of the
 //! sub-ensemble estimates; the standard error of the full estimate is
-//! `sd / sqrt(groups)`.
+//! `sd / sqrt(groups)`, given only from [`MIN_SE_GROUPS`] groups up: the
+//! spread of two is `|t1 - t2| / sqrt 2`, one degree of freedom, which falls
+//! to 0 wherever their τ(q) cross, so `bias / se` took any size there
+//! (1177 at q = 5 for 2 fBm images of 512², whose WTMM jackknife error is
+//! 0.13); with three or more, a zero needs all to meet at the same q.
 //!
 //! **Timing.** Each image is generated, then analysed by both methods in the
 //! same task (streamed: one image per worker alive); the per-method times
@@ -45,6 +49,7 @@ use super::common::reason;
 use super::common::{f, header, make_out_dir, parse_range, progress, write_csv, write_json};
 use super::model_args::{ModelName, ModelOpts};
 use super::tm_cmd::{TmOpts, plot_k, tau_from_tm};
+use super::validate_cmd::{distinct, warnings_section};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::field::Field;
@@ -95,6 +100,10 @@ impl CompareArgs {
     }
 }
 
+/// Fewest sub-ensembles giving a value at a q for a standard error there
+/// (module docs): below it `se` is NaN (null) and so is `bias / se`.
+pub const MIN_SE_GROUPS: usize = 3;
+
 /// Everything one image contributes.
 struct ImageOut {
     sums: PartitionSums,
@@ -113,7 +122,8 @@ pub struct MethodTau {
     pub bias: Vec<f64>,
     /// Standard deviation of the sub-ensemble estimates.
     pub sd_groups: Vec<f64>,
-    /// `sd_groups / sqrt(groups)`.
+    /// `sd_groups / sqrt(groups)`; NaN (null) where fewer than
+    /// [`MIN_SE_GROUPS`] sub-ensembles give a value.
     pub se: Vec<f64>,
     /// Per sub-ensemble.
     pub groups: Vec<Vec<f64>>,
@@ -130,7 +140,8 @@ pub struct Summary {
     pub rms_bias: f64,
     /// Root mean square over q of the sub-ensemble standard deviations.
     pub rms_sd_groups: f64,
-    /// Largest `|bias| / se`.
+    /// Largest `|bias| / se` over the q that have an `se`; NaN (null)
+    /// where none has (fewer than [`MIN_SE_GROUPS`] sub-ensembles).
     pub max_abs_bias_over_se: f64,
 }
 
@@ -160,10 +171,14 @@ fn method_tau(name: &str, tau: Vec<f64>, groups: Vec<Vec<f64>>, theory: &[f64]) 
             .filter(|x| x.is_finite())
             .collect();
         // NaN with fewer than 2 finite groups; the error of the mean over
-        // the groups that gave a value
+        // the groups that gave a value, from 3 of them (module docs)
         let s = mean_std(&v).1;
         sd.push(s);
-        se.push(s / (v.len() as f64).sqrt());
+        se.push(if v.len() >= MIN_SE_GROUPS {
+            s / (v.len() as f64).sqrt()
+        } else {
+            f64::NAN
+        });
     }
     MethodTau {
         method: name.into(),
@@ -537,7 +552,19 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     body["tm_fit_log2_lambda"] = json!(t_all.fit_log2_lambda);
     body["tm_universal_q_max"] = json!(t_all.universal_q_max);
     body["tm_q_s"] = json!(t_all.q_s);
+    // the warnings of both full-ensemble estimates (tm/tm.json's as `tm`
+    // words them)
+    let tm_warnings: Vec<String> = super::tm_cmd::result_json("compare", json!(null), &t_all, &[])?
+        ["warnings"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|w| w.as_str().map(String::from))
+                .collect()
+        })
+        .unwrap_or_default();
     body["warnings"] = json!(w_all.warnings);
+    body["tm_warnings"] = json!(tm_warnings);
     write_json(&dir.join("compare.json"), &body)?;
     let rows: Vec<Vec<String>> = (0..q.len())
         .map(|i| {
@@ -612,8 +639,21 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         &scalars,
         &timing,
     );
-    write_atomic(&dir.join("compare.txt"), text.as_bytes())?;
+    let warnings = distinct(
+        w_all
+            .warnings
+            .iter()
+            .map(|w| format!("WTMM: {w}"))
+            .chain(tm_warnings.iter().map(|w| format!("trace moments: {w}"))),
+    );
+    // compare.txt has them at its end; stdout leaves them to stderr, where
+    // they come after the report, even with --quiet (as analyze's)
+    let file = format!("{text}{}", warnings_section(&warnings));
+    write_atomic(&dir.join("compare.txt"), file.as_bytes())?;
     show!("{text}");
+    for w in &warnings {
+        say!("warning: {w}");
+    }
     Ok(Outcome::Ok)
 }
 
@@ -657,7 +697,7 @@ fn table(
     );
     let _ = writeln!(
         s,
-        "WTMM: {wavelet:?} wavelet, {rule:?} rule, fit {:.2}-{:.2} px; TM: {:?} flux after differentiation {:?} (mean order {:.3}), fit log2 lambda {}:{}, universal fit q <= {:.2} (q_s {:.2}); TM alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} ({})\n",
+        "WTMM: {wavelet:?} wavelet, {rule:?} rule, fit {:.2}-{:.2} px; TM: {:?} flux after differentiation {:?} (mean order {:.3}), fit log2 lambda {}:{}, universal fit q <= {:.2} (q_s {:.2}); TM alpha {} +- {}, C1 {} +- {} ({})\n",
         w.fit_scales.0,
         w.fit_scales.1,
         t.flux,
@@ -667,10 +707,10 @@ fn table(
         t.fit_log2_lambda.1,
         t.universal_q_max,
         t.q_s,
-        t.alpha,
-        t.alpha_stderr,
-        t.c1,
-        t.c1_stderr,
+        cell(t.alpha, 3),
+        cell(t.alpha_stderr, 3),
+        cell(t.c1, 4),
+        cell(t.c1_stderr, 4),
         t.stderr_method
     );
     let _ = writeln!(
@@ -687,16 +727,34 @@ fn table(
         .unwrap_or(f64::NAN);
         let _ = writeln!(
             s,
-            "| {} | [{}, {}] | {:.3} ({}) | {:.3} | {:.3} | {:.1} | {:.2} |",
+            "| {} | [{}, {}] | {} ({}) | {} | {} | {} | {} |",
             m.method,
             m.q_range.0,
             m.q_range.1,
-            m.max_abs_bias,
-            m.q_of_max_abs_bias,
-            m.rms_bias,
-            m.rms_sd_groups,
-            m.max_abs_bias_over_se,
-            secs
+            cell(m.max_abs_bias, 3),
+            if m.q_of_max_abs_bias.is_finite() {
+                m.q_of_max_abs_bias.to_string()
+            } else {
+                "-".into()
+            },
+            cell(m.rms_bias, 3),
+            cell(m.rms_sd_groups, 3),
+            cell(m.max_abs_bias_over_se, 1),
+            cell(secs, 2)
+        );
+    }
+    if summaries
+        .iter()
+        .any(|m| m.max_abs_bias.is_finite() && !m.max_abs_bias_over_se.is_finite())
+    {
+        let _ = writeln!(
+            s,
+            "\nmax abs(bias)/se: '-' without a standard error, which the scatter of fewer \
+             than {MIN_SE_GROUPS} sub-ensembles does not give (the spread of two is 0 wherever \
+             their tau(q) cross; --groups {MIN_SE_GROUPS} or more needs as many images); \
+             the full ensemble's own errors are in wtmm/spectra.json (tau_stderr, \
+             {}) and tm/tm.json (K_stderr, H_stderr)",
+            w.stderr_method
         );
     }
     let _ = writeln!(s, "\n| quantity | estimate | sd (sub-ens.) | target |");
@@ -704,8 +762,10 @@ fn table(
     for (k, v) in scalars {
         let _ = writeln!(
             s,
-            "| {k} | {:.4} | {:.4} | {:.4} |",
-            v.value, v.sd_groups, v.target
+            "| {k} | {} | {} | {} |",
+            cell(v.value, 4),
+            cell(v.sd_groups, 4),
+            cell(v.target, 4)
         );
     }
     let _ = writeln!(s, "\n| q | theory | WTMM | sd | TM | sd |");
@@ -713,24 +773,26 @@ fn table(
     for i in 0..q.len() {
         let _ = writeln!(
             s,
-            "| {} | {:.4} | {:.4} | {:.4} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} |",
             q[i],
-            theory[i],
-            wtmm.tau[i],
-            wtmm.sd_groups[i],
-            if tm.tau[i].is_finite() {
-                format!("{:.4}", tm.tau[i])
-            } else {
-                "-".into()
-            },
-            if tm.sd_groups[i].is_finite() {
-                format!("{:.4}", tm.sd_groups[i])
-            } else {
-                "-".into()
-            },
+            cell(theory[i], 4),
+            cell(wtmm.tau[i], 4),
+            cell(wtmm.sd_groups[i], 4),
+            cell(tm.tau[i], 4),
+            cell(tm.sd_groups[i], 4),
         );
     }
     s
+}
+
+/// A number of the report with `prec` decimals; `-` for a value that is
+/// not available (NaN, null in the JSON).
+fn cell(v: f64, prec: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.prec$}")
+    } else {
+        "-".into()
+    }
 }
 
 /// τ(q) of both methods over the theory, and their deviations.
@@ -748,8 +810,13 @@ fn plot_tau(
         .map(|i| lo + (hi - lo) * i as f64 / 200.0)
         .collect();
     let pts = |v: &[f64]| -> Vec<(f64, f64)> { q.iter().copied().zip(v.iter().copied()).collect() };
+    let bars = if wtmm.se.iter().chain(&tm.se).any(|e| e.is_finite()) {
+        "bars: se from sub-ensembles".to_string()
+    } else {
+        format!("no bars: fewer than {MIN_SE_GROUPS} sub-ensembles")
+    };
     let mut c = Chart {
-        title: format!("tau(q): {name} (bars: se from sub-ensembles)"),
+        title: format!("tau(q): {name} ({bars})"),
         x_label: "q".into(),
         y_label: "tau(q)".into(),
         ..Default::default()
@@ -776,7 +843,7 @@ fn plot_tau(
     );
     save_chart(&c, &dir.join("tau.png"))?;
     let mut d = Chart {
-        title: format!("tau(q) - theory: {name} (bars: se from sub-ensembles)"),
+        title: format!("tau(q) - theory: {name} ({bars})"),
         x_label: "q".into(),
         y_label: "tau(q) - theory".into(),
         ..Default::default()
@@ -795,4 +862,44 @@ fn plot_tau(
             .with_errors(tm.se.clone()),
     );
     save_chart(&d, &dir.join("tau_bias.png"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{MIN_SE_GROUPS, cell, method_tau, summarise};
+
+    /// Two sub-ensembles whose τ(q) cross between q = 4 and 5 (the review's
+    /// 2 fBm images: sd 0.0003 at q = 5 against a jackknife error of 0.13):
+    /// their spread vanishes there and bias/se was 1000 and more; no se from
+    /// fewer than 3 groups, so the ratio is NaN (null). A third group gives
+    /// both back, and its spread no longer vanishes at the crossing.
+    #[test]
+    fn no_standard_error_from_two_groups() {
+        let q = [3.0, 4.0, 5.0, 6.0];
+        let theory = [-1.0, -0.6667, -0.3333, 0.0];
+        let a = vec![-1.06, -0.80, -0.5789, -0.36];
+        let b = vec![-1.04, -0.82, -0.5785, -0.34];
+        let tau: Vec<f64> = a.iter().zip(&b).map(|(x, y)| 0.5 * (x + y)).collect();
+        let two = method_tau("WTMM", tau.clone(), vec![a.clone(), b.clone()], &theory);
+        assert!(two.se.iter().all(|s| s.is_nan()), "{:?}", two.se);
+        // the spread is still reported: |a - b| / sqrt 2
+        assert!((two.sd_groups[2] - 0.0004 / 2f64.sqrt()).abs() < 1e-12);
+        let s = summarise(&two, &q, (3.0, 6.0));
+        assert!(s.max_abs_bias_over_se.is_nan());
+        assert!((s.max_abs_bias - 0.35).abs() < 1e-12, "{}", s.max_abs_bias);
+        // what the old se made of q = 5: 0.2454 / 0.0002
+        let old = (tau[2] - theory[2]).abs() / (two.sd_groups[2] / 2f64.sqrt());
+        assert!(old > 1000.0, "{old}");
+        assert_eq!(cell(s.max_abs_bias_over_se, 1), "-");
+        // three groups: an se at every q, a finite ratio
+        let c = vec![-1.02, -0.78, -0.62, -0.40];
+        let groups = vec![a, b, c];
+        assert_eq!(groups.len(), MIN_SE_GROUPS);
+        let three = method_tau("WTMM", tau, groups, &theory);
+        assert!(three.se.iter().all(|s| s.is_finite() && *s > 0.0));
+        let s = summarise(&three, &q, (3.0, 6.0));
+        assert!(s.max_abs_bias_over_se.is_finite() && s.max_abs_bias_over_se < 100.0);
+        assert_eq!(cell(1.26, 1), "1.3");
+        assert_eq!(cell(f64::NAN, 4), "-");
+    }
 }

@@ -1,10 +1,10 @@
 //! `wtmm merge SUMS.json... --out DIR`: combine partition sums saved by
-//! `analyze`/`validate` (shards of an ensemble analysed anywhere) and
-//! recompute the spectra, for any rule and fit range, without redoing the
-//! wavelet transforms.
+//! `analyze`/`validate`/`demo`/`merge`/`compare` (shards of an ensemble
+//! analysed anywhere) and recompute the spectra, for any rule and fit
+//! range, without redoing the wavelet transforms.
 
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::Args;
 use serde_json::json;
@@ -18,7 +18,8 @@ use crate::spectra::{ImagePartial, PartitionSums, Rule};
 
 #[derive(Args, Debug)]
 pub struct MergeArgs {
-    /// `sums.json` files written by analyze or validate.
+    /// `sums.json` files written by analyze, validate, demo, merge, or
+    /// compare (in its wtmm/).
     #[arg(required = true)]
     pub sums: Vec<PathBuf>,
     /// Fit range in octaves above a_min, `LO:HI`. Default 0.5:4, or
@@ -62,7 +63,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     // the file of each image, in the order merged
     let mut owner: Vec<usize> = Vec::new();
     for (f, p) in args.sums.iter().enumerate() {
-        let s = PartitionSums::read_json(p)?;
+        let s = read_sums(p)?;
         // a shard of unknown analysis cannot be checked against the others
         // (the merge keeps the analysis all shards share)
         if let Some(acc) = &sums
@@ -157,6 +158,47 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         );
     }
     Ok(Outcome::Ok)
+}
+
+/// What `merge` reads, for the message about a file that is not one.
+const SUMS_FILES: &str = "merge reads the sums.json (partition sums) that analyze, validate, \
+demo and merge write, and compare in its wtmm/";
+
+/// [`PartitionSums::read_json`], whose refusal of a file that is no
+/// partition sums at all (another output of wtmm, often) says which file
+/// that is and which merge wants, serde's detail last.
+fn read_sums(p: &Path) -> Result<PartitionSums> {
+    PartitionSums::read_json(p).map_err(|e| match e {
+        Error::Format { path, reason } => {
+            match reason.strip_prefix("not a partition-sums file: ") {
+                Some(detail) => Error::format(&path, not_sums(&path, detail)),
+                None => Error::Format { path, reason },
+            }
+        }
+        e => e,
+    })
+}
+
+/// "not a partition-sums file (the spectra.json of `wtmm analyze`): merge
+/// reads ...; DIR/sums.json is beside it: DETAIL".
+fn not_sums(path: &Path, detail: &str) -> String {
+    // another output of wtmm carries the command that wrote it
+    let command = std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["command"].as_str().map(String::from));
+    let file = path.file_name().map(|f| f.to_string_lossy().into_owned());
+    let what = match (command, file) {
+        (Some(c), Some(f)) => format!(" (the {f} of `wtmm {c}`)"),
+        _ => String::new(),
+    };
+    let beside = path.with_file_name("sums.json");
+    let beside = if beside.is_file() && path.file_name() != beside.file_name() {
+        format!("; {} is beside it", beside.display())
+    } else {
+        String::new()
+    };
+    format!("not a partition-sums file{what}: {SUMS_FILES}{beside}: {detail}")
 }
 
 /// The same image in two shards (same label and the same sums) would be

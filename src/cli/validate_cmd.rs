@@ -191,9 +191,32 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     if args.replicates == 1 {
         let one = run_one(&args, quiet)?;
         show!("{}", one.table);
+        // after the table, so that they are the last thing on a terminal;
+        // even with --quiet (which hides progress bars), as analyze's
+        for w in &one.warnings {
+            say!("warning: {w}");
+        }
         return Ok(outcome(one.all_pass, args.check));
     }
     run_replicates(args, quiet)
+}
+
+/// `ws` without repeats, in their first order.
+pub(super) fn distinct(ws: impl IntoIterator<Item = String>) -> Vec<String> {
+    let mut seen = std::collections::HashSet::new();
+    ws.into_iter().filter(|w| seen.insert(w.clone())).collect()
+}
+
+/// The `warnings:` section of a report (empty without warnings).
+pub(super) fn warnings_section(ws: &[String]) -> String {
+    let mut t = String::new();
+    if !ws.is_empty() {
+        let _ = writeln!(t, "\nwarnings:");
+        for w in ws {
+            let _ = writeln!(t, "  {w}");
+        }
+    }
+    t
 }
 
 /// `max |tau - theory|` over the q in `[lo, hi]` and the index where it is
@@ -237,8 +260,12 @@ fn outcome(pass: bool, check: bool) -> Outcome {
 struct OneRun {
     criteria: Vec<Criterion>,
     all_pass: bool,
-    /// The PASS/FAIL table and the tau table (validation.txt).
+    /// The PASS/FAIL table and the tau table: stdout's report, which
+    /// validation.txt holds with the warnings.
     table: String,
+    /// The spectra's warnings (validation.json's), each once: printed on
+    /// stderr by the caller, in validation.txt.
+    warnings: Vec<String>,
     name: String,
     params: serde_json::Value,
     q: Vec<f64>,
@@ -449,8 +476,29 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     body["mean_tau"] = json!({"q": first.q, "tau": mean_tau,
         "stderr": tau_stats.iter().map(|x| x.1).collect::<Vec<_>>(), "theory": first.tau_theory});
     write_json(&args.out.out.join("replicates.json"), &body)?;
-    write_atomic(&args.out.out.join("replicates.txt"), t.as_bytes())?;
+    // each warning once, with the ensembles that gave it
+    let mut seeds_of: Vec<(String, Vec<u64>)> = Vec::new();
+    for (seed, r) in (args.seed..=last).zip(&runs) {
+        for w in &r.warnings {
+            match seeds_of.iter_mut().find(|(x, _)| x == w) {
+                Some((_, s)) => s.push(seed),
+                None => seeds_of.push((w.clone(), vec![seed])),
+            }
+        }
+    }
+    let warnings: Vec<String> = seeds_of
+        .iter()
+        .map(|(w, seeds)| {
+            let dirs: Vec<String> = seeds.iter().map(|s| format!("seed_{s}")).collect();
+            format!("{}: {w}", dirs.join(", "))
+        })
+        .collect();
+    let file = format!("{t}{}", warnings_section(&warnings));
+    write_atomic(&args.out.out.join("replicates.txt"), file.as_bytes())?;
     show!("{t}");
+    for w in &warnings {
+        say!("warning: {w}");
+    }
     Ok(outcome(all_pass, args.check))
 }
 
@@ -848,6 +896,9 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     for c in crit.iter().filter(|c| !c.note.is_empty()) {
         let _ = writeln!(t, "  {}: {}", c.name, c.note);
     }
+    // validation.txt has the warnings here, below the notes that point to
+    // them; stdout's copy of the report leaves them to stderr
+    let notes_end = t.len();
     if let Some(ss) = &sample {
         let _ = writeln!(
             t,
@@ -876,7 +927,14 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
                 .unwrap_or_else(|| "-".into())
         );
     }
-    write_atomic(&args.out.out.join("validation.txt"), t.as_bytes())?;
+    let warnings = distinct(s.warnings.iter().cloned());
+    let file = format!(
+        "{}{}{}",
+        &t[..notes_end],
+        warnings_section(&warnings),
+        &t[notes_end..]
+    );
+    write_atomic(&args.out.out.join("validation.txt"), file.as_bytes())?;
     let mut tau_ranges = vec![(core_lo, core_hi)];
     if (pq_lo, pq_hi) != (core_lo, core_hi) {
         tau_ranges.push((pq_lo, pq_hi));
@@ -885,6 +943,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         criteria: crit,
         all_pass,
         table: t,
+        warnings,
         name,
         params,
         q: q.clone(),
