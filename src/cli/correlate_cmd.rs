@@ -905,7 +905,7 @@ impl ValidationExtras {
         images: Vec<ImageExtras>,
         dir: &Path,
         wall: f64,
-    ) -> Result<(Vec<Criterion>, Option<CorrelationSums>)> {
+    ) -> Result<(Vec<Criterion>, Option<CorrelationSums>, Vec<String>)> {
         let mut images = images.into_iter();
         let first = images
             .next()
@@ -955,6 +955,13 @@ impl ValidationExtras {
         // as `kernel`: no criterion from scales the fit would drop silently
         check_wtmmm_counts(&lines, &kopts).map_err(|e| input.blame(e))?;
         let alt = kernel_estimates(&all, &kopts)?;
+        // the kernel's and the correlation's warnings, named, for validate
+        // to print beside the spectra's
+        let mut warnings: Vec<String> = main
+            .warnings
+            .iter()
+            .map(|w| format!("kernel: {w}"))
+            .collect();
         // the images' own cascades (dyadic cells over the fit range)
         let own_c = match &own_kernel {
             Some(k) => {
@@ -1035,6 +1042,7 @@ impl ValidationExtras {
         )?;
         // correlation
         let r = correlation_estimates(&corr)?;
+        warnings.extend(r.warnings.iter().map(|w| format!("correlation: {w}")));
         let l = size as f64;
         if has_corr {
             let chk = window_check(&r, model, l, PAPER_UNIT);
@@ -1116,7 +1124,7 @@ impl ValidationExtras {
             wall,
             None,
         )?;
-        Ok((crit, has_corr.then_some(corr)))
+        Ok((crit, has_corr.then_some(corr), warnings))
     }
 }
 

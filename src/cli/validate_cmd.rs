@@ -263,7 +263,7 @@ struct OneRun {
     /// The PASS/FAIL table and the tau table: stdout's report, which
     /// validation.txt holds with the warnings.
     table: String,
-    /// The spectra's warnings (validation.json's), each once: printed on
+    /// The spectra's, kernel's and correlation's warnings (validation.json's), each once: printed on
     /// stderr by the caller, in validation.txt.
     warnings: Vec<String>,
     name: String,
@@ -757,13 +757,13 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         c.informational = true;
         crit.push(c);
     }
-    let (more, corr) = match extras {
+    let (more, corr, extra_warnings) = match extras {
         Some(e) => e.criteria(
             per_image.into_iter().flatten().collect(),
             &args.out.out,
             wall_pass,
         )?,
-        None => (vec![], None),
+        None => (vec![], None, vec![]),
     };
     let corr_index = corr.as_ref().and_then(|_| {
         more.iter()
@@ -841,7 +841,9 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             "what": SAMPLE_WHAT,
             "scales": [ss.fit_scales.0, ss.fit_scales.1],
             "tau": ss.tau, "tau_stderr": ss.tau_stderr, "h": ss.h, "D": ss.d}))});
-    body["warnings"] = json!(s.warnings);
+    // the spectra's, then the kernel's and the correlation's (named)
+    let all_warnings = distinct(s.warnings.iter().cloned().chain(extra_warnings));
+    body["warnings"] = json!(all_warnings);
     super::common::note_caveats(&mut body, Some(&model));
     write_json(&args.out.out.join("validation.json"), &body)?;
 
@@ -927,7 +929,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
                 .unwrap_or_else(|| "-".into())
         );
     }
-    let warnings = distinct(s.warnings.iter().cloned());
+    let warnings = all_warnings;
     let file = format!(
         "{}{}{}",
         &t[..notes_end],
