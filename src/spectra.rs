@@ -718,14 +718,21 @@ impl PartitionSums {
         let on_grid =
             |o: f64| (o - top).abs() <= 1e-6 || log2_a.iter().any(|l| (l - oct0 - o).abs() <= 1e-6);
         if let Some(o) = [fit.0, fit.1].into_iter().find(|&o| !on_grid(o)) {
+            // the grid's octaves on either side, the top included
+            let octs = log2_a.iter().map(|l| l - oct0).chain([top]);
+            let below = octs.clone().filter(|&x| x < o).fold(f64::NAN, f64::max);
+            let above = octs.filter(|&x| x > o).fold(f64::NAN, f64::min);
             return Err(Error::param(
                 "fit",
                 format!(
-                    "octave {} of {}:{} lies between two scales: the ends must be octaves of \
-                     scales of the grid (or the top, {top:.2})",
+                    "octave {} of {}:{} lies between two scales, {:.2} and {:.2}: the ends \
+                     must be octaves of scales of the grid (or the top, {top:.2}, which fits \
+                     up to the last scale)",
                     short(o),
                     short(fit.0),
-                    short(fit.1)
+                    short(fit.1),
+                    below,
+                    above
                 ),
             ));
         }

@@ -76,6 +76,8 @@ pub struct CompareArgs {
     /// Image side (a power of two for the cascades).
     #[arg(long, default_value_t = 1024)]
     pub size: usize,
+    /// Seed of the ensemble: image i is the same as `synth --seed S` image i,
+    /// whatever the thread count.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Number of sub-ensembles (of consecutive images) for the scatter

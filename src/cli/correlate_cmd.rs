@@ -496,7 +496,7 @@ fn write_correlation_outputs(
     super::common::note_caveats(&mut body, model);
     body["integral_scale"] = json!(l);
     body["centring"] = json!({
-        "C": "per image: w - mean of w over the image's valid points (SPEC §6)",
+        "C": "per image: w - mean of w over the image's valid points (II eq 68 with per-image means)",
         "C_ensemble": "ensemble mean of w per scale (II eq 68)"});
     body["theory_note"] = json!(
         "II eq 76: sigma^2 (log2(L/dx) - 2 + 2 dx/L), sigma^2 = Var(ln W); windows: literal dx > max(a1, a2) px, \

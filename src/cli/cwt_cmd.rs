@@ -113,7 +113,7 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     ));
     body["shape"] = json!([ny, nx]);
     body["convention"] = json!(
-        "T = a grad(phi_a * f), L1 normalisation (SPEC §1); argument = atan2(T2, T1), y down"
+        "T = a grad(phi_a * f), L1 normalisation (II eqs 1-3; README, Conventions); argument = atan2(T2, T1), y down"
     );
     body["scales"] = json!(files);
     write_json(&args.out.out.join("cwt.json"), &body)?;

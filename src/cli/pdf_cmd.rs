@@ -42,9 +42,11 @@ use crate::theory::Model;
 /// Analysis domain.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum DomainChoice {
-    /// Torus for generated periodic models (W-cascades, FISC), interior otherwise.
+    /// Torus for the generated models that are periodic (W-cascades, FISC, FIF),
+    /// interior otherwise.
     Auto,
-    /// Interior at the SPEC §1 margin (non-periodic data).
+    /// Interior: leaves out a margin where the wavelet at the largest scale
+    /// reaches the border (non-periodic data; its width: --margin).
     Interior,
     /// The whole image, periodic (margin 0, lags wrap around).
     Torus,
@@ -73,7 +75,8 @@ pub struct StatsInput {
     /// i) [default: 1].
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Analysis domain: torus (periodic images) or interior (SPEC §1 margin).
+    /// Analysis domain: torus (periodic images) or interior (inside the margin
+    /// where the wavelet reaches the border).
     #[arg(long, value_enum, default_value = "auto")]
     pub domain: DomainChoice,
 }

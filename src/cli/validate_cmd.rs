@@ -41,6 +41,8 @@ pub struct ValidateArgs {
     /// Image side (a power of two for the cascades).
     #[arg(long, default_value_t = 1024)]
     pub size: usize,
+    /// Seed of the ensemble: image i is the same as `synth --seed S` image i,
+    /// whatever the thread count.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Independent ensembles (seeds seed, seed+1, ...), each in DIR/seed_S/,
@@ -677,7 +679,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
             "the paper's tau(q) lies on the theory over this range",
             "II §3: 0.74 +- 0.02",
         ),
-        Model::Fbm(_) => ("tau(q) = qH - 2 (SPEC §11)", "h(q) = H at every q"),
+        Model::Fbm(_) => ("tau(q) = qH - 2 (monofractal)", "h(q) = H at every q"),
         Model::Fif(_) => (
             "no published WTMM result: the closed form, q >= 0 where K(q) is finite",
             "the closed form (no published WTMM result)",

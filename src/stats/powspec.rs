@@ -46,7 +46,7 @@ pub enum Detrend {
     /// Least-squares plane `c0 + c1 x + c2 y`. Not for periodic fields
     /// without a window: the removed plane is a jump across the border (a
     /// sawtooth, power ~ |k|^-2 on the axes) that flattens steep spectra
-    /// (FISC preset, 1024²: β 3.03 instead of 3.08 with [`Detrend::Mean`]).
+    /// (FISC preset, 1024²: β 3.03 instead of 3.08 with the mean removed).
     Plane,
 }
 
