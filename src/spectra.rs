@@ -40,6 +40,16 @@ pub enum Rule {
     Plain,
 }
 
+impl Rule {
+    /// The name the command line and the outputs use ("sup", "plain").
+    pub fn name(self) -> &'static str {
+        match self {
+            Rule::Sup => "sup",
+            Rule::Plain => "plain",
+        }
+    }
+}
+
 /// Sums of one image for one cell (q, a), relative to `2^e`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Cell {

@@ -434,8 +434,7 @@ fn describe(s: &Spectra, sums: &PartitionSums) -> String {
         .analysis
         .as_ref()
         .map_or(String::new(), |a| format!(", {}", a.wavelet.name()));
-    let rule = format!("{:?}", s.rule).to_lowercase();
-    format!("{} x {sizes}{wavelet}, {rule} rule", s.images)
+    format!("{} x {sizes}{wavelet}, {} rule", s.images, s.rule.name())
 }
 
 /// II Fig 10: (a) log2 Z vs log2 a, (b) h(q, a) vs log2 a, (c) tau(q), (d) D(h).

@@ -423,6 +423,15 @@ pub fn note_caveats(body: &mut serde_json::Value, model: Option<&crate::theory::
     }
 }
 
+/// `n` and the word, in the plural unless `n` is 1 ("1 image", "3 images").
+pub fn count_of(n: usize, word: &str) -> String {
+    if n == 1 {
+        format!("1 {word}")
+    } else {
+        format!("{n} {word}s")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

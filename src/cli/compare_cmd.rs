@@ -689,8 +689,8 @@ fn table(
     };
     let _ = writeln!(
         s,
-        "compare {name}: {} images {}x{}, seed {}, {} sub-ensembles of {per}; wall {:.1} s",
-        args.count,
+        "compare {name}: {} {}x{}, seed {}, {} sub-ensembles of {per}; wall {:.1} s",
+        super::common::count_of(args.count, "image"),
         args.size,
         args.size,
         args.seed,
@@ -699,7 +699,9 @@ fn table(
     );
     let _ = writeln!(
         s,
-        "WTMM: {wavelet:?} wavelet, {rule:?} rule, fit {:.2}-{:.2} px; TM: {:?} flux after differentiation {:?} (mean order {:.3}), fit log2 lambda {}:{}, universal fit q <= {:.2} (q_s {:.2}); TM alpha {} +- {}, C1 {} +- {} ({})\n",
+        "WTMM: {} wavelet, {} rule, fit {:.2}-{:.2} px; TM: {:?} flux after differentiation {:?} (mean order {:.3}), fit log2 lambda {}:{}, universal fit q <= {:.2} (q_s {:.2}); TM alpha {} +- {}, C1 {} +- {} ({})\n",
+        wavelet.name(),
+        rule.name(),
         w.fit_scales.0,
         w.fit_scales.1,
         t.flux,

@@ -345,7 +345,10 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         }
     }
     if !quiet {
-        say!("correlate: {} images, {wall:.1} s", input.len());
+        say!(
+            "correlate: {}, {wall:.1} s",
+            super::common::count_of(input.len(), "image")
+        );
         if let Some(c) = body.get("checks").and_then(|c| c.as_object()) {
             for (src, v) in c {
                 let dev = |w: &str, k: &str| v[w][k].as_f64().unwrap_or(f64::NAN);

@@ -59,8 +59,8 @@ pub fn run(args: DemoArgs, quiet: bool) -> Result<Outcome> {
         "as for the paper".to_string()
     } else {
         format!(
-            "with {} images of {}x{} the error bars are about {wide:.1} times as {}",
-            args.count,
+            "with {} of {}x{} the error bars are about {wide:.1} times as {}",
+            super::common::count_of(args.count, "image"),
             args.size,
             args.size,
             if wide > 1.0 { "wide" } else { "narrow" }

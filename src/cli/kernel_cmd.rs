@@ -402,9 +402,9 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     if !quiet {
         let cu = &out.main.cumulants;
         say!(
-            "kernel ({} set, {} images, fit {}:{} octaves, {wall:.1} s): c1 = {}, c2 = {}, c3 = {}",
+            "kernel ({} set, {}, fit {}:{} octaves, {wall:.1} s): c1 = {}, c2 = {}, c3 = {}",
             args.set.name(),
-            out.main.images,
+            super::common::count_of(out.main.images, "image"),
             fit.0,
             fit.1,
             pm(&cu.c1),

@@ -151,9 +151,9 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     }
     if !quiet {
         say!(
-            "merged {} images from {} files into {}",
-            s.images,
-            args.sums.len(),
+            "merged {} from {} into {}",
+            super::common::count_of(s.images, "image"),
+            super::common::count_of(args.sums.len(), "file"),
             args.out.out.display()
         );
     }

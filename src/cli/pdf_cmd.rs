@@ -680,8 +680,8 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     )?;
     if !quiet {
         say!(
-            "pdf: {} images, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s",
-            hist.images,
+            "pdf: {}, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s",
+            super::common::count_of(hist.images, "image"),
             args.set.name(),
         );
     }

@@ -400,8 +400,12 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "validate {}: {n} ensembles (seeds {}-{last}) of {} images {}x{}; each in seed_S/",
-        first.name, args.seed, args.count, args.size, args.size
+        "validate {}: {n} ensembles (seeds {}-{last}) of {} {}x{}; each in seed_S/",
+        first.name,
+        args.seed,
+        super::common::count_of(args.count, "image"),
+        args.size,
+        args.size
     );
     for w in first.model.caveats() {
         let _ = writeln!(t, "the model: {w}");
@@ -852,13 +856,13 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let mut t = String::new();
     let _ = writeln!(
         t,
-        "validate {name}: {} images {}x{}, seed {}, {} wavelet, {:?} rule, fit {}:{} octaves ({:.2}-{:.2} px), {wall:.1} s",
-        args.count,
+        "validate {name}: {} {}x{}, seed {}, {} wavelet, {} rule, fit {}:{} octaves ({:.2}-{:.2} px), {wall:.1} s",
+        super::common::count_of(args.count, "image"),
         args.size,
         args.size,
         args.seed,
         cfg.wavelet,
-        rule,
+        rule.name(),
         s.fit_octaves_used.0,
         s.fit_octaves_used.1,
         s.fit_scales.0,
