@@ -943,13 +943,12 @@ impl PartitionSums {
                 let top = at.iter().map(|&qi| est.h[qi]).fold(f64::MIN, f64::max);
                 let moments = if order == 1.0 { "moment" } else { "moments" };
                 warnings.push(format!(
-                    "h(q) >= {order} (to 0.01) at {} of the q (q = {} .. {}, up to h = {top:.3}): the {} \
+                    "h(q) >= {order} (to 0.01) at {} of the q ({}, up to h = {top:.3}): the {} \
                      wavelet has {order} vanishing {moments} and cannot measure exponents of \
                      {order} or more, so these are not Hölder exponents (smooth or quantised \
                      parts of the image, or a wavelet of too low an order{})",
                     at.len(),
-                    self.q[first],
-                    self.q[last],
+                    q_span(self.q[first], self.q[last]),
                     w.name(),
                     if w == crate::cwt::Wavelet::Gauss {
                         ": try the mexican wavelet (--wavelet mexican)"
@@ -972,14 +971,13 @@ impl PartitionSums {
             if let (Some(&first), Some(&last)) = (at.first(), at.last()) {
                 let top = at.iter().map(|&qi| est.h[qi]).fold(f64::MIN, f64::max);
                 warnings.push(format!(
-                    "h(q) >= {bound:.2} at {} of the q (q = {} .. {}, up to h = {top:.3}): the \
+                    "h(q) >= {bound:.2} at {} of the q ({}, up to h = {top:.3}): the \
                      linking window --ratio {lo}:{hi} at steps of {step:.3} octave lets a line \
                      follow a local exponent of at most {bound:.2} per octave, so lines whose \
                      modulus grows faster end and these exponents are under-counted (widen \
                      --ratio, e.g. 0.8:1.25)",
                     at.len(),
-                    self.q[first],
-                    self.q[last],
+                    q_span(self.q[first], self.q[last]),
                 ));
             }
         }
@@ -1624,6 +1622,15 @@ pub fn default_tile_side(cfg: &crate::skeleton::AnalysisConfig, ny: usize, nx: u
         side
     } else {
         (2.0 * a_max).ceil() as usize
+    }
+}
+
+/// "q = a .. b", or "q = a" when the span is one q.
+fn q_span(a: f64, b: f64) -> String {
+    if a == b {
+        format!("q = {a}")
+    } else {
+        format!("q = {a} .. {b}")
     }
 }
 

@@ -51,7 +51,7 @@ pub fn run(args: DemoArgs, quiet: bool) -> Result<Outcome> {
         },
     };
     let r = validate(v, quiet)?;
-    let dir = args.out.display();
+    let p = |f: &str| args.out.join(f).display().to_string();
     // jackknife errors scale as 1/sqrt(number of pixels analysed)
     let pixels = args.count as f64 * (args.size as f64).powi(2);
     let wide = (32.0 * 1024f64.powi(2) / pixels).sqrt();
@@ -70,12 +70,20 @@ pub fn run(args: DemoArgs, quiet: bool) -> Result<Outcome> {
         "\nThe demo analysed {n} synthetic log-normal W-cascades (II §2.2: m = -0.38 ln2, sigma^2 = 0.03 ln2)\n\
          and compared tau(q), h(0), D(h(0)), beta, the kernel cumulants c1-c3 and the magnitude\n\
          correlation with the closed forms. The tolerances are those of `validate` for 32 images\n\
-         of 1024x1024 (on h(0) and D(h(0)) the published ones, SPEC §11); {width}.\n\
+         of 1024x1024 (on h(0) and D(h(0)) the published ones, II §3); {width}.\n\
          On 32 images of 1024x1024 the paper's gauss wavelet reads the kernel's c2 low and the\n\
          correlation below II eq 76 (the README's \"Validation results\" says why).\n\
-         Report: {dir}/validation.txt\n\
-         Plots:  {dir}/logZ.png {dir}/hqa.png {dir}/tau.png {dir}/dh.png {dir}/spectrum.png\n\
-         \x20       {dir}/kernel/*.png (II Figs 25-28) {dir}/correlation/*.png (II Fig 30)\n",
+         Report: {}\n\
+         Plots:  {} {} {} {} {}\n\
+         \x20       {} (II Figs 25-28) {} (II Fig 30)\n",
+        p("validation.txt"),
+        p("logZ.png"),
+        p("hqa.png"),
+        p("tau.png"),
+        p("dh.png"),
+        p("spectrum.png"),
+        p("kernel/*.png"),
+        p("correlation/*.png"),
         n = args.count
     );
     Ok(r)
