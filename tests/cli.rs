@@ -814,6 +814,29 @@ fn validate_demo_and_compare_print_their_warnings() {
     }
 }
 
+/// A copy of an image under another name is refused like the same file
+/// twice (it would pass for an independent sample); two different images
+/// of the same size pass.
+#[test]
+fn a_copied_image_is_refused() {
+    let dir = scratch("copied_image");
+    let a = fbm_npy(&dir, "a.npy", 128, 1);
+    let b = dir.join("b.npy");
+    std::fs::copy(&a, &b).unwrap();
+    let b = b.display().to_string();
+    let c = fbm_npy(&dir, "c.npy", 128, 2);
+    let o = dir.join("o").display().to_string();
+    for cmd in ["spectrum", "analyze"] {
+        let (code, err) = run_bin_stderr(&[cmd, &a, &c, &b, "--out", &o]);
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains("have the same content"), "{cmd}: {err}");
+        assert!(err.contains("a.npy") && err.contains("b.npy"), "{err}");
+        assert!(!dir.join("o").exists());
+    }
+    let (code, err) = run_bin_stderr(&["spectrum", &a, &c, "--out", &o]);
+    assert_eq!(code, 0, "{err}");
+}
+
 /// A negative number given to an option is refused by that option's
 /// parser, named, not taken for an unknown flag (clap's tip `-- -1` would
 /// not help); a negative value where one is valid still parses.
@@ -2644,7 +2667,7 @@ fn kernel_says_when_its_tables_are_empty() {
 #[test]
 fn tm_says_when_an_explicit_gls_falls_back() {
     let dir = scratch("tm_gls");
-    let a = fbm_npy(&dir, "a.npy", 64, 1);
+    let a = fbm_npy(&dir, "a.npy", 128, 1);
     let b = fbm_npy(&dir, "b.npy", 64, 2);
     let o = dir.join("o").display().to_string();
     let (code, err) = run_bin_stderr(&["tm", &a, &b, "--universal-fit", "gls", "--out", &o]);

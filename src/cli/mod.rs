@@ -191,6 +191,7 @@ fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
             )));
         }
     }
+    let mut by_len: std::collections::HashMap<u64, Vec<&Path>> = Default::default();
     for &p in paths {
         let meta = std::fs::metadata(p).map_err(|source| Error::Read {
             path: p.into(),
@@ -199,6 +200,7 @@ fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
         if !meta.is_file() {
             return Err(Error::format(p, "not a regular file"));
         }
+        by_len.entry(meta.len()).or_default().push(p);
         std::fs::File::open(p).map_err(|source| Error::Read {
             path: p.into(),
             source,
@@ -208,7 +210,49 @@ fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
             crate::io::read_field(p)?;
         }
     }
+    if images {
+        // a copy of an image under another name is the same sample too:
+        // files of one length are compared by content (read once each)
+        for group in by_len.values().filter(|g| g.len() > 1) {
+            let mut first_of: std::collections::HashMap<u64, &Path> = Default::default();
+            for &p in group {
+                let h = content_hash(p)?;
+                if let Some(&q) = first_of.get(&h)
+                    && matches!((std::fs::read(q), std::fs::read(p)), (Ok(a), Ok(b)) if a == b)
+                {
+                    return Err(Error::Input(format!(
+                        "{} and {} have the same content: one image twice would pass for two \
+                         independent samples and shrink the error bars; give each image once",
+                        q.display(),
+                        p.display()
+                    )));
+                }
+                first_of.entry(h).or_insert(p);
+            }
+        }
+    }
     Ok(())
+}
+
+/// A hash of a file's bytes, streamed (to find copies among the inputs).
+fn content_hash(p: &Path) -> Result<u64> {
+    use std::hash::Hasher;
+    use std::io::Read;
+    let read_err = |source| Error::Read {
+        path: p.into(),
+        source,
+    };
+    let mut f = std::fs::File::open(p).map_err(read_err)?;
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = f.read(&mut buf).map_err(read_err)?;
+        if n == 0 {
+            break;
+        }
+        h.write(&buf[..n]);
+    }
+    Ok(h.finish())
 }
 
 /// Creates the output directory before computing, so that an unwritable
