@@ -2662,15 +2662,15 @@ fn kernel_says_when_its_tables_are_empty() {
     assert!(w.contains("tables are empty"), "{w}");
 }
 
-/// `tm --universal-fit gls` with too few images for the covariance says that
-/// the fit fell back to OLS (it was only in tm.json).
+/// `tm --universal-fit gls` with too few jackknife parts for the covariance
+/// (one 64² image: 4 tiles of 32 px, GLS needs 5) says that the fit fell
+/// back to OLS (it was only in tm.json).
 #[test]
 fn tm_says_when_an_explicit_gls_falls_back() {
     let dir = scratch("tm_gls");
-    let a = fbm_npy(&dir, "a.npy", 128, 1);
-    let b = fbm_npy(&dir, "b.npy", 64, 2);
+    let a = fbm_npy(&dir, "a.npy", 64, 1);
     let o = dir.join("o").display().to_string();
-    let (code, err) = run_bin_stderr(&["tm", &a, &b, "--universal-fit", "gls", "--out", &o]);
+    let (code, err) = run_bin_stderr(&["tm", &a, "--universal-fit", "gls", "--out", &o]);
     assert_eq!(code, 0, "{err}");
     assert!(
         err.contains("--universal-fit gls was not possible"),
@@ -2680,9 +2680,44 @@ fn tm_says_when_an_explicit_gls_falls_back() {
     assert!(t["warnings"].to_string().contains("gls was not possible"));
     // the default (gls where possible) falls back quietly
     let o2 = dir.join("o2").display().to_string();
-    let (code, err) = run_bin_stderr(&["tm", &a, &b, "--out", &o2]);
+    let (code, err) = run_bin_stderr(&["tm", &a, "--out", &o2]);
     assert_eq!(code, 0, "{err}");
     assert!(!err.contains("gls was not possible"), "{err}");
+}
+
+/// `tm` on one 400² image (the levi_fell DEM's size): the jackknife runs
+/// over the 3 x 3 whole tiles of 128 px, stretched to 133-134 px, and says
+/// so (it ran over 16 tiles, 7 of them 16-px slivers, "of 128 px"); on 2
+/// images of 128² over the 2 x 2 tiles of 64 px of each (not over the 2
+/// images, 1 degree of freedom), with OLS by default, as for one image.
+#[test]
+fn tm_tiles_are_whole_and_two_images_use_them() {
+    let dir = scratch("tm_tiles");
+    let one = fbm_npy(&dir, "one.npy", 400, 3);
+    let o = dir.join("one").display().to_string();
+    let (code, err) = run_bin_stderr(&["tm", &one, "--out", &o]);
+    assert_eq!(code, 0, "{err}");
+    let t = json(&dir.join("one").join("tm.json"));
+    let how = t["stderr_method"].as_str().unwrap();
+    assert!(
+        how.contains("jackknife over 9 tiles of 133-134 px"),
+        "{how}"
+    );
+    assert!(how.contains("stretched to cover every pixel"), "{how}");
+    assert_eq!(t["jackknife_groups"], 9);
+    let (a, b) = (
+        fbm_npy(&dir, "a.npy", 128, 1),
+        fbm_npy(&dir, "b.npy", 128, 2),
+    );
+    let o = dir.join("two").display().to_string();
+    let (code, err) = run_bin_stderr(&["tm", &a, &b, "--out", &o]);
+    assert_eq!(code, 0, "{err}");
+    let t = json(&dir.join("two").join("tm.json"));
+    let how = t["stderr_method"].as_str().unwrap();
+    assert!(how.contains("jackknife over 8 tiles of 64 px"), "{how}");
+    assert_eq!(t["jackknife_groups"], 8);
+    assert!(t["universal_fit"].as_str().unwrap().starts_with("ols"));
+    assert!(err.contains("8 tiles of 2 images"), "{err}");
 }
 
 /// `synth` into a directory that holds another run's files names every one

@@ -18,7 +18,8 @@ use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
     FluxDiff, FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig,
-    TraceMomentResult, UniversalWeighting, finish_ensemble, finish_jackknife, universal_shape,
+    TraceMomentResult, UniversalWeighting, finish_ensemble, finish_jackknife, pool_tiles,
+    tile_bounds, universal_shape,
 };
 
 /// Trace-moment options shared by `tm` and `compare` (everything but the
@@ -75,8 +76,8 @@ pub struct TmOpts {
     /// Schäfer-Strimmer intensity; needs >= 5 images or tiles), `ols` =
     /// unweighted least squares in K (the estimator before GLS) [default:
     /// gls for an ensemble of 5 or more images (fewer fall back to ols,
-    /// recorded in tm.json), ols for one image, whose tiles are not
-    /// independent samples for the covariance].
+    /// recorded in tm.json), ols for fewer than 3 images, whose jackknife
+    /// runs over their tiles: not independent samples for the covariance].
     #[arg(long, value_enum)]
     pub universal_fit: Option<UniversalWeighting>,
     /// Taper before the FFT of the spectrum [default: hann for `tm`; none for
@@ -216,24 +217,49 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         ));
     }
     let cfg = args.tm.config(q, false)?;
-    if args.images.len() == 1 {
-        // one image: its tiles are not independent samples for the covariance
+    // fewer than 3 images: a jackknife over the images has 1 degree of
+    // freedom at most, so it runs over the tiles of every image, as in
+    // `analyze` (tracemoments::pool_tiles)
+    let tiled = args.images.len() < 3;
+    if tiled {
+        // tiles are not independent samples for the covariance
         fc.universal = args.tm.universal_fit.unwrap_or(UniversalWeighting::Ols);
     }
-    let (acc, res, shapes) = if args.images.len() == 1 {
-        // one image: block jackknife over tiles of the largest fitted box
-        let path = &args.images[0];
-        let field = super::common::read_image(path)?;
-        let (ny, nx) = field.dim();
-        let kmax = (ny.min(nx) as f64).log2().floor();
+    let (acc, res, shapes) = if tiled {
+        let fields = args
+            .images
+            .iter()
+            .map(|p| super::common::read_image(p))
+            .collect::<Result<Vec<_>>>()?;
+        // tiles of the largest fitted box (log2 λ = lo) of the ensemble
+        let side = fields.iter().map(|f| f.dim().0.min(f.dim().1)).max();
+        let kmax = (side.unwrap_or(1) as f64).log2().floor();
         let lo = fc
             .log2_lambda
             .map_or(if kmax >= 4.0 { 1.0 } else { 0.0 }, |r| r.0);
         let tile = (kmax - lo.max(0.0).floor()).max(0.0).exp2() as usize;
-        let (whole, tiles) = TraceMomentAccumulator::field_tiles(&cfg, &field, tile)
-            .map_err(|e| super::common::in_file(path, e))?;
-        let res = finish_jackknife(&whole, &tiles, &fc, &format!("tiles of {tile} px"))?;
-        (whole, res, vec![([ny, nx], ny * nx - field.valid_count())])
+        let per_image = fields
+            .par_iter()
+            .zip(&args.images)
+            .map(|(field, path)| {
+                TraceMomentAccumulator::field_tiles(&cfg, field, tile)
+                    .map_err(|e| super::common::in_file(path, e))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let bounds: Vec<_> = fields
+            .iter()
+            .flat_map(|f| tile_bounds(f.dim().0, f.dim().1, tile))
+            .collect();
+        let (whole, tiles) = pool_tiles(per_image)?;
+        let res = finish_jackknife(&whole, &tiles, &fc, &tiles_label(&bounds, tile))?;
+        let shapes = fields
+            .iter()
+            .map(|f| {
+                let (ny, nx) = f.dim();
+                ([ny, nx], ny * nx - f.valid_count())
+            })
+            .collect();
+        (whole, res, shapes)
     } else {
         let (parts, shapes) = accumulate_paths(&args.images, &cfg, quiet)?;
         let (acc, res) = finish_ensemble(&parts, &fc)?;
@@ -247,10 +273,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     // as the other commands: jackknife errors over few images (or tiles of
     // one image) are rough, and say by how much
     let n = res.jackknife_groups;
-    let groups = if args.images.len() == 1 {
-        "tiles of one image"
-    } else {
-        "images"
+    let groups = match args.images.len() {
+        1 => "tiles of one image",
+        2 => "tiles of 2 images",
+        _ => "images",
     };
     extra.extend(crate::stats::fit::few_groups_warning(
         n,
@@ -289,10 +315,36 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         &extra,
     )?;
     show!("{}", summary(&res));
-    for w in tm_warnings(&res).iter().chain(&extra) {
+    for w in res.warnings.iter().chain(&tm_warnings(&res)).chain(&extra) {
         say!("warning: {w}");
     }
     Ok(Outcome::Ok)
+}
+
+/// "tiles of 172 x 134-135 px (whole 128-px tiles stretched to cover every
+/// pixel)": the real sizes (rows x columns; one range when both agree) of
+/// the jackknife tiles `bounds` ([`tile_bounds`]) cut for the side `tile`.
+fn tiles_label(bounds: &[(usize, usize, usize, usize)], tile: usize) -> String {
+    let span = |v: Vec<usize>| {
+        let (lo, hi) = (v.iter().min().copied(), v.iter().max().copied());
+        match (lo, hi) {
+            (Some(lo), Some(hi)) if lo < hi => format!("{lo}-{hi}"),
+            (Some(lo), _) => format!("{lo}"),
+            _ => "?".into(),
+        }
+    };
+    let h = span(bounds.iter().map(|b| b.1 - b.0).collect());
+    let w = span(bounds.iter().map(|b| b.3 - b.2).collect());
+    let size = if h == w { h } else { format!("{h} x {w}") };
+    let how = if bounds
+        .iter()
+        .all(|b| b.1 - b.0 == tile && b.3 - b.2 == tile)
+    {
+        "covering every pixel".to_string()
+    } else {
+        format!("whole {tile}-px tiles stretched to cover every pixel")
+    };
+    format!("tiles of {size} px ({how})")
 }
 
 /// An image's `[ny, nx]` and its number of missing pixels.
@@ -466,7 +518,9 @@ pub fn result_json(
             obj.insert(k, v);
         }
     }
-    let mut warnings = tm_warnings(res);
+    // the library's diagnostics, then the range checks, then the command's
+    let mut warnings = res.warnings.clone();
+    warnings.extend(tm_warnings(res));
     warnings.extend_from_slice(extra_warnings);
     body["warnings"] = json!(warnings);
     body["K_universal"] = json!(k_universal(res, &res.q));
