@@ -31,15 +31,15 @@ pub struct TmOpts {
     /// (both a differentiation of order 1).
     #[arg(long, value_enum, default_value_t = FluxKind::Gradient)]
     pub flux: FluxKind,
-    /// Fractional differentiation of the field before the modulus (seed 000
+    /// Fractional differentiation of the field before the modulus (TM
     /// §5.2: "of order H or greater"): `auto` = order H = xi(1) estimated per
     /// image from its first-order structure function, so the modulus acts on
-    /// the flux itself whatever H; `none` = the modulus alone (seed 000's
+    /// the flux itself whatever H; `none` = the modulus alone (TM's
     /// estimator: alpha biased high, C1 low when H is well above 1/2); or a
     /// number.
     #[arg(long, default_value = "auto", allow_negative_numbers = true)]
     pub diff_order: String,
-    /// Fractional integration of this order before the flux (seed 000 §5.2: it
+    /// Fractional integration of this order before the flux (TM §5.2: it
     /// removes the spurious zero gradients of quantised DEMs); `--frac-int`
     /// alone means 0.1. Applied on top of --diff-order (one Fourier filter of
     /// order diff - frac_int).
@@ -633,7 +633,7 @@ pub fn write_outputs(
 
 const LOG10_2: f64 = std::f64::consts::LOG10_2;
 
-/// The orders shown in seed 000 Figs 19, 25-26 (top to bottom 2.18 ... 0.04),
+/// The orders shown in TM Figs 19, 25-26 (top to bottom 2.18 ... 0.04),
 /// plus 3, snapped to the grid.
 fn shown_q(q: &[f64]) -> Vec<usize> {
     let mut v: Vec<usize> = [0.04, 0.12, 0.51, 1.17, 1.44, 1.77, 2.18, 3.0]

@@ -499,7 +499,7 @@ impl Model {
                 "topo-fif",
                 Model::Fif(FifParams::TOPO),
                 Wavelet::Gauss,
-                "seed 000 Tables 4-5 (topography), seed 001 Fig 1b",
+                "TM Tables 4-5 (topography), SIM Fig 1b",
             ),
             other => {
                 return Err(Error::param(

@@ -25,7 +25,7 @@ pub enum FluxKind {
 }
 
 /// Fractional differentiation applied to the field before the modulus
-/// (seed 000 §5.2: inverting the fractional integration of order H needs "a
+/// (TM §5.2: inverting the fractional integration of order H needs "a
 /// fractional differentiation of order H or greater"). The total order of the
 /// flux is this order plus the modulus' own order 1 (see the module docs of
 /// [`crate::tracemoments`] for the bias of each choice).

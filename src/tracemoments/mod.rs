@@ -12,7 +12,7 @@
 //! * an excess order η > 0 turns the flux into a fluctuation field
 //!   `D^η φ` whose modulus at the finest scale is φ times a random factor
 //!   that the box averages wash out after a few pixels (the "range of scales,
-//!   typically a factor of 2-4" of seed 000 §5.2). Scale l contributes to
+//!   typically a factor of 2-4" of TM §5.2). Scale l contributes to
 //!   `D^η φ` with weight `l^-η`, so a small η mixes in ~`1/(η ln 2)` octaves
 //!   of coarser fluctuations, down to the mean-removed `φ - <φ>`: the
 //!   modulus fills the low values of φ, |K(q)| comes out low, α high.
@@ -1491,7 +1491,7 @@ pub const TILE_ERROR_FACTOR: f64 = 2.0;
 /// 1. the spectral H above what the differentiation resolves: 1 with
 ///    [`FluxDiff::Auto`] (its order ξ(1) comes from first differences, which
 ///    saturate at 1, so for H > 1 the excess order falls below 1: module
-///    docs, "Which flux"), `1 + order` otherwise (seed 000 §5.2: the flux
+///    docs, "Which flux"), `1 + order` otherwise (TM §5.2: the flux
 ///    needs a differentiation of order H or more);
 /// 2. else the spectral H and `H_sf = ξ(1)` apart (both estimate H:
 ///    `ξ(1) = H - K(1) = H`, seed 000 eq 10), the error that of their
@@ -1549,7 +1549,7 @@ pub fn diagnostics(
                      differences cannot resolve H > 1 (H_sf = xi(1) = {hsf} saturates), so the \
                      automatic differentiation (--diff-order auto, of order xi(1) = {d:.3}) is \
                      too low: it leaves the modulus 1 + {d:.3} - H = {e:.2} orders in excess of \
-                     H instead of 1 (seed 000 §5.2), which biases K(q), alpha and C1; give the \
+                     H instead of 1 (TM §5.2), which biases K(q), alpha and C1; give the \
                      order: {f}",
                     e = 1.0 + d - h,
                     f = fix(h)
@@ -1558,7 +1558,7 @@ pub fn diagnostics(
                     "the spectral H = {h:.3} exceeds {bound:.3}, the order of the flux's \
                      differentiation (the modulus' 1 plus {d}), by {z:.1} errors of {se:.3}: \
                      the modulus acts on a fractional integral of the flux, not on the flux \
-                     (seed 000 §5.2 asks for an order H or more); give {f}",
+                     (TM §5.2 asks for an order H or more); give {f}",
                     f = fix(h)
                 ),
             });
@@ -1596,7 +1596,7 @@ pub fn diagnostics(
             };
             w.push(format!(
                 "the spectral H = {h:.3} and H_sf = xi(1) = {hsf:.3} differ by {:+.3}, {:.1} \
-                 errors of {se:.3}, though both estimate H (xi(1) = H - K(1) = H, seed 000 eq \
+                 errors of {se:.3}, though both estimate H (xi(1) = H - K(1) = H, TM eq \
                  10){why}{auto}",
                 h - hsf,
                 z.abs(),
