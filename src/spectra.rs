@@ -1664,45 +1664,40 @@ fn legendre_warnings(q: &[f64], est: &Estimates, reps: &[Estimates]) -> Vec<Stri
         }
     };
     let mut out = Vec::new();
-    // the largest rise h(q_j) - h(q_i), i < j
-    let mut rise: Option<(usize, usize, f64)> = None;
-    let mut lowest: Option<usize> = None;
+    // the rise h(q_j) - h(q_i), i < j, largest against its error (a small
+    // rise can be real where a larger one is noise)
+    let mut rise: Option<(usize, usize, f64, f64)> = None;
     for j in 0..nq {
-        if !est.h[j].is_finite() {
-            continue;
-        }
-        if let Some(i) = lowest {
+        for i in 0..j {
             let r = est.h[j] - est.h[i];
-            if r > rise.map_or(0.0, |x| x.2) {
-                rise = Some((i, j, r));
+            if !(r > 0.0) {
+                continue;
+            }
+            let se = jk(&|e: &Estimates| e.h[j] - e.h[i]);
+            let se = if se.is_finite() {
+                se
+            } else {
+                est.h_se[i] + est.h_se[j]
+            };
+            if r > se && rise.is_none_or(|(_, _, r0, se0)| r / se > r0 / se0) {
+                rise = Some((i, j, r, se));
             }
         }
-        if lowest.is_none_or(|i| est.h[j] < est.h[i]) {
-            lowest = Some(j);
-        }
     }
-    if let Some((i, j, r)) = rise {
-        let se = jk(&|e: &Estimates| e.h[j] - e.h[i]);
-        let se = if se.is_finite() {
-            se
-        } else {
-            est.h_se[i] + est.h_se[j]
-        };
-        if r > se {
-            let dmax = (i..=j).map(|k| est.d[k]).fold(f64::MIN, f64::max);
-            out.push(format!(
-                "h(q) rises from {:.3} at q = {} to {:.3} at q = {} ({r:+.3} +- {se:.3}, {}): \
-                 tau(q) is not concave there, so D(h) folds back and is not a Legendre spectrum \
-                 over those q (D reaches {dmax:.3}); the fit range often mixes two scaling \
-                 regimes (see the straight-line warnings) or a few lines dominate: narrow --fit \
-                 or --q",
-                est.h[i],
-                q[i],
-                est.h[j],
-                q[j],
-                departure(r / se)
-            ));
-        }
+    if let Some((i, j, r, se)) = rise {
+        let dmax = (i..=j).map(|k| est.d[k]).fold(f64::MIN, f64::max);
+        out.push(format!(
+            "h(q) rises from {:.3} at q = {} to {:.3} at q = {} ({r:+.3} +- {se:.3}, {}): \
+             tau(q) is not concave there, so D(h) folds back and is not a Legendre spectrum \
+             over those q (D reaches {dmax:.3}); the fit range often mixes two scaling \
+             regimes (see the straight-line warnings) or a few lines dominate: narrow --fit \
+             or --q",
+            est.h[i],
+            q[i],
+            est.h[j],
+            q[j],
+            departure(r / se)
+        ));
     }
     // D(q) above 2 by more than its error
     let above: Vec<(usize, f64, f64)> = (0..nq)
@@ -1901,7 +1896,8 @@ mod tests {
         // errors of 0.21: within one error, nothing
         assert!(legendre_warnings(&q, &est(&h, &d, 0.21), &[]).is_empty());
         // 3 or more jackknife replicates give the difference's own error:
-        // h(2) - h(-1) = 0.2 + 0.1 k over 4 replicates, se sqrt(3/4 x 0.05)
+        // h(2) - h(1) = 0.4 + 0.1 k over 4 replicates, se sqrt(3/4 x 0.05)
+        let h = [0.5, 0.45, 0.4, 0.35, 0.75];
         let reps: Vec<Estimates> = (0..4)
             .map(|k| {
                 let mut hk = h;
@@ -1911,7 +1907,30 @@ mod tests {
             .collect();
         let w = legendre_warnings(&q, &est(&h, &d, 0.01), &reps);
         assert!(
-            w[0].contains("(+0.200 +- 0.194, 1.0 standard errors"),
+            w[0].contains("from 0.350 at q = 1 to 0.750 at q = 2 (+0.400 +- 0.194, 2.1 standard"),
+            "{}",
+            w[0]
+        );
+        // the rise that counts is the largest against its error: 0.05 +-
+        // 0.01 from q = 0 to 1, not 0.15 +- 0.4 from q = -3 to -2 (an
+        // independent review's probe)
+        let q7 = [-4.0, -3.0, -2.0, -1.0, 0.0, 1.0, 2.0];
+        let se7 = [0.2, 0.2, 0.005, 0.005, 0.005, 0.005, 0.005];
+        let e7 = Estimates {
+            tau: vec![0.0; 7],
+            tau_se: se7.to_vec(),
+            r2: vec![1.0; 7],
+            slope_change: vec![0.0; 7],
+            h: vec![0.5, 0.6, 0.45, 0.40, 0.35, 0.40, 0.30],
+            h_se: se7.to_vec(),
+            d: vec![1.9; 7],
+            d_se: se7.to_vec(),
+        };
+        let w = legendre_warnings(&q7, &e7, &[]);
+        assert!(
+            w[0].starts_with(
+                "h(q) rises from 0.350 at q = 0 to 0.400 at q = 1 (+0.050 +- 0.010, 5.0"
+            ),
             "{}",
             w[0]
         );

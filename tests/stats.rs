@@ -2236,6 +2236,44 @@ fn a_lone_image_reports_believable_kernel_errors() {
     }
 }
 
+/// A tile holding every point of a scale leaves its replicate without a
+/// mean there: the errors of the pairs with that scale are undefined (NaN)
+/// for both centrings, as a brute force would give, not a replicate left
+/// centred on the old mean (an independent review's probe).
+#[test]
+fn a_tile_holding_every_point_of_a_scale_gives_no_error() {
+    let (ny, nx) = (30, 30);
+    let pt = |y: u32, x: u32, m: f64| Point { y, x, m, arg: 0.0 };
+    // scale 0 spread over the image, scale 1 only in the first tile
+    let s0: Vec<Point> = (0..100u32)
+        .map(|i| pt((i * 7) % 30, (i * 11) % 30, 1.0 + (i % 5) as f64))
+        .collect();
+    let s1: Vec<Point> = (0..6u32).map(|i| pt(i, 2 * i, 2.0 + i as f64)).collect();
+    let cfg = CorrelationConfig {
+        scales: vec![1.5, 3.0],
+        pairs: vec![(0, 0), (0, 1)],
+        periodic: true,
+        margin: Some(0),
+        bins_per_octave: 2,
+        max_dx: Some(12.0),
+        ..Default::default()
+    };
+    let plan = CorrelationPlan::new(ny, nx, &cfg).unwrap();
+    let s = wtmmm_correlation_tiled(&[&s0, &s1], &plan, "x", (0, ny, 0, nx), 15).unwrap();
+    assert_eq!(s.images[0].tiles.len(), 4);
+    assert_eq!(s.images[0].tiles[0].n[1], 6.0);
+    let r = correlation_estimates(&s).unwrap();
+    // the pair of scale 0 alone keeps finite errors
+    assert!(r.pairs[0].c_stderr.iter().any(|e| e.is_finite()));
+    for e in r.pairs[1]
+        .c_stderr
+        .iter()
+        .chain(&r.pairs[1].c_ensemble_stderr)
+    {
+        assert!(e.is_nan(), "{:?}", r.pairs[1].c_stderr);
+    }
+}
+
 /// Per pair of the CLI's default scales (octaves 1:1, 0:1, 0:2, 1:2 above
 /// a_min), per lag bin: `(Δx, rms error one image reports, scatter of C
 /// between the images)`, each of `n` images of `model` analysed alone with

@@ -304,7 +304,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     drop(runner);
     // cost of the correlation against one CWT scale, on the first image
     let cost = if input.len() == 1 && do_cwt {
-        Some(cost_ratio(&input, &ccfg)?)
+        Some(cost_ratio(&input, &ccfg, tiles)?)
     } else {
         None
     };
@@ -363,10 +363,15 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         }
         if let Some(c) = cost {
             say!(
-                "cost: correlation {:.2} ms = {:.1} CWT scales ({:.2} ms each)",
+                "cost: correlation {:.2} ms = {:.1} CWT scales ({:.2} ms each){}",
                 c.0 * 1e3,
                 c.2,
-                c.1 * 1e3
+                c.1 * 1e3,
+                c.3.map_or(String::new(), |t| format!(
+                    "; with its jackknife tiles {:.2} ms = {:.1} CWT scales",
+                    t * 1e3,
+                    t / c.1
+                ))
             );
         }
     }
@@ -405,9 +410,15 @@ impl CpuClock {
     }
 }
 
-/// `(correlation seconds, one CWT scale seconds, ratio)` on image 0
-/// (single thread, minimum over repetitions).
-fn cost_ratio(input: &Input, ccfg: &CorrelationConfig) -> Result<(f64, f64, f64)> {
+/// `(correlation seconds, one CWT scale seconds, ratio, seconds with the
+/// jackknife tiles if `tiles`)` on image 0 (single thread, minimum over
+/// repetitions): the correlation itself, the measure, and the run
+/// as made for a lone image.
+fn cost_ratio(
+    input: &Input,
+    ccfg: &CorrelationConfig,
+    tiles: bool,
+) -> Result<(f64, f64, f64, Option<f64>)> {
     let (field, _) = input.load(0)?;
     let (ny, nx) = field.dim();
     let plan = CorrelationPlan::new(ny, nx, ccfg)?;
@@ -415,6 +426,14 @@ fn cost_ratio(input: &Input, ccfg: &CorrelationConfig) -> Result<(f64, f64, f64)
     let tc = time_per_call(3, &mut || {
         cwt_correlation(&field, &plan, "timing").map(|_| ())
     })?;
+    let tt = if tiles {
+        let side = default_tile_side(plan.domain());
+        Some(time_per_call(1, &mut || {
+            cwt_correlation_tiled(&field, &plan, "timing", side).map(|_| ())
+        })?)
+    } else {
+        None
+    };
     let cwt = CwtPlan::new(ny, nx, ccfg.wavelet, &[ccfg.scales[0]])?;
     let img = field.filled()?;
     let fi = cwt.forward(img.view())?;
@@ -423,7 +442,7 @@ fn cost_ratio(input: &Input, ccfg: &CorrelationConfig) -> Result<(f64, f64, f64)
         let _ = cwt.scale(&fi, 0, &mut ws);
         Ok(())
     })?;
-    Ok((tc, ts, tc / ts))
+    Ok((tc, ts, tc / ts, tt))
 }
 
 /// CPU seconds per call of `f`, the minimum over `batches` batches; a batch
@@ -493,7 +512,7 @@ fn write_correlation_outputs(
     l: f64,
     a_min: f64,
     wall: f64,
-    cost: Option<(f64, f64, f64)>,
+    cost: Option<(f64, f64, f64, Option<f64>)>,
 ) -> Result<serde_json::Value> {
     let mut body = header(command, params);
     super::common::note_caveats(&mut body, model);
@@ -534,9 +553,10 @@ fn write_correlation_outputs(
         body["checks"] = serde_json::Value::Object(checks);
     }
     body["wall_seconds"] = json!(wall);
-    if let Some((tc, ts, ratio)) = cost {
+    if let Some((tc, ts, ratio, tt)) = cost {
         body["cost"] = json!({"correlation_seconds": tc, "cwt_scale_seconds": ts, "ratio": ratio,
-            "note": "one image, one thread: the whole correlation (its CWT scales included) in units of one CWT scale"});
+            "with_tiles_seconds": tt, "with_tiles_ratio": tt.map(|t| t / ts),
+            "note": "one image, one thread: the whole correlation (its CWT scales included) in units of one CWT scale; with_tiles: the same run with the jackknife tiles of a lone image's error bars"});
     }
     write_json(&dir.join("correlation.json"), &body)?;
     let mut rows = Vec::new();

@@ -191,7 +191,7 @@ fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
             )));
         }
     }
-    let mut by_len: std::collections::HashMap<u64, Vec<&Path>> = Default::default();
+    let mut by_len: std::collections::BTreeMap<u64, Vec<&Path>> = Default::default();
     for &p in paths {
         let meta = std::fs::metadata(p).map_err(|source| Error::Read {
             path: p.into(),
@@ -212,14 +212,18 @@ fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
     }
     if images {
         // a copy of an image under another name is the same sample too:
-        // files of one length are compared by content (read once each)
+        // files of one length are compared by their first MiB, and in full
+        // only where that agrees (different images differ at once)
         for group in by_len.values().filter(|g| g.len() > 1) {
-            let mut first_of: std::collections::HashMap<u64, &Path> = Default::default();
+            let mut first_of: std::collections::BTreeMap<u64, Vec<&Path>> = Default::default();
             for &p in group {
-                let h = content_hash(p)?;
-                if let Some(&q) = first_of.get(&h)
-                    && matches!((std::fs::read(q), std::fs::read(p)), (Ok(a), Ok(b)) if a == b)
-                {
+                let h = prefix_hash(p)?;
+                let same = first_of.get(&h).and_then(|qs| {
+                    qs.iter().copied().find(|q| {
+                        matches!((std::fs::read(q), std::fs::read(p)), (Ok(a), Ok(b)) if a == b)
+                    })
+                });
+                if let Some(q) = same {
                     return Err(Error::Input(format!(
                         "{} and {} have the same content: one image twice would pass for two \
                          independent samples and shrink the error bars; give each image once",
@@ -227,31 +231,26 @@ fn check_inputs(paths: &[&Path], images: bool) -> Result<()> {
                         p.display()
                     )));
                 }
-                first_of.entry(h).or_insert(p);
+                first_of.entry(h).or_default().push(p);
             }
         }
     }
     Ok(())
 }
 
-/// A hash of a file's bytes, streamed (to find copies among the inputs).
-fn content_hash(p: &Path) -> Result<u64> {
+/// A hash of a file's first MiB (to find copies among the inputs).
+fn prefix_hash(p: &Path) -> Result<u64> {
     use std::hash::Hasher;
     use std::io::Read;
     let read_err = |source| Error::Read {
         path: p.into(),
         source,
     };
-    let mut f = std::fs::File::open(p).map_err(read_err)?;
+    let f = std::fs::File::open(p).map_err(read_err)?;
+    let mut buf = Vec::with_capacity(1 << 20);
+    f.take(1 << 20).read_to_end(&mut buf).map_err(read_err)?;
     let mut h = std::collections::hash_map::DefaultHasher::new();
-    let mut buf = vec![0u8; 1 << 20];
-    loop {
-        let n = f.read(&mut buf).map_err(read_err)?;
-        if n == 0 {
-            break;
-        }
-        h.write(&buf[..n]);
-    }
+    h.write(&buf);
     Ok(h.finish())
 }
 

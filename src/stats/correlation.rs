@@ -1084,6 +1084,8 @@ impl CorrelationPlan {
                 self.fft
                     .forward_rows(&cut, ya..yb, &mut ws.half, sp, &mut ws.row, &mut ws.scratch);
             }
+            let mut done: std::collections::HashMap<(usize, usize), (Vec<f64>, Vec<f64>)> =
+                Default::default();
             let pairs = self
                 .cfg
                 .pairs
@@ -1092,21 +1094,27 @@ impl CorrelationPlan {
                     let jv = inp.firsts.iter().position(|&s| s == s1).expect("listed");
                     // the first scale's weights in the tile
                     let jm = nv + if inp.weights.len() == 1 { 0 } else { jv };
-                    let mut one = |a: &[Complex32], b: &[Complex32], counts: bool| {
-                        self.fft.correlate(
-                            a,
-                            b,
-                            &mut ws.x,
-                            &mut ws.half,
-                            &mut ws.r,
-                            &mut ws.scratch,
-                        );
-                        self.bin(&mut ws.r, counts)
+                    // (tile field, whole-image field): pairs sharing a first
+                    // or second scale share their weights' correlations
+                    let mut one = |a: usize, b: usize, counts: bool| {
+                        done.entry((a, b))
+                            .or_insert_with(|| {
+                                self.fft.correlate(
+                                    &spec[a],
+                                    &full[b],
+                                    &mut ws.x,
+                                    &mut ws.half,
+                                    &mut ws.r,
+                                    &mut ws.scratch,
+                                );
+                                self.bin(&mut ws.r, counts)
+                            })
+                            .clone()
                     };
-                    let ww = one(&spec[jv], &full[s2], false).0;
-                    let wm = one(&spec[jv], &full[wfull(s2)], false).0;
-                    let mw = one(&spec[jm], &full[s2], false).0;
-                    let (count, lcount) = one(&spec[jm], &full[wfull(s2)], true);
+                    let ww = one(jv, s2, false).0;
+                    let wm = one(jv, wfull(s2), false).0;
+                    let mw = one(jm, s2, false).0;
+                    let (count, lcount) = one(jm, wfull(s2), true);
                     PairSums {
                         ww,
                         wm,
@@ -1262,12 +1270,13 @@ impl CorrelationImage {
         let t = &self.tiles[k];
         let n: Vec<f64> = self.n.iter().zip(&t.n).map(|(a, b)| a - b).collect();
         // w̃ sums to 0 over the image, so the points left sum to -wsum:
-        // their mean is the image's plus e, and w̃ becomes w̃ - e
+        // their mean is the image's plus e, and w̃ becomes w̃ - e (none
+        // left at a scale: no mean, and the replicate is undefined, NaN)
         let e: Vec<f64> = t
             .wsum
             .iter()
             .zip(&n)
-            .map(|(w, n)| if *n > 0.0 { -w / n } else { 0.0 })
+            .map(|(w, n)| if *n > 0.0 { -w / n } else { f64::NAN })
             .collect();
         let mean = self.mean.iter().zip(&e).map(|(m, e)| m + e).collect();
         let pairs = self
@@ -1387,8 +1396,13 @@ impl CorrelationSums {
 /// tile holds few independent lags and the cascade's coarse levels, shared
 /// by every tile, are not resampled. 3 x 3 tiles read 0.7 (log-normal),
 /// 6 x 6 0.55: more, smaller tiles see fewer of the large structures.
+///
+/// On an elongated domain the side grows to keep about 16 tiles by area
+/// (each tile costs FFTs of the whole grid): a 192 x 2048 strip gets 13.
 pub fn default_tile_side((y0, y1, x0, x1): (usize, usize, usize, usize)) -> usize {
-    (y1.saturating_sub(y0)).min(x1.saturating_sub(x0)) / 4
+    let (h, w) = (y1.saturating_sub(y0), x1.saturating_sub(x0));
+    let by_area = ((h * w) as f64 / 16.0).sqrt().floor() as usize;
+    (h.min(w) / 4).max(by_area)
 }
 
 /// Magnitudes on the CWT grid of one image (SPEC §6): `ln M` (or `½ ln ε²`)
