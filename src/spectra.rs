@@ -1125,30 +1125,17 @@ pub const N_EFF_WARN: f64 = 10.0;
 /// per run its label (`q = a`, `q = a, b`, `q = a .. b`), the index of its
 /// most extreme value (the largest `key`) and whether it holds several q.
 fn runs(q: &[f64], v: &[Option<f64>], key: impl Fn(f64) -> f64) -> Vec<(String, usize, bool)> {
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < v.len() {
-        if v[i].is_none() {
-            i += 1;
-            continue;
-        }
-        let start = i;
-        let mut worst = i;
-        while i + 1 < v.len() && v[i + 1].is_some() {
-            i += 1;
-            if key(v[i].unwrap_or(f64::NAN)) > key(v[worst].unwrap_or(f64::NAN)) {
-                worst = i;
-            }
-        }
-        let label = match i - start {
-            0 => format!("q = {}", q[start]),
-            1 => format!("q = {}, {}", q[start], q[i]),
-            _ => format!("q = {} .. {}", q[start], q[i]),
-        };
-        out.push((label, worst, i > start));
-        i += 1;
-    }
-    out
+    crate::stats::fit::flagged_runs(v, key)
+        .into_iter()
+        .map(|(start, end, worst)| {
+            let label = match end - start {
+                0 => format!("q = {}", q[start]),
+                1 => format!("q = {}, {}", q[start], q[end]),
+                _ => format!("q = {} .. {}", q[start], q[end]),
+            };
+            (label, worst, end > start)
+        })
+        .collect()
 }
 
 /// Jackknife where available, regression otherwise.

@@ -263,8 +263,57 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, var.sqrt())
 }
 
+/// Runs of neighbouring flagged (`Some`) entries of `v`: `(first, last,
+/// index of the largest key)` each. The per-q diagnostics of the spectra
+/// and the trace moments come in such runs (the tails of the q range):
+/// one warning per run, not one per q.
+pub fn flagged_runs<T: Copy>(
+    v: &[Option<T>],
+    key: impl Fn(T) -> f64,
+) -> Vec<(usize, usize, usize)> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < v.len() {
+        let Some(first_v) = v[i] else {
+            i += 1;
+            continue;
+        };
+        let (first, mut worst, mut best) = (i, i, key(first_v));
+        while let Some(Some(x)) = v.get(i + 1) {
+            i += 1;
+            let k = key(*x);
+            if k > best {
+                (worst, best) = (i, k);
+            }
+        }
+        out.push((first, i, worst));
+        i += 1;
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
+
+    /// Runs of neighbouring flagged entries, each with its largest key.
+    #[test]
+    fn flagged_runs_find_each_run_and_its_worst() {
+        let v = [
+            None,
+            Some(1.0),
+            Some(-3.0),
+            Some(2.0),
+            None,
+            Some(0.5),
+            None,
+            Some(f64::NAN),
+        ];
+        assert_eq!(
+            flagged_runs(&v, f64::abs),
+            vec![(1, 3, 2), (5, 5, 5), (7, 7, 7)]
+        );
+        assert!(flagged_runs::<f64>(&[None, None], f64::abs).is_empty());
+    }
     use super::*;
 
     /// Error bars that cannot carry a paper say so: regression errors, and

@@ -1639,7 +1639,9 @@ pub fn diagnostics(
             .iter()
             .map(|t| t.and_then(|(c, se)| (c.abs() > z_m * se).then_some((c, c.abs() / se))))
             .collect();
-        for (first, last, worst) in q_runs(&bent) {
+        for (first, last, worst) in
+            crate::stats::fit::flagged_runs(&bent, |x: (f64, f64)| x.0.abs())
+        {
             let (c, z) = bent[worst].unwrap_or((f64::NAN, f64::NAN));
             // the grid's q to 6 decimals (0.30000000000000004 reads 0.3)
             let qs = |i: usize| format!("{}", (r.q[i] * 1e6).round() / 1e6);
@@ -1667,29 +1669,6 @@ pub fn diagnostics(
 /// `P(Z > z)` for a standard normal `Z`.
 fn normal_tail(z: f64) -> f64 {
     1.0 - statrs::distribution::Normal::standard().cdf(z)
-}
-
-/// Runs of neighbouring flagged entries of `v`: `(first, last, index of
-/// the largest |value|)` each.
-fn q_runs(v: &[Option<(f64, f64)>]) -> Vec<(usize, usize, usize)> {
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < v.len() {
-        if v[i].is_none() {
-            i += 1;
-            continue;
-        }
-        let (first, mut worst) = (i, i);
-        while i + 1 < v.len() && v[i + 1].is_some() {
-            i += 1;
-            if v[i].map(|x| x.0.abs()) > v[worst].map(|x| x.0.abs()) {
-                worst = i;
-            }
-        }
-        out.push((first, i, worst));
-        i += 1;
-    }
-    out
 }
 
 /// The jackknife tiles of an `ny x nx` image, as `(y0, y1, x0, x1)` (rows
