@@ -450,7 +450,7 @@ pub fn summary(r: &TraceMomentResult) -> String {
 /// the derived `tau` and `K_universal`.
 /// Estimates outside the universal model's range (TM §6: 0 <= alpha <= 2,
 /// C1 >= 0), usually a sign of too few scales or too few images.
-fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
+pub(super) fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
     let mut w = Vec::new();
     if !res.alpha.is_finite() {
         w.push("the universal fit failed (fewer than 3 q values below q_s/2?)".to_string());
