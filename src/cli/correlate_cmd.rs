@@ -427,9 +427,17 @@ fn cost_ratio(
         cwt_correlation(&field, &plan, "timing").map(|_| ())
     })?;
     let tt = if tiles {
+        // on one thread: the tiles run in parallel, and the clock is the
+        // calling thread's
         let side = default_tile_side(plan.domain());
-        Some(time_per_call(1, &mut || {
-            cwt_correlation_tiled(&field, &plan, "timing", side).map(|_| ())
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .map_err(|e| Error::Input(format!("cannot start a timing thread: {e}")))?;
+        Some(one.install(|| {
+            time_per_call(1, &mut || {
+                cwt_correlation_tiled(&field, &plan, "timing", side).map(|_| ())
+            })
         })?)
     } else {
         None

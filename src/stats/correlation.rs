@@ -98,6 +98,7 @@ use std::sync::{Arc, Mutex};
 
 use ndarray::Array2;
 use num_complex::{Complex32, Complex64};
+use rayon::prelude::*;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
@@ -1056,83 +1057,110 @@ impl CorrelationPlan {
         };
         let nv = inp.firsts.len();
         let n_tf = nv + inp.weights.len();
-        let mut spec: Vec<Vec<Complex32>> = vec![vec![Complex32::default(); nh * cs]; n_tf];
-        let mut cut = vec![0.0f64; fy * fx];
-        let mut out = Vec::with_capacity(g.len());
-        for t in 0..g.len() {
-            // the edge tiles reach the domain's edges: a point outside the
-            // tiles' domain belongs to the nearest tile, as TileGrid::index
-            let (mut ya, mut yb, mut xa, mut xb) = g.bounds(t);
-            let (dy, dx) = (self.y1 - self.y0, self.x1 - self.x0);
-            if ya == grid_domain.0 {
-                ya = 0;
-            }
-            if yb == grid_domain.1 {
-                yb = dy;
-            }
-            if xa == grid_domain.2 {
-                xa = 0;
-            }
-            if xb == grid_domain.3 {
-                xb = dx;
-            }
-            for (src, sp) in inp.values.iter().chain(&inp.weights).zip(spec.iter_mut()) {
-                cut.fill(0.0);
-                for y in ya..yb {
-                    cut[y * fx + xa..y * fx + xb].copy_from_slice(&src[y * fx + xa..y * fx + xb]);
+        let (dy, dx) = (self.y1 - self.y0, self.x1 - self.x0);
+        // the tiles in parallel (a lone image would leave the other cores
+        // idle), each worker with its own buffers; the results come back in
+        // tile order, the same bits whatever the thread count
+        let buffers = || TileBuffers {
+            spec: vec![vec![Complex32::default(); nh * cs]; n_tf],
+            cut: vec![0.0f64; fy * fx],
+            half: vec![Complex32::default(); nh * fy],
+            x: vec![Complex32::default(); COLS * cs],
+            r: vec![0.0f32; fy * fx],
+            row: vec![0.0f32; fx],
+            scratch: vec![Complex32::default(); self.fft.scratch_len],
+        };
+        let out = (0..g.len())
+            .into_par_iter()
+            .map_init(buffers, |b, t| {
+                // the edge tiles reach the domain's edges: a point outside
+                // the tiles' domain belongs to the nearest tile, as
+                // TileGrid::index
+                let (mut ya, mut yb, mut xa, mut xb) = g.bounds(t);
+                if ya == grid_domain.0 {
+                    ya = 0;
                 }
-                self.fft
-                    .forward_rows(&cut, ya..yb, &mut ws.half, sp, &mut ws.row, &mut ws.scratch);
-            }
-            let mut done: std::collections::HashMap<(usize, usize), (Vec<f64>, Vec<f64>)> =
-                Default::default();
-            let pairs = self
-                .cfg
-                .pairs
-                .iter()
-                .map(|&(s1, s2)| {
-                    let jv = inp.firsts.iter().position(|&s| s == s1).expect("listed");
-                    // the first scale's weights in the tile
-                    let jm = nv + if inp.weights.len() == 1 { 0 } else { jv };
-                    // (tile field, whole-image field): pairs sharing a first
-                    // or second scale share their weights' correlations
-                    let mut one = |a: usize, b: usize, counts: bool| {
-                        done.entry((a, b))
-                            .or_insert_with(|| {
-                                self.fft.correlate(
-                                    &spec[a],
-                                    &full[b],
-                                    &mut ws.x,
-                                    &mut ws.half,
-                                    &mut ws.r,
-                                    &mut ws.scratch,
-                                );
-                                self.bin(&mut ws.r, counts)
-                            })
-                            .clone()
-                    };
-                    let ww = one(jv, s2, false).0;
-                    let wm = one(jv, wfull(s2), false).0;
-                    let mw = one(jm, s2, false).0;
-                    let (count, lcount) = one(jm, wfull(s2), true);
-                    PairSums {
-                        ww,
-                        wm,
-                        mw,
-                        count,
-                        lcount,
+                if yb == grid_domain.1 {
+                    yb = dy;
+                }
+                if xa == grid_domain.2 {
+                    xa = 0;
+                }
+                if xb == grid_domain.3 {
+                    xb = dx;
+                }
+                let TileBuffers {
+                    spec,
+                    cut,
+                    half,
+                    x,
+                    r,
+                    row,
+                    scratch,
+                } = b;
+                for (src, sp) in inp.values.iter().chain(&inp.weights).zip(spec.iter_mut()) {
+                    cut.fill(0.0);
+                    for y in ya..yb {
+                        cut[y * fx + xa..y * fx + xb]
+                            .copy_from_slice(&src[y * fx + xa..y * fx + xb]);
                     }
-                })
-                .collect();
-            out.push(CorrelationTile {
-                n: inp.n[t].clone(),
-                wsum: inp.wsum[t].clone(),
-                pairs,
-            });
-        }
+                    self.fft.forward_rows(cut, ya..yb, half, sp, row, scratch);
+                }
+                let mut done: std::collections::HashMap<(usize, usize), (Vec<f64>, Vec<f64>)> =
+                    Default::default();
+                let pairs = self
+                    .cfg
+                    .pairs
+                    .iter()
+                    .map(|&(s1, s2)| {
+                        let jv = inp.firsts.iter().position(|&s| s == s1).expect("listed");
+                        // the first scale's weights in the tile
+                        let jm = nv + if inp.weights.len() == 1 { 0 } else { jv };
+                        // (tile field, whole-image field): pairs sharing a
+                        // first or second scale share their weights'
+                        // correlations
+                        let mut one = |a: usize, bi: usize, counts: bool| {
+                            done.entry((a, bi))
+                                .or_insert_with(|| {
+                                    self.fft.correlate(&spec[a], &full[bi], x, half, r, scratch);
+                                    self.bin(r, counts)
+                                })
+                                .clone()
+                        };
+                        let ww = one(jv, s2, false).0;
+                        let wm = one(jv, wfull(s2), false).0;
+                        let mw = one(jm, s2, false).0;
+                        let (count, lcount) = one(jm, wfull(s2), true);
+                        PairSums {
+                            ww,
+                            wm,
+                            mw,
+                            count,
+                            lcount,
+                        }
+                    })
+                    .collect();
+                CorrelationTile {
+                    n: inp.n[t].clone(),
+                    wsum: inp.wsum[t].clone(),
+                    pairs,
+                }
+            })
+            .collect();
         ws.spec = full;
         out
     }
+}
+
+/// One worker's buffers in [`CorrelationPlan::tile_sums`].
+struct TileBuffers {
+    spec: Vec<Vec<Complex32>>,
+    cut: Vec<f64>,
+    half: Vec<Complex32>,
+    x: Vec<Complex32>,
+    r: Vec<f32>,
+    row: Vec<f32>,
+    scratch: Vec<Complex32>,
 }
 
 /// What [`CorrelationPlan::tile_sums`] needs of an image's fields.
