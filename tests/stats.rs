@@ -2236,6 +2236,30 @@ fn a_lone_image_reports_believable_kernel_errors() {
     }
 }
 
+/// The tiles run in parallel: their sums are the same bits on 1 and 3
+/// threads.
+#[test]
+fn correlation_tiles_do_not_depend_on_the_thread_count() {
+    let cfg = CorrelationConfig {
+        scales: vec![1.5, 3.0],
+        pairs: vec![(0, 0), (0, 1)],
+        periodic: false,
+        ..Default::default()
+    };
+    let plan = CorrelationPlan::new(96, 80, &cfg).unwrap();
+    let field = Field::new(noise_field(96, 80, 17));
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| cwt_correlation_tiled(&field, &plan, "x", 16).unwrap())
+    };
+    let (a, b) = (run(1), run(3));
+    assert!(a.images[0].tiles.len() >= 9);
+    assert_eq!(a, b);
+}
+
 /// A tile holding every point of a scale leaves its replicate without a
 /// mean there: the errors of the pairs with that scale are undefined (NaN)
 /// for both centrings, as a brute force would give, not a replicate left
