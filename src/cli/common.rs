@@ -341,6 +341,80 @@ fn image_memory_problem(ny: usize, nx: usize, threads: usize, avail: f64) -> Opt
     })
 }
 
+/// Bytes per pixel beyond the images already read: `spectrum` per image in
+/// flight (its filled and detrended copies and FFT, one per worker), `cwt`
+/// for its one image (the transform's scales in flight and their files'
+/// buffers). From peak RSS, 2026-11-26: spectrum 41 B/px in all for one
+/// image of 2048^2 or 4096^2, 8 of them the image; 4 x 2048^2 gave 405 MB
+/// on two threads and 274 MB on one, as 8 B/px held per image plus 33 per
+/// image in flight; cwt 79-85 B/px in all (4 scales at 4096^2, 8 at
+/// 2048^2, one or two threads).
+const SPECTRUM_BYTES_PER_PIXEL_IN_FLIGHT: f64 = 33.0;
+const CWT_BYTES_PER_PIXEL_BEYOND_IMAGE: f64 = 77.0;
+
+/// What the image `path` of `ny x nx` will need beyond what is read, for
+/// `what` ("its power spectrum", "its transform") with `copies` in flight
+/// (the workers of `spectrum`), against `avail` bytes: the message when it
+/// is too much.
+fn extra_memory_problem(
+    what: &str,
+    ny: usize,
+    nx: usize,
+    per_px: f64,
+    copies: usize,
+    avail: f64,
+) -> Option<String> {
+    let need = per_px * (ny * nx) as f64 * copies as f64;
+    (need > avail).then(|| {
+        format!(
+            "{what} of this {ny}x{nx} image needs about {:.1} GB of memory beyond the images \
+             read ({copies} in flight), {:.1} GB are available{}",
+            need / 1e9,
+            avail / 1e9,
+            if copies > 1 {
+                " (one at a time with RAYON_NUM_THREADS=1)"
+            } else {
+                ""
+            }
+        )
+    })
+}
+
+/// Refuses, before its FFTs, the power spectrum of images the available
+/// memory cannot hold in flight (`largest`: the path and shape of the
+/// largest image; `n`: how many there are): the allocation would abort
+/// the process with no message.
+pub fn check_spectrum_memory(largest: (&Path, usize, usize), n: usize) -> Result<()> {
+    let (path, ny, nx) = largest;
+    let copies = rayon::current_num_threads().max(1).min(n.max(1));
+    let why = available_memory().and_then(|avail| {
+        extra_memory_problem(
+            "the power spectrum",
+            ny,
+            nx,
+            SPECTRUM_BYTES_PER_PIXEL_IN_FLIGHT,
+            copies,
+            avail,
+        )
+    });
+    why.map_or(Ok(()), |w| Err(Error::format(path, w)))
+}
+
+/// [`check_spectrum_memory`] for `cwt`'s one image.
+pub fn check_cwt_memory(path: &Path, ny: usize, nx: usize) -> Result<()> {
+    let why = available_memory().and_then(|avail| {
+        extra_memory_problem(
+            "the transform",
+            ny,
+            nx,
+            CWT_BYTES_PER_PIXEL_BEYOND_IMAGE,
+            1,
+            avail,
+        )
+    });
+    why.map_or(Ok(()), |w| Err(Error::format(path, w)))
+}
+
 /// Bytes per pixel of one generated image in flight in `validate` or
 /// `compare` (generator, power spectrum, transform and skeleton,
 /// correlation or trace moments), from peak RSS with two threads,
@@ -453,6 +527,21 @@ mod tests {
         );
         // an ordinary DEM passes anywhere
         assert!(image_memory_problem(4096, 4096, 2, 2e9).is_none());
+    }
+
+    /// The spectrum and the transform beyond the images read: a 16384^2
+    /// DEM's spectrum needs 8.9 GB per image in flight, its transform 20.7.
+    #[test]
+    fn spectrum_and_cwt_memory_are_checked() {
+        let w = extra_memory_problem("the power spectrum", 16384, 16384, 33.0, 2, 8e9).unwrap();
+        assert!(
+            w.contains("about 17.7 GB") && w.contains("(2 in flight)") && w.contains("RAYON"),
+            "{w}"
+        );
+        assert!(extra_memory_problem("the power spectrum", 16384, 16384, 33.0, 1, 16e9).is_none());
+        let w = extra_memory_problem("the transform", 16384, 16384, 77.0, 1, 16e9).unwrap();
+        assert!(w.contains("about 20.7 GB") && !w.contains("RAYON"), "{w}");
+        assert!(extra_memory_problem("the transform", 4096, 4096, 77.0, 1, 2e9).is_none());
     }
 
     #[test]

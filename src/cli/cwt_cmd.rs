@@ -30,6 +30,8 @@ pub struct CwtArgs {
 
 pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     let field = super::common::read_image(&args.image)?;
+    let (ny, nx) = field.dim();
+    super::common::check_cwt_memory(&args.image, ny, nx)?;
     super::common::refuse_constant(&field, &args.image, "its wavelet transform is zero")?;
     let scales = parse_list("scales", &args.scales)?;
     if scales.len() > MAX_SCALES {

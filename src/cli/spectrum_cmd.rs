@@ -76,6 +76,14 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     for (fl, p) in fields.iter().zip(&args.images) {
         super::common::refuse_constant(fl, p, "its spectrum is zero")?;
     }
+    if let Some((fl, p)) = fields
+        .iter()
+        .zip(&args.images)
+        .max_by_key(|(f, _)| f.dim().0 * f.dim().1)
+    {
+        let (ny, nx) = fl.dim();
+        super::common::check_spectrum_memory((p, ny, nx), fields.len())?;
+    }
     let cfg = PowerSpectrumConfig {
         window: args.window,
         detrend: args.detrend,
