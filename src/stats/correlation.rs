@@ -1007,10 +1007,7 @@ impl CorrelationPlan {
         }
         // the weight field of scale s: the domain's indicator (field ns
         // above), the common mask (ns) or the scale's own (ns + s)
-        let wf = |s: usize| match weights {
-            Weights::PerScale => ns + s,
-            _ => ns,
-        };
+        let wf = |s: usize| weights.field_of(ns, s);
         let mut n = vec![vec![0.0; ns]; g.len()];
         let mut wsum = vec![vec![0.0; ns]; g.len()];
         for s in 0..ns {
@@ -1051,10 +1048,7 @@ impl CorrelationPlan {
     ) -> Vec<CorrelationTile> {
         let (fy, fx, nh, cs) = (self.fft.fy, self.fft.fx, self.fft.nh, self.fft.cs);
         let full = std::mem::take(&mut ws.spec);
-        let wfull = |s: usize| match weights {
-            Weights::PerScale => ns + s,
-            _ => ns,
-        };
+        let wfull = |s: usize| weights.field_of(ns, s);
         let nv = inp.firsts.len();
         let n_tf = nv + inp.weights.len();
         let (dy, dx) = (self.y1 - self.y0, self.x1 - self.x0);
@@ -1187,6 +1181,18 @@ enum Weights {
     Shared,
     /// One weight field per scale (WTMMM counts), `ws.fields[n_vals + s]`.
     PerScale,
+}
+
+impl Weights {
+    /// The field holding scale `s`'s weights among `ns` value fields: the
+    /// scale's own (`ns + s`), or the one shared field `ns` (the common
+    /// mask, or a tiled image's domain indicator).
+    fn field_of(&self, ns: usize, s: usize) -> usize {
+        match self {
+            Weights::PerScale => ns + s,
+            _ => ns,
+        }
+    }
 }
 
 /// Buffers of one image's correlation, reused through the plan's pool.
@@ -2208,58 +2214,38 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
     // else one tile of one image (its pairs' first points), re-centred
     let n_tiles: usize = s.images.iter().map(|im| im.tiles.len()).sum();
     let tiled = n_img < 3 && s.images.iter().all(|im| !im.tiles.is_empty()) && n_tiles >= 3;
-    let replicates: Vec<Vec<CorrelationImage>> = if n_img >= 3 {
-        Vec::new()
-    } else if tiled {
+    // (image, that image without one tile), in the images' order
+    let replicates: Vec<(usize, CorrelationImage)> = if tiled {
         order
             .iter()
             .flat_map(|&i| {
                 let im = &s.images[i];
-                (0..im.tiles.len()).map(move |k| vec![im.without_tile(k, &s.pairs)])
+                (0..im.tiles.len()).map(move |k| (i, im.without_tile(k, &s.pairs)))
             })
             .collect()
     } else {
         Vec::new()
     };
     let reps_of = |p: usize| -> Vec<(Vec<f64>, Vec<f64>)> {
-        if n_img >= 3 {
-            return order
+        let one = |skip: usize, with: Option<&CorrelationImage>| {
+            let imgs: Vec<&CorrelationImage> = order
                 .iter()
-                .map(|&i| {
-                    let rest: Vec<&CorrelationImage> = order
-                        .iter()
-                        .filter(|&&j| j != i)
-                        .map(|&j| &s.images[j])
-                        .collect();
-                    let r = eval(p, &rest);
-                    (r.0, r.1)
+                .filter_map(|&j| match (j == skip, with) {
+                    (false, _) => Some(&s.images[j]),
+                    (true, w) => w,
                 })
                 .collect();
+            let e = eval(p, &imgs);
+            (e.0, e.1)
+        };
+        if n_img >= 3 {
+            order.iter().map(|&i| one(i, None)).collect()
+        } else {
+            replicates
+                .iter()
+                .map(|(i, rep)| one(*i, Some(rep)))
+                .collect()
         }
-        let mut out = Vec::with_capacity(replicates.len());
-        let mut r = 0;
-        for &i in &order {
-            for _ in 0..s.images[i].tiles.len() {
-                if !tiled {
-                    break;
-                }
-                // the other image whole, this one without the tile
-                let imgs: Vec<&CorrelationImage> = order
-                    .iter()
-                    .map(|&j| {
-                        if j == i {
-                            &replicates[r][0]
-                        } else {
-                            &s.images[j]
-                        }
-                    })
-                    .collect();
-                let e = eval(p, &imgs);
-                out.push((e.0, e.1));
-                r += 1;
-            }
-        }
-        out
     };
     let jk = |vals: &[f64]| -> f64 {
         if vals.len() < 3 {
