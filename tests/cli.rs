@@ -910,7 +910,8 @@ fn kernel_refuses_scales_without_wtmmm() {
     let few = ["--fit", "0.5:1.3", "--refs", "1.3", "--pairs", "0.5:1.3"];
     let (code, err) = run_bin_stderr(&[&args[..], &few, &["--out", &o]].concat());
     assert_eq!(code, 0, "{err}");
-    assert!(err.contains("WTMMM at the largest fitted scale"), "{err}");
+    assert!(err.contains("WTMMM at the largest fitted scales"), "{err}");
+    assert!(err.contains("of its standard error"), "{err}");
 }
 
 /// `pdf` and `kernel` name the input and the cause: a 10x10 image (just
