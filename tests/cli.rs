@@ -119,6 +119,8 @@ fn synth_fif_then_tm() {
         args.extend_from_slice(&["--eta", "0.3:2:0.1", "--out", out.to_str().unwrap()]);
         assert_eq!(run(&args), 0, "{args:?}");
         let tm = json(&out.join("tm.json"));
+        // a jackknife over images: no tile caveat
+        assert!(!tm["warnings"].to_string().contains("may understate"));
         for key in [
             "version",
             "params",
@@ -172,6 +174,16 @@ fn synth_fif_then_tm() {
             let one = json(&o.join("tm.json"));
             // one image: OLS by default (its tiles are not independent)
             assert!(one["universal_fit"].as_str().unwrap().starts_with("ols"));
+            // and the tile errors' understatement is said
+            assert!(
+                one["warnings"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|w| w.as_str().unwrap().contains("may understate")),
+                "{}",
+                one["warnings"]
+            );
             per.push(num(&one, "C1"));
         }
         // 3 images: the default GLS falls back to OLS, and the record says
