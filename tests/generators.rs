@@ -597,11 +597,19 @@ fn published_theory_numbers() {
     assert!((fi.h_of_q0() - 0.738).abs() < 5e-4, "h(0) {}", fi.h_of_q0());
     assert!((fi.tau(0.0) + 2.0).abs() < 1e-12 && (fi.tau(1.0) - (0.638 - 2.0)).abs() < 1e-12);
     let (lo, hi) = fi.h_range();
-    // II §3.1: "h ranges in the interval ~[0.18, 1.30]"
+    // II §3.1: "h ranges in the interval ~[0.18, 1.30]". The closed forms
+    // (h_min = H* - 2 - log2((1-p)/2) = 0.194393, h_max = 1.281856 for
+    // p = 0.32, H* = 0.638) checked against the slopes of tau itself at
+    // q = +-400, independent of `h_range`: they converge like
+    // (p / (1-p))^400 ~ 1e-130, so to rounding
+    let slope = |q: f64| fi.tau(q + 1.0) - fi.tau(q);
     assert!(
-        (lo - 0.194).abs() < 1e-3 && (hi - 1.282).abs() < 1e-3,
-        "{lo} {hi}"
+        (lo - slope(400.0)).abs() < 1e-10 && (hi - slope(-401.0)).abs() < 1e-10,
+        "{lo} {hi}: slopes {} {}",
+        slope(400.0),
+        slope(-401.0)
     );
+    assert!((lo - 0.194393).abs() < 1e-6 && (hi - 1.281856).abs() < 1e-6);
 
     let fb = preset("paper-fbm");
     assert!((fb.tau(3.0) - (3.0 / 3.0 - 2.0)).abs() < 1e-12);
