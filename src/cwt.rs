@@ -893,7 +893,9 @@ pub fn modulus_argument(t: &Array2<Complex64>) -> (Array2<f64>, Array2<f64>) {
 /// Truncated at radius `10 a` where the Gaussian is below e^-50; costs
 /// `(20 a)²` evaluations.
 ///
-/// **Panics** if `(y, x)` is outside `img` (an empty image included).
+/// `(y, x)` outside the image wraps around, as the periodic boundary does.
+///
+/// **Panics** on an empty image.
 pub fn direct_transform_at(
     img: ArrayView2<f64>,
     wavelet: Wavelet,

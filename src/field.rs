@@ -34,9 +34,21 @@ impl Field {
 
     /// Wraps an array with an explicit mask (`true` = missing); masked values become NaN.
     ///
-    /// **Panics** if `data` and `mask` differ in shape.
-    pub fn with_mask(mut data: Array2<f64>, mut mask: Array2<bool>) -> Self {
-        assert_eq!(data.dim(), mask.dim(), "data and mask shapes differ");
+    /// **Errors** if `data` and `mask` differ in shape (a mask read from
+    /// another file, say).
+    pub fn with_mask(mut data: Array2<f64>, mut mask: Array2<bool>) -> crate::Result<Self> {
+        if data.dim() != mask.dim() {
+            return Err(crate::Error::param(
+                "mask",
+                format!(
+                    "the mask is {}x{} but the data are {}x{}",
+                    mask.dim().0,
+                    mask.dim().1,
+                    data.dim().0,
+                    data.dim().1
+                ),
+            ));
+        }
         mask.zip_mut_with(&data, |m, v| *m |= !v.is_finite());
         data.zip_mut_with(&mask, |v, &m| {
             if m {
@@ -44,10 +56,10 @@ impl Field {
             }
         });
         let any = mask.iter().any(|&m| m);
-        Field {
+        Ok(Field {
             data,
             mask: any.then_some(mask),
-        }
+        })
     }
 
     /// `(ny, nx)`.
@@ -305,7 +317,7 @@ mod tests {
             (10..25).contains(&y) && (5..30).contains(&x) // a lake
                 || (y * 7 + x * 3) % 29 == 0 && y > 0 && x > 0 && y < 39 && x < 49
         });
-        let f = Field::with_mask(plane.clone(), mask.clone());
+        let f = Field::with_mask(plane.clone(), mask.clone()).unwrap();
         let filled = f.filled_harmonic().unwrap();
         let worst = filled
             .iter()
@@ -319,6 +331,7 @@ mod tests {
         // a corner hole: zero gradient across the border, bounded by the rim
         let corner = Array2::from_shape_fn((40, 50), |(y, x)| x + y < 6);
         let g = Field::with_mask(plane.clone(), corner.clone())
+            .unwrap()
             .filled_harmonic()
             .unwrap();
         let rim = |y: usize, x: usize| x + y == 6 || x + y == 7;
@@ -341,14 +354,19 @@ mod tests {
         let c = Field::with_mask(
             Array2::from_elem((9, 7), 2.5),
             mask.slice(ndarray::s![..9, ..7]).to_owned(),
-        );
+        )
+        .unwrap();
+        // a mask of another shape is an error, not a panic
+        let e = Field::with_mask(Array2::zeros((3, 3)), Array2::from_elem((3, 4), false));
+        assert!(e.unwrap_err().to_string().contains("3x4"));
         assert!(
             c.filled_harmonic()
                 .unwrap()
                 .iter()
                 .all(|&v| (v - 2.5).abs() < 1e-12)
         );
-        let none = Field::with_mask(Array2::zeros((3, 3)), Array2::from_elem((3, 3), true));
+        let none =
+            Field::with_mask(Array2::zeros((3, 3)), Array2::from_elem((3, 3), true)).unwrap();
         assert!(none.filled_harmonic().is_err());
     }
 

@@ -1,8 +1,7 @@
 //! # wtmm — multifractal analysis of images
 //!
 //! The 2D wavelet transform modulus maxima (WTMM) method of Arnéodo, Decoster
-//! and Roux (Eur. Phys. J. B 15, 2000; the method paper is seed 002 in
-//! `shared/seeds`), with the synthetic generators that validate it.
+//! and Roux (paper II below), with the synthetic generators that validate it.
 //!
 //! Data flows one way: image ([`io`], [`field::Field`]) → continuous wavelet
 //! transform ([`cwt`]) → maxima, chains, WTMMM and maxima lines
@@ -58,6 +57,51 @@
 //! # Ok(())
 //! # }
 //! ```
+//!
+//! # One image (a DEM)
+//!
+//! A jackknife over one image has nothing to leave out, and the regression
+//! errors of the fit understate (its scales are not independent). Split the
+//! counting domain into tiles instead, as the `wtmm analyze` command does
+//! for fewer than 3 images: the errors then come from a jackknife over the
+//! tiles (which treats them as independent, and says so in the warnings).
+//!
+//! ```
+//! use wtmm::Field;
+//! use wtmm::skeleton::{AnalysisConfig, Parallelism};
+//! use wtmm::spectra::{Rule, default_tile_side, image_sums_tiled};
+//! use wtmm::synth::fbm::{FbmParams, fbm};
+//!
+//! # fn main() -> wtmm::Result<()> {
+//! // a file would be `wtmm::io::read_field(Path::new("dem.npy"))?`
+//! let dem = Field::new(fbm(FbmParams { hurst: 0.5 }, 384, 384, 7, 0)?);
+//! let cfg = AnalysisConfig { octaves: 3, ..Default::default() };
+//! let (ny, nx) = dem.dim();
+//! let side = default_tile_side(&cfg, ny, nx);
+//! // one image: its scales run in parallel
+//! let sums = image_sums_tiled(&dem, &cfg, &[0.0, 2.0], "dem", Parallelism::Scales, side)?;
+//! let sp = sums.spectra(Rule::Plain, (0.5, 3.0))?;
+//! assert!(sp.stderr_method.contains("tiles"));
+//! assert!(sp.tau_stderr.iter().all(|e| *e > 0.0));
+//! # Ok(())
+//! # }
+//! ```
+
+//!
+//! # References
+//!
+//! The docs cite: **II** (e.g. "II §3.2", "II eq 76"), the method paper:
+//! N. Decoster, S. G. Roux and A. Arnéodo, "A
+//! wavelet-based method for multifractal image analysis. II. Applications to
+//! synthetic multifractal rough surfaces", Eur. Phys. J. B 15, 739
+//! (2000). **TM**: J.-S. Gagnon, S. Lovejoy and D. Schertzer, "Multifractal
+//! earth topography", Nonlin. Processes Geophys. 13, 541-570 (2006) (trace
+//! moments, FIF topography). **SIM**: S. Lovejoy, D. Schertzer and J.-S.
+//! Gagnon, "Multifractal simulations of the Earth's surface and interior:
+//! anisotropic singularities and morphology". **SPEC §n**: the sections of
+//! the technical specification, `docs/SPEC.md` in the repository (the
+//! definitions, generators, closed forms and published numbers the code
+//! implements).
 
 // `!(x > 0.0)` is how we reject NaN together with out-of-range values.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

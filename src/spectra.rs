@@ -1316,6 +1316,7 @@ impl Estimates {
 ///
 /// **Panics** if `q` and `tau` differ in length.
 pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    assert_eq!(q.len(), tau.len(), "legendre: q and tau differ in length");
     let n = q.len();
     let mut h = vec![f64::NAN; n];
     if n == 2 {
@@ -1377,8 +1378,10 @@ pub struct Spectra {
     /// fit range (SPEC §4); NaN where a fitted scale has no line.
     pub tau: Vec<f64>,
     /// Standard error of τ(q): delete-one jackknife over images (>= 3
-    /// images), else the regression's; also the regression's at a q where
-    /// a leave-one-out sample has no estimate (`stderr_method` lists them).
+    /// images), else over the tiles of the counting domains when the sums
+    /// were split ([`image_sums_tiled`]), else the regression's; also the
+    /// regression's at a q where a leave-one-out sample has no estimate
+    /// (`stderr_method` lists them).
     pub tau_stderr: Vec<f64>,
     /// R^2 of the log2 Z fits.
     pub tau_r2: Vec<f64>,
@@ -1397,9 +1400,11 @@ pub struct Spectra {
     /// Standard error of D(q), as `tau_stderr` (JSON `D_stderr`).
     #[serde(rename = "D_stderr")]
     pub d_stderr: Vec<f64>,
-    /// "jackknife over images" (>= 3 images), "regression", or
-    /// "jackknife over images; regression for q = ..." naming the q where
-    /// the jackknife had no finite value (also a warning).
+    /// "jackknife over images" (>= 3 images), "jackknife over N tiles (S
+    /// px)" (fewer than 3 images with tiles),
+    /// "regression", or either jackknife followed by "; regression for q =
+    /// ..." naming the q where the jackknife had no finite value (also a
+    /// warning).
     pub stderr_method: String,
     /// h = dτ/dq, D = q h - τ.
     pub legendre_h: Vec<f64>,

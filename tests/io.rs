@@ -375,7 +375,7 @@ fn write_field_dispatches_and_writes_masks() {
     let dir = scratch("write_field");
     let data = array![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]];
     let mask = array![[false, true, false], [false, false, false]];
-    let field = Field::with_mask(data, mask);
+    let field = Field::with_mask(data, mask).unwrap();
     for name in ["f.npy", "f.tif", "f.tiff", "f.png"] {
         let p = dir.join(name);
         write_field(&p, &field).unwrap();

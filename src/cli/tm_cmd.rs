@@ -1,6 +1,6 @@
 //! `wtmm tm IMAGE... --out DIR`: trace moments, universal parameters, double
 //! trace moments, structure functions and the spectral H of an annealed
-//! ensemble (SPEC §8, §13; seed 000 §5.2, §6, Figs 19-20, 25-28), with CSVs
+//! ensemble (SPEC §8, §13; TM §5.2, §6, Figs 19-20, 25-28), with CSVs
 //! and plots.
 
 use std::path::{Path, PathBuf};

@@ -282,7 +282,7 @@ fn field_from(
     Ok(match nodata {
         Some(nd) if !nd.is_nan() => {
             let mask = data.mapv(|v| v == nd);
-            Field::with_mask(data, mask)
+            Field::with_mask(data, mask)?
         }
         _ => Field::new(data),
     })

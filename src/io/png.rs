@@ -178,7 +178,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
         .map_err(|e| bad(format!("internal shape error: {e}")))?;
     let mask = Array2::from_shape_vec((ny, nx), mask)
         .map_err(|e| bad(format!("internal shape error: {e}")))?;
-    Ok((Field::with_mask(data, mask), info))
+    Ok((Field::with_mask(data, mask)?, info))
 }
 
 struct Sidecar {

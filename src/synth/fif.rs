@@ -1,5 +1,5 @@
 //! Universal multifractals: the Fractionally Integrated Flux model of
-//! Schertzer & Lovejoy (SPEC §9; seed 000 §3.3 eqs 7-10; seed 001 Table 1),
+//! Schertzer & Lovejoy (SPEC §9; TM §3.3 eqs 7-10; SIM Table 1),
 //! continuous in scale, isotropic, in `D = 2`.
 //!
 //! # Recipe
@@ -26,7 +26,7 @@
 //! * `c^α = C1/(2π)`: the kernel's weight per octave, `Σ_{annulus} g^α ≈ 2π ln 2`,
 //!   then contributes exactly `C1 ln 2 (q^α - q)/(α - 1)` to `ln<φ^q>`, so the
 //!   coarse-grained moments scale as `λ^K(q)` with the universal
-//!   `K(q) = C1/(α-1) (q^α - q)` (`C1 q ln q` at α = 1; seed 000 eq 8).
+//!   `K(q) = C1/(α-1) (q^α - q)` (`C1 q ln q` at α = 1; TM eq 8).
 //! * `d = -(c^α S_α - c S_1)/(α - 1)` (α = 1: `d = -c Σ g ln(c g)`) makes
 //!   `<φ> = 1` exactly in expectation, and at the pixel scale
 //!   `<φ^q> = λ_eff^K(q)` exactly, with `ln λ_eff = S_α/(2π)`
@@ -71,7 +71,7 @@
 //!   K(q) that becomes linear.
 //! * `q >= q_s = ((D + D_s)/C1)^(1/α)` with `D_s = ln N_images / ln λ`: the
 //!   sample holds no singularity stronger than `γ_s` and the estimated K(q)
-//!   becomes linear (seed 000 eq 15). For topo-fif (α = 1.8, C1 = 0.12) and one
+//!   becomes linear (TM eq 15). For topo-fif (α = 1.8, C1 = 0.12) and one
 //!   image, `q_s ≈ 4.8`.
 //! * α < 1: the noise is bounded above and its left tail is so heavy that
 //!   `Γ` has enormous negative excursions ("holes"); the convolution by FFT
@@ -110,7 +110,7 @@ pub struct FifParams {
 }
 
 impl FifParams {
-    /// The `topo-fif` preset: seed 000 Tables 4-5, seed 001 Fig. 1b
+    /// The `topo-fif` preset: TM Tables 4-5, SIM Fig. 1b
     /// (α = 1.8, C1 = 0.12, H = 0.7).
     pub const TOPO: FifParams = FifParams {
         alpha: 1.8,

@@ -1,5 +1,5 @@
 //! Extremal (maximally skewed) Lévy-stable variables, the sub-generator of
-//! universal multifractals (seed 000 §3.2-3.3, seed 001 Table 1).
+//! universal multifractals (TM §3.2-3.3, SIM Table 1).
 //!
 //! # Convention
 //! [`extremal_levy`] returns the *unit extremal* variable `Y` of index

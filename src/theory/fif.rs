@@ -1,14 +1,14 @@
 //! Closed forms for universal multifractals and the FIF surface
-//! (SPEC §9-§10; seed 000 eqs 7-11, 15; seed 001 eq 3).
+//! (SPEC §9-§10; TM eqs 7-11, 15; SIM eq 3).
 //!
-//! * Moment scaling function of the flux, `<φ_λ^q> = λ^K(q)` (seed 000 eq 8):
+//! * Moment scaling function of the flux, `<φ_λ^q> = λ^K(q)` (TM eq 8):
 //!   `K(q) = C1/(α-1) (q^α - q)` (α != 1), `K(q) = C1 q ln q` (α = 1), for
 //!   `q >= 0`. For α < 2 the negative moments diverge (`K = +∞` for q < 0:
 //!   the generator's heavy tail is on the negative side); at α = 2 the formula
 //!   holds for every q.
 //! * Structure functions of the surface, `<|Δf(l)|^q> ~ l^ξ(q)`,
-//!   `ξ(q) = qH - K(q)` (seed 000 eq 10).
-//! * Spectral exponent (seed 000 eq 11): angle-**integrated**
+//!   `ξ(q) = qH - K(q)` (TM eq 10).
+//! * Spectral exponent (TM eq 11): angle-**integrated**
 //!   `β = 1 + ξ(2) = 1 + 2H - K(2)`; the angle-**averaged** spectral density
 //!   (what [`crate::stats::powspec`] fits) has `β_avg = β + 1 = 2 + 2H - K(2)`.
 //! * Codimension `c(γ) = max_q (qγ - K(q))`; at `γ = K'(q)`, `c = C1 q^α`;
@@ -16,7 +16,7 @@
 //!   `C1 exp(γ/C1 - 1)` (α = 1).
 //! * Divergence of moments (first-order phase transition): the dressed
 //!   moments of order `q >= q_D` diverge, `K(q_D) = D (q_D - 1)`, `D = 2`.
-//! * Sampling (second-order) transition (seed 000 eq 15): a sample of
+//! * Sampling (second-order) transition (TM eq 15): a sample of
 //!   `N_s` images of scale ratio λ holds singularities up to `γ_s` with
 //!   `c(γ_s) = D + D_s`, `D_s = ln N_s / ln λ`, hence
 //!   `q_s = ((D + D_s)/C1)^(1/α)`; beyond it the estimated K(q) is linear.
@@ -149,7 +149,7 @@ impl UniversalK {
     }
 
     /// Sampling moment `q_s = ((D + D_s)/C1)^(1/α)` for `n_samples`
-    /// independent images of scale ratio `lambda` (seed 000 eq 15).
+    /// independent images of scale ratio `lambda` (TM eq 15).
     pub fn q_sampling(&self, d: f64, n_samples: f64, lambda: f64) -> f64 {
         if self.c1 == 0.0 {
             return f64::INFINITY;
@@ -178,7 +178,7 @@ pub fn xi(p: &FifParams, q: f64) -> f64 {
     q * p.hurst - k(p, q)
 }
 
-/// Angle-integrated spectral exponent `β = 1 + 2H - K(2)` (seed 000 eq 11).
+/// Angle-integrated spectral exponent `β = 1 + 2H - K(2)` (TM eq 11).
 pub fn beta_integrated(p: &FifParams) -> f64 {
     1.0 + 2.0 * p.hurst - k(p, 2.0)
 }

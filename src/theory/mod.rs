@@ -73,7 +73,7 @@ pub trait Multifractal {
     }
 }
 
-/// FIF surfaces (seed 000 eqs 8-11; closed forms in [`fif`]).
+/// FIF surfaces (TM eqs 8-11; closed forms in [`fif`]).
 ///
 /// For `q >= 0` (every q at α = 2): `τ(q) = qH - K(q) - 2`,
 /// `h(q) = H - K'(q)`, `D(h) = 2 - c(H - h)` with the universal codimension
@@ -170,7 +170,7 @@ pub enum Model {
     Fisc(FiscParams),
     /// Random W-cascade on an orthonormal wavelet basis (II §2.2; JSON `wcascade`).
     WCascade(WCascadeParams),
-    /// Universal multifractal FIF surface (seed 000 §3.3; see [`fif`]).
+    /// Universal multifractal FIF surface (TM §3.3; see [`fif`]).
     Fif(FifParams),
 }
 
@@ -448,7 +448,7 @@ impl Model {
     /// (γ = -ln2/9, β = (2/3)^(1/3), λ = 2 ln2), both isotropic on db8 (the
     /// paper's "Daubechies 8", see [`crate::synth::dwt`]), and `paper-fisc`
     /// (p = 0.32, H* = 0.638); and `topo-fif`, the FIF with the topography
-    /// parameters of seed 000 Tables 4-5 (α = 1.8, C1 = 0.12, H = 0.7).
+    /// parameters of TM Tables 4-5 (α = 1.8, C1 = 0.12, H = 0.7).
     ///
     /// **Errors** on an unknown name, listing the known ones.
     pub fn preset(name: &str) -> Result<Preset> {

@@ -1,4 +1,4 @@
-//! The flux `φ` estimated from a field (seed 000 §5.2; SPEC §8), and the
+//! The flux `φ` estimated from a field (TM §5.2; SPEC §8), and the
 //! box pyramid used to coarse-grain it.
 
 use ndarray::{Array2, ArrayView2};
@@ -9,7 +9,7 @@ use crate::field::Field;
 use crate::synth::fif::fractional_integrate;
 
 /// How the flux is obtained from the field (a fractional differentiation of
-/// order 1, enough for H < 1; seed 000 §5.2).
+/// order 1, enough for H < 1; TM §5.2).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
@@ -32,7 +32,7 @@ pub enum FluxKind {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum FluxDiff {
-    /// None: the modulus alone, a differentiation of order 1 (seed 000 §5.2,
+    /// None: the modulus alone, a differentiation of order 1 (TM §5.2,
     /// Lavallée et al. 1993). It leaves a derivative of order `1 - H` of the
     /// flux, too little when H is well above 1/2.
     None,
@@ -299,7 +299,7 @@ mod tests {
         let hole = |y: usize, x: usize| (100..140).contains(&y) && (90..150).contains(&x);
         let mask = Array2::from_shape_fn((n, n), |(y, x)| hole(y, x));
         let whole = smooth(&Field::new(f.clone()), -0.5).unwrap();
-        let holed = Field::with_mask(f.clone(), mask);
+        let holed = Field::with_mask(f.clone(), mask).unwrap();
         let far = |y: usize, x: usize| !((96..144).contains(&y) && (86..154).contains(&x));
         let rms = |g: &Array2<f64>| {
             let (mut s, mut k) = (0.0, 0.0);

@@ -1,8 +1,8 @@
 //! Trace moments, double trace moments and generalised structure functions
-//! (SPEC §8; seed 000 §5.2, §6.2.4-6.2.5, Figs 19-20, 25-28).
+//! (SPEC §8; TM §5.2, §6.2.4-6.2.5, Figs 19-20, 25-28).
 //!
-//! # Which flux (seed 000 §5.2)
-//! A FIF field is its flux fractionally integrated to order H (seed 000
+//! # Which flux (TM §5.2)
+//! A FIF field is its flux fractionally integrated to order H (TM
 //! Table 1, eqs 9-10); to get at φ one must differentiate "of order H or
 //! greater", and the estimate is the modulus of the result. Two facts fix
 //! how much greater:
@@ -25,8 +25,8 @@
 //! [`FluxDiff::Auto`] (the default) removes the integration first with a
 //! fractional derivative of order `H = ξ(1)` estimated from each image's
 //! first-order structure function (no circularity: `K(1) = 0`, so `ξ(1) = H`
-//! whatever K, seed 000 eq 10), then takes the gradient modulus: the excess
-//! is 1 whatever H, the same as seed 000's estimator applied to a conserved
+//! whatever K, TM eq 10), then takes the gradient modulus: the excess
+//! is 1 whatever H, the same as TM's estimator applied to a conserved
 //! flux (H = 0). On the same ensembles α 1.82 ± 0.05, C1 0.123. Limits:
 //! first differences saturate, so ξ(1) stays in about [0, 1] and for H > 1
 //! the excess falls to `2 - H` (give the order by hand then,
@@ -37,7 +37,7 @@
 //! The flux `φ` at the finest resolution is `|∇f|` or the modulus of the
 //! finest Haar wavelet coefficients ([`FluxKind`]) of the field after the
 //! fractional differentiation of [`FluxDiff`] and an optional fractional
-//! integration of order 0.1 (seed 000 §5.2 technical note: it removes the
+//! integration of order 0.1 (TM §5.2 technical note: it removes the
 //! spurious zero gradients of quantised DEMs), both in one Fourier filter
 //! on the mirror-extended field. It is normalised
 //! so that the **ensemble** mean of `φ` at the finest resolution is 1, then
@@ -46,7 +46,7 @@
 //! region: windows whose sides are multiples of L, anchored at the corners
 //! of a non-power-of-two image (`flux::windows`; boxes tiled from one
 //! corner covered less of the image the larger they were, and K(1) of a
-//! conserved flux read -0.055 +- 0.026 on a 511^2 crop). Trace moments (seed 000 eq 7):
+//! conserved flux read -0.055 +- 0.026 on a 511^2 crop). Trace moments (TM eq 7):
 //!
 //! ```text
 //! M(q, λ) = <φ_λ^q> ~ λ^K(q),     K(q) = slope of log M against log λ.
@@ -89,17 +89,17 @@
 //! lines that bend over the fitted scales.
 //!
 //! # Universal fit and q_s
-//! `K(q) = C1/(α-1) (q^α - q)` (`C1 q ln q` at α = 1, seed 000 eq 8) is fitted
-//! by least squares over `0 < q <= q_s/2` (weighting: next section). Rule for `q_s` (seed 000 eq 15 and
+//! `K(q) = C1/(α-1) (q^α - q)` (`C1 q ln q` at α = 1, TM eq 8) is fitted
+//! by least squares over `0 < q <= q_s/2` (weighting: next section). Rule for `q_s` (TM eq 15 and
 //! its sampling interpretation): start from the fit over `0 < q <= 2` (as in
-//! seed 000 §6.2.4), then iterate (3 times)
+//! TM §6.2.4), then iterate (3 times)
 //! `q_s = min(((D + D_s)/C1)^(1/α), q_D)` with the sampling dimension
 //! `D_s = ln N_images / ln L` (the largest singularity a sample of
 //! `N_images` images of `L x L` pixels can hold), `q_D` the divergence order
 //! `K(q_D) = D(q_D - 1)`, and refit over `0 < q <= q_s/2`. The factor 1/2:
 //! the sample moments are already biased low well before q_s (on 16
 //! log-normal cascades of 256², q_s = 5, K(3.5) is 7 % and K(4) 12 % low,
-//! and fitting up to q_s drags α from 2 to 1.65); seed 000 likewise fits
+//! and fitting up to q_s drags α from 2 to 1.65); TM likewise fits
 //! `0 < q < 2` with `q_s ≈ 3`. The empirical onset
 //! of the linear regime is reported separately (`q_s_empirical`: the first
 //! `q > 1` from which on the measured `K''` stays below a quarter of the
@@ -127,7 +127,7 @@
 //!
 //! # Outer scale
 //! If the cascade starts at an effective outer scale `L_eff`, every moment
-//! line passes through `M = 1` at `λ_eff = L/L_eff` (seed 000 Fig 25). With the
+//! line passes through `M = 1` at `λ_eff = L/L_eff` (TM Fig 25). With the
 //! fitted lines `log2 M = K(q) log2 λ + b(q)`, `log2 λ_eff = -Σ K b / Σ K²` over
 //! the fitted q (least-squares common zero).
 //!
@@ -141,7 +141,7 @@
 //! # Structure functions and spectrum
 //! `<|Δf(l)|^q> ~ l^ξ(q)` over horizontal and vertical increments at lags
 //! `l = 2^j` (pairs with a masked end are skipped), `ξ(q) = qH - K(q)`, so
-//! `H = ξ(1)` (seed 000 eq 10). The spectral route (seed 000 eq 11 and §6.1.2):
+//! `H = ξ(1)` (TM eq 10). The spectral route (TM eq 11 and §6.1.2):
 //! the angle-averaged spectrum of [`crate::stats::powspec`] gives
 //! `β_avg`; the angle-integrated `β = β_avg - 1 = 1 + 2H - K(2)` gives
 //! `H = (β - 1 + K(2))/2` with `K(2)` from the universal fit.
@@ -169,7 +169,7 @@ use crate::theory::fif::UniversalK;
 /// Dimension of space.
 const D: f64 = 2.0;
 
-/// The universal fit starts over `0 < q <= 2` (seed 000 §6.2.4; module
+/// The universal fit starts over `0 < q <= 2` (TM §6.2.4; module
 /// docs), before q_s is known: it needs 3 orders there.
 pub const FIRST_UNIVERSAL_Q_MAX: f64 = 2.0;
 
@@ -308,7 +308,7 @@ pub struct TraceMomentFitConfig {
     /// Range of `log2 λ` for K(q) and K(q, η). Default: drop the coarsest
     /// octave (a handful of boxes, and the outer cut-off) and the finest one
     /// (the modulus of a difference breaks the scaling over the first factor
-    /// of 2, seed 000 §5.2): `[1, log2 L - 1]`.
+    /// of 2, TM §5.2): `[1, log2 L - 1]`.
     pub log2_lambda: Option<(f64, f64)>,
     /// η range of the DTM fit.
     pub eta: (f64, f64),
@@ -1140,7 +1140,7 @@ impl TraceMomentAccumulator {
 }
 
 /// First grid `q > 1` from which on the measured `K''` stays below a
-/// quarter of the universal fit's `K''` (seed 000 eq 15: K linear beyond q_s).
+/// quarter of the universal fit's `K''` (TM eq 15: K linear beyond q_s).
 fn linear_onset(q: &[f64], k: &[f64], u: &UniversalFit) -> Option<f64> {
     let pts: Vec<(f64, f64)> = q
         .iter()
@@ -1329,7 +1329,7 @@ pub struct TraceMomentResult {
     pub log2_sf: Vec<Vec<f64>>,
     /// Range of `log2 l` over which ξ(q) was fitted.
     pub fit_log2_lag: (f64, f64),
-    /// H from the spectrum: `(β - 1 + K(2))/2` (seed 000 §6.1.2).
+    /// H from the spectrum: `(β - 1 + K(2))/2` (TM §6.1.2).
     #[serde(rename = "H")]
     pub h: Option<f64>,
     /// Jackknife standard error of H (ensembles only).
@@ -1341,7 +1341,7 @@ pub struct TraceMomentResult {
     /// Jackknife standard error of `H_sf` (ensembles only; JSON `H_sf_stderr`).
     #[serde(rename = "H_sf_stderr")]
     pub h_sf_stderr: Option<f64>,
-    /// Angle-integrated spectral exponent (seed 000 eq 11).
+    /// Angle-integrated spectral exponent (TM eq 11).
     pub beta: Option<f64>,
     /// Angle-averaged exponent, `beta + 1`.
     pub beta_averaged: Option<f64>,
@@ -1494,11 +1494,11 @@ pub const TILE_ERROR_FACTOR: f64 = 2.0;
 ///    docs, "Which flux"), `1 + order` otherwise (TM §5.2: the flux
 ///    needs a differentiation of order H or more);
 /// 2. else the spectral H and `H_sf = ξ(1)` apart (both estimate H:
-///    `ξ(1) = H - K(1) = H`, seed 000 eq 10), the error that of their
+///    `ξ(1) = H - K(1) = H`, TM eq 10), the error that of their
 ///    difference (jackknifed as a difference: the two share the tiles);
 /// 3. with a jackknife, moment lines `log2 <φ_λ^q>` curved over the fitted
 ///    scales, at the q of the universal fit (beyond `q_s/2` the sampling
-///    bends them anyway, seed 000 eq 15): the change of their local slope
+///    bends them anyway, TM eq 15): the change of their local slope
 ///    across the fit range ([`crate::stats::fit::slope_change`], as the
 ///    WTMM spectra's straightness check) against its jackknife error, the
 ///    false alarm of [`WARN_Z`] shared among the q tested (Bonferroni). The
