@@ -1459,6 +1459,13 @@ impl ShapeCount {
     }
 }
 
+/// The default q grid of the CLI (`--q -4:6:0.5`): -4, -3.5, .., 6 (21
+/// values), the range over which the published tau(q) are compared with
+/// the theory (`wtmm validate` widens it to each model's published range).
+pub fn default_q() -> Vec<f64> {
+    (-8..=12).map(|i| 0.5 * i as f64).collect()
+}
+
 /// The default fit range, in octaves above a_min, for a grid of `octaves`
 /// octaves of `voices` voices (the CLI's `--fit` default): from the first
 /// scale at or above half an octave to `min(octaves, 4)`, the paper's

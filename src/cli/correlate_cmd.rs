@@ -980,7 +980,7 @@ impl ValidationExtras {
         let kopts = KernelOptions {
             fit,
             refs: default_refs(&sk_scales, fit)?,
-            pairs: default_pairs(&sk_scales)?,
+            pairs: default_pairs(&sk_scales),
         };
         let main = kernel_estimates(&lines, &kopts)?;
         // as `kernel`: no criterion from scales the fit would drop silently

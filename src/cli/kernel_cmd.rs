@@ -94,22 +94,24 @@ pub const DEFAULT_REFS: &str = "0.5,1,1.5,2,2.5,3,3.5";
 /// Scale pairs of II Fig 25.
 pub const DEFAULT_PAIRS: &str = "0.5:3.5,1:3.5,1:3,1.5:3";
 
-/// The default reference scales on this grid: a reference needs smaller
-/// scales in the fit range (C_n(a, a') has a < a'), so the paper's 0.5 is
-/// kept with its --fit 0:3.5 and dropped from the default 0.5:4, where its
-/// table would be empty.
+/// The default reference scales on this grid
+/// ([`KernelOptions::for_scales`]): a reference needs smaller scales in the
+/// fit range (C_n(a, a') has a < a'), so the paper's 0.5 is kept with its
+/// --fit 0:3.5 and dropped from the default 0.5:4, where its table would be
+/// empty.
+///
+/// **Errors** when none of the paper's references lies on the grid.
 pub fn default_refs(scales: &[f64], fit: (f64, f64)) -> Result<Vec<f64>> {
-    let mut refs = octaves_or_default("refs", None, DEFAULT_REFS, scales)?;
-    refs.retain(|&r| r > fit.0 + 1e-9);
-    Ok(refs)
+    // the error of an option with no default on the grid
+    octaves_or_default("refs", None, DEFAULT_REFS, scales)?;
+    Ok(KernelOptions::for_scales(scales, fit).refs)
 }
 
-/// The default pairs on this grid, their ends lowered onto a shorter grid's
-/// top; a pair that collapses there is dropped.
-pub fn default_pairs(scales: &[f64]) -> Result<Vec<(f64, f64)>> {
-    let mut pairs = pairs_or_default("pairs", None, DEFAULT_PAIRS, scales)?;
-    pairs.retain(|&(a, b)| a < b);
-    Ok(pairs)
+/// The default pairs on this grid ([`KernelOptions::for_scales`]), their
+/// ends lowered onto a shorter grid's top; a pair that collapses there is
+/// dropped.
+pub fn default_pairs(scales: &[f64]) -> Vec<(f64, f64)> {
+    KernelOptions::for_scales(scales, (0.0, 0.0)).pairs
 }
 
 /// A pairs option (`a:b,...`, octaves above a_min): the given pairs, each
@@ -288,7 +290,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         ));
     }
     let pairs = match args.pairs.as_deref() {
-        None => default_pairs(&scales)?,
+        None => default_pairs(&scales),
         given => pairs_or_default("pairs", given, DEFAULT_PAIRS, &scales)?,
     };
     for &(a, b) in &pairs {

@@ -640,9 +640,43 @@ impl Default for KernelOptions {
     fn default() -> Self {
         KernelOptions {
             fit: (0.5, 4.0),
-            refs: vec![1.0, 1.5, 2.0, 2.5, 3.0, 3.5],
-            pairs: vec![(0.5, 3.5), (1.0, 3.5), (1.0, 3.0), (1.5, 3.0)],
+            refs: DEFAULT_REF_OCTAVES[1..].to_vec(),
+            pairs: DEFAULT_PAIR_OCTAVES.to_vec(),
         }
+    }
+}
+
+/// Reference octaves of II Fig 26 (above a_min).
+pub const DEFAULT_REF_OCTAVES: [f64; 7] = [0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5];
+/// Scale pairs of II Fig 25 (octaves above a_min).
+pub const DEFAULT_PAIR_OCTAVES: [(f64, f64); 4] = [(0.5, 3.5), (1.0, 3.5), (1.0, 3.0), (1.5, 3.0)];
+
+impl KernelOptions {
+    /// The paper's reference scales and pairs fitted to a grid of `scales`
+    /// (ascending), with the fit range `fit` (octaves), as `wtmm kernel`
+    /// without `--refs` and `--pairs`: the references of
+    /// [`DEFAULT_REF_OCTAVES`] that lie on the grid and above the start of
+    /// the fit (`C_n(a, a')` needs a smaller `a` in the fit), the pairs of
+    /// [`DEFAULT_PAIR_OCTAVES`] with octaves beyond the grid's top lowered
+    /// onto it, duplicates and collapsed pairs dropped. [`Default`] holds
+    /// for 4.5 octaves or more; on a shorter grid its references are off
+    /// the scales and [`kernel_estimates`] refuses them.
+    ///
+    /// **Panics** if `scales` is empty.
+    pub fn for_scales(scales: &[f64], fit: (f64, f64)) -> Self {
+        let top = ((scales[scales.len() - 1] / scales[0]).log2() * 1e9).round() / 1e9;
+        let refs = DEFAULT_REF_OCTAVES
+            .into_iter()
+            .filter(|&o| octave_on_grid(scales, o) && o > fit.0 + 1e-9)
+            .collect();
+        let mut pairs: Vec<(f64, f64)> = Vec::new();
+        for (a, b) in DEFAULT_PAIR_OCTAVES {
+            let p = (a.min(top), b.min(top));
+            if p.0 < p.1 && !pairs.contains(&p) {
+                pairs.push(p);
+            }
+        }
+        KernelOptions { fit, refs, pairs }
     }
 }
 
@@ -1614,5 +1648,44 @@ mod tests {
             assert_eq!(warned, t >= 0.5 * se, "tilt {t}, se {se}");
         }
         assert!(n_warned > 0 && n_warned < n_ens, "{n_warned} of {n_ens}");
+    }
+
+    /// The paper's references and pairs on a 3-octave grid of 10 voices
+    /// (31 scales, top octave 3): `Default` names octaves off it and is
+    /// refused; `for_scales` keeps those on it, above the fit's start, and
+    /// lowers the pairs onto 3.
+    #[test]
+    fn default_options_follow_a_short_grid() {
+        let scales: Vec<f64> = (0..31).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+        let o = KernelOptions::for_scales(&scales, (0.5, 3.0));
+        assert_eq!(o.refs, vec![1.0, 1.5, 2.0, 2.5, 3.0]);
+        assert_eq!(o.pairs, vec![(0.5, 3.0), (1.0, 3.0), (1.5, 3.0)]);
+        let o = KernelOptions::for_scales(&scales, (0.0, 3.0));
+        assert_eq!(o.refs[0], 0.5);
+        // on the grid's own data: estimates with for_scales, an error with Default
+        let vals: Vec<Vec<f64>> = (0..31)
+            .map(|j| {
+                (0..50)
+                    .map(|t| ((t * 37 + j * 5) % 23) as f64 * 0.05)
+                    .collect()
+            })
+            .collect();
+        let s = KernelSums::from_ln_m(
+            &scales,
+            KernelConfig::default(),
+            WtmmmSet::Lines,
+            &vals,
+            "x",
+        )
+        .unwrap();
+        assert!(kernel_estimates(&s, &KernelOptions::for_scales(&scales, (0.5, 3.0))).is_ok());
+        let e = kernel_estimates(&s, &KernelOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("outside the scales"), "{e}");
+        // 5 octaves: the same as Default
+        let long: Vec<f64> = (0..51).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+        assert_eq!(
+            KernelOptions::for_scales(&long, (0.5, 4.0)),
+            KernelOptions::default()
+        );
     }
 }
