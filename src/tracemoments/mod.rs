@@ -251,13 +251,16 @@ impl TraceMomentConfig {
             && self.spectrum == o.spectrum
     }
 
-    /// **Errors** on negative or non-finite q, non-positive η or
+    /// **Errors** on negative, non-finite, unsorted or repeated q, non-positive η or
     /// structure-function orders, or a non-finite fractional-integration order.
     pub fn validate(&self) -> Result<()> {
-        if self.q.is_empty() || self.q.iter().any(|q| !(q.is_finite() && *q >= 0.0)) {
+        if self.q.is_empty()
+            || self.q.iter().any(|q| !(q.is_finite() && *q >= 0.0))
+            || self.q.windows(2).any(|w| w[0] >= w[1])
+        {
             return Err(Error::param(
                 "q",
-                "trace-moment orders must be finite and >= 0",
+                "trace-moment orders must be finite and >= 0, in ascending order, none twice",
             ));
         }
         if self.eta.iter().any(|e| !(e.is_finite() && *e > 0.0)) {
@@ -1524,6 +1527,22 @@ pub fn diagnostics(
             crate::stats::jackknife_se(&l.iter().map(f).collect::<Vec<_>>())
         })
     };
+    // 0. no universal fit: say why, as the CLI refuses such a q grid
+    if !r.alpha.is_finite() {
+        let usable =
+            r.q.iter()
+                .filter(|&&q| q > 0.0 && q <= FIRST_UNIVERSAL_Q_MAX)
+                .count();
+        w.push(format!(
+            "alpha and C1 are not estimated: the universal fit starts over \
+             0 < q <= {FIRST_UNIVERSAL_Q_MAX} and needs 3 or more orders there ({usable} given{})",
+            if usable >= 3 {
+                "; or fewer than 3 below q_fit_max or q_s/2"
+            } else {
+                ""
+            }
+        ));
+    }
     let half_beta = r.beta_stderr.map_or(0.0, |b| b / 2.0);
     let d = r.diff_order;
     let fix = |h: f64| format!("--diff-order {h:.2} (FluxDiff::Order in the library)");
@@ -1855,4 +1874,43 @@ pub fn analyze(
     let mut acc = TraceMomentAccumulator::new(config)?;
     acc.add_field(field)?;
     acc.finish(fit)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A q grid the universal fit cannot use gives K(q), no alpha, and a
+    /// warning saying why; an unsorted or repeated grid is refused.
+    #[test]
+    fn q_grids_the_universal_fit_cannot_use_are_said() {
+        let f = Field::new(
+            crate::synth::fbm::fbm(crate::synth::fbm::FbmParams { hurst: 0.5 }, 64, 64, 1, 0)
+                .unwrap(),
+        );
+        let cfg = TraceMomentConfig {
+            q: vec![0.5, 2.5, 3.0],
+            ..Default::default()
+        };
+        let mut acc = TraceMomentAccumulator::new(cfg).unwrap();
+        acc.add_field(&f).unwrap();
+        let r = acc.finish(&TraceMomentFitConfig::default()).unwrap();
+        assert!(r.k.iter().all(|k| k.is_finite()));
+        assert!(r.alpha.is_nan());
+        assert!(
+            r.warnings
+                .iter()
+                .any(|w| w.contains("needs 3 or more orders there (1 given)")),
+            "{:?}",
+            r.warnings
+        );
+        for q in [vec![1.0, 0.5, 2.0], vec![0.5, 0.5, 1.0]] {
+            let cfg = TraceMomentConfig {
+                q,
+                ..Default::default()
+            };
+            let e = TraceMomentAccumulator::new(cfg).unwrap_err().to_string();
+            assert!(e.contains("ascending"), "{e}");
+        }
+    }
 }
