@@ -1,12 +1,16 @@
 //! Trace moments against mathematics (SPEC §8-§9): a discrete log-normal
 //! cascade with exactly known K(q), and small FIF ensembles.
 //!
-//! Tolerances: every estimate is compared with its theory within
-//! `4 σ + b`, where σ is the standard error of the ensemble estimate, a
-//! jackknife over the images ([`finish_ensemble`], or computed in the test
-//! where the library reports none) or the scatter of the per-image
-//! estimates (`std / sqrt(n)`), and `b` a stated, measured finite-size
-//! allowance (0 where none is needed).
+//! Tolerances: every estimate is compared with its theory within `4 σ`,
+//! where σ is the standard error of the ensemble estimate, a jackknife over
+//! the images ([`finish_ensemble`], or computed in the test where the
+//! library reports none) or the scatter of the per-image estimates
+//! (`std / sqrt(n)`). Where an estimator bias `b ± se_b` was measured on
+//! independent ensembles (the `experiment_*` functions) and resolved
+//! (beyond 2 of its se_b), the check is a regression check on that
+//! documented bias, theory + b within `4 sqrt(σ² + se_b²)`, and says so;
+//! an unresolved bias is not used. The jackknife errors of tiles are
+//! checked against a brute-force jackknife, to rounding.
 
 use ndarray::Array2;
 use rand_distr::{Distribution, StandardNormal};
@@ -79,6 +83,157 @@ fn paired_k_difference(
 fn se(per: &[TraceMomentResult], f: impl Fn(&TraceMomentResult) -> f64) -> f64 {
     let v: Vec<f64> = per.iter().map(f).filter(|v| v.is_finite()).collect();
     mean_std(&v).1 / (v.len() as f64).sqrt()
+}
+
+/// The delete-one jackknife standard error written out from its definition
+/// (Efron & Tibshirani 1993 §11; the formula `wtmm::stats::jackknife_se`
+/// documents): `sqrt((n-1)/n Σ (x_i - mean)²)` over the leave-one-out
+/// replicates `x`.
+fn jackknife_by_definition(x: &[f64]) -> f64 {
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    ((n - 1.0) / n * x.iter().map(|v| (v - m).powi(2)).sum::<f64>()).sqrt()
+}
+
+/// `a == b` to rounding: the same quantity computed twice, by the library
+/// and here, through the same operations up to order (a few ulp, 1e-16
+/// relative; 1e-10 leaves a wide margin and still fails on any real
+/// difference, e.g. another q range or another leave-one-out sample). The
+/// absolute 1e-14 covers the errors that are pure rounding scatter
+/// themselves (K(0), K(1): 1e-17 to 1e-16).
+fn assert_rounding(what: &str, a: f64, b: f64) {
+    assert!(
+        (a - b).abs() <= 1e-10 * a.abs().max(b.abs()) + 1e-14,
+        "{what}: library {a} vs brute force {b}"
+    );
+}
+
+/// The merge of `parts` without the indices in `skip`.
+fn merge_except(parts: &[TraceMomentAccumulator], skip: &[usize]) -> TraceMomentAccumulator {
+    let mut m = TraceMomentAccumulator::new(parts[0].config.clone()).unwrap();
+    for (j, p) in parts.iter().enumerate() {
+        if !skip.contains(&j) {
+            m.merge(p).unwrap();
+        }
+    }
+    m
+}
+
+/// A leave-one-part-out jackknife done by brute force, for
+/// [`finish_jackknife`]'s errors to be checked against.
+struct BruteJackknife {
+    /// α and C1 of the whole (refitted by GLS when the fit config asks).
+    alpha: f64,
+    c1: f64,
+    /// Jackknife errors of K(q) (per q), α, C1 and of the universal
+    /// `K(2) = C1 (2^α - 2)/(α - 1)` that enters the spectral H.
+    k_se: Vec<f64>,
+    alpha_se: f64,
+    c1_se: f64,
+    k2_se: f64,
+}
+
+/// For each part: merge all the others and finish them with `fc`, then the
+/// jackknife formula over these replicates. The library keeps the whole's
+/// q range for the universal fit in every replicate (`finish_jackknife`
+/// docs: a replicate's own q_s, from its own α, C1 and image count, would
+/// move the range), so α and C1 of a replicate are refitted here to its
+/// K(q) over the whole's range, `0 < q <= universal_q_max`: by
+/// [`fit_universal`] (OLS), or with [`UniversalWeighting::Gls`] by
+/// generalised least squares as the module docs describe, the whole with
+/// the inverse of the shrunk jackknife covariance of K(q) over the fitted
+/// q, each replicate with the one from its own n - 1 replicates (nested).
+fn brute_jackknife(
+    whole: &TraceMomentAccumulator,
+    parts: &[TraceMomentAccumulator],
+    fc: &TraceMomentFitConfig,
+) -> BruteJackknife {
+    use rayon::prelude::*;
+    assert!(fc.q_fit_max.is_none());
+    let rw = whole.finish(fc).unwrap();
+    let n = parts.len();
+    let loo: Vec<TraceMomentResult> = (0..n)
+        .into_par_iter()
+        .map(|i| merge_except(parts, &[i]).finish(fc).unwrap())
+        .collect();
+    let in_range = |i: usize| rw.q[i] > 0.0 && rw.q[i] < rw.universal_q_max + 1e-12;
+    let (alpha, c1, a, c): (f64, f64, Vec<f64>, Vec<f64>) =
+        if fc.universal == UniversalWeighting::Gls {
+            // the fitted q where every K is finite
+            let idx: Vec<usize> = (0..rw.q.len())
+                .filter(|&i| {
+                    in_range(i) && rw.k[i].is_finite() && loo.iter().all(|r| r.k[i].is_finite())
+                })
+                .collect();
+            let q: Vec<f64> = idx.iter().map(|&i| rw.q[i]).collect();
+            let ks = |r: &TraceMomentResult| idx.iter().map(|&i| r.k[i]).collect::<Vec<f64>>();
+            let weights = |reps: &[TraceMomentResult]| {
+                let v: Vec<Vec<f64>> = reps.iter().map(ks).collect();
+                spd_inverse(&jackknife_covariance_shrunk(&v).unwrap().cov).unwrap()
+            };
+            let u = fit_universal_gls(&q, &ks(&rw), &weights(&loo)).unwrap();
+            let nested: Vec<(f64, f64)> = (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    let inner: Vec<TraceMomentResult> = (0..n)
+                        .filter(|&j| j != i)
+                        .map(|j| merge_except(parts, &[i, j]).finish(fc).unwrap())
+                        .collect();
+                    let u = fit_universal_gls(&q, &ks(&loo[i]), &weights(&inner)).unwrap();
+                    (u.alpha, u.c1)
+                })
+                .collect();
+            let (a, c): (Vec<f64>, Vec<f64>) = nested.into_iter().unzip();
+            (u.alpha, u.c1, a, c)
+        } else {
+            let idx: Vec<usize> = (0..rw.q.len()).filter(|&i| in_range(i)).collect();
+            let q: Vec<f64> = idx.iter().map(|&i| rw.q[i]).collect();
+            let fit = |r: &TraceMomentResult| {
+                let k: Vec<f64> = idx.iter().map(|&i| r.k[i]).collect();
+                let u = fit_universal(&q, &k).unwrap();
+                (u.alpha, u.c1)
+            };
+            let (a, c): (Vec<f64>, Vec<f64>) = loo.iter().map(fit).unzip();
+            let (alpha, c1) = fit(&rw);
+            (alpha, c1, a, c)
+        };
+    let k2: Vec<f64> = a
+        .iter()
+        .zip(&c)
+        .map(|(&a, &c)| c * universal_shape(a, 2.0))
+        .collect();
+    BruteJackknife {
+        alpha,
+        c1,
+        k_se: (0..rw.q.len())
+            .map(|iq| jackknife_by_definition(&loo.iter().map(|r| r.k[iq]).collect::<Vec<_>>()))
+            .collect(),
+        alpha_se: jackknife_by_definition(&a),
+        c1_se: jackknife_by_definition(&c),
+        k2_se: jackknife_by_definition(&k2),
+    }
+}
+
+/// The library's α, C1, K(q) and their errors (`r`, from
+/// [`finish_jackknife`]) against the brute force `b`, to rounding.
+fn assert_brute_jackknife(r: &TraceMomentResult, b: &BruteJackknife) {
+    println!(
+        "alpha {:.4} +- {:.3e} (brute force {:.3e}), C1 {:.5} +- {:.3e} ({:.3e})",
+        r.alpha, r.alpha_stderr, b.alpha_se, r.c1, r.c1_stderr, b.c1_se
+    );
+    assert_rounding("alpha", r.alpha, b.alpha);
+    assert_rounding("C1", r.c1, b.c1);
+    assert_rounding("alpha_stderr", r.alpha_stderr, b.alpha_se);
+    assert_rounding("C1_stderr", r.c1_stderr, b.c1_se);
+    // a jackknife over parts that differ: errors well above rounding
+    assert!(
+        b.alpha_se > 1e-6 && b.c1_se > 1e-8,
+        "no scatter over the parts?"
+    );
+    assert_eq!(r.k_stderr.len(), b.k_se.len());
+    for (iq, (x, y)) in r.k_stderr.iter().zip(&b.k_se).enumerate() {
+        assert_rounding(&format!("K_stderr at q = {}", r.q[iq]), *x, *y);
+    }
 }
 
 #[test]
@@ -161,21 +316,24 @@ fn lognormal_cascade_recovers_k_alpha_c1() {
             res.k[i2]
         );
     }
-    // The universal fit, DTM and q_s against the theory plus the bias
-    // measured by `experiment_cascade_bias` on 32 independent ensembles of
-    // the same 16 x 256² (seeds 2024..2055): `(b, se_b, sd)` = mean minus
-    // theory, its standard error, and the sd of one ensemble's estimate.
+    // The universal fit, DTM and q_s: regression checks on documented
+    // estimator biases. `experiment_cascade_bias` measured on 32
+    // independent ensembles of the same 16 x 256² (seeds 2024..2055)
+    // `(b, se_b, sd)` = mean minus theory, its standard error, and the sd
+    // of one ensemble's estimate; every b is resolved, 2.6 (α) to 6.4
+    // (DTM C1 at q = 0.5) of its se_b, so the check is that this ensemble
+    // lies within 4 sqrt(sd² + se_b²) of theory + b, not of the theory.
     // That sd, not the per-image scatter / sqrt(16), is this estimate's
     // error: the fit is nonlinear in the pooled moments, and the per-image
     // se of α (0.023) is a third of the spread between ensembles (0.066).
-    // Tolerance 4 sqrt(sd² + se_b²). (Before: 4 per-image se plus bare
-    // allowances 0.08, 0.01, 0.05, 0.01, and q_s within 0.5 of 5.)
+    // (Before: 4 per-image se plus bare allowances 0.08, 0.01, 0.05, 0.01,
+    // and q_s within 0.5 of 5.)
     let check = |name: &str, v: f64, want: f64, (b, se_b, sd): (f64, f64, f64)| {
         let tol = 4.0 * sd.hypot(se_b);
         println!("{name}: {v:.4} (theory {want} + bias {b:+.4}, tol {tol:.4})");
         assert!(
             (v - want - b).abs() < tol,
-            "{name}: {v} vs theory {want} + bias {b}, tol {tol}"
+            "{name}: {v} vs theory {want} + documented bias {b}, tol {tol}"
         );
     };
     check("alpha", res.alpha, 2.0, (-0.0304, 0.0116, 0.0656));
@@ -385,13 +543,48 @@ fn fif_double_trace_moments() {
     );
 }
 
+/// The surface of 8 topo-fif fields of 256² (seed 2024: the fields whose
+/// fluxes are `fif_flux_parts()[..8]`) with seed 000's estimator, the
+/// gradient modulus alone (`FluxDiff::None`): the spectrum, the structure
+/// functions and the gradient flux, each against the theory within 4
+/// standard errors σ of this ensemble's estimate (the per-image scatter,
+/// `std / sqrt(8)`).
+///
+/// Finite-size biases were measured on an independent ensemble of 64 images
+/// of 256² (seed 4242, jackknife errors, `experiment_fif_bias`). Where that
+/// bias is within 2 of its own error it is not resolved, and the bare
+/// theory is asserted: β 2.2665 ± 0.047 against 2.1777 (+1.9 errors; seed
+/// 001 Fig 5 notes that the spectrum of a finite FIF falls too fast at high
+/// wavenumbers, not resolved here), the spectral H 0.7243 ± 0.0245 (+1.0),
+/// ξ(2) 1.1629 ± 0.023 against 1.1777 (-0.6). (Before: theory + bias within
+/// `4 sqrt(σ² + se_b²)`; earlier still, bare allowances 0.15, 0.05, 0.1.)
+/// H_sf is biased by -0.0388 ± 0.0056 (7 errors: increments at lags 2-32
+/// px of a periodic 256² surface read ξ(1) 0.661 for H = 0.7): for it the
+/// check is a regression check on that documented estimator bias, theory +
+/// bias within `4 sqrt(σ² + se_b²)`.
+///
+/// The gradient flux against the generator's flux of the same images
+/// (paired, `paired_k_difference`: the sampling fluctuations they share
+/// cancel; σ its jackknife error over the images): |∇| is a
+/// differentiation of order 1 > H = 0.7, so the modulus is that of a
+/// fractional derivative of order 0.3 of φ, which fills the low values of
+/// φ (module docs of `tracemoments`, "Which flux"): |K(q)| lower than the
+/// flux's, at q = 0.5 and 2, by more than 3 σ. (Before: K(2) within 30 %
+/// of the theory, an allowance.)
 #[test]
 fn fif_field_matches_theory() {
     let p = FifParams::TOPO;
     let (n, n_img) = (256, 8);
+    let flux = &fif_flux_parts()[..n_img as usize];
     let mut field_accs = Vec::new();
     for i in 0..n_img {
-        let f = fif(&p, n, n, 2024, i).unwrap();
+        let (f, phi) = fif_with_flux(&p, n, n, 2024, i).unwrap();
+        // the pairing below: the shared flux accumulators hold these φ
+        // (their sum of φ over the 65536 pixels, to rounding: below
+        // 65536 x 1.1e-16 = 7e-12 relative however summed; the sums of
+        // two images differ by percents)
+        let ln_sum = flux[i as usize].phi_sum.ln();
+        assert!((ln_sum - phi.sum().ln()).abs() < 1e-10, "image {i}");
         // seed 000's estimator: the gradient modulus alone
         let mut b = TraceMomentAccumulator::new(TraceMomentConfig {
             diff: FluxDiff::None,
@@ -418,21 +611,12 @@ fn fif_field_matches_theory() {
         fres.c1,
         fres.dtm_alpha
     );
-    // The surface's estimates against the theory plus the finite-size bias
-    // `b ± se_b` measured on an independent ensemble of 64 images of 256²
-    // (seed 4242, jackknife errors, `experiment_fif_bias`), within 4
-    // standard errors of the difference, `4 sqrt(σ² + se_b²)`. Measured there: β 2.2665 ± 0.047
-    // (theory 2.1777: the spectrum of a finite FIF falls too fast at high
-    // wavenumbers, seed 001 Fig 5 notes the same), H_sf 0.6612 ± 0.0056
-    // (0.7: increments at lags 2-32 px of a periodic 256² surface),
-    // ξ(2) 1.1629 ± 0.023 (1.1777). Before: bare allowances 0.15, 0.05
-    // and 0.1 on top of 4 σ.
-    let check = |name: &str, v: f64, sig: f64, want: f64, (b, se_b): (f64, f64)| {
-        let tol = 4.0 * sig.hypot(se_b);
-        println!("{name}: {v:.4} (theory {want:.4} + bias {b:+.4}, tol {tol:.4})");
+    let check = |name: &str, v: f64, sig: f64, want: f64| {
+        let tol = 4.0 * sig;
+        println!("{name}: {v:.4} (theory {want:.4}, tol {tol:.4})");
         assert!(
-            (v - want - b).abs() < tol,
-            "{name}: {v} vs theory {want} + bias {b}, tol {tol}"
+            (v - want).abs() < tol,
+            "{name}: {v} vs theory {want}, tol {tol}"
         );
     };
     // angle-integrated β = 1 + 2H - K(2) (seed 000 eq 11)
@@ -442,28 +626,30 @@ fn fif_field_matches_theory() {
         beta,
         se(&fper, |r| r.beta.unwrap()),
         th::beta_integrated(&p),
-        (0.0888, 0.0466),
     );
     assert!((fres.beta_averaged.unwrap() - beta - 1.0).abs() < 1e-12);
-    // H = ξ(1) from the structure functions
-    check(
-        "H_sf",
-        fres.h_sf.unwrap(),
-        se(&fper, |r| r.h_sf.unwrap()),
-        p.hurst,
-        (-0.0388, 0.0056),
-    );
+    // H = ξ(1) from the structure functions: regression check on the
+    // documented bias (b, se_b)
+    {
+        let (v, sig, (b, se_b)) = (
+            fres.h_sf.unwrap(),
+            se(&fper, |r| r.h_sf.unwrap()),
+            (-0.0388, 0.0056),
+        );
+        let tol = 4.0 * sig.hypot(se_b);
+        println!(
+            "H_sf: {v:.4} (theory {} + bias {b:+.4}, tol {tol:.4})",
+            p.hurst
+        );
+        assert!(
+            (v - p.hurst - b).abs() < tol,
+            "H_sf: {v} vs theory {} + documented bias {b}, tol {tol}",
+            p.hurst
+        );
+    }
     // H from the spectrum, (β - 1 + K(2))/2 (seed 000 §6.1.2; the `H` key
-    // of tm.json), with the gradient flux's K(2): measured 0.7243 ± 0.0245
-    // on the 64 images (the β excess and the low gradient K(2) nearly
-    // cancel), so the bias term is +0.024 ± 0.025
-    check(
-        "H",
-        fres.h.unwrap(),
-        se(&fper, |r| r.h.unwrap()),
-        p.hurst,
-        (0.0243, 0.0245),
-    );
+    // of tm.json), with the gradient flux's K(2)
+    check("H", fres.h.unwrap(), se(&fper, |r| r.h.unwrap()), p.hurst);
     // ξ(q) = qH - K(q) at q = 2
     let i2 = fres.sf_q.iter().position(|&q| q == 2.0).unwrap();
     check(
@@ -471,18 +657,21 @@ fn fif_field_matches_theory() {
         fres.xi[i2],
         se(&fper, |r| r.xi[i2]),
         th::xi(&p, 2.0),
-        (-0.0148, 0.0233),
     );
-    // the gradient flux sees the multifractality (K(2) > 0 by many σ) but
-    // smooths it: |∇| is a differentiation of order 1 > H, so it measures a
-    // fractional derivative of φ, not φ; measured K(2) 18 % ± 2 % low (64
-    // images, seed 4242), 12 % ± 10 % here. Check only the order of
-    // magnitude (within 30 %).
-    let k2 = fres.k[fres.q.iter().position(|&q| (q - 2.0).abs() < 1e-9).unwrap()];
-    assert!(
-        (k2 / th::k(&p, 2.0) - 1.0).abs() < 0.3,
-        "gradient K(2) {k2}"
-    );
+    // the gradient flux against the true flux of the same images
+    for q in [0.5, 2.0] {
+        let (d, sig) = paired_k_difference(&field_accs, flux, q, &fc);
+        let kth = th::k(&p, q);
+        println!(
+            "q {q}: K gradient - K flux {d:+.4} +- {sig:.4} ({:.1} errors; theory K {kth:.4})",
+            d / sig
+        );
+        // |K| lower: d has the sign opposite to K's
+        assert!(
+            d * kth.signum() < -3.0 * sig,
+            "q {q}: K gradient - K flux = {d} +- {sig}: |K| of the gradient flux not below the flux's"
+        );
+    }
 }
 
 #[test]
@@ -619,7 +808,10 @@ fn rejects_bad_input() {
 /// the same images, and its jackknife error, measured by
 /// `experiment_fif_bias` on 64 topo-fif images of 256² (seed 4242): the
 /// estimated flux scales a little less intermittently (|K(0.5)| 0.0322,
-/// 4 % less; K(2) 0.222, 1 %).
+/// 4 % less, 20 errors; K(2) 0.222, 1 %, 2.2 errors, the same sign). Both
+/// are resolved estimator biases, and `auto_flux_tracks_the_true_flux`
+/// is a regression check on them, not a check against the theory (which
+/// would be a difference of 0).
 const BIAS_AUTO_K05: f64 = 0.00122;
 const SE_AUTO_K05: f64 = 0.00006;
 const BIAS_AUTO_K2: f64 = 0.00238;
@@ -635,8 +827,9 @@ const SE_AUTO_K2: f64 = 0.00106;
 /// * `K(q)` of the estimated flux minus `K(q)` of the true flux at q = 0.5
 ///   and 2 (paired: the same images; σ its jackknife error) equals the
 ///   difference measured on 64 other images within `4 sqrt(σ² + se_b²)`
-///   (`BIAS_AUTO_K05`, `BIAS_AUTO_K2`; before: `4 σ + 0.08 |K|`, an
-///   allowance no measurement stated);
+///   (a regression check on the documented estimator bias `BIAS_AUTO_K05`,
+///   `BIAS_AUTO_K2`; before: `4 σ + 0.08 |K|`, an allowance no
+///   measurement stated);
 /// * the gradient alone underestimates |K| at both orders by more than the
 ///   auto flux does (its residual derivative of order 1 - H = 0.3 fills the
 ///   low values of φ; seed 000 §5.2 assumed H ≈ 1/2).
@@ -797,7 +990,11 @@ fn box_moments_see_the_same_region_at_every_scale() {
 }
 
 /// The tiles of one field add up to the whole field at every fitted box
-/// size: identical K(q), and a block-jackknife error.
+/// size: identical K(q). The block-jackknife errors of α, C1 and K(q) are
+/// those of a leave-one-tile-out jackknife done by brute force
+/// (`brute_jackknife`: each tile left out in turn, the others merged and
+/// finished, the delete-one formula), to rounding, with the OLS universal
+/// fit and with the default GLS one (α and C1 refitted, nested jackknife).
 #[test]
 fn tiles_reproduce_the_whole_field() {
     let f = Field::new(fif(&FifParams::TOPO, 96, 128, 3, 0).unwrap());
@@ -829,39 +1026,97 @@ fn tiles_reproduce_the_whole_field() {
     };
     let r = finish_jackknife(&whole, &tiles, &ols, "tiles").unwrap();
     assert_eq!(r.alpha, rw.alpha);
-    assert!(r.alpha_stderr.is_finite() && r.alpha_stderr > 0.0);
     assert!(r.stderr_method.contains("12 tiles"));
+    assert_brute_jackknife(&r, &brute_jackknife(&whole, &tiles, &ols));
     let r = finish_jackknife(&whole, &tiles, &fc, "tiles").unwrap();
     assert_eq!(r.k, rw.k);
     assert_eq!(r.alpha_ols, rw.alpha);
     assert!(r.universal_fit.starts_with("gls"), "{}", r.universal_fit);
-    assert!(r.alpha.is_finite() && r.alpha_stderr.is_finite() && r.alpha_stderr > 0.0);
+    assert_brute_jackknife(&r, &brute_jackknife(&whole, &tiles, &fc));
 }
 
-/// The tiles of one image share its spectrum, so beta keeps its fit error
-/// (no scatter), and H = (beta - 1 + K(2)) / 2 carries half of it on top of
-/// the tiles' K(2) scatter.
+/// The tiles of one image share its spectrum, so β has no scatter over
+/// them (a 1e-15 rounding scatter was reported once) and keeps its fit
+/// error, and `H = (β - 1 + K(2))/2` carries half of it on top of the
+/// tiles' scatter of the universal K(2) (`finish_jackknife`:
+/// `H_stderr = hypot(jackknife error of H, β_stderr/2)`). Checked to
+/// rounding against computations done here: β and its error are the OLS
+/// line `log2 S = c - β_avg log2 |k|` through the whole image's binned
+/// spectrum over the default k range (slope error `sqrt(Σ r² / (n-2) /
+/// Σ (x - x̄)²)` from the residuals r), minus 1 for the angle-integrated β;
+/// the jackknife error of the universal K(2) comes from `brute_jackknife`
+/// (default GLS fit, 16 tiles).
 #[test]
 fn one_image_h_error_includes_the_spectrum_fit() {
     let f = Field::new(fif(&FifParams::TOPO, 256, 256, 3, 1).unwrap());
     let cfg = TraceMomentConfig::default();
+    let fc = TraceMomentFitConfig::default();
     let (whole, tiles) = TraceMomentAccumulator::field_tiles(&cfg, &f, 64).unwrap();
-    let r = finish_jackknife(&whole, &tiles, &TraceMomentFitConfig::default(), "tiles").unwrap();
+    assert_eq!(tiles.len(), 16);
+    let r = finish_jackknife(&whole, &tiles, &fc, "tiles").unwrap();
+    assert!(r.universal_fit.starts_with("gls"), "{}", r.universal_fit);
+    // the spectrum fit, by hand
+    let ps =
+        wtmm::stats::powspec::power_spectrum(f.filled().unwrap().view(), &cfg.spectrum).unwrap();
+    let (klo, khi) = wtmm::stats::powspec::default_k_range(256);
+    let (x, y): (Vec<f64>, Vec<f64>) = ps
+        .points()
+        .into_iter()
+        .filter(|&(k, s)| k >= klo && k <= khi && s > 0.0)
+        .map(|(k, s)| (k.log2(), s.log2()))
+        .unzip();
+    let m = x.len() as f64;
+    assert!(m >= 3.0, "{m} spectrum bins");
+    let (mx, my) = (x.iter().sum::<f64>() / m, y.iter().sum::<f64>() / m);
+    let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
+    let slope = x
+        .iter()
+        .zip(&y)
+        .map(|(a, b)| (a - mx) * (b - my))
+        .sum::<f64>()
+        / sxx;
+    let sse: f64 = x
+        .iter()
+        .zip(&y)
+        .map(|(a, b)| (b - my - slope * (a - mx)).powi(2))
+        .sum();
+    let beta_se = (sse / (m - 2.0) / sxx).sqrt();
+    let beta = r.beta.expect("beta of a 256^2 field");
     let b = r.beta_stderr.expect("beta of a 256^2 field");
-    let h = r.h_stderr.expect("H of a 256^2 field");
-    // the fit error of beta (a 1e-15 rounding scatter was reported before)
-    assert!(b > 1e-4 && h >= b / 2.0, "beta +- {b}, H +- {h}");
+    assert_rounding("beta", beta, -slope - 1.0);
+    assert_rounding("beta_stderr", b, beta_se);
+    // H and its error from the brute-force jackknife of the universal K(2)
+    let bj = brute_jackknife(&whole, &tiles, &fc);
+    assert_brute_jackknife(&r, &bj);
+    let k2 = bj.c1 * universal_shape(bj.alpha, 2.0);
+    assert_rounding("H", r.h.unwrap(), (beta - 1.0 + k2) / 2.0);
+    let h_se = r.h_stderr.expect("H error of a 256^2 field");
+    println!(
+        "beta {beta:.4} +- {b:.4}; H {:.4} +- {h_se:.4} = hypot({:.4} (K(2) scatter / 2), {:.4} (beta fit / 2))",
+        r.h.unwrap(),
+        bj.k2_se / 2.0,
+        b / 2.0
+    );
+    assert_rounding("H_stderr", h_se, (bj.k2_se / 2.0).hypot(b / 2.0));
 }
 
 /// The GLS universal fit (default) against the OLS one on m = 8
 /// independent ensembles of 16 log-normal cascades of 128² (exact K: α = 2,
-/// C1 = 0.1): the mean over the ensembles of each estimate on theory + the
-/// bias measured by `experiment_cascade_bias` (`LEVELS=7 R=64 SEED=3000`:
-/// 64 other ensembles of the same size) within `4 sqrt(sd²/m + se_b²)`, sd
-/// the scatter of one ensemble's estimate there; the GLS nested-jackknife
-/// error of the size of the scatter between ensembles (within a factor e),
-/// and a scatter no larger than that of OLS (measured: sd 0.017 against
-/// 0.101).
+/// C1 = 0.1): the mean over the ensembles of each estimate against the
+/// theory; the GLS nested-jackknife error of the size of the scatter
+/// between ensembles (within a factor e), and a scatter no larger than that
+/// of OLS (measured: sd 0.017 against 0.101).
+///
+/// `experiment_cascade_bias` (`LEVELS=7 R=64 SEED=3000`: 64 other
+/// ensembles of the same size) measured the biases `(b, se_b)` and the sd
+/// of one ensemble's estimate: GLS α -0.0026 ± 0.0021 and OLS α -0.018 ±
+/// 0.013 are not resolved (1.2 and 1.5 errors), so the mean α is checked
+/// against the bare theory, within 4 standard errors `sd_m/√m` from this
+/// test's own scatter sd_m between its m ensembles (7 degrees of freedom:
+/// 4 such errors are exceeded with probability 0.005). GLS C1 -0.0023 ±
+/// 0.00035 is resolved (6.7 errors): there the check is a regression check
+/// on that documented estimator bias, theory + b within
+/// `4 sqrt(sd²/m + se_b²)`.
 #[test]
 fn gls_universal_fit_on_cascade_ensembles() {
     let c1 = 0.1;
@@ -904,20 +1159,25 @@ fn gls_universal_fit_on_cascade_ensembles() {
     println!(
         "cascades 16 x 128², {m} ensembles: GLS alpha {mg:.3} sd {sg:.3} (mean jackknife {mj:.3}); OLS alpha {mo:.3} sd {so:.3}; GLS C1 {mc:.4} sd {sc:.4}"
     );
-    // (b, se_b, sd) of `experiment_cascade_bias` at 16 x 128², seeds 3000..3063
-    // (before: 4 sd/√m plus bare allowances 0.08 on α and 0.01 on C1)
+    // (before: theory + the unresolved biases on α; earlier, 4 sd/√m plus
+    // bare allowances 0.08 on α and 0.01 on C1)
     let rm = (m as f64).sqrt();
-    let check = |name: &str, v: f64, want: f64, (b, se_b, sd): (f64, f64, f64)| {
-        let tol = 4.0 * (sd / rm).hypot(se_b);
-        println!("{name}: mean {v:.4} (theory {want} + bias {b:+.4}, tol {tol:.4})");
+    for (name, v, sd) in [("GLS alpha", mg, sg), ("OLS alpha", mo, so)] {
+        let tol = 4.0 * sd / rm;
+        println!("{name}: mean {v:.4} (theory 2, tol {tol:.4})");
         assert!(
-            (v - want - b).abs() < tol,
-            "{name}: mean {v} vs theory {want} + bias {b}, tol {tol}"
+            (v - 2.0).abs() < tol,
+            "{name}: mean {v} vs theory 2, tol {tol}"
         );
-    };
-    check("GLS alpha", mg, 2.0, (-0.00257, 0.00214, 0.01713));
-    check("OLS alpha", mo, 2.0, (-0.01837, 0.01266, 0.10132));
-    check("GLS C1", mc, c1, (-0.00234, 0.00035, 0.00281));
+    }
+    // (b, se_b, sd) of `experiment_cascade_bias` at 16 x 128², seeds 3000..3063
+    let (b, se_b, sd) = (-0.00234, 0.00035, 0.00281);
+    let tol = 4.0 * (sd / rm).hypot(se_b);
+    println!("GLS C1: mean {mc:.4} (theory {c1} + bias {b:+.4}, tol {tol:.4})");
+    assert!(
+        (mc - c1 - b).abs() < tol,
+        "GLS C1: mean {mc} vs theory {c1} + documented bias {b}, tol {tol}"
+    );
     assert!(
         mj / sg > (-1.0f64).exp() && mj / sg < 1.0f64.exp(),
         "jackknife {mj} vs sd {sg}"
@@ -1172,7 +1432,9 @@ fn lone_image_tiles_are_whole_and_cover_the_image() {
 /// (`pool_tiles`); the merged tiles are the merged images, and every tile
 /// carries the merged spectrum, so beta keeps the fit error of the merged
 /// spectrum (as for one image) instead of a scatter from the images'
-/// weights.
+/// weights; the errors of α, C1, K(q) and H are those of a brute-force
+/// leave-one-tile-out jackknife over the 32 tiles (`brute_jackknife`), to
+/// rounding.
 #[test]
 fn two_images_pool_their_tiles() {
     let cfg = TraceMomentConfig::default();
@@ -1205,7 +1467,17 @@ fn two_images_pool_their_tiles() {
         r.stderr_method
     );
     assert_eq!(r.beta_stderr, rw.beta_stderr);
-    assert!(r.alpha_stderr.is_finite() && r.alpha_stderr > 0.0);
+    // the errors of α, C1, K(q) against a brute-force leave-one-tile-out
+    // jackknife over the 32 tiles, and H's as for one image: the tiles
+    // share the merged spectrum, so hypot(K(2) scatter / 2, β fit error / 2)
+    let bj = brute_jackknife(&whole, &tiles, &fc);
+    assert_brute_jackknife(&r, &bj);
+    let b = r.beta_stderr.expect("beta of 256^2 fields");
+    assert_rounding(
+        "H_stderr",
+        r.h_stderr.unwrap(),
+        (bj.k2_se / 2.0).hypot(b / 2.0),
+    );
     assert!(pool_tiles(Vec::new()).is_err());
 }
 
