@@ -1608,7 +1608,7 @@ fn straightness_diagnostic_on_cascades() {
 /// (not a check; `cargo test --release --test tracemoments
 /// experiment_lone_image_tiles -- --ignored --nocapture`, env R fields
 /// (default 24) of SIZE² (default 400), SEED (777), MODEL fif (topo-fif) or
-/// fbm (H = 0.4)): per estimate the scatter between the fields and the rms
+/// fbm (H = 0.4), FIT ols (default) or gls): per estimate the scatter between the fields and the rms
 /// of their jackknife errors, and per diagnostic the fields it speaks on.
 #[test]
 #[ignore]
@@ -1618,8 +1618,12 @@ fn experiment_lone_image_tiles() {
     let (r, n, seed) = (env("R", 24), env("SIZE", 400) as usize, env("SEED", 777));
     let model = std::env::var("MODEL").unwrap_or("fif".into());
     let cfg = TraceMomentConfig::default();
+    // FIT=gls: the GLS universal fit over the tiles
     let fc = TraceMomentFitConfig {
-        universal: UniversalWeighting::Ols,
+        universal: match std::env::var("FIT").as_deref() {
+            Ok("gls") => UniversalWeighting::Gls,
+            _ => UniversalWeighting::Ols,
+        },
         ..Default::default()
     };
     let tile = 1usize << ((n as f64).log2().floor() as u32 - 1);

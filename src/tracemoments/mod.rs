@@ -1401,6 +1401,11 @@ pub fn finish_ensemble(
 /// jackknife over the tiles of one image treats the tiles as independent;
 /// the long-range correlations of a cascade make that an underestimate of
 /// the error of the single image, though far closer than the regression.
+/// The universal fit is `fc.universal` (GLS by default); the `tm` command
+/// fits tiles by OLS unless told otherwise (README, "Trace moments: fitting
+/// alpha (GLS)": on a real DEM the two fits part by 6 errors, while on
+/// synthetic universal multifractals both tile errors are about the
+/// scatter).
 ///
 /// **Errors** as [`TraceMomentAccumulator::finish`] or on parts with other
 /// settings.
