@@ -765,12 +765,18 @@ fn inputs_are_checked_before_computing_and_nothing_is_left() {
     let t = std::time::Instant::now();
     assert_eq!(run(&["analyze", &big, "--octaves", "2", "--out", &ok]), 0);
     let t_ok = t.elapsed().as_secs_f64();
-    let t = std::time::Instant::now();
-    assert_eq!(
-        run(&["analyze", &big, &missing, "--octaves", "2", "--out", &o]),
-        2
-    );
-    let t_fail = t.elapsed().as_secs_f64();
+    // the fastest of 3 failing runs: a stall of the machine during one run
+    // must not read as a late failure
+    let t_fail = (0..3)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            assert_eq!(
+                run(&["analyze", &big, &missing, "--octaves", "2", "--out", &o]),
+                2
+            );
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min);
     assert!(
         t_fail < 0.5 * t_ok,
         "failed late: {t_fail:.3} s, analysis {t_ok:.3} s"
@@ -1716,8 +1722,9 @@ fn validate_uses_the_torus_on_periodic_models() {
 /// the +-1.5 per octave of the default window, so the lines end and the
 /// message names the window beside the scale range; with a window that
 /// admits it, h(0) comes out at 1.8. The multipliers are exact (sigma^2 =
-/// 0): what is left is the estimator's own bias, a few hundredths here
-/// (1.836 on these 2 x 256^2), hence the bound 0.1.
+/// 0): h(0) within 3 of its reported (tile jackknife) errors of 1.8
+/// (1.836 +- 0.029 on these 2 x 256^2: the estimator's own bias, a few
+/// hundredths, is inside it).
 #[test]
 fn a_window_narrower_than_the_wavelet_order_is_named() {
     let dir = scratch("window-order");
@@ -1756,8 +1763,11 @@ fn a_window_narrower_than_the_wavelet_order_is_named() {
     let v = json(&Path::new(&o).join("spectra.json"));
     let q: Vec<f64> = serde_json::from_value(v["q"].clone()).unwrap();
     let h: Vec<f64> = serde_json::from_value(v["h"].clone()).unwrap();
-    let h0 = h[q.iter().position(|&x| x == 0.0).unwrap()];
-    assert!((h0 - 1.8).abs() < 0.1, "h(0) = {h0}");
+    let se: Vec<f64> = serde_json::from_value(v["h_stderr"].clone()).unwrap();
+    let i0 = q.iter().position(|&x| x == 0.0).unwrap();
+    let (h0, se0) = (h[i0], se[i0]);
+    assert!(v["stderr_method"].as_str().unwrap().contains("tiles"));
+    assert!((h0 - 1.8).abs() < 3.0 * se0, "h(0) = {h0} +- {se0}");
 }
 
 /// Options that would be dropped without a word are refused (exit 2,

@@ -1049,6 +1049,45 @@ fn brute_force_check(magnitude: Magnitude, scales: Vec<f64>) {
                     "{ctx}: C_ensemble"
                 );
             }
+            // lag 0: the covariance of the two scales' values at the same
+            // pixel, over the pixels valid at both (one lag of the FFT)
+            let lag0 = |pts: &dyn Fn(usize, usize) -> Vec<(usize, usize, f64)>| {
+                let (mut num, mut cnt) = (0.0, 0.0);
+                for i in 0..2 {
+                    let second: std::collections::HashMap<(usize, usize), f64> = pts(i, s2)
+                        .into_iter()
+                        .map(|(y, x, v)| ((y, x), v))
+                        .collect();
+                    for (y, x, v) in pts(i, s1) {
+                        if let Some(u) = second.get(&(y, x)) {
+                            num += v * u;
+                            cnt += 1.0;
+                        }
+                    }
+                }
+                (num / cnt, cnt)
+            };
+            let (per_image, cnt0) = lag0(&|i, s| w[i][s].clone());
+            let (ensemble, _) = lag0(&|i, s| {
+                let mu = if s == s1 { mu1 } else { mu2 };
+                w[i][s]
+                    .iter()
+                    .map(|&(y, x, v)| (y, x, v + means[s][i] - mu))
+                    .collect()
+            });
+            let ctx = format!("{magnitude:?} periodic={periodic} eps={eps} pair {p} lag 0");
+            assert!(cnt0 >= 1.0, "{ctx}");
+            let tol0 = |norm: f64| f32_fft_bound(norm, n_fft, 1.0) / cnt0;
+            assert!(
+                (pc.c0 - per_image).abs() <= tol0(nw),
+                "{ctx}: c0 {} vs {per_image}",
+                pc.c0
+            );
+            assert!(
+                (pc.c0_ensemble - ensemble).abs() <= tol0(ne),
+                "{ctx}: c0_ensemble {} vs {ensemble}",
+                pc.c0_ensemble
+            );
         }
     }
 }
