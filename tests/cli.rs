@@ -529,8 +529,54 @@ fn compare_tiny_ensembles() {
             assert!(out.join(f).is_file(), "{preset}: missing {f}");
         }
     }
-    // the fBm target: K = 0, H = 1/3
+    // compare analyses the images `synth` writes with the same seed as
+    // `analyze` and `tm` do: the same tau(q) and K(q), to the bit
+    let syn = dir.join("syn");
+    let s = syn.to_str().unwrap();
+    let synth = [
+        "synth",
+        "--preset",
+        "paper-fbm",
+        "--count",
+        "4",
+        "--size",
+        "128",
+        "--seed",
+        "1",
+        "--out",
+        s,
+    ];
+    assert_eq!(run(&synth), 0);
+    let files = npy_files(&syn);
+    let files: Vec<&str> = files.iter().map(String::as_str).collect();
+    let an = dir.join("an").display().to_string();
+    let opts = [
+        "--octaves",
+        "3",
+        "--voices",
+        "4",
+        "--fit",
+        "0:3",
+        "--q",
+        "-1:3:0.5",
+        "--out",
+        &an,
+    ];
+    assert_eq!(run(&[&["analyze"][..], &files, &opts].concat()), 0);
+    let tmo = dir.join("tmo").display().to_string();
+    let tm_opts = ["--q", "0:4:0.1", "--eta", "1", "--out", &tmo];
+    assert_eq!(run(&[&["tm"][..], &files, &tm_opts].concat()), 0);
     let c = json(&dir.join("paper-fbm/compare.json"));
+    let a = json(&Path::new(&an).join("spectra.json"));
+    assert_eq!(c["wtmm"]["tau"], a["tau"]);
+    let (t, u) = (
+        json(&dir.join("paper-fbm/tm/tm.json")),
+        json(&Path::new(&tmo).join("tm.json")),
+    );
+    for key in ["q", "K", "K_stderr", "alpha", "C1", "alpha_stderr", "H"] {
+        assert_eq!(t[key], u[key], "{key}");
+    }
+    // the fBm target: K = 0, H = 1/3
     assert!(
         c["theory"]["K"]
             .as_array()

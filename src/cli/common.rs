@@ -582,10 +582,14 @@ mod tests {
             assert!(e.contains("--q") || e.contains("q"), "{bad}: {e}");
         }
         assert_eq!(parse_q("q", "-1000,1000").unwrap(), vec![-1000.0, 1000.0]);
-        // the library's default grid is the CLI's
+        // the library's default grids are the CLI's, to the bit
         assert_eq!(
             parse_q("q", "-4:6:0.5").unwrap(),
             crate::spectra::default_q()
+        );
+        assert_eq!(
+            parse_q("q", "0.1:4:0.1").unwrap(),
+            crate::tracemoments::TraceMomentConfig::default().q
         );
         for bad in ["1e308", "-1001", "0:2000:1000"] {
             let e = parse_q("q", bad).unwrap_err().to_string();

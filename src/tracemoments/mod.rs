@@ -212,7 +212,7 @@ impl Default for TraceMomentConfig {
             flux: FluxKind::Gradient,
             diff: FluxDiff::Auto,
             frac_int: None,
-            q: (1..=40).map(|i| i as f64 * 0.1).collect(),
+            q: (1..=40).map(|i| i as f64 / 10.0).collect(),
             // 16 log-spaced values from 0.1 to 10^0.5
             eta: (0..16)
                 .map(|i| 10f64.powf(-1.0 + 1.5 * i as f64 / 15.0))
