@@ -639,7 +639,7 @@ fn magnitude_correlation_eq76() {
 fn theory_table_for_every_preset() {
     let q: Vec<f64> = (-12..=16).map(|i| i as f64 * 0.5).collect();
     for name in wtmm::theory::PRESET_NAMES {
-        let t = TheoryTable::new(&preset(name), &q);
+        let t = TheoryTable::new(&preset(name), &q).unwrap();
         assert_eq!(t.tau.len(), q.len());
         let i0 = q.iter().position(|&v| v == 0.0).unwrap();
         assert!(

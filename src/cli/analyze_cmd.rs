@@ -203,15 +203,15 @@ pub struct TheoryCurves {
 }
 
 /// The closed-form curves of a resolved model.
-pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> TheoryCurves {
-    let t = TheoryTable::new(model, q);
+pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> Result<TheoryCurves> {
+    let t = TheoryTable::new(model, q)?;
     let m = *model;
-    TheoryCurves {
+    Ok(TheoryCurves {
         name: name.to_string(),
         tau: Box::new(move |qq| m.tau(qq)),
         dh: t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(),
         sample: None,
-    }
+    })
 }
 
 pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
@@ -241,7 +241,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         Some(r) => {
             let name = r.preset.unwrap_or(r.model.name());
             (
-                Some(theory_curves(&r.model, name, &q)),
+                Some(theory_curves(&r.model, name, &q)?),
                 Some(json!({"name": name, "model": r.model})),
             )
         }

@@ -393,7 +393,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     }
 
     // theory and the TM targets (module docs)
-    let th = TheoryTable::new(&model, &q);
+    let th = TheoryTable::new(&model, &q)?;
     let xi = |v: f64| model.tau(v) + 2.0;
     let h_target = xi(1.0);
     let k_target: Vec<f64> = tm_q.iter().map(|&v| v * h_target - xi(v)).collect();
@@ -602,7 +602,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     // the full-ensemble outputs of each method, as `analyze` and `tm` write them
     let wdir = dir.join("wtmm");
     make_out_dir(&wdir)?;
-    let curves = theory_curves(&model, &name, &q);
+    let curves = theory_curves(&model, &name, &q)?;
     super::analyze_cmd::write_outputs(
         &wdir,
         "compare",

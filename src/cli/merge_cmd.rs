@@ -132,7 +132,9 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     // recorded in spectra.json with the fit's warnings
     s.warnings.extend(warnings);
     make_out_dir(&args.out.out)?;
-    let curves = theory.map(|(m, name)| theory_curves(&m, name, &s.q));
+    let curves = theory
+        .map(|(m, name)| theory_curves(&m, name, &s.q))
+        .transpose()?;
     // the analysis the shards share (null when no shard records it)
     let params = json!({"sums": args.sums, "analysis": sums.analysis, "fit_octaves": fit,
         "rule": rule, "theory": theory.map(|(m, _)| m)});

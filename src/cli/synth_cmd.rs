@@ -74,7 +74,7 @@ pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
     let c = &args.common;
     check_common(c)?;
     r.model.check_size(c.size)?;
-    let t = TheoryTable::new(&r.model, &[-2.0, -1.0, 0.0, 1.0, 2.0, 3.0]);
+    let t = TheoryTable::new(&r.model, &[-2.0, -1.0, 0.0, 1.0, 2.0, 3.0])?;
     let caveats = r.model.caveats();
     let theory = json!({"beta": t.beta, "beta_convention": t.beta_convention, "h_of_q0": t.h_of_q0,
         "h_min": t.h_min, "h_max": t.h_max, "recommended_wavelet": r.wavelet, "caveats": caveats});

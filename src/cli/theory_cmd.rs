@@ -30,7 +30,7 @@ pub struct TheoryArgs {
 pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
     let r = args.model_opts.resolve(args.model)?;
     let q = parse_q("q", &args.q)?;
-    let t = TheoryTable::new(&r.model, &q);
+    let t = TheoryTable::new(&r.model, &q)?;
     let mut body = header(
         "theory",
         json!({"model": r.model, "preset": r.preset, "q": q}),

@@ -591,7 +591,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         },
         fit,
     )?;
-    let th = TheoryTable::new(&model, &q);
+    let th = TheoryTable::new(&model, &q)?;
     let beta_fit = ens.spectrum.fit(k_lo, k_hi)?;
     let per_image_beta: Vec<f64> = ens
         .spectra
@@ -782,7 +782,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
 
     make_out_dir(&args.out.out)?;
     let name = r.preset.unwrap_or(model.name()).to_string();
-    let mut theory_curves = theory_curves(&model, &name, &q);
+    let mut theory_curves = theory_curves(&model, &name, &q)?;
     theory_curves.sample = sample
         .as_ref()
         .map(|ss| ss.q.iter().copied().zip(ss.tau.iter().copied()).collect());

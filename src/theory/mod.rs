@@ -578,7 +578,11 @@ impl TheoryTable {
     pub const DH_POINTS: usize = 101;
 
     /// The table of `model` on the grid `q`.
-    pub fn new(model: &Model, q: &[f64]) -> Self {
+    ///
+    /// **Errors** on a model whose parameters are out of range
+    /// ([`Model::validate`]: its closed forms would be NaN or meaningless).
+    pub fn new(model: &Model, q: &[f64]) -> Result<Self> {
+        model.validate()?;
         let (h_min, h_max) = model.h_range();
         // an unbounded support (FIF with α <= 1) is sampled up to h(q = 0.001)
         let h_hi = if h_max.is_finite() {
@@ -603,7 +607,7 @@ impl TheoryTable {
                 dh_d.push(d);
             }
         }
-        TheoryTable {
+        Ok(TheoryTable {
             model: *model,
             q: q.to_vec(),
             tau: q.iter().map(|&v| model.tau(v)).collect(),
@@ -622,13 +626,24 @@ impl TheoryTable {
                 .map(|_| q.iter().map(|&v| model.k(v).unwrap_or(f64::NAN)).collect()),
             dh_h,
             dh_d,
-        }
+        })
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Parameters out of range give an error naming them, not NaN curves.
+    #[test]
+    fn a_table_of_an_invalid_model_is_an_error() {
+        let bad = Model::Fisc(crate::synth::fisc::FiscParams {
+            p: 0.7,
+            hstar: 0.638,
+        });
+        let e = TheoryTable::new(&bad, &[0.0, 1.0]).unwrap_err().to_string();
+        assert!(e.contains("`p`") && e.contains("0.7"), "{e}");
+    }
 
     #[test]
     fn only_a_haar_cascade_carries_a_caveat() {
@@ -818,7 +833,7 @@ mod tests {
     #[test]
     fn table_json_has_the_cli_keys() {
         let m = Model::preset("paper-logpoisson").unwrap().model;
-        let t = TheoryTable::new(&m, &[-2.0, 0.0, 2.0]);
+        let t = TheoryTable::new(&m, &[-2.0, 0.0, 2.0]).unwrap();
         let j = serde_json::to_value(&t).unwrap();
         for k in [
             "q",
@@ -838,11 +853,11 @@ mod tests {
         let back: TheoryTable = serde_json::from_value(j).unwrap();
         assert_eq!(back, t);
         assert_eq!(t.dh_h.len(), TheoryTable::DH_POINTS);
-        let f = TheoryTable::new(&Model::preset("paper-fbm").unwrap().model, &[0.0]);
+        let f = TheoryTable::new(&Model::preset("paper-fbm").unwrap().model, &[0.0]).unwrap();
         assert_eq!((f.dh_h.len(), f.dh_d[0]), (1, 2.0));
         let jf = serde_json::to_value(&f).unwrap();
         assert!(jf.get("K").is_none(), "K is for the FIF only");
-        let t = TheoryTable::new(&Model::preset("topo-fif").unwrap().model, &[-1.0, 2.0]);
+        let t = TheoryTable::new(&Model::preset("topo-fif").unwrap().model, &[-1.0, 2.0]).unwrap();
         let j = serde_json::to_value(&t).unwrap();
         assert_eq!(j["model"]["model"], "fif");
         assert!(j["K"][0].is_null(), "K(-1) diverges for α < 2");
@@ -870,7 +885,7 @@ mod tests {
             hurst: 0.5,
         });
         assert!(low.h_range().1.is_infinite() && low.tau(-1.0) == f64::NEG_INFINITY);
-        let t = TheoryTable::new(&low, &[0.5, 1.0]);
+        let t = TheoryTable::new(&low, &[0.5, 1.0]).unwrap();
         assert_eq!(t.dh_h.len(), TheoryTable::DH_POINTS);
         assert!(t.dh_d.iter().all(|d| d.is_finite()));
     }
