@@ -18,8 +18,8 @@ use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
     FluxDiff, FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig,
-    TraceMomentResult, UniversalWeighting, finish_ensemble, finish_jackknife, pool_tiles,
-    tile_bounds, universal_shape,
+    TraceMomentResult, UniversalWeighting, analyze_tiled, finish_ensemble, tile_side,
+    universal_shape,
 };
 
 /// Trace-moment options shared by `tm` and `compare` (everything but the
@@ -232,26 +232,20 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             .map(|p| super::common::read_image(p))
             .collect::<Result<Vec<_>>>()?;
         // tiles of the largest fitted box (log2 λ = lo) of the ensemble
-        let side = fields.iter().map(|f| f.dim().0.min(f.dim().1)).max();
-        let kmax = (side.unwrap_or(1) as f64).log2().floor();
-        let lo = fc
-            .log2_lambda
-            .map_or(if kmax >= 4.0 { 1.0 } else { 0.0 }, |r| r.0);
-        let tile = (kmax - lo.max(0.0).floor()).max(0.0).exp2() as usize;
-        let per_image = fields
-            .par_iter()
-            .zip(&args.images)
-            .map(|(field, path)| {
-                TraceMomentAccumulator::field_tiles(&cfg, field, tile)
-                    .map_err(|e| super::common::in_file(path, e))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let bounds: Vec<_> = fields
-            .iter()
-            .flat_map(|f| tile_bounds(f.dim().0, f.dim().1, tile))
-            .collect();
-        let (whole, tiles) = pool_tiles(per_image)?;
-        let res = finish_jackknife(&whole, &tiles, &fc, &tiles_label(&bounds, tile))?;
+        let (whole, res) = analyze_tiled(&fields, &cfg, &fc).map_err(|e| {
+            // name the image at fault when one is
+            let side = fields.iter().map(|f| f.dim().0.min(f.dim().1)).max();
+            let tile = tile_side(side.unwrap_or(1), &fc);
+            fields
+                .iter()
+                .zip(&args.images)
+                .find_map(|(f, p)| {
+                    TraceMomentAccumulator::field_tiles(&cfg, f, tile)
+                        .err()
+                        .map(|e| super::common::in_file(p, e))
+                })
+                .unwrap_or(e)
+        })?;
         let shapes = fields
             .iter()
             .map(|f| {
@@ -271,27 +265,14 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let shapes: Vec<[usize; 2]> = shapes.iter().map(|s| s.0).collect();
     let mut extra = Vec::new();
     // as the other commands: jackknife errors over few images (or tiles of
-    // one image) are rough, and say by how much
-    let n = res.jackknife_groups;
-    let groups = match args.images.len() {
-        1 => "tiles of one image",
-        2 => "tiles of 2 images",
-        _ => "images",
-    };
-    extra.extend(crate::stats::fit::few_groups_warning(
-        n,
-        &format!("a jackknife over {n} {groups}"),
-    ));
-    // measured in tracemoments' module docs ("Errors"); the WTMM commands
-    // say the same of their tiles (stats::fit::stderr_method_tiles)
-    if args.images.len() < 3 && n >= 2 {
-        extra.push(
-            "the tiles are treated as independent, which fields correlated over long \
-             distances (cascades) are not: on single 256^2-512^2 universal multifractal \
-             fields these errors were, in rms, 0.56-0.87 of the scatter between fields for \
-             alpha, 0.38-1.17 for C1, 0.36-0.66 for H, so they may understate up to 3x"
-                .to_string(),
-        );
+    // one image) are rough, and say by how much (for tiles the library
+    // says it: tracemoments::analyze_tiled)
+    if !tiled {
+        let n = res.jackknife_groups;
+        extra.extend(crate::stats::fit::few_groups_warning(
+            n,
+            &format!("a jackknife over {n} images"),
+        ));
     }
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
@@ -330,32 +311,6 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         say!("warning: {w}");
     }
     Ok(Outcome::Ok)
-}
-
-/// "tiles of 172 x 134-135 px (whole 128-px tiles stretched to cover every
-/// pixel)": the real sizes (rows x columns; one range when both agree) of
-/// the jackknife tiles `bounds` ([`tile_bounds`]) cut for the side `tile`.
-fn tiles_label(bounds: &[(usize, usize, usize, usize)], tile: usize) -> String {
-    let span = |v: Vec<usize>| {
-        let (lo, hi) = (v.iter().min().copied(), v.iter().max().copied());
-        match (lo, hi) {
-            (Some(lo), Some(hi)) if lo < hi => format!("{lo}-{hi}"),
-            (Some(lo), _) => format!("{lo}"),
-            _ => "?".into(),
-        }
-    };
-    let h = span(bounds.iter().map(|b| b.1 - b.0).collect());
-    let w = span(bounds.iter().map(|b| b.3 - b.2).collect());
-    let size = if h == w { h } else { format!("{h} x {w}") };
-    let how = if bounds
-        .iter()
-        .all(|b| b.1 - b.0 == tile && b.3 - b.2 == tile)
-    {
-        "covering every pixel".to_string()
-    } else {
-        format!("whole {tile}-px tiles stretched to cover every pixel")
-    };
-    format!("tiles of {size} px ({how})")
 }
 
 /// An image's `[ny, nx]` and its number of missing pixels.
