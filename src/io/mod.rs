@@ -114,8 +114,8 @@ const SUPPORTED_WRITE: &str = ".npy, .tif, .tiff, .png";
 ///
 /// **Errors** name the file and the problem (missing, unknown format,
 /// corrupt, not 2D, unsupported sample type, empty).
-pub fn read_field(path: &Path) -> Result<Field> {
-    read_field_with_info(path).map(|(field, _)| field)
+pub fn read_field(path: impl AsRef<Path>) -> Result<Field> {
+    read_field_with_info(path.as_ref()).map(|(field, _)| field)
 }
 
 /// Like [`read_field`], also returning the format, the stored sample type and
