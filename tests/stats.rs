@@ -5,7 +5,7 @@ use std::f64::consts::{LN_2, PI};
 
 use ndarray::Array2;
 use rand::RngExt;
-use rand_distr::{Distribution, Normal, Poisson};
+use rand_distr::{Distribution, Normal, Poisson, StandardNormal as StdNormalF};
 use wtmm::Field;
 use wtmm::cwt::{CwtPlan, Wavelet, modulus};
 use wtmm::skeleton::{AnalysisConfig, Parallelism};
@@ -1891,21 +1891,103 @@ fn own_cascade_magnitudes_follow_eq_76() {
     assert_on_eq_76(&acc.unwrap(), &pre, n, "own cascade");
 }
 
-/// fBm (H = 1/3): the magnitudes decorrelate beyond the analysing scales
-/// (measured: C ≈ 0.016 at 4.6 a, 0.004 at 7.6 a, noise beyond 9 a).
+/// In-place 2D FFT (inverse when `inv`) of an `n x n` row-major array.
+fn fft2(buf: &mut [num_complex::Complex64], n: usize, inv: bool) {
+    let mut planner = rustfft::FftPlanner::<f64>::new();
+    let f = if inv {
+        planner.plan_fft_inverse(n)
+    } else {
+        planner.plan_fft_forward(n)
+    };
+    f.process(buf);
+    let mut t = vec![num_complex::Complex64::default(); n * n];
+    for y in 0..n {
+        for x in 0..n {
+            t[x * n + y] = buf[y * n + x];
+        }
+    }
+    f.process(&mut t);
+    for y in 0..n {
+        for x in 0..n {
+            buf[y * n + x] = t[x * n + y];
+        }
+    }
+}
+
+/// A stationary Gaussian field with the fBm spectrum `|k|^-(2H+2)` (H =
+/// 1/3, k = 0 removed) on the `n x n` torus, by Fourier filtering of white
+/// noise, so that its spectrum is exactly the filter's; and the gauss CWT
+/// of it is a Gaussian 4-vector `T = (T1, T2)` at two points whose
+/// covariance is the library's filter `a k_i exp(-a²|k|²/2)` (derivative
+/// factors zero at Nyquist) times that spectrum. At one point the two
+/// components are independent with equal variances (the square torus's
+/// symmetries), so with `X = T(a1, x)/σ1`, `Y = T(a2, x + Δx)/σ2` standard
+/// and `R` their cross-correlation matrix, Mehler's expansion of `ln|X|`
+/// (even: only even chaoses) gives
+///
+/// `Cov(ln|X|, ln|Y|) = ‖R‖_F²/8 + r`, `|r| <= ‖R‖_op⁴ (π²/24 - 1/4)`:
+///
+/// the second chaos of `ln|X|` is `(|X|² - 2)/4` (`E[ln E (E - 1)] = 1`
+/// for `E = |X|²/2 ~ Exp(1)`), whose cross moment is `Σ 2 R_ij² / 16`, and
+/// the chaoses n >= 4 are bounded by `‖R‖_op^n` times their norms, which
+/// sum to `Var ln|X| - 1/4 = π²/24 - 1/4`. Per-image centring on the torus
+/// makes the expectation `C(Δx) - C̄` with `C̄` the mean of C over all
+/// lags (bounded the same way, lag 0 included).
+///
+/// Every lag bin of the per-image-centred C of the three pairs of scales
+/// (1.5, 1.5), (1.5, 3), (3, 3) must lie within 4 jackknife standard
+/// errors (10 images) plus the bin's bound on r and on `C̄` of the
+/// bin-averaged prediction. Measured: agreement at every bin, but between
+/// about 8 and 30 px all three pairs lie below the prediction by 1-3
+/// standard errors (e.g. (1.5, 3) at 11.4 px: 0.0070 ± 0.0009 against
+/// 0.0101 ± 0.0011), where the remainder bound is small: not explained
+/// yet (correlated bins of 10 images, or a real shortfall). (Before: an fBm from the generator, `C > 0.05`
+/// at the smallest lag and `|C| < 0.005 + 3 se` beyond `8.3 sup(a1, a2)`,
+/// both bare numbers.)
 #[test]
 fn fbm_magnitudes_decorrelate() {
-    let model = Model::preset("paper-fbm").unwrap().model;
+    use num_complex::Complex64;
+    let (n, hurst, images) = (256usize, 1.0 / 3.0, 10u64);
+    let scales = [1.5, 3.0];
     let cfg = CorrelationConfig {
-        scales: vec![1.5, 3.0],
+        scales: scales.to_vec(),
         pairs: vec![(0, 0), (0, 1), (1, 1)],
-        periodic: false,
+        periodic: true,
         ..Default::default()
     };
-    let plan = CorrelationPlan::new(256, 256, &cfg).unwrap();
+    let plan = CorrelationPlan::new(n, n, &cfg).unwrap();
+    let freq = |m: usize| {
+        2.0 * PI
+            * (if m <= n / 2 {
+                m as f64
+            } else {
+                m as f64 - n as f64
+            })
+            / n as f64
+    };
+    let dfreq = |m: usize| if m == n / 2 { 0.0 } else { freq(m) };
+    let spec = |ky: usize, kx: usize| -> f64 {
+        let k2 = freq(ky).powi(2) + freq(kx).powi(2);
+        if k2 == 0.0 {
+            0.0
+        } else {
+            k2.powf(-(hurst + 1.0))
+        }
+    };
     let mut acc: Option<CorrelationSums> = None;
-    for i in 0..6 {
-        let img = model.synthesize(256, 9, i).unwrap();
+    for i in 0..images {
+        let mut rng = rng_for(777, i);
+        let mut buf: Vec<Complex64> = (0..n * n)
+            .map(|_| Complex64::new(StdNormalF.sample(&mut rng), 0.0))
+            .collect();
+        fft2(&mut buf, n, false);
+        for ky in 0..n {
+            for kx in 0..n {
+                buf[ky * n + kx] *= spec(ky, kx).sqrt();
+            }
+        }
+        fft2(&mut buf, n, true);
+        let img = Array2::from_shape_fn((n, n), |(y, x)| buf[y * n + x].re);
         let s = cwt_correlation(&Field::new(img), &plan, format!("{i}")).unwrap();
         match &mut acc {
             None => acc = Some(s),
@@ -1913,25 +1995,93 @@ fn fbm_magnitudes_decorrelate() {
         }
     }
     let r = correlation_estimates(&acc.unwrap()).unwrap();
+    // covariances of the transform's components: Σ_k S D_i D_j g1 g2 e^(ik.d)
+    let gauss = |a: f64, ky: usize, kx: usize| {
+        a * (-0.5 * a * a * (freq(ky).powi(2) + freq(kx).powi(2))).exp()
+    };
+    let cov = |a1: f64, a2: f64, ij: (usize, usize)| -> Vec<f64> {
+        let d = |c: usize, ky: usize, kx: usize| if c == 0 { dfreq(kx) } else { dfreq(ky) };
+        let mut b: Vec<Complex64> = (0..n * n)
+            .map(|q| {
+                let (ky, kx) = (q / n, q % n);
+                Complex64::new(
+                    spec(ky, kx)
+                        * d(ij.0, ky, kx)
+                        * d(ij.1, ky, kx)
+                        * gauss(a1, ky, kx)
+                        * gauss(a2, ky, kx),
+                    0.0,
+                )
+            })
+            .collect();
+        fft2(&mut b, n, true);
+        b.iter().map(|z| z.re).collect()
+    };
+    let c_rem = PI * PI / 24.0 - 0.25;
+    let mut tested = 0;
     for p in &r.pairs {
-        let amax = p.a1.max(p.a2);
-        // strongly correlated at the smallest lags
-        assert!(p.c[0] > 0.05, "{}", p.c[0]);
-        // beyond the wavelets' overlap: the paper's Δx > sup(a1, a2) with a
-        // in σ_W units, 13/1.5703 standard deviations (see `wtmm correlate`)
-        for (o, &dx) in p.dx.iter().enumerate() {
-            if dx > 13.0 / 1.5703 * amax {
-                assert!(
-                    p.c[o].abs() < 0.005 + 3.0 * p.c_stderr[o],
-                    "({}, {}) dx {dx}: C = {} +- {}",
-                    p.a1,
-                    p.a2,
-                    p.c[o],
-                    p.c_stderr[o]
-                );
+        let (a1, a2) = (p.a1, p.a2);
+        let v1 = cov(a1, a1, (0, 0))[0];
+        let v2 = cov(a2, a2, (0, 0))[0];
+        let norm = (v1 * v2).sqrt();
+        let (c11, c22, c12) = (
+            cov(a1, a2, (0, 0)),
+            cov(a1, a2, (1, 1)),
+            cov(a1, a2, (0, 1)),
+        );
+        // lead and remainder bound per lag (index y * n + x)
+        let (lead, rem): (Vec<f64>, Vec<f64>) = (0..n * n)
+            .map(|q| {
+                let (r11, r22, r12) = (c11[q] / norm, c22[q] / norm, c12[q] / norm);
+                let fro2 = r11 * r11 + r22 * r22 + 2.0 * r12 * r12;
+                let op = 0.5 * (r11 + r22).abs() + (0.25 * (r11 - r22).powi(2) + r12 * r12).sqrt();
+                (fro2 / 8.0, c_rem * op.powi(4))
+            })
+            .unzip();
+        let cbar = lead.iter().sum::<f64>() / (n * n) as f64;
+        let cbar_err = rem.iter().sum::<f64>() / (n * n) as f64;
+        let max_dx = n as f64 / 2.0;
+        let nb = (cfg.bins_per_octave as f64 * max_dx.log2() + 0.5).floor() as usize + 1;
+        let (mut sl, mut sr, mut cnt) = (vec![0.0; nb], vec![0.0; nb], vec![0.0; nb]);
+        for sy in -(n as i64 / 2)..=(n as i64 / 2 - 1) {
+            for sx in -(n as i64 / 2)..=(n as i64 / 2 - 1) {
+                let rr = ((sy * sy + sx * sx) as f64).sqrt();
+                if rr == 0.0 || rr > max_dx {
+                    continue;
+                }
+                let b = bin_of(rr, cfg.bins_per_octave).min(nb - 1);
+                let q = sy.rem_euclid(n as i64) as usize * n + sx.rem_euclid(n as i64) as usize;
+                sl[b] += lead[q];
+                sr[b] += rem[q];
+                cnt[b] += 1.0;
             }
         }
+        // the reported bins are the non-empty ones
+        let keep: Vec<usize> = (0..nb).filter(|&b| cnt[b] > 0.0).collect();
+        assert_eq!(keep.len(), p.dx.len());
+        for (o, &b) in keep.iter().enumerate() {
+            assert_eq!(
+                cnt[b] * (images as usize * n * n) as f64,
+                p.pairs[o],
+                "bin {o}: lags"
+            );
+            let (sl, sr, cnt) = (sl[b], sr[b], cnt[b]);
+            let want = sl / cnt - cbar;
+            let bound = sr / cnt + cbar_err;
+            let (c, se) = (p.c[o], p.c_stderr[o]);
+            println!(
+                "({a1}, {a2}) dx {:.1}: C = {c:.5} +- {se:.5}, Gaussian {want:.5} +- {bound:.5}",
+                p.dx[o]
+            );
+            assert!(
+                (c - want).abs() < 4.0 * se + bound,
+                "({a1}, {a2}) dx {:.1}: C = {c} +- {se}, Gaussian prediction {want} +- {bound}",
+                p.dx[o]
+            );
+            tested += 1;
+        }
     }
+    assert!(tested >= 30, "{tested} bins");
 }
 
 /// Diagnostic behind the kernel's bias analysis (not a check): cumulants
