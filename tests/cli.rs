@@ -1654,7 +1654,7 @@ fn cwt_is_nan_where_the_wavelet_reaches_missing_pixels() {
         &o.display().to_string(),
     ]);
     assert_eq!(code, 0);
-    let m: Array2<f64> = read_field(&o.join("modulus_00.npy")).unwrap().data;
+    let m: Array2<f64> = read_field(o.join("modulus_00.npy")).unwrap().data;
     // gauss support 3.2 a = 6.4 px: NaN up to x = 36, finite from x = 37,
     // and NaN again from x = 122, 6 px from the hole across the edge (the
     // FFT transform is periodic)
@@ -2354,7 +2354,7 @@ fn synth_records_its_format_and_the_sidecar_its_version() {
     assert_eq!(json(&o.join("synth.json"))["params"]["format"], "png");
     let side = json(&o.join("fbm_0000.json"));
     assert_eq!(side["version"], env!("CARGO_PKG_VERSION"));
-    let f = read_field(&o.join("fbm_0000.png")).unwrap();
+    let f = read_field(o.join("fbm_0000.png")).unwrap();
     assert_eq!(f.dim(), (64, 64));
 }
 

@@ -28,7 +28,7 @@ fn scratch(name: &str) -> PathBuf {
 }
 
 fn read(name: &str) -> Field {
-    read_field(&fixture(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
+    read_field(fixture(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
 }
 
 /// The pixels `make_fixtures.py` leaves missing in the DEM crop.
