@@ -602,9 +602,9 @@ fn reconstruction_of_a_pure_shift() {
 /// * each of the four sectors holds a quarter of the points within 4
 ///   binomial standard errors `sqrt(3/16/N) = 0.001` (before: 0.01);
 /// * the rescaled grid is `M / (a/a_min)^h0` and the (T1, T2) density
-///   integrates to about the mass inside the square of the 0.99 quantile
-///   of M (a loose check of its normalisation: the Cartesian resampling of
-///   the polar histogram has no simple error bound).
+///   integrates to the law's expectation for its grid of cells within 4
+///   standard deviations of the multinomial counts (before: between 0.9
+///   and 1.01).
 #[test]
 fn pdfs_of_a_known_law() {
     use statrs::distribution::{ChiSquared, ContinuousCDF, Normal as StdNormal};
@@ -714,10 +714,38 @@ fn pdfs_of_a_known_law() {
             s.n
         );
     }
-    // the (T1, T2) density integrates to the quantile mass
-    let dt = sp.joint.t[1] - sp.joint.t[0];
+    // the (T1, T2) density integrates to what this law puts in its cells:
+    // a cell at |T| = m holds the count of the (ln M, A) bin of its centre
+    // over n d dA m^2, so on this grid the integral is the sum over bins of
+    // count(k, b) W(k, b), W the summed dt^2 / (n d dA m^2) of the bin's
+    // cells; the counts are multinomial with p(k, b) = P(ln M in bin k) / nb
+    // (uniform angle), which gives its mean and standard deviation exactly
+    let t = &sp.joint.t;
+    let dt = t[1] - t[0];
     let mass2: f64 = sp.joint.density.iter().sum::<f64>() * dt * dt;
-    assert!(mass2 > 0.9 && mass2 < 1.01, "{mass2}");
+    let nb = h.config.arg_bins;
+    let da = 2.0 * PI / nb as f64;
+    let mut w: std::collections::HashMap<(i64, usize), f64> = Default::default();
+    for &t2 in t {
+        for &t1 in t {
+            let m2 = t1 * t1 + t2 * t2;
+            if m2 == 0.0 {
+                continue; // the centre cell, of no modulus: density 0
+            }
+            let k = (0.5 * m2.ln() / d).floor() as i64;
+            let b = ((((t2.atan2(t1) + PI) / (2.0 * PI)) * nb as f64).floor() as usize).min(nb - 1);
+            *w.entry((k, b)).or_default() += dt * dt / (nf * d * da * m2);
+        }
+    }
+    let p_kb = |k: i64| (phi.cdf((k + 1) as f64 * d) - phi.cdf(k as f64 * d)) / nb as f64;
+    let mean: f64 = w.iter().map(|(&(k, _), &wk)| nf * p_kb(k) * wk).sum();
+    let second: f64 = w.iter().map(|(&(k, _), &wk)| nf * p_kb(k) * wk * wk).sum();
+    let sd = (second - nf * (mean / nf).powi(2)).sqrt();
+    println!("(T1, T2) mass {mass2:.5}, law {mean:.5} +- {sd:.5}");
+    assert!(
+        (mass2 - mean).abs() < 4.0 * sd,
+        "(T1, T2) mass {mass2} vs {mean} +- {sd}"
+    );
 }
 
 /// Pearson's statistic of the homogeneity of two binned samples (a 2 x K
