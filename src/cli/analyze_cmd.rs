@@ -300,8 +300,7 @@ pub fn analyze_paths(
         .par_iter()
         .map(|p| {
             let field = super::common::read_image(p)?;
-            let (ny, nx) = field.dim();
-            super::common::check_image_memory(p, ny, nx, paths.len() == 1)?;
+            super::common::check_image_memory(p, &field, paths.len() == 1)?;
             // fewer than 3 images: the jackknife runs over tiles
             let side = if paths.len() < 3 {
                 let (ny, nx) = field.dim();

@@ -293,34 +293,51 @@ pub fn available_memory() -> Option<f64> {
 }
 
 /// Bytes per pixel of the WTMM analysis of one image on one thread (the
-/// image, its filled copy, the half spectrum, one full-plane transform
-/// workspace, the per-scale maxima), and what each further thread adds when
-/// a lone image's scales run in parallel: peak RSS of `analyze` on fBm
-/// 2048^2 and 4096^2, 2026-11-26, 60-62 B/px on one thread, 84-88 on two.
-const ANALYSIS_BYTES_PER_PIXEL: f64 = 62.0;
+/// image, the half spectrum, one full-plane transform workspace, the
+/// per-scale maxima), what an image with missing pixels adds (its filled
+/// copy; without a mask the image itself is transformed), and what each
+/// further thread adds when a lone image's scales run in parallel: peak RSS
+/// of `analyze` on fBm 2048^2 and 4096^2, 2026-11-26, 52 B/px on one thread
+/// (60-62 with the copy every image had before), 76-85 on two.
+const ANALYSIS_BYTES_PER_PIXEL: f64 = 54.0;
+const ANALYSIS_BYTES_PER_PIXEL_MASKED: f64 = 8.0;
 const ANALYSIS_BYTES_PER_PIXEL_PER_THREAD: f64 = 28.0;
 
 /// Refuses, before its transform, an image whose analysis cannot fit in
-/// the available memory (a 16384^2 DEM needs about 17 GB on one thread):
+/// the available memory (a 16384^2 DEM needs about 15 GB on one thread):
 /// the allocation would abort the process with no message. `lone`: the
 /// image is analysed alone, its scales on every thread.
-pub fn check_image_memory(path: &Path, ny: usize, nx: usize, lone: bool) -> Result<()> {
+pub fn check_image_memory(path: &Path, field: &Field, lone: bool) -> Result<()> {
     let threads = if lone {
         rayon::current_num_threads().max(1)
     } else {
         1
     };
-    match available_memory().and_then(|avail| image_memory_problem(ny, nx, threads, avail)) {
+    let (ny, nx) = field.dim();
+    let masked = field.mask.is_some();
+    match available_memory().and_then(|avail| image_memory_problem(ny, nx, masked, threads, avail))
+    {
         Some(why) => Err(Error::format(path, why)),
         None => Ok(()),
     }
 }
 
 /// What [`check_image_memory`] says when `avail` bytes are too few.
-fn image_memory_problem(ny: usize, nx: usize, threads: usize, avail: f64) -> Option<String> {
+fn image_memory_problem(
+    ny: usize,
+    nx: usize,
+    masked: bool,
+    threads: usize,
+    avail: f64,
+) -> Option<String> {
     let px = (ny * nx) as f64;
-    let per_px =
-        ANALYSIS_BYTES_PER_PIXEL + ANALYSIS_BYTES_PER_PIXEL_PER_THREAD * (threads - 1) as f64;
+    let one = ANALYSIS_BYTES_PER_PIXEL
+        + if masked {
+            ANALYSIS_BYTES_PER_PIXEL_MASKED
+        } else {
+            0.0
+        };
+    let per_px = one + ANALYSIS_BYTES_PER_PIXEL_PER_THREAD * (threads - 1) as f64;
     let need = per_px * px;
     (need > avail).then(|| {
         format!(
@@ -332,7 +349,7 @@ fn image_memory_problem(ny: usize, nx: usize, threads: usize, avail: f64) -> Opt
             if threads > 1 {
                 format!(
                     " (on one thread, RAYON_NUM_THREADS=1, about {:.1} GB)",
-                    ANALYSIS_BYTES_PER_PIXEL * px / 1e9
+                    one * px / 1e9
                 )
             } else {
                 String::new()
@@ -510,23 +527,26 @@ pub fn count_of(n: usize, word: &str) -> String {
 mod tests {
     use super::*;
 
-    /// A 16384^2 image needs about 17 GB on one thread (62 B/px, measured
-    /// 60 on 4096^2) and 24 GB on two: refused with 8 GB, not with 32.
+    /// A 16384^2 image needs about 14.5 GB on one thread (54 B/px, measured
+    /// 52 on 4096^2; 16.6 GB with missing pixels, whose filled copy adds 8)
+    /// and 22 GB on two: refused with 8 GB, not with 32.
     #[test]
     fn large_images_are_refused_before_the_transform() {
-        let w = image_memory_problem(16384, 16384, 1, 8e9).unwrap();
+        let w = image_memory_problem(16384, 16384, false, 1, 8e9).unwrap();
         assert!(
-            w.contains("about 16.6 GB") && w.contains("8.0 GB are available"),
+            w.contains("about 14.5 GB") && w.contains("8.0 GB are available"),
             "{w}"
         );
-        assert!(image_memory_problem(16384, 16384, 1, 32e9).is_none());
-        let w = image_memory_problem(16384, 16384, 2, 20e9).unwrap();
+        let w = image_memory_problem(16384, 16384, true, 1, 8e9).unwrap();
+        assert!(w.contains("about 16.6 GB"), "{w}");
+        assert!(image_memory_problem(16384, 16384, true, 1, 32e9).is_none());
+        let w = image_memory_problem(16384, 16384, false, 2, 20e9).unwrap();
         assert!(
-            w.contains("24.2 GB") && w.contains("RAYON_NUM_THREADS=1, about 16.6"),
+            w.contains("22.0 GB") && w.contains("RAYON_NUM_THREADS=1, about 14.5"),
             "{w}"
         );
         // an ordinary DEM passes anywhere
-        assert!(image_memory_problem(4096, 4096, 2, 2e9).is_none());
+        assert!(image_memory_problem(4096, 4096, true, 2, 2e9).is_none());
     }
 
     /// The spectrum and the transform beyond the images read: a 16384^2

@@ -269,8 +269,7 @@ impl Input {
         } else {
             let p = &self.images[i];
             let field = super::common::read_image(p)?;
-            let (ny, nx) = field.dim();
-            super::common::check_image_memory(p, ny, nx, self.images.len() == 1)?;
+            super::common::check_image_memory(p, &field, self.images.len() == 1)?;
             Ok((field, p.display().to_string()))
         }
     }

@@ -31,8 +31,7 @@ pub struct SkeletonArgs {
 pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     let cfg = args.opts.analysis()?;
     let field = super::common::read_image(&args.image)?;
-    let (ny, nx) = field.dim();
-    super::common::check_image_memory(&args.image, ny, nx, true)?;
+    super::common::check_image_memory(&args.image, &field, true)?;
     let grid = cfg.scale_list();
     let want: Vec<f64> = match &args.scales {
         Some(s) => parse_list("scales", s)?,
