@@ -1740,3 +1740,47 @@ fn experiment_curvature_calibration() {
         );
     }
 }
+
+/// The GLS and OLS universal fits part where K(q) leaves the universal
+/// form: on 32 cascades of 256^2 with a two-point multiplier (W = 0.6 or
+/// 1.4, equally likely: `K(q) = log2((0.6^q + 1.4^q)/2)`, not of the form
+/// `C1/(α-1) (q^α - q)`) the diagnostic speaks (GLS 1.91, OLS 1.47, 7.6
+/// errors of their difference; 4.5-7.6 on seeds 31-35). Its silence on
+/// universal fields is measured, not asserted (in `diagnostics`).
+#[test]
+fn gls_and_ols_apart_where_k_is_not_universal() {
+    let two_point = |seed: u64, index: u64| {
+        let mut rng = rng_for(seed, index);
+        let mut a = Array2::<f64>::from_elem((1, 1), 1.0);
+        for _ in 0..8 {
+            let m = a.nrows();
+            a = Array2::from_shape_fn((2 * m, 2 * m), |(y, x)| {
+                let w = if rand::RngExt::random_bool(&mut rng, 0.5) {
+                    0.6
+                } else {
+                    1.4
+                };
+                a[[y / 2, x / 2]] * w
+            });
+        }
+        a
+    };
+    let parts: Vec<TraceMomentAccumulator> = (0..32)
+        .map(|i| {
+            let mut a = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+            a.add_flux(two_point(31, i).view(), None).unwrap();
+            a
+        })
+        .collect();
+    let (_, r) = finish_ensemble(&parts, &TraceMomentFitConfig::default()).unwrap();
+    println!(
+        "two-point: GLS alpha {:.3}, OLS {:.3}; {:?}",
+        r.alpha, r.alpha_ols, r.warnings
+    );
+    assert!(r.universal_fit.starts_with("gls"));
+    assert!(
+        has(&r, "the GLS universal fit gives alpha"),
+        "{:?}",
+        r.warnings
+    );
+}
