@@ -99,9 +99,10 @@
 //! moments, FIF topography). **SIM**: S. Lovejoy, D. Schertzer and J.-S.
 //! Gagnon, "Multifractal simulations of the Earth's surface and interior:
 //! anisotropic singularities and morphology". **SPEC §n**: the sections of
-//! the technical specification, `docs/SPEC.md` in the repository (the
-//! definitions, generators, closed forms and published numbers the code
-//! implements).
+//! the project's original technical specification, `docs/SPEC.md` in the
+//! repository (the definitions, generators, closed forms and published
+//! numbers; where the code departs from it, its docs and the README say
+//! so).
 
 // `!(x > 0.0)` is how we reject NaN together with out-of-range values.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

@@ -233,6 +233,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             .collect::<Result<Vec<_>>>()?;
         // tiles of the largest fitted box (log2 λ = lo) of the ensemble
         let (whole, res) = analyze_tiled(&fields, &cfg, &fc).map_err(|e| {
+            // a parameter (a fit range) is no image's fault
+            if matches!(e, Error::Param { .. }) {
+                return e;
+            }
             // name the image at fault when one is
             let side = fields.iter().map(|f| f.dim().0.min(f.dim().1)).max();
             let tile = tile_side(side.unwrap_or(1), &fc);

@@ -659,8 +659,8 @@ impl KernelOptions {
     /// the fit (`C_n(a, a')` needs a smaller `a` in the fit), the pairs of
     /// [`DEFAULT_PAIR_OCTAVES`] with octaves beyond the grid's top lowered
     /// onto it, duplicates and collapsed pairs dropped. [`Default`] holds
-    /// for 4.5 octaves or more; on a shorter grid its references are off
-    /// the scales and [`kernel_estimates`] refuses them.
+    /// for 3.5 octaves or more (its top reference and pairs); on a shorter
+    /// grid they are off the scales and [`kernel_estimates`] refuses them.
     ///
     /// **Panics** if `scales` is empty.
     pub fn for_scales(scales: &[f64], fit: (f64, f64)) -> Self {
