@@ -89,9 +89,10 @@ pub fn parse_pairs(flag: &str, s: &str) -> Result<Vec<(f64, f64)>> {
         .collect()
 }
 
-/// Reference scales of II Fig 26, in octaves above a_min.
+/// Reference scales of II Fig 26, in octaves above a_min: the library's
+/// `DEFAULT_REF_OCTAVES` as the option parser reads them (tested equal).
 pub const DEFAULT_REFS: &str = "0.5,1,1.5,2,2.5,3,3.5";
-/// Scale pairs of II Fig 25.
+/// Scale pairs of II Fig 25 (the library's `DEFAULT_PAIR_OCTAVES`).
 pub const DEFAULT_PAIRS: &str = "0.5:3.5,1:3.5,1:3,1.5:3";
 
 /// The default reference scales on this grid
@@ -830,4 +831,21 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         save_chart(&c, &dir.join(file))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stats::kernel::{DEFAULT_PAIR_OCTAVES, DEFAULT_REF_OCTAVES};
+
+    /// The option strings and the library's constants cannot drift apart.
+    #[test]
+    fn default_strings_are_the_library_constants() {
+        let refs = crate::cli::common::parse_list("refs", DEFAULT_REFS).unwrap();
+        assert_eq!(refs, DEFAULT_REF_OCTAVES.to_vec());
+        assert_eq!(
+            parse_pairs("pairs", DEFAULT_PAIRS).unwrap(),
+            DEFAULT_PAIR_OCTAVES.to_vec()
+        );
+    }
 }
