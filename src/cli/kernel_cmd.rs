@@ -464,6 +464,9 @@ pub fn write_kernel_outputs(
         "note": "slope through the origin of every C_n(a, a') point of cn_tables (II Figs 26, 28 as drawn); \
          the paper's protocol with the default refs and --fit 0:3.5"});
     body["stderr_method"] = json!(k.stderr_method);
+    body["plugin_tilt"] = json!({"c1": k.plugin_tilt[0], "c2": k.plugin_tilt[1], "c3": k.plugin_tilt[2],
+        "note": "bias of the fitted c_n from the plug-in cumulants of few WTMMM (-kappa2/n, -3 kappa3/n per scale, \
+         through the same fit): the estimate's expectation is about c_n + tilt; not in the errors"});
     if let Some(c) = model.and_then(|m| m.cumulants()) {
         body["theory"] = json!({"name": name, "cumulants": {"c1": c[0], "c2": c[1], "c3": c[2]}});
     }

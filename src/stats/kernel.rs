@@ -813,6 +813,13 @@ pub struct KernelResult {
     pub pooled: FittedCumulants,
     /// One kernel curve per pair of scales (II Figs 25, 27).
     pub kernels: Vec<KernelCurve>,
+    /// The bias the plug-in cumulants give the fitted `c1, c2, c3`: the
+    /// same fit applied to the per-scale biases `0, -κ2/n, -3κ3/n` of the
+    /// plug-in `κ_n` of `n` WTMMM. The estimate's expectation is about
+    /// `c_n + plugin_tilt[n - 1]`; the jackknife errors do not include it
+    /// (every replicate shares it). NaN where `c_n` is not estimable.
+    #[serde(default)]
+    pub plugin_tilt: [f64; 3],
     /// Human-readable warnings (few WTMMM at the top of the fit, < 3 images).
     pub warnings: Vec<String>,
 }
@@ -1257,6 +1264,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         fit_octaves: opts.fit,
         fit_scales: (s.scales[in_fit[0]], s.scales[last]),
         cumulants,
+        plugin_tilt: [0.0, tilt[1].0, tilt[2].0],
         stderr_method,
         tables,
         pooled,
@@ -1625,6 +1633,9 @@ mod tests {
                 .map(|(k, &n)| -k / n as f64)
                 .collect();
             let t = -line_fit(&x, &y).unwrap().slope;
+            // the result records the same tilt (c1 has none)
+            assert!((r.plugin_tilt[1] - t).abs() <= 1e-12 * t.abs().max(1e-6));
+            assert_eq!(r.plugin_tilt[0], 0.0);
             runs.push((t, r.cumulants.c2.stderr, warned));
         }
         // the tilt, independently: minus the slope of -κ2/n over ln a

@@ -342,6 +342,40 @@ impl Default for TraceMomentFitConfig {
 }
 
 impl TraceMomentFitConfig {
+    /// The `log2 λ` fit range on box levels `0..=kmax` (`kmax = floor(log2
+    /// min(ny, nx))` of the largest field): the one set, or the default
+    /// `[1, kmax - 1]` (`[0, kmax]` below 16 px). Known from the image sizes
+    /// alone, so callers check it before any moment is accumulated.
+    ///
+    /// **Errors** (named `lambda-fit`, the CLI flag; `log2_lambda` here)
+    /// on a range beyond `[0, kmax]` or holding fewer than 3 levels.
+    pub fn lambda_range(&self, kmax: usize) -> Result<(f64, f64)> {
+        let top = kmax as f64;
+        let (lo, hi) = self.log2_lambda.unwrap_or(if top >= 4.0 {
+            (1.0, top - 1.0)
+        } else {
+            (0.0, top)
+        });
+        if lo < -1e-9 || hi > top + 1e-9 {
+            // a range beyond the data would be recorded as if it were fitted
+            return Err(Error::param(
+                "lambda-fit",
+                format!("[{lo}, {hi}] goes beyond the scales: log2 λ runs from 0 to {top}"),
+            ));
+        }
+        // levels are the integers 0..=kmax
+        let levels = (0..=kmax)
+            .filter(|&k| (k as f64) >= lo - 1e-9 && (k as f64) <= hi + 1e-9)
+            .count();
+        if levels < 3 {
+            return Err(Error::param(
+                "lambda-fit",
+                format!("fewer than 3 scales in log2 λ = [{lo}, {hi}] (log2 λ up to {top})"),
+            ));
+        }
+        Ok((lo, hi))
+    }
+
     /// **Errors** naming the setting: every range `LO < HI` and finite,
     /// η and wavenumbers > 0 (wavenumbers up to π rad/px, the Nyquist
     /// wavenumber), `q_fit_max` finite and > 0.
@@ -858,30 +892,12 @@ impl TraceMomentAccumulator {
             ));
         }
         let log2_lambda = self.log2_lambda();
+        let (lo, hi) = fc.lambda_range(self.box_count.len().saturating_sub(1))?;
         let kmax = log2_lambda.first().copied().unwrap_or(0.0);
-        let (lo, hi) = fc.log2_lambda.unwrap_or(if kmax >= 4.0 {
-            (1.0, kmax - 1.0)
-        } else {
-            (0.0, kmax)
-        });
-        if lo < -1e-9 || hi > kmax + 1e-9 {
-            // a range beyond the data would be recorded as if it were fitted
-            return Err(Error::param(
-                "lambda-fit",
-                format!("[{lo}, {hi}] goes beyond the scales: log2 λ runs from 0 to {kmax}"),
-            ));
-        }
         let in_range: Vec<bool> = log2_lambda
             .iter()
             .map(|&x| x >= lo - 1e-9 && x <= hi + 1e-9)
             .collect();
-        if in_range.iter().filter(|&&b| b).count() < 3 {
-            // named as the CLI flag (FitConfig::log2_lambda in the library)
-            return Err(Error::param(
-                "lambda-fit",
-                format!("fewer than 3 scales in log2 λ = [{lo}, {hi}] (log2 λ up to {kmax})"),
-            ));
-        }
         let fit_line = |y: &[f64]| {
             let xs: Vec<f64> = log2_lambda
                 .iter()
@@ -1959,7 +1975,10 @@ pub const TILE_CAVEAT: &str = "the tiles are treated as independent, which field
 /// ([`TILE_CAVEAT`]). Returns the merged accumulator too.
 ///
 /// **Errors** with no field, or as [`TraceMomentAccumulator::field_tiles`]
-/// and [`finish_jackknife`].
+/// and [`finish_jackknife`]; fit settings that fail
+/// [`TraceMomentFitConfig::validate`] or
+/// [`TraceMomentFitConfig::lambda_range`] on these sizes are refused before
+/// any moment is computed.
 pub fn analyze_tiled(
     fields: &[Field],
     config: &TraceMomentConfig,
@@ -1969,6 +1988,9 @@ pub fn analyze_tiled(
     let Some(side) = side else {
         return Err(Error::Input("no field given".into()));
     };
+    // a bad fit range is known from the sizes: say so before the moments
+    fc.validate()?;
+    fc.lambda_range(box_levels(side))?;
     let tile = tile_side(side, fc);
     let per_image = fields
         .par_iter()
@@ -1998,14 +2020,27 @@ pub fn analyze_tiled(
 /// Trace-moment analysis of one field with the errors of its regressions
 /// only, which understate (the fitted scales are not independent): for one
 /// image use [`analyze_tiled`], for an ensemble [`finish_ensemble`].
+///
+/// **Errors** as [`TraceMomentAccumulator::add_field`] and
+/// [`TraceMomentAccumulator::finish`]; the fit range is checked first.
 pub fn analyze(
     field: &Field,
     config: TraceMomentConfig,
     fit: &TraceMomentFitConfig,
 ) -> Result<TraceMomentResult> {
+    fit.validate()?;
+    let (ny, nx) = field.dim();
+    fit.lambda_range(box_levels(ny.min(nx)))?;
     let mut acc = TraceMomentAccumulator::new(config)?;
     acc.add_field(field)?;
     acc.finish(fit)
+}
+
+/// The coarsest box level `kmax = floor(log2 side)` of fields whose
+/// smaller side is `side` px (0 for an empty side): `log2 λ` runs from 0
+/// to it ([`TraceMomentFitConfig::lambda_range`]).
+pub fn box_levels(side: usize) -> usize {
+    side.max(1).ilog2() as usize
 }
 
 #[cfg(test)]
@@ -2079,5 +2114,44 @@ mod tests {
         want.warnings.push(TILE_CAVEAT.to_string());
         assert_eq!(res.warnings, want.warnings);
         assert!(analyze_tiled(&[], &cfg, &fc).is_err());
+    }
+
+    /// A fit range beyond the image's scales is refused from the sizes,
+    /// before any moment: a constant image, which the moments would refuse,
+    /// gets the range error, and an accepted range is the one `finish` uses.
+    #[test]
+    fn lambda_fit_is_checked_before_the_moments() {
+        let flat = Field::new(Array2::from_elem((256, 256), 1.0));
+        assert_eq!(box_levels(256), 8);
+        assert_eq!(box_levels(300), 8);
+        assert_eq!(box_levels(0), 0);
+        let cfg = TraceMomentConfig::default();
+        for (r, why) in [
+            ((0.0, 9.0), "goes beyond the scales"),
+            ((-1.0, 4.0), "goes beyond the scales"),
+            ((6.5, 8.0), "fewer than 3 scales"),
+        ] {
+            let fc = TraceMomentFitConfig {
+                log2_lambda: Some(r),
+                ..Default::default()
+            };
+            for e in [
+                analyze_tiled(std::slice::from_ref(&flat), &cfg, &fc).unwrap_err(),
+                analyze(&flat, cfg.clone(), &fc).unwrap_err(),
+            ] {
+                assert!(
+                    matches!(e, Error::Param { .. }) && e.to_string().contains(why),
+                    "{r:?}: {e}"
+                );
+            }
+        }
+        // the default and a valid range pass the check; the constant image
+        // is then refused by the moments
+        let fc = TraceMomentFitConfig::default();
+        assert_eq!(fc.lambda_range(8).unwrap(), (1.0, 7.0));
+        assert_eq!(fc.lambda_range(3).unwrap(), (0.0, 3.0));
+        assert!(fc.lambda_range(1).is_err());
+        let e = analyze(&flat, cfg, &fc).unwrap_err();
+        assert!(matches!(e, Error::Input(_)), "{e}");
     }
 }
