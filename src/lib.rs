@@ -86,7 +86,12 @@
 //! # Ok(())
 //! # }
 //! ```
-
+//!
+//! Tiles of one cascade are not independent, so those errors understate.
+//! For the trace moments of a DEM,
+//! [`tracemoments::surrogate_errors`] measures the errors instead on
+//! universal multifractal fields drawn with the DEM's estimates, shape and
+//! missing pixels (a parametric bootstrap; `wtmm tm --surrogates K`).
 //!
 //! # References
 //!

@@ -440,6 +440,8 @@ fn tm_bad_input_exits_2_and_writes_nothing() {
         vec![g, "--eta", "0,1"],
         vec![g, "--eta-fit", "0:2"],
         vec![g, "--flux", "laplacian"],
+        vec![g, "--surrogates", "4"],
+        vec![g, "--surrogate-seed", "3"],
     ];
     for (i, c) in cases.iter().enumerate() {
         let out = dir.join(format!("out{i}"));
@@ -3088,4 +3090,77 @@ fn validate_refuses_a_size_beyond_the_memory() {
         );
         assert!(!out.exists(), "{command}");
     }
+}
+
+/// `tm --surrogates K` on a lone FIF image: K draws analysed like it, their
+/// scatter, bias and error calibration in tm.json and on stdout, each draw
+/// in surrogates.csv; refused for an ensemble (its jackknife over images
+/// measures the scatter already) before anything is computed.
+#[test]
+fn tm_surrogates_on_a_lone_image() {
+    let dir = scratch("tm_surrogates");
+    let s = dir.join("s");
+    let so = s.display().to_string();
+    let synth = [
+        "synth", "--preset", "topo-fif", "--size", "128", "--count", "3", "--out", &so,
+    ];
+    assert_eq!(run(&synth), 0);
+    let imgs = npy_files(&s);
+    let o = dir.join("o");
+    let (code, out, err) = run_bin_output(
+        &[
+            "tm",
+            &imgs[0],
+            "--surrogates",
+            "8",
+            "--surrogate-seed",
+            "4",
+            "--out",
+            o.to_str().unwrap(),
+        ],
+        true,
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("surrogates (8 of 8 FIF draws"), "{out}");
+    let t = json(&o.join("tm.json"));
+    let sg = &t["surrogates"];
+    assert_eq!(sg["used"], 8);
+    assert_eq!(sg["seed"], 4);
+    assert_eq!(num(&sg["params"], "alpha"), num(&t, "alpha").min(2.0));
+    assert!(num(&sg["alpha"], "sd") > 0.0);
+    let csv = std::fs::read_to_string(o.join("surrogates.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 9, "{csv}");
+    assert!(csv.starts_with("alpha,alpha_stderr,C1,C1_stderr,H,H_stderr"));
+    // an ensemble: refused, nothing written
+    let o3 = dir.join("o3");
+    let mut args = vec!["tm"];
+    args.extend(imgs.iter().map(String::as_str));
+    args.extend(["--surrogates", "8", "--out", o3.to_str().unwrap()]);
+    let (code, err) = run_bin_stderr(&args);
+    assert_eq!(code, 2);
+    assert!(err.contains("one or two images"), "{err}");
+    assert!(!o3.exists());
+    // no spectral H on 64^2 (too few spectrum bins): the result stands,
+    // and says that no surrogate was drawn
+    let small = fbm_npy(&dir, "small.npy", 64, 2);
+    let o4 = dir.join("o4");
+    let (code, err) = run_bin_stderr(&[
+        "tm",
+        &small,
+        "--surrogates",
+        "8",
+        "--out",
+        o4.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains(
+            "--surrogates: none drawn: surrogates need the universal fit and the spectral H"
+        ),
+        "{err}"
+    );
+    assert!(err.contains("H not estimable"), "{err}");
+    let t = json(&o4.join("tm.json"));
+    assert!(t.get("surrogates").is_none());
+    assert!(!o4.join("surrogates.csv").exists());
 }

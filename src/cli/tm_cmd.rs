@@ -17,9 +17,9 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
-    FluxDiff, FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig,
-    TraceMomentResult, UniversalWeighting, analyze_tiled, finish_ensemble, tile_side,
-    universal_shape,
+    FluxDiff, FluxKind, MIN_SURROGATES, TraceMomentAccumulator, TraceMomentConfig,
+    TraceMomentFitConfig, TraceMomentResult, UniversalWeighting, analyze_tiled, finish_ensemble,
+    surrogate_errors, tile_side, universal_shape,
 };
 
 /// Trace-moment options shared by `tm` and `compare` (everything but the
@@ -167,6 +167,17 @@ pub struct TmArgs {
     pub q: String,
     #[command(flatten)]
     pub tm: TmOpts,
+    /// For one or two images: also draw this many surrogates (universal
+    /// multifractal FIF fields with the estimated alpha, C1 and H, the
+    /// images' shapes and missing pixels), analyse them the same way, and
+    /// report the scatter of their estimates (the error under that model),
+    /// the estimator's bias there, and how the tile errors compare
+    /// (tm.json `surrogates`, surrogates.csv). About K analyses' time.
+    #[arg(long, value_name = "K")]
+    pub surrogates: Option<usize>,
+    /// Seed of the surrogates.
+    #[arg(long, default_value_t = 1, requires = "surrogates")]
+    pub surrogate_seed: u64,
     #[command(flatten)]
     pub out: OutDir,
 }
@@ -221,10 +232,26 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     // freedom at most, so it runs over the tiles of every image, as in
     // `analyze` (tracemoments::pool_tiles)
     let tiled = args.images.len() < 3;
+    if let Some(k) = args.surrogates {
+        if !tiled {
+            return Err(Error::param(
+                "surrogates",
+                "is for one or two images, whose errors come from tiles; an ensemble's \
+                 jackknife over its images already measures the scatter between fields",
+            ));
+        }
+        if k < MIN_SURROGATES {
+            return Err(Error::param(
+                "surrogates",
+                format!("need at least {MIN_SURROGATES}, got {k}"),
+            ));
+        }
+    }
     if tiled {
         // tiles are not independent samples for the covariance
         fc.universal = args.tm.universal_fit.unwrap_or(UniversalWeighting::Ols);
     }
+    let mut surrogate_failure = None;
     let (acc, res, shapes) = if tiled {
         let fields = args
             .images
@@ -257,6 +284,16 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                 ([ny, nx], ny * nx - f.valid_count())
             })
             .collect();
+        let mut res = res;
+        if let Some(k) = args.surrogates {
+            // the data's result stands when no model can be drawn from it
+            // (no universal fit, no spectral H): said, as a GLS fallback is
+            match surrogate_errors(&fields, &res, &cfg, &fc, k, args.surrogate_seed) {
+                Ok(s) => res.surrogates = Some(s),
+                Err(Error::Input(why)) => surrogate_failure = Some(why),
+                Err(e) => return Err(e),
+            }
+        }
         (whole, res, shapes)
     } else {
         let (parts, shapes) = accumulate_paths(&args.images, &cfg, quiet)?;
@@ -296,6 +333,9 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             "--universal-fit gls was not possible; the universal fit is {}",
             res.universal_fit
         ));
+    }
+    if let Some(why) = surrogate_failure {
+        extra.push(format!("--surrogates: none drawn: {why}"));
     }
     make_out_dir(&args.out.out)?;
     // box levels are in pixels: images of several sizes weigh by their area
@@ -383,7 +423,7 @@ pub fn summary(r: &TraceMomentResult) -> String {
         ),
         FluxDiff::Order(d) => format!(" after differentiation of order {d}"),
     };
-    format!(
+    let mut out = format!(
         "trace moments: {} image(s), flux |{:?}|{}{}, fit log2 lambda {}:{}\n  \
          alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} ({} universal fit over 0 < q <= {:.2}; q_s {:.2})\n  \
          DTM (q = {}): alpha {:.3} +- {:.3}, C1 {:.4}\n  \
@@ -413,7 +453,21 @@ pub fn summary(r: &TraceMomentResult) -> String {
         r.stderr_method,
         r.alpha_stderr_fit,
         r.c1_stderr_fit,
-    )
+    );
+    if let Some(s) = &r.surrogates {
+        out += &format!(
+            "  surrogates ({} of {} FIF draws with alpha {:.3}, C1 {:.4}, H {:.3}; seed {}):\n",
+            s.used, s.count, s.params.alpha, s.params.c1, s.params.hurst, s.seed
+        );
+        for (name, st) in [("alpha", &s.alpha), ("C1", &s.c1), ("H", &s.h)] {
+            out += &format!(
+                "    {name}: error {:.4} (the surrogates' scatter; their tile errors are {:.2} of \
+                 it), bias {:+.4} +- {:.4}\n",
+                st.sd, st.stderr_ratio, st.bias, st.bias_stderr
+            );
+        }
+    }
+    out
 }
 
 /// The `tm.json` body: the header, every key of [`TraceMomentResult`], and
@@ -512,6 +566,23 @@ pub fn write_outputs(
         &dir.join("tm.json"),
         &result_json(command, params, res, extra_warnings)?,
     )?;
+    if let Some(sg) = &res.surrogates {
+        let rows: Vec<Vec<String>> = sg
+            .runs
+            .iter()
+            .map(|r| {
+                [r.alpha, r.alpha_stderr, r.c1, r.c1_stderr, r.h, r.h_stderr]
+                    .iter()
+                    .map(|v| f(*v))
+                    .collect()
+            })
+            .collect();
+        write_csv(
+            &dir.join("surrogates.csv"),
+            &["alpha", "alpha_stderr", "C1", "C1_stderr", "H", "H_stderr"],
+            &rows,
+        )?;
+    }
     let ku = k_universal(res, &res.q);
     let tau = tau_from_tm(res);
     let rows: Vec<Vec<String>> = (0..res.q.len())

@@ -148,12 +148,17 @@
 
 mod fit;
 mod flux;
+mod surrogate;
 
 pub use fit::{
     LogSum, ShrunkCovariance, UniversalFit, UniversalWeighting, fit_universal, fit_universal_gls,
     jackknife_covariance_shrunk, spd_inverse, universal_shape,
 };
 pub use flux::{FluxDiff, FluxKind};
+pub use surrogate::{
+    MIN_SURROGATES, SurrogateErrors, SurrogateRun, SurrogateStat, analyze_fields, surrogate_errors,
+    surrogate_params,
+};
 
 use ndarray::{Array2, ArrayView2};
 use rayon::prelude::*;
@@ -1154,6 +1159,7 @@ impl TraceMomentAccumulator {
             beta_convention: "angle-integrated (beta_averaged = beta + 1)".into(),
             k_range: spec.map(|s| s.k_range),
             warnings: Vec::new(),
+            surrogates: None,
         })
     }
 }
@@ -1376,6 +1382,9 @@ pub struct TraceMomentResult {
     /// that are no power law over the fit range.
     #[serde(default)]
     pub warnings: Vec<String>,
+    /// Errors from surrogates ([`surrogate_errors`]), when asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surrogates: Option<SurrogateErrors>,
 }
 
 /// Merges per-image (or per-group) accumulators into the annealed ensemble
@@ -1964,7 +1973,8 @@ pub fn tiles_label(bounds: &[(usize, usize, usize, usize)], tile: usize) -> Stri
 pub const TILE_CAVEAT: &str = "the tiles are treated as independent, which fields correlated \
      over long distances (cascades) are not: on single 256^2-512^2 universal multifractal \
      fields these errors were, in rms, 0.56-0.87 of the scatter between fields for alpha, \
-     0.38-1.17 for C1, 0.36-0.66 for H, so they may understate up to 3x";
+     0.38-1.17 for C1, 0.36-0.66 for H, so they may understate up to 3x; surrogates \
+     (tm --surrogates K, surrogate_errors) measure the error under the fitted model";
 
 /// Trace moments of one or two fields (a DEM) with errors from a jackknife
 /// over tiles of their domains, as `wtmm tm` for fewer than 3 images: tiles

@@ -1,0 +1,278 @@
+//! Errors of a lone field's universal estimates from surrogates: a
+//! parametric bootstrap (Efron & Tibshirani 1993, §6.5).
+//!
+//! The tile jackknife of [`super::analyze_tiled`] treats the tiles of one
+//! image as independent, which a cascade correlated over the whole image is
+//! not ([`super::TILE_CAVEAT`]: 0.36-1.17 of the true scatter). Surrogates
+//! answer the question directly, under a model: draw fields of the universal
+//! model the data were fitted to (FIF, [`crate::synth::fif`], with the
+//! estimated α, C1 and spectral H), of the data's shapes and missing pixels,
+//! analyse each exactly as the data were, and read the scatter of their
+//! estimates (the error of one analysis of such data), their mean minus the
+//! parameters drawn with (the estimator's bias there), and how the
+//! surrogates' own jackknife errors compare with their scatter (the
+//! calibration of the errors printed for the data).
+//!
+//! What it cannot see: departures of the data from the universal FIF model
+//! (a K(q) of another form, anisotropy, trends, quantisation). The errors
+//! are those of the model at the estimated parameters, not of the data's
+//! process; the tm diagnostics say when the model does not hold.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::{
+    TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig, TraceMomentResult,
+    analyze_tiled, finish_ensemble,
+};
+use crate::error::{Error, Result};
+use crate::field::Field;
+use crate::synth::fif::{FifParams, fif};
+
+/// Fewest surrogates: a standard deviation of fewer is not an error bar.
+pub const MIN_SURROGATES: usize = 8;
+
+/// One surrogate ensemble's estimates and their reported (jackknife) errors.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SurrogateRun {
+    /// α and its reported error.
+    pub alpha: f64,
+    /// Reported error of α.
+    pub alpha_stderr: f64,
+    /// C1.
+    pub c1: f64,
+    /// Reported error of C1.
+    pub c1_stderr: f64,
+    /// Spectral H (NaN without it).
+    pub h: f64,
+    /// Reported error of H (NaN without it).
+    pub h_stderr: f64,
+}
+
+/// What the surrogates say of one estimate.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SurrogateStat {
+    /// The value the surrogates were drawn with: the data's estimate (α
+    /// capped at 2, the model's bound).
+    pub input: f64,
+    /// Mean of the surrogates' estimates.
+    pub mean: f64,
+    /// Standard deviation of the surrogates' estimates: the error of one
+    /// analysis of data like these, if the model holds.
+    pub sd: f64,
+    /// `mean - input`: the estimator's bias at these parameters.
+    pub bias: f64,
+    /// Standard error of the bias, `sd / sqrt(n)`.
+    pub bias_stderr: f64,
+    /// The rms of the surrogates' own reported errors over `sd`: 1 when the
+    /// errors printed for the data are right, below 1 when they understate.
+    pub stderr_ratio: f64,
+}
+
+/// The surrogate errors of a trace-moment result ([`surrogate_errors`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SurrogateErrors {
+    /// The model drawn from: `fif` (universal multifractal FIF).
+    pub model: String,
+    /// Its parameters (α, C1, H).
+    pub params: FifParams,
+    /// Surrogate ensembles drawn (each of the data's image count).
+    pub count: usize,
+    /// Of them, those with a universal fit (α, C1 and H finite).
+    pub used: usize,
+    /// The seed (surrogate ensemble `r`, image `i` is FIF image
+    /// `r * images + i` of this seed).
+    pub seed: u64,
+    /// α.
+    pub alpha: SurrogateStat,
+    /// C1.
+    pub c1: SurrogateStat,
+    /// Spectral H.
+    pub h: SurrogateStat,
+    /// Each ensemble's estimates, in order.
+    pub runs: Vec<SurrogateRun>,
+    /// What the numbers mean and what they cannot see.
+    pub notes: Vec<String>,
+}
+
+/// Analyses `fields` as `wtmm tm` does: over the tiles of every image
+/// ([`analyze_tiled`]) for fewer than 3, else a jackknife over the images
+/// ([`finish_ensemble`]).
+pub fn analyze_fields(
+    fields: &[Field],
+    config: &TraceMomentConfig,
+    fc: &TraceMomentFitConfig,
+) -> Result<TraceMomentResult> {
+    if fields.len() < 3 {
+        return analyze_tiled(fields, config, fc).map(|r| r.1);
+    }
+    let parts = fields
+        .par_iter()
+        .map(|f| {
+            let mut a = TraceMomentAccumulator::new(config.clone())?;
+            a.add_field(f)?;
+            Ok(a)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    finish_ensemble(&parts, fc).map(|r| r.1)
+}
+
+/// The FIF parameters of a result's universal fit: α (capped at 2), C1 and
+/// the spectral H.
+///
+/// **Errors** when the result has no universal fit or no spectral H, or
+/// when they lie outside the model (α <= 0, C1 outside [0, 2), H outside
+/// [0, 3)).
+pub fn surrogate_params(res: &TraceMomentResult) -> Result<FifParams> {
+    let h = res.h.unwrap_or(f64::NAN);
+    if !(res.alpha.is_finite() && res.c1.is_finite() && h.is_finite()) {
+        let v = |x: f64| {
+            if x.is_finite() {
+                format!("{x:.4}")
+            } else {
+                "not estimable".into()
+            }
+        };
+        return Err(Error::Input(format!(
+            "surrogates need the universal fit and the spectral H (alpha {}, C1 {}, H {})",
+            v(res.alpha),
+            v(res.c1),
+            v(h)
+        )));
+    }
+    let p = FifParams {
+        alpha: res.alpha.min(2.0),
+        c1: res.c1,
+        hurst: h,
+    };
+    if !(p.alpha > 0.0 && (0.0..2.0).contains(&p.c1) && (0.0..3.0).contains(&p.hurst)) {
+        return Err(Error::Input(format!(
+            "the estimates lie outside the universal model the surrogates are drawn from \
+             (need 0 < alpha <= 2, 0 <= C1 < 2, 0 <= H < 3; got alpha {:.3}, C1 {:.4}, H {:.3})",
+            res.alpha, res.c1, h
+        )));
+    }
+    p.validate()?;
+    Ok(p)
+}
+
+/// Surrogate errors of `res`, the result of [`analyze_fields`] on `fields`
+/// with `config` and `fc`: `count` ensembles of FIF fields with the
+/// parameters of [`surrogate_params`], each of the data's image shapes and
+/// missing pixels, analysed the same way. Deterministic for a `seed`
+/// whatever the thread count. Costs `count` analyses of the data.
+///
+/// **Errors** as [`surrogate_params`], with `count` below
+/// [`MIN_SURROGATES`], no field, or fewer than [`MIN_SURROGATES`]
+/// surrogates with a universal fit.
+pub fn surrogate_errors(
+    fields: &[Field],
+    res: &TraceMomentResult,
+    config: &TraceMomentConfig,
+    fc: &TraceMomentFitConfig,
+    count: usize,
+    seed: u64,
+) -> Result<SurrogateErrors> {
+    if count < MIN_SURROGATES {
+        return Err(Error::param(
+            "surrogates",
+            format!("need at least {MIN_SURROGATES}, got {count}"),
+        ));
+    }
+    if fields.is_empty() {
+        return Err(Error::Input("no field given".into()));
+    }
+    let params = surrogate_params(res)?;
+    let n_img = fields.len() as u64;
+    let runs: Vec<Option<SurrogateRun>> = (0..count as u64)
+        .into_par_iter()
+        .map(|r| {
+            let set = fields
+                .iter()
+                .enumerate()
+                .map(|(i, f)| {
+                    let (ny, nx) = f.dim();
+                    let a = fif(&params, ny, nx, seed, r * n_img + i as u64)?;
+                    match &f.mask {
+                        Some(m) => Field::with_mask(a, m.clone()),
+                        None => Ok(Field::new(a)),
+                    }
+                })
+                .collect::<Result<Vec<_>>>()?;
+            // a surrogate the analysis refuses (e.g. no universal fit) is
+            // counted out, not fatal: it is a draw of the model
+            let Ok(s) = analyze_fields(&set, config, fc) else {
+                return Ok(None);
+            };
+            let run = SurrogateRun {
+                alpha: s.alpha,
+                alpha_stderr: s.alpha_stderr,
+                c1: s.c1,
+                c1_stderr: s.c1_stderr,
+                h: s.h.unwrap_or(f64::NAN),
+                h_stderr: s.h_stderr.unwrap_or(f64::NAN),
+            };
+            let ok = run.alpha.is_finite() && run.c1.is_finite() && run.h.is_finite();
+            Ok(ok.then_some(run))
+        })
+        .collect::<Result<_>>()?;
+    let good: Vec<SurrogateRun> = runs.iter().flatten().copied().collect();
+    if good.len() < MIN_SURROGATES {
+        return Err(Error::Input(format!(
+            "only {} of {count} surrogates gave a universal fit (need {MIN_SURROGATES})",
+            good.len()
+        )));
+    }
+    let stat = |input: f64, get: fn(&SurrogateRun) -> (f64, f64)| {
+        let (v, se): (Vec<f64>, Vec<f64>) = good.iter().map(get).unzip();
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+        let se: Vec<f64> = se.into_iter().filter(|s| s.is_finite()).collect();
+        let rms = (se.iter().map(|s| s * s).sum::<f64>() / se.len().max(1) as f64).sqrt();
+        SurrogateStat {
+            input,
+            mean,
+            sd,
+            bias: mean - input,
+            bias_stderr: sd / n.sqrt(),
+            stderr_ratio: if se.is_empty() || sd == 0.0 {
+                f64::NAN
+            } else {
+                rms / sd
+            },
+        }
+    };
+    let mut notes = vec![
+        "sd is the error of one analysis of data like these if they were a universal \
+         multifractal (FIF) with these parameters; it cannot see departures from that model"
+            .to_string(),
+        "bias = mean - input is the estimator's bias at these parameters (not removed from \
+         the estimates)"
+            .to_string(),
+    ];
+    if res.alpha > 2.0 {
+        notes.push(format!(
+            "alpha {:.3} lies above the model's bound; the surrogates use alpha = 2",
+            res.alpha
+        ));
+    }
+    if good.len() < count {
+        notes.push(format!(
+            "{} of {count} surrogates gave no universal fit and are left out",
+            count - good.len()
+        ));
+    }
+    Ok(SurrogateErrors {
+        model: "fif".into(),
+        params,
+        count,
+        used: good.len(),
+        seed,
+        alpha: stat(params.alpha, |r| (r.alpha, r.alpha_stderr)),
+        c1: stat(params.c1, |r| (r.c1, r.c1_stderr)),
+        h: stat(params.hurst, |r| (r.h, r.h_stderr)),
+        runs: good,
+        notes,
+    })
+}
