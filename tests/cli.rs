@@ -3130,7 +3130,7 @@ fn tm_surrogates_on_a_lone_image() {
     assert!(num(&sg["alpha"], "sd") > 0.0);
     let csv = std::fs::read_to_string(o.join("surrogates.csv")).unwrap();
     assert_eq!(csv.lines().count(), 9, "{csv}");
-    assert!(csv.starts_with("alpha,alpha_stderr,C1,C1_stderr,H,H_stderr"));
+    assert!(csv.starts_with("draw,alpha,alpha_stderr,C1,C1_stderr,H,H_stderr"));
     // an ensemble: refused, nothing written
     let o3 = dir.join("o3");
     let mut args = vec!["tm"];

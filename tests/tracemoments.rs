@@ -1812,7 +1812,7 @@ fn surrogate_errors_are_the_scatter_of_fif_draws_analysed_alike() {
     // the draws, one by one
     let alphas: Vec<f64> = (0..8)
         .map(|r| {
-            let s = fif(&sg.params, n, n, seed, r).unwrap();
+            let s = fif(&sg.params, n, n, surrogate_fif_seed(seed), r).unwrap();
             let s = Field::with_mask(s, mask.clone()).unwrap();
             assert_eq!(s.valid_count(), f.valid_count());
             analyze_fields(&[s], &cfg, &fc).unwrap().alpha
@@ -1820,6 +1820,13 @@ fn surrogate_errors_are_the_scatter_of_fif_draws_analysed_alike() {
         .collect();
     let got: Vec<f64> = sg.runs.iter().map(|r| r.alpha).collect();
     assert_eq!(got, alphas);
+    assert!(sg.runs.iter().enumerate().all(|(i, r)| r.index == i));
+    // never the noise of the data: `synth --seed S` draws FIF image i of S
+    assert_ne!(surrogate_fif_seed(seed), seed);
+    assert_ne!(
+        fif(&sg.params, n, n, seed, 0).unwrap(),
+        fif(&sg.params, n, n, surrogate_fif_seed(seed), 0).unwrap()
+    );
     let (m, sd) = mean_std(&alphas);
     assert!((sg.alpha.mean - m).abs() < 1e-12 && (sg.alpha.sd - sd).abs() < 1e-12);
     assert!((sg.alpha.bias - (m - sg.params.alpha)).abs() < 1e-12);
@@ -1844,6 +1851,15 @@ fn surrogate_errors_are_the_scatter_of_fif_draws_analysed_alike() {
     no_fit.alpha = f64::NAN;
     let e = surrogate_errors(std::slice::from_ref(&f), &no_fit, &cfg, &fc, 8, seed).unwrap_err();
     assert!(e.to_string().contains("universal fit"), "{e}");
+    // estimates the generator cannot draw from are the data's problem
+    // (Input), not a parameter the user gave
+    let mut weak = res.clone();
+    weak.c1 = 0.0;
+    let e = surrogate_params(&weak).unwrap_err();
+    assert!(
+        matches!(e, wtmm::Error::Input(_)) && e.to_string().contains("outside the universal model"),
+        "{e}"
+    );
 }
 
 /// Do surrogate errors cover the truth? (Not a check: `cargo test --release
@@ -1907,13 +1923,15 @@ fn experiment_surrogate_coverage() {
         let within = |z: Vec<f64>| z.iter().filter(|z| z.abs() <= 2.0).count();
         let c_sur = within(v.iter().map(|(e, _, s)| (e - t) / s.sd).collect());
         let c_tile = within(v.iter().map(|(e, se, _)| (e - t) / se).collect());
+        let half = |s: &SurrogateStat| (s.quantiles[2] - s.quantiles[1]) / 2.0;
+        let c_half = within(v.iter().map(|(e, _, s)| (e - t) / half(s)).collect());
         let sds: Vec<f64> = v.iter().map(|x| x.2.sd).collect();
         let biases: Vec<f64> = v.iter().map(|x| x.2.bias).collect();
         println!(
             "{name}: truth {t}, estimates {m:.4} (sd over fields {sd:.4}); surrogate sd mean {:.4}, \
              surrogate bias mean {:+.4}; rms z: surrogate {z_sur:.2}, tile {z_tile:.2}, \
-             bias-corrected {z_corr:.2}; truth within 2 errors: surrogate {c_sur}, tile {c_tile} \
-             of {}",
+             bias-corrected {z_corr:.2}; truth within 2 errors: surrogate {c_sur}, tile {c_tile}, \
+             2 central-68 % half-widths {c_half} of {}",
             mean_std(&sds).0,
             mean_std(&biases).0,
             v.len()

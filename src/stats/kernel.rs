@@ -817,7 +817,8 @@ pub struct KernelResult {
     /// same fit applied to the per-scale biases `0, -κ2/n, -3κ3/n` of the
     /// plug-in `κ_n` of `n` WTMMM. The estimate's expectation is about
     /// `c_n + plugin_tilt[n - 1]`; the jackknife errors do not include it
-    /// (every replicate shares it). NaN where `c_n` is not estimable.
+    /// (every replicate shares it). `c1`'s is 0 (the mean is unbiased); NaN
+    /// where `c_n` is not estimable.
     #[serde(default)]
     pub plugin_tilt: [f64; 3],
     /// Human-readable warnings (few WTMMM at the top of the fit, < 3 images).

@@ -156,8 +156,8 @@ pub use fit::{
 };
 pub use flux::{FluxDiff, FluxKind};
 pub use surrogate::{
-    MIN_SURROGATES, SurrogateErrors, SurrogateRun, SurrogateStat, analyze_fields, surrogate_errors,
-    surrogate_params,
+    MIN_SURROGATES, SurrogateErrors, SurrogateRun, SurrogateStat, WEAK_C1, analyze_fields,
+    surrogate_errors, surrogate_errors_with_progress, surrogate_fif_seed, surrogate_params,
 };
 
 use ndarray::{Array2, ArrayView2};
@@ -1453,6 +1453,13 @@ pub fn finish_jackknife(
         return Ok(res);
     }
     let pin = Some((res.universal_q_max, res.q_s));
+    // every replicate fits the whole's boxes, lags and wavenumbers: a part
+    // left out may hold the only boxes of the largest size (images of
+    // several sizes), and log2 λ counts from a replicate's own largest box,
+    // so its range shifts by the levels it lacks; a default range would
+    // otherwise follow the replicate's sizes and fit other scales
+    let kmax = whole.box_count.len().saturating_sub(1);
+    let (lo, hi) = res.fit_log2_lambda;
     let mut loo = Vec::with_capacity(n);
     for i in 0..n {
         let mut a = TraceMomentAccumulator::new(whole.config.clone())?;
@@ -1461,7 +1468,32 @@ pub fn finish_jackknife(
                 a.merge(p)?;
             }
         }
-        loo.push(a.finish_inner(fc, pin)?);
+        let d = kmax.saturating_sub(a.box_count.len().saturating_sub(1)) as f64;
+        if lo - d < -1e-9 {
+            return Err(Error::param(
+                "lambda-fit",
+                format!(
+                    "the fit reaches boxes of {} px, which only part {} of the jackknife's {n} \
+                     ({what}) holds, so it cannot be left out: fit from log2 λ = {d} (boxes of \
+                     at most {} px) or analyse images of one size",
+                    (kmax as f64 - lo).exp2(),
+                    i + 1,
+                    (kmax as f64 - d).exp2()
+                ),
+            ));
+        }
+        let fc_rep = TraceMomentFitConfig {
+            log2_lambda: Some((lo - d, hi - d)),
+            // (fluxes given directly have no structure functions)
+            log2_lag: if res.log2_lag.is_empty() {
+                fc.log2_lag
+            } else {
+                Some(res.fit_log2_lag)
+            },
+            k_range: res.k_range.or(fc.k_range),
+            ..fc.clone()
+        };
+        loo.push(a.finish_inner(&fc_rep, pin)?);
     }
     if fc.universal == UniversalWeighting::Gls {
         gls_refit(&mut res, &mut loo, whole, parts, fc, pin, what)?;
@@ -1998,9 +2030,13 @@ pub fn analyze_tiled(
     let Some(side) = side else {
         return Err(Error::Input("no field given".into()));
     };
-    // a bad fit range is known from the sizes: say so before the moments
+    // a bad fit range is known from the sizes: said before the moments (a
+    // default range fails only on images the moments refuse as too small,
+    // which they say better)
     fc.validate()?;
-    fc.lambda_range(box_levels(side))?;
+    if fc.log2_lambda.is_some() {
+        fc.lambda_range(box_levels(side))?;
+    }
     let tile = tile_side(side, fc);
     let per_image = fields
         .par_iter()
@@ -2040,7 +2076,9 @@ pub fn analyze(
 ) -> Result<TraceMomentResult> {
     fit.validate()?;
     let (ny, nx) = field.dim();
-    fit.lambda_range(box_levels(ny.min(nx)))?;
+    if fit.log2_lambda.is_some() {
+        fit.lambda_range(box_levels(ny.min(nx)))?;
+    }
     let mut acc = TraceMomentAccumulator::new(config)?;
     acc.add_field(field)?;
     acc.finish(fit)
@@ -2161,7 +2199,40 @@ mod tests {
         assert_eq!(fc.lambda_range(8).unwrap(), (1.0, 7.0));
         assert_eq!(fc.lambda_range(3).unwrap(), (0.0, 3.0));
         assert!(fc.lambda_range(1).is_err());
-        let e = analyze(&flat, cfg, &fc).unwrap_err();
+        let e = analyze(&flat, cfg.clone(), &fc).unwrap_err();
         assert!(matches!(e, Error::Input(_)), "{e}");
+        // an image too small for any moment is said to be so, not blamed on
+        // a fit range nobody gave
+        let tiny = Field::new(Array2::from_shape_fn((3, 64), |(y, x)| (x * y) as f64));
+        for e in [
+            analyze(&tiny, cfg.clone(), &fc).unwrap_err(),
+            analyze_tiled(std::slice::from_ref(&tiny), &cfg, &fc).unwrap_err(),
+        ] {
+            assert!(e.to_string().contains("too small"), "{e}");
+        }
+        // non-square, and two sizes: the larger's smaller side sets kmax
+        let wide = Field::new(Array2::from_shape_fn((40, 300), |(y, x)| {
+            ((x * 7 + y * 3) % 11) as f64
+        }));
+        let fc9 = TraceMomentFitConfig {
+            log2_lambda: Some((0.0, 6.0)),
+            ..Default::default()
+        };
+        // 40 px: log2 λ up to 5
+        let e = analyze(&wide, cfg.clone(), &fc9).unwrap_err();
+        assert!(e.to_string().contains("runs from 0 to 5"), "{e}");
+        let big = Field::new(Array2::from_shape_fn((70, 64), |(y, x)| {
+            ((x * 5 + y * 9) % 13) as f64
+        }));
+        // (0, 6) passes the sizes (64 px), but only the 70 x 64 image holds
+        // 64-px boxes: its replicate cannot leave it out
+        let e = analyze_tiled(&[wide.clone(), big.clone()], &cfg, &fc9).unwrap_err();
+        assert!(e.to_string().contains("so it cannot be left out"), "{e}");
+        let fc7 = TraceMomentFitConfig {
+            log2_lambda: Some((0.0, 7.0)),
+            ..Default::default()
+        };
+        let e = analyze_tiled(&[wide, big], &cfg, &fc7).unwrap_err();
+        assert!(e.to_string().contains("runs from 0 to 6"), "{e}");
     }
 }
