@@ -1453,13 +1453,6 @@ pub fn finish_jackknife(
         return Ok(res);
     }
     let pin = Some((res.universal_q_max, res.q_s));
-    // every replicate fits the whole's boxes, lags and wavenumbers: a part
-    // left out may hold the only boxes of the largest size (images of
-    // several sizes), and log2 λ counts from a replicate's own largest box,
-    // so its range shifts by the levels it lacks; a default range would
-    // otherwise follow the replicate's sizes and fit other scales
-    let kmax = whole.box_count.len().saturating_sub(1);
-    let (lo, hi) = res.fit_log2_lambda;
     let mut loo = Vec::with_capacity(n);
     for i in 0..n {
         let mut a = TraceMomentAccumulator::new(whole.config.clone())?;
@@ -1468,31 +1461,13 @@ pub fn finish_jackknife(
                 a.merge(p)?;
             }
         }
-        let d = kmax.saturating_sub(a.box_count.len().saturating_sub(1)) as f64;
-        if lo - d < -1e-9 {
-            return Err(Error::param(
-                "lambda-fit",
-                format!(
-                    "the fit reaches boxes of {} px, which only part {} of the jackknife's {n} \
-                     ({what}) holds, so it cannot be left out: fit from log2 λ = {d} (boxes of \
-                     at most {} px) or analyse images of one size",
-                    (kmax as f64 - lo).exp2(),
-                    i + 1,
-                    (kmax as f64 - d).exp2()
-                ),
-            ));
-        }
-        let fc_rep = TraceMomentFitConfig {
-            log2_lambda: Some((lo - d, hi - d)),
-            // (fluxes given directly have no structure functions)
-            log2_lag: if res.log2_lag.is_empty() {
-                fc.log2_lag
-            } else {
-                Some(res.fit_log2_lag)
-            },
-            k_range: res.k_range.or(fc.k_range),
-            ..fc.clone()
-        };
+        let fc_rep = replicate_fit(
+            fc,
+            &res,
+            whole,
+            &a,
+            &format!("part {} of {n} ({what})", i + 1),
+        )?;
         loo.push(a.finish_inner(&fc_rep, pin)?);
     }
     if fc.universal == UniversalWeighting::Gls {
@@ -1532,6 +1507,50 @@ pub fn finish_jackknife(
     res.jackknife_groups = n;
     res.warnings = diagnostics(&res, Some((&loo, shared)));
     Ok(res)
+}
+
+/// The fit settings of a jackknife replicate `rep` of `whole`, whose
+/// result is `res`: the whole's boxes, lags and wavenumbers. A part left out
+/// may hold the only boxes of the largest size (images of several sizes),
+/// and log2 λ counts from a replicate's own largest box, so its range
+/// shifts by the levels it lacks; a default range would otherwise follow
+/// the replicate's sizes and fit other scales.
+///
+/// **Errors** when the fitted boxes are missing from `rep` (`left_out`
+/// names the part left out).
+fn replicate_fit(
+    fc: &TraceMomentFitConfig,
+    res: &TraceMomentResult,
+    whole: &TraceMomentAccumulator,
+    rep: &TraceMomentAccumulator,
+    left_out: &str,
+) -> Result<TraceMomentFitConfig> {
+    let kmax = whole.box_count.len().saturating_sub(1);
+    let (lo, hi) = res.fit_log2_lambda;
+    let d = kmax.saturating_sub(rep.box_count.len().saturating_sub(1)) as f64;
+    if lo - d < -1e-9 {
+        return Err(Error::param(
+            "lambda-fit",
+            format!(
+                "the fit reaches boxes of {} px, which only {left_out} holds, so a jackknife \
+                 cannot leave it out: fit from log2 λ = {d} (boxes of at most {} px) or analyse \
+                 images of one size",
+                (kmax as f64 - lo).exp2(),
+                (kmax as f64 - d).exp2()
+            ),
+        ));
+    }
+    Ok(TraceMomentFitConfig {
+        log2_lambda: Some((lo - d, hi - d)),
+        // (fluxes given directly have no structure functions)
+        log2_lag: if res.log2_lag.is_empty() {
+            fc.log2_lag
+        } else {
+            Some(res.fit_log2_lag)
+        },
+        k_range: res.k_range.or(fc.k_range),
+        ..fc.clone()
+    })
 }
 
 /// How many standard errors a diagnostic of [`diagnostics`] needs before
@@ -1936,7 +1955,14 @@ fn gls_refit(
                         a.merge(p)?;
                     }
                 }
-                out.push(a.finish_inner(fc, pin)?);
+                let fc_rep = replicate_fit(
+                    fc,
+                    res,
+                    whole,
+                    &a,
+                    &format!("parts {} and {} of {n}", i + 1, j + 1),
+                )?;
+                out.push(a.finish_inner(&fc_rep, pin)?);
             }
             Ok(out)
         })
@@ -2227,7 +2253,10 @@ mod tests {
         // (0, 6) passes the sizes (64 px), but only the 70 x 64 image holds
         // 64-px boxes: its replicate cannot leave it out
         let e = analyze_tiled(&[wide.clone(), big.clone()], &cfg, &fc9).unwrap_err();
-        assert!(e.to_string().contains("so it cannot be left out"), "{e}");
+        assert!(
+            e.to_string().contains("so a jackknife cannot leave it out"),
+            "{e}"
+        );
         let fc7 = TraceMomentFitConfig {
             log2_lambda: Some((0.0, 7.0)),
             ..Default::default()
