@@ -18,9 +18,10 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
-    FluxDiff, FluxKind, MIN_SURROGATES, SurrogateErrors, TraceMomentAccumulator, TraceMomentConfig,
-    TraceMomentFitConfig, TraceMomentResult, UniversalWeighting, analyze_tiled, finish_ensemble,
-    surrogate_errors_with_progress, tile_side, universal_shape,
+    FluxDiff, FluxKind, SurrogateErrors, TraceMomentAccumulator, TraceMomentConfig,
+    TraceMomentFitConfig, TraceMomentResult, UniversalWeighting, analyze_tiled,
+    check_surrogate_count, finish_ensemble, surrogate_errors_with_progress, tile_side,
+    universal_shape,
 };
 
 /// Trace-moment options shared by `tm` and `compare` (everything but the
@@ -241,12 +242,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                  jackknife over its images already measures the scatter between fields",
             ));
         }
-        if k < MIN_SURROGATES {
-            return Err(Error::param(
-                "surrogates",
-                format!("need at least {MIN_SURROGATES}, got {k}"),
-            ));
-        }
+        check_surrogate_count(k)?;
     }
     if tiled {
         // tiles are not independent samples for the covariance

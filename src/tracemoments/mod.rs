@@ -157,7 +157,8 @@ pub use fit::{
 pub use flux::{FluxDiff, FluxKind};
 pub use surrogate::{
     MIN_SURROGATES, SurrogateErrors, SurrogateRun, SurrogateStat, WEAK_C1, analyze_fields,
-    surrogate_errors, surrogate_errors_with_progress, surrogate_fif_seed, surrogate_params,
+    check_surrogate_count, surrogate_errors, surrogate_errors_with_progress, surrogate_fif_seed,
+    surrogate_params,
 };
 
 use ndarray::{Array2, ArrayView2};

@@ -128,6 +128,18 @@ pub struct SurrogateErrors {
     pub warnings: Vec<String>,
 }
 
+/// **Errors** (named `surrogates`) below [`MIN_SURROGATES`]: callers can
+/// refuse a count before any analysis.
+pub fn check_surrogate_count(count: usize) -> Result<()> {
+    if count < MIN_SURROGATES {
+        return Err(Error::param(
+            "surrogates",
+            format!("need at least {MIN_SURROGATES}, got {count}"),
+        ));
+    }
+    Ok(())
+}
+
 /// Analyses `fields` as `wtmm tm` does: over the tiles of every image
 /// ([`analyze_tiled`]) for fewer than 3, else a jackknife over the images
 /// ([`finish_ensemble`]).
@@ -227,12 +239,7 @@ pub fn surrogate_errors_with_progress(
     seed: u64,
     tick: &(dyn Fn() + Sync),
 ) -> Result<SurrogateErrors> {
-    if count < MIN_SURROGATES {
-        return Err(Error::param(
-            "surrogates",
-            format!("need at least {MIN_SURROGATES}, got {count}"),
-        ));
-    }
+    check_surrogate_count(count)?;
     if fields.is_empty() {
         return Err(Error::Input("no field given".into()));
     }
@@ -298,9 +305,8 @@ pub fn surrogate_errors_with_progress(
     let stat = |input: f64, get: fn(&SurrogateRun) -> (f64, f64)| {
         let (v, se): (Vec<f64>, Vec<f64>) = good.iter().map(get).unzip();
         let n = v.len() as f64;
-        let mean = v.iter().sum::<f64>() / n;
-        let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
-        let mut sorted = v.clone();
+        let (mean, sd) = crate::stats::fit::mean_std(&v);
+        let mut sorted = v;
         sorted.sort_by(f64::total_cmp);
         let quantile = |p: f64| {
             // type 7 of Hyndman & Fan (R's default)
