@@ -455,6 +455,60 @@ fn tm_bad_input_exits_2_and_writes_nothing() {
     let out = dir.join("ok");
     assert_eq!(run(&["tm", g, "--out", out.to_str().unwrap()]), 0);
     assert!(out.join("tm.json").is_file());
+
+    // an ensemble's fit is checked from the headers, before any image is
+    // read: a range beyond the boxes is said, not the third image's
+    // truncated values, which only reading it finds
+    let small = |name: &str, n: usize, k: usize| {
+        let p = dir.join(name);
+        write_npy(
+            &p,
+            &Array2::from_shape_fn((n, n), |(y, x)| ((x * 7 + y * k) % 17) as f64),
+        )
+        .unwrap();
+        p.display().to_string()
+    };
+    let (s1, s2) = (small("s1.npy", 32, 13), small("s2.npy", 32, 11));
+    let large = small("l.npy", 128, 5);
+    let cut = dir.join("cut.npy");
+    let bytes = std::fs::read(&large).unwrap();
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let c = cut.display().to_string();
+    let out = dir.join("ens").display().to_string();
+    for (args, word) in [
+        (vec!["--lambda-fit", "0:9"], "goes beyond the scales"),
+        // 64-px boxes (log2 λ = 1 of 128 px) only in the 128-px image
+        (
+            vec!["--lambda-fit", "1:5"],
+            "so a jackknife cannot leave it out",
+        ),
+        // 16-px lags (the default lag fit of 128 px) only in it too
+        (vec!["--lambda-fit", "2:5"], "lags of 16 px"),
+        (vec!["--lambda-fit", "2:5", "--lag-fit", "1:2"], "truncated"),
+    ] {
+        let mut a = vec!["tm", &s1, &s2, &c];
+        a.extend(args);
+        a.extend(["--out", &out]);
+        let (code, err) = run_bin_stderr(&a);
+        assert_eq!(code, 2, "{a:?}: {err}");
+        assert!(err.contains(word), "{a:?}: {err}");
+        assert!(!Path::new(&out).exists());
+    }
+    // the fits it allows run
+    let a = [
+        "tm",
+        &s1,
+        &s2,
+        &large,
+        "--lambda-fit",
+        "2:5",
+        "--lag-fit",
+        "1:2",
+        "--out",
+        &out,
+    ];
+    let (code, err) = run_bin_stderr(&a);
+    assert_eq!(code, 0, "{err}");
 }
 
 /// `compare` on a tiny ensemble writes its outputs; bad options exit 2

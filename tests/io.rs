@@ -7,7 +7,7 @@ use ndarray::{Array2, array};
 use wtmm::Error;
 use wtmm::field::Field;
 use wtmm::io::{
-    ImageFormat, read_field, read_field_with_info, write_field, write_npy, write_png16,
+    ImageFormat, read_field, read_field_with_info, read_shape, write_field, write_npy, write_png16,
     write_tiff_f32,
 };
 
@@ -273,13 +273,104 @@ fn corrupt_inputs_never_panic() {
             let path = dir.join(format!("x_{k}_{name}"));
             // A new file each time: overwriting one on ext4 costs a flush.
             std::fs::write(&path, &v).unwrap();
-            if let Err(e) = read_field(&path) {
-                errors += 1;
+            // the header-only size never refuses a file that reads, and
+            // agrees with it
+            let shape = read_shape(&path);
+            match read_field(&path) {
+                Err(e) => {
+                    errors += 1;
+                    assert!(e.to_string().contains("x_"), "{e}");
+                }
+                Ok(f) => {
+                    let (ny, nx) = f.dim();
+                    assert_eq!(shape.as_ref().ok(), Some(&[ny, nx]), "{}", path.display());
+                }
+            }
+            if let Err(e) = shape {
                 assert!(e.to_string().contains("x_"), "{e}");
             }
         }
     }
     assert!(errors > 100, "only {errors} corrupt files were rejected");
+}
+
+/// `read_shape` reads the size from the header alone: the size
+/// `read_field` gives on every good fixture, the same errors on a bad
+/// header, and a pass on files whose values only are bad.
+#[test]
+fn read_shape_reads_the_header_alone() {
+    let mut goods = 0;
+    for entry in std::fs::read_dir(fixture("")).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().to_string();
+        if name.starts_with("bad_") || ImageFormat::from_path(&path).is_none() {
+            continue;
+        }
+        let f = read_field(&path).unwrap_or_else(|e| panic!("{e}"));
+        let (ny, nx) = f.dim();
+        assert_eq!(read_shape(&path).unwrap(), [ny, nx], "{name}");
+        goods += 1;
+    }
+    assert!(goods >= 20, "{goods}");
+    for (name, word) in [
+        ("missing.npy", "cannot read"),
+        ("unknown.dat", "unknown image format"),
+        ("bad_3d.npy", "got shape (2, 3, 4)"),
+        ("bad_1d.npy", "got shape (5,)"),
+        ("bad_complex.npy", "complex"),
+        ("bad_bool.npy", "bool"),
+        ("bad_str.npy", "string"),
+        ("bad_empty.npy", "empty"),
+        ("bad_magic.npy", "not a .npy file"),
+        ("bad_zero_bytes.png", "empty"),
+        ("bad_empty.png", "empty image (3 x 0)"),
+        ("bad_huge.png", "too large"),
+        ("bad_garbage.tif", "corrupt"),
+        ("bad_header.asc", "lacks nrows"),
+        ("bad_p6.pgm", "colour"),
+    ] {
+        let e = read_shape(&fixture(name)).expect_err(name).to_string();
+        assert!(e.contains(name) && e.contains(word), "{name}: {e}");
+    }
+    // the values are what is wrong: only reading them says so
+    for name in [
+        "bad_truncated.npy",
+        "bad_huge.npy",
+        "bad_truncated.png",
+        "bad_count.asc",
+        "bad_truncated.pgm",
+    ] {
+        assert!(read_shape(&fixture(name)).is_ok(), "{name}");
+        assert!(read_field(fixture(name)).is_err(), "{name}");
+    }
+    // text headers read from the first 64 KiB of files far longer
+    let dir = scratch("shape");
+    let (ny, nx) = (230, 310);
+    let values = |sep: &str| {
+        (0..ny)
+            .map(|y| {
+                (0..nx)
+                    .map(|x| ((y * 31 + x * 17) % 1000).to_string())
+                    .collect::<Vec<_>>()
+                    .join(sep)
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    let asc = dir.join("big.asc");
+    let body = format!("ncols {nx}\nnrows {ny}\ncellsize 30\n{}\n", values(" "));
+    assert!(body.len() > 1 << 17);
+    std::fs::write(&asc, body).unwrap();
+    let pgm = dir.join("big.pgm");
+    std::fs::write(
+        &pgm,
+        format!("P2\n# a comment\n{nx} {ny}\n999\n{}\n", values(" ")),
+    )
+    .unwrap();
+    for p in [asc, pgm] {
+        assert_eq!(read_shape(&p).unwrap(), [ny, nx], "{}", p.display());
+        assert_eq!(read_field(&p).unwrap().dim(), (ny, nx), "{}", p.display());
+    }
 }
 
 #[test]

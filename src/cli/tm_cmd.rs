@@ -19,7 +19,7 @@ use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
     FluxDiff, FluxKind, SurrogateErrors, TraceMomentAccumulator, TraceMomentConfig,
-    TraceMomentFitConfig, TraceMomentResult, UniversalWeighting, analyze_tiled,
+    TraceMomentFitConfig, TraceMomentResult, UniversalWeighting, analyze_tiled, check_ensemble_fit,
     check_surrogate_count, finish_ensemble, surrogate_errors_with_progress, tile_side,
     universal_shape,
 };
@@ -294,6 +294,13 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         }
         (whole, res, shapes)
     } else {
+        // a fit the sizes rule out is said before every image is read
+        let sizes = args
+            .images
+            .iter()
+            .map(|p| crate::io::read_shape(p))
+            .collect::<Result<Vec<_>>>()?;
+        check_ensemble_fit(&fc, &sizes)?;
         let (parts, shapes) = accumulate_paths(&args.images, &cfg, quiet)?;
         let (acc, res) = finish_ensemble(&parts, &fc)?;
         (acc, res, shapes)

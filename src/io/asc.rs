@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use super::{ImageFormat, ReadInfo, field_from, read_bytes};
+use super::{ImageFormat, ReadInfo, field_from, read_bytes, read_prefix, whole_lines};
 use crate::error::{Error, Result};
 use crate::field::Field;
 
@@ -20,64 +20,105 @@ const KNOWN: &[&str] = &[
     "nodata_value",
 ];
 
+/// An ESRI ASCII grid header: lines whose first token is a key (starts
+/// with a letter); `body` is the byte offset of the first data line.
+struct Header {
+    nx: usize,
+    ny: usize,
+    nodata: Option<f64>,
+    body: usize,
+    warnings: Vec<String>,
+}
+
+impl Header {
+    fn parse(text: &str) -> std::result::Result<Header, String> {
+        let (mut ncols, mut nrows, mut nodata) = (None, None, None);
+        let (mut body, mut warnings) = (0, Vec::new());
+        for line in text.split_inclusive('\n') {
+            let mut parts = line.split_whitespace();
+            if let Some(key) = parts.next() {
+                if !key.starts_with(|c: char| c.is_ascii_alphabetic()) || key.parse::<f64>().is_ok()
+                {
+                    break;
+                }
+                let key = key.to_ascii_lowercase();
+                let value = parts.next().unwrap_or("");
+                let number = || {
+                    value
+                        .parse::<f64>()
+                        .map_err(|_| format!("header `{key}` has no numeric value"))
+                };
+                match key.as_str() {
+                    "ncols" | "nrows" => {
+                        let n: usize = value
+                            .parse()
+                            .map_err(|_| format!("header `{key}` is not a count: `{value}`"))?;
+                        if key == "ncols" {
+                            ncols = Some(n)
+                        } else {
+                            nrows = Some(n)
+                        }
+                    }
+                    "nodata_value" => nodata = Some(number()?),
+                    k if KNOWN.contains(&k) => {
+                        number()?;
+                    }
+                    k => warnings.push(format!("unknown header key `{k}` ignored")),
+                }
+            }
+            body += line.len();
+        }
+        let (Some(nx), Some(ny)) = (ncols, nrows) else {
+            return Err(format!(
+                "header lacks {}",
+                match (ncols, nrows) {
+                    (None, None) => "ncols and nrows",
+                    (None, _) => "ncols",
+                    _ => "nrows",
+                }
+            ));
+        };
+        Ok(Header {
+            nx,
+            ny,
+            nodata,
+            body,
+            warnings,
+        })
+    }
+}
+
+/// The text of `bytes` without a byte-order mark (some Windows editors
+/// start UTF-8 files with one).
+fn text(bytes: &[u8]) -> std::result::Result<&str, String> {
+    let text = std::str::from_utf8(bytes).map_err(|_| "not a text file".to_string())?;
+    Ok(text.strip_prefix('\u{feff}').unwrap_or(text))
+}
+
+/// The `(ny, nx)` of a grid from its header (super::read_shape).
+pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
+    let (prefix, whole) = read_prefix(path)?;
+    let h = // whole lines: a prefix never ends inside a character
+    text(whole_lines(&prefix, whole))
+        .and_then(Header::parse)
+        .map_err(|reason| Error::format(path, format!("ESRI ASCII grid: {reason}")))?;
+    Ok((h.ny, h.nx))
+}
+
 pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let bytes = read_bytes(path)?;
     let bad = |reason: String| Error::format(path, format!("ESRI ASCII grid: {reason}"));
-    let text = std::str::from_utf8(&bytes).map_err(|_| bad("not a text file".into()))?;
-    // some Windows editors start UTF-8 files with a byte-order mark
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let text = text(&bytes).map_err(bad)?;
     let mut info = ReadInfo::new(ImageFormat::Asc, "text");
-
-    // Header: lines whose first token is a key (starts with a letter).
-    let mut lines = text.lines().peekable();
-    let (mut ncols, mut nrows, mut nodata) = (None, None, None);
-    while let Some(line) = lines.peek() {
-        let mut parts = line.split_whitespace();
-        let Some(key) = parts.next() else {
-            lines.next();
-            continue;
-        };
-        if !key.starts_with(|c: char| c.is_ascii_alphabetic()) || key.parse::<f64>().is_ok() {
-            break;
-        }
-        let key = key.to_ascii_lowercase();
-        let value = parts.next().unwrap_or("");
-        let number = || {
-            value
-                .parse::<f64>()
-                .map_err(|_| bad(format!("header `{key}` has no numeric value")))
-        };
-        match key.as_str() {
-            "ncols" | "nrows" => {
-                let n: usize = value
-                    .parse()
-                    .map_err(|_| bad(format!("header `{key}` is not a count: `{value}`")))?;
-                if key == "ncols" {
-                    ncols = Some(n)
-                } else {
-                    nrows = Some(n)
-                }
-            }
-            "nodata_value" => nodata = Some(number()?),
-            k if KNOWN.contains(&k) => {
-                number()?;
-            }
-            k => info
-                .warnings
-                .push(format!("unknown header key `{k}` ignored")),
-        }
-        lines.next();
-    }
-    let (Some(nx), Some(ny)) = (ncols, nrows) else {
-        return Err(bad(format!(
-            "header lacks {}",
-            match (ncols, nrows) {
-                (None, None) => "ncols and nrows",
-                (None, _) => "ncols",
-                _ => "nrows",
-            }
-        )));
-    };
+    let Header {
+        nx,
+        ny,
+        nodata,
+        body,
+        warnings,
+    } = Header::parse(text).map_err(bad)?;
+    info.warnings = warnings;
+    let lines = text[body..].lines();
     if nx == 0 || ny == 0 {
         return Err(bad(format!("empty image ({ny} x {nx})")));
     }

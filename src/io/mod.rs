@@ -145,6 +145,36 @@ pub fn read_field_with_info(path: &Path) -> Result<(Field, ReadInfo)> {
     Ok((field, info))
 }
 
+/// The size `[ny, nx]` of an image from its header alone, without decoding
+/// its values: for what depends only on the sizes (a fit range), checked
+/// before a long ensemble is read. The same size [`read_field`] gives.
+///
+/// **Errors** as [`read_field`] on a missing file, an unknown format, a
+/// corrupt or unsupported header, an empty or too large image; a file
+/// whose values are corrupt passes here and fails in [`read_field`].
+pub fn read_shape(path: &Path) -> Result<[usize; 2]> {
+    let Some(format) = ImageFormat::from_path(path) else {
+        return Err(Error::format(
+            path,
+            format!(
+                "unknown image format `{}` (supported: {SUPPORTED_READ})",
+                extension(path)
+            ),
+        ));
+    };
+    let (ny, nx) = match format {
+        ImageFormat::Npy => npy::shape(path)?,
+        ImageFormat::Tiff => tiff::shape(path)?,
+        ImageFormat::Png => png::shape(path)?,
+        ImageFormat::Pgm => pgm::shape(path)?,
+        ImageFormat::Asc => asc::shape(path)?,
+    };
+    if ny == 0 || nx == 0 {
+        return Err(Error::format(path, format!("empty image ({ny} x {nx})")));
+    }
+    Ok([ny, nx])
+}
+
 /// Writes a field, choosing the format from the extension: `.npy` (float64),
 /// `.tif`/`.tiff` (float32) or `.png` (16-bit + sidecar JSON, see
 /// [`write_png16`]). Masked pixels are written as NaN (or the PNG nodata).
@@ -241,6 +271,41 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>> {
         path: path.into(),
         source,
     })
+}
+
+/// The first bytes of a file, at most [`HEADER_PREFIX`] (all of a shorter
+/// file), and whether they are the whole file; errors as [`read_bytes`].
+fn read_prefix(path: &Path) -> Result<(Vec<u8>, bool)> {
+    use std::io::Read;
+    let err = |source| Error::Read {
+        path: path.into(),
+        source,
+    };
+    let file = std::fs::File::open(path).map_err(err)?;
+    let mut bytes = Vec::new();
+    file.take(HEADER_PREFIX as u64 + 1)
+        .read_to_end(&mut bytes)
+        .map_err(err)?;
+    let whole = bytes.len() <= HEADER_PREFIX;
+    bytes.truncate(HEADER_PREFIX);
+    Ok((bytes, whole))
+}
+
+/// How much of a file [`read_shape`] reads for a text header (`.npy`,
+/// `.pgm`, `.asc`): far more than any real header.
+const HEADER_PREFIX: usize = 1 << 16;
+
+/// `bytes` up to the end of their last line (after the last `\n`) unless
+/// they are the `whole` file, so that a header read from a prefix never
+/// ends in a token the prefix cut short.
+fn whole_lines(bytes: &[u8], whole: bool) -> &[u8] {
+    if whole {
+        return bytes;
+    }
+    match bytes.iter().rposition(|&b| b == b'\n') {
+        Some(i) => &bytes[..=i],
+        None => &[],
+    }
 }
 
 /// The most pixels a compressed image (PNG, TIFF) may declare: 2^28, a

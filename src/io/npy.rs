@@ -5,7 +5,7 @@ use std::path::Path;
 
 use ndarray::{Array2, ShapeBuilder};
 
-use super::{ImageFormat, ReadInfo, read_bytes};
+use super::{ImageFormat, ReadInfo, read_bytes, read_prefix};
 use crate::error::{Error, Result};
 use crate::field::Field;
 
@@ -15,15 +15,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let bytes = read_bytes(path)?;
     let bad = |reason: String| Error::format(path, format!("npy: {reason}"));
     let header = Header::parse(&bytes).map_err(bad)?;
-    let Some((ny, nx)) = header.shape2() else {
-        return Err(bad(format!(
-            "expected a 2D array, got shape {}",
-            header.shape_str()
-        )));
-    };
-    if ny == 0 || nx == 0 {
-        return Err(bad(format!("empty image (shape ({ny}, {nx}))")));
-    }
+    let (ny, nx) = header.image_shape().map_err(bad)?;
     let dtype = Dtype::parse(&header.descr).map_err(bad)?;
     let n = ny
         .checked_mul(nx)
@@ -55,6 +47,21 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
         ));
     }
     Ok((Field::new(array), info))
+}
+
+/// The `(ny, nx)` of a `.npy` from its header (super::read_shape): the
+/// checks of [`read`] that need no data.
+pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
+    let bad = |reason: String| Error::format(path, format!("npy: {reason}"));
+    let (prefix, whole) = read_prefix(path)?;
+    let header = match Header::parse(&prefix) {
+        // a header longer than the prefix (format 2 allows 4 GiB)
+        Err(_) if !whole => Header::parse(&read_bytes(path)?),
+        h => h,
+    }
+    .map_err(bad)?;
+    Dtype::parse(&header.descr).map_err(bad)?;
+    header.image_shape().map_err(bad)
 }
 
 struct Header {
@@ -125,6 +132,20 @@ impl Header {
             shape,
             data_start: end,
         })
+    }
+
+    /// `(ny, nx)` of a 2D array with no empty axis.
+    fn image_shape(&self) -> std::result::Result<(usize, usize), String> {
+        let Some((ny, nx)) = self.shape2() else {
+            return Err(format!(
+                "expected a 2D array, got shape {}",
+                self.shape_str()
+            ));
+        };
+        if ny == 0 || nx == 0 {
+            return Err(format!("empty image (shape ({ny}, {nx}))"));
+        }
+        Ok((ny, nx))
     }
 
     fn shape2(&self) -> Option<(usize, usize)> {

@@ -3,41 +3,82 @@
 
 use std::path::Path;
 
-use super::{ImageFormat, ReadInfo, field_from, read_bytes};
+use super::{ImageFormat, ReadInfo, field_from, read_bytes, read_prefix, whole_lines};
 use crate::error::{Error, Result};
 use crate::field::Field;
+
+/// A PGM header: raster format, size, maxval, and where the tokens after
+/// maxval start.
+struct Header {
+    binary: bool,
+    nx: u64,
+    ny: u64,
+    maxval: u64,
+    end: usize,
+}
+
+impl Header {
+    fn parse(bytes: &[u8]) -> std::result::Result<Header, String> {
+        let mut t = Tokens { b: bytes, i: 0 };
+        let magic = t.next().ok_or("empty file")?;
+        let binary = match magic {
+            b"P5" => true,
+            b"P2" => false,
+            b"P1" | b"P4" => return Err("bitmap (PBM) file; need a P2 or P5 greymap".into()),
+            b"P3" | b"P6" => return Err("colour (PPM) file; need a P2 or P5 greymap".into()),
+            b"P7" => return Err("PAM file; need a P2 or P5 greymap".into()),
+            _ => return Err("not a PGM file (bad magic number)".into()),
+        };
+        let mut header = |what: &str| -> std::result::Result<u64, String> {
+            let tok = t
+                .next()
+                .ok_or_else(|| format!("truncated header (no {what})"))?;
+            std::str::from_utf8(tok)
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .ok_or_else(|| format!("bad {what} in header"))
+        };
+        let nx = header("width")?;
+        let ny = header("height")?;
+        let maxval = header("maxval")?;
+        if !(1..=65535).contains(&maxval) {
+            return Err(format!("maxval {maxval} outside 1..=65535"));
+        }
+        if nx == 0 || ny == 0 {
+            return Err(format!("empty image ({ny} x {nx})"));
+        }
+        Ok(Header {
+            binary,
+            nx,
+            ny,
+            maxval,
+            end: t.i,
+        })
+    }
+}
+
+/// The `(ny, nx)` of a PGM from its header (super::read_shape).
+pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
+    let (prefix, whole) = read_prefix(path)?;
+    let h = Header::parse(whole_lines(&prefix, whole))
+        .map_err(|reason| Error::format(path, format!("PGM: {reason}")))?;
+    let size = |n: u64| {
+        usize::try_from(n).map_err(|_| Error::format(path, format!("PGM: size {n} is too large")))
+    };
+    Ok((size(h.ny)?, size(h.nx)?))
+}
 
 pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let bytes = read_bytes(path)?;
     let bad = |reason: String| Error::format(path, format!("PGM: {reason}"));
-    let mut t = Tokens { b: &bytes, i: 0 };
-    let magic = t.next().ok_or_else(|| bad("empty file".into()))?;
-    let binary = match magic {
-        b"P5" => true,
-        b"P2" => false,
-        b"P1" | b"P4" => return Err(bad("bitmap (PBM) file; need a P2 or P5 greymap".into())),
-        b"P3" | b"P6" => return Err(bad("colour (PPM) file; need a P2 or P5 greymap".into())),
-        b"P7" => return Err(bad("PAM file; need a P2 or P5 greymap".into())),
-        _ => return Err(bad("not a PGM file (bad magic number)".into())),
-    };
-    let mut header = |what: &str| -> Result<u64> {
-        let tok = t
-            .next()
-            .ok_or_else(|| bad(format!("truncated header (no {what})")))?;
-        std::str::from_utf8(tok)
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .ok_or_else(|| bad(format!("bad {what} in header")))
-    };
-    let nx = header("width")?;
-    let ny = header("height")?;
-    let maxval = header("maxval")?;
-    if !(1..=65535).contains(&maxval) {
-        return Err(bad(format!("maxval {maxval} outside 1..=65535")));
-    }
-    if nx == 0 || ny == 0 {
-        return Err(bad(format!("empty image ({ny} x {nx})")));
-    }
+    let Header {
+        binary,
+        nx,
+        ny,
+        maxval,
+        end,
+    } = Header::parse(&bytes).map_err(bad)?;
+    let mut t = Tokens { b: &bytes, i: end };
     let n = usize::try_from(nx)
         .ok()
         .zip(usize::try_from(ny).ok())

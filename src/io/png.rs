@@ -39,6 +39,42 @@ pub struct Png16Mapping {
     pub max: Option<f64>,
 }
 
+/// The `(ny, nx)` of a PNG from its IHDR chunk (super::read_shape).
+pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
+    let file = std::fs::File::open(path).map_err(|source| Error::Read {
+        path: path.into(),
+        source,
+    })?;
+    let bad = |reason: String| Error::format(path, format!("PNG: {reason}"));
+    let mut head = Vec::with_capacity(24);
+    std::io::Read::read_to_end(&mut std::io::Read::take(file, 24), &mut head).map_err(
+        |source| Error::Read {
+            path: path.into(),
+            source,
+        },
+    )?;
+    // the signature, then IHDR first (PNG spec 5.2, 5.6)
+    if head.is_empty() {
+        return Err(bad("empty file (0 bytes)".into()));
+    }
+    if head.len() < 24 || head[..8] != PNG_SIGNATURE || &head[12..16] != b"IHDR" {
+        return Err(bad(
+            "corrupt or unsupported: not a PNG file (no PNG signature and IHDR chunk)".into(),
+        ));
+    }
+    let be =
+        |i: usize| u32::from_be_bytes([head[i], head[i + 1], head[i + 2], head[i + 3]]) as usize;
+    let (nx, ny) = (be(16), be(20));
+    if nx == 0 || ny == 0 {
+        return Err(bad(format!("empty image ({ny} x {nx})")));
+    }
+    check_pixels(path, ny, nx)?;
+    Ok((ny, nx))
+}
+
+/// The eight bytes every PNG file starts with.
+const PNG_SIGNATURE: [u8; 8] = [137, 80, 78, 71, 13, 10, 26, 10];
+
 pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let bytes = read_bytes(path)?;
     let bad = |reason: String| Error::format(path, format!("PNG: {reason}"));

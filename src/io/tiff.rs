@@ -17,6 +17,23 @@ use crate::field::Field;
 /// fails cleanly instead of exhausting memory.
 const MAX_DECODE_BYTES: usize = 1 << 30;
 
+/// The `(ny, nx)` of a TIFF from its first image directory
+/// (super::read_shape): the decoder reads the header and the directory,
+/// not the strips.
+pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
+    let file = std::fs::File::open(path).map_err(|source| Error::Read {
+        path: path.into(),
+        source,
+    })?;
+    let tiff_err =
+        |e: tiff::TiffError| Error::format(path, format!("TIFF: corrupt or unsupported: {e}"));
+    let mut dec = Decoder::new(std::io::BufReader::new(file)).map_err(tiff_err)?;
+    let (w, h) = dec.dimensions().map_err(tiff_err)?;
+    let (nx, ny) = (w as usize, h as usize);
+    check_pixels(path, ny, nx)?;
+    Ok((ny, nx))
+}
+
 pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let mut bytes = read_bytes(path)?;
     // The decoder inverts WhiteIsZero samples (255 - v, 1 - v for floats,

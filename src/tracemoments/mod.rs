@@ -382,6 +382,26 @@ impl TraceMomentFitConfig {
         Ok((lo, hi))
     }
 
+    /// The `log2` lag range of the structure functions on images whose
+    /// coarsest box level is `kmax` and which hold `nj` lags (`1, 2, ..,
+    /// 2^(nj-1)` px; [`sf_lags`]): the given range or `[1, max(kmax - 3,
+    /// 2)]` (lags of 2 px to L/8).
+    ///
+    /// **Errors** on a given range beyond the lags.
+    pub fn lag_range(&self, kmax: usize, nj: usize) -> Result<(f64, f64)> {
+        let (llo, lhi) = self.log2_lag.unwrap_or((1.0, (kmax as f64 - 3.0).max(2.0)));
+        if self.log2_lag.is_some() && (llo < -1e-9 || lhi > (nj as f64 - 1.0) + 1e-9) {
+            return Err(Error::param(
+                "lag-fit",
+                format!(
+                    "[{llo}, {lhi}] goes beyond the lags: log2 of the lag runs from 0 to {}",
+                    nj as f64 - 1.0
+                ),
+            ));
+        }
+        Ok((llo, lhi))
+    }
+
     /// **Errors** naming the setting: every range `LO < HI` and finite,
     /// η and wavenumbers > 0 (wavenumbers up to π rad/px, the Nyquist
     /// wavenumber), `q_fit_max` finite and > 0.
@@ -756,8 +776,7 @@ impl TraceMomentAccumulator {
         let in_tile = |y: usize, x: usize| {
             tile.is_none_or(|(y0, y1, x0, x1)| (y0..y1).contains(&y) && (x0..x1).contains(&x))
         };
-        let mut j = 0;
-        while (1usize << j) * 4 <= ny.min(nx) {
+        for j in 0..sf_lags(ny.min(nx)) {
             let l = 1usize << j;
             let mut logs = Vec::with_capacity(2 * ny * nx);
             for y in 0..ny {
@@ -784,7 +803,6 @@ impl TraceMomentAccumulator {
             for (iq, &q) in self.config.sf_q.iter().enumerate() {
                 self.sf[iq][j].add_powers(&logs, lmax, q);
             }
-            j += 1;
         }
     }
 
@@ -1041,16 +1059,7 @@ impl TraceMomentAccumulator {
         // structure functions
         let nj = self.sf_count.len();
         let log2_lag: Vec<f64> = (0..nj).map(|j| j as f64).collect();
-        let (llo, lhi) = fc.log2_lag.unwrap_or((1.0, (kmax - 3.0).max(2.0)));
-        if fc.log2_lag.is_some() && (llo < -1e-9 || lhi > (nj as f64 - 1.0) + 1e-9) {
-            return Err(Error::param(
-                "lag-fit",
-                format!(
-                    "[{llo}, {lhi}] goes beyond the lags: log2 of the lag runs from 0 to {}",
-                    nj as f64 - 1.0
-                ),
-            ));
-        }
+        let (llo, lhi) = fc.lag_range(kmax as usize, nj)?;
         let mut log2_sf = Vec::new();
         let (mut xi, mut xi_se) = (Vec::new(), Vec::new());
         for (iq, _) in self.config.sf_q.iter().enumerate() {
@@ -1529,17 +1538,9 @@ fn replicate_fit(
     let kmax = whole.box_count.len().saturating_sub(1);
     let (lo, hi) = res.fit_log2_lambda;
     let d = kmax.saturating_sub(rep.box_count.len().saturating_sub(1)) as f64;
-    if lo - d < -1e-9 {
-        return Err(Error::param(
-            "lambda-fit",
-            format!(
-                "the fit reaches boxes of {} px, which only {left_out} holds, so a jackknife \
-                 cannot leave it out: fit from log2 λ = {d} (boxes of at most {} px) or analyse \
-                 images of one size",
-                (kmax as f64 - lo).exp2(),
-                (kmax as f64 - d).exp2()
-            ),
-        ));
+    lone_box_check(kmax, lo, d, left_out)?;
+    if !res.log2_lag.is_empty() {
+        lone_lag_check(res.fit_log2_lag.1, rep.sf_count.len(), left_out)?;
     }
     Ok(TraceMomentFitConfig {
         log2_lambda: Some((lo - d, hi - d)),
@@ -1970,7 +1971,14 @@ fn gls_refit(
         .collect();
     let mut lu = Vec::with_capacity(n);
     for (r, inn) in loo.iter().zip(inner) {
-        let inn = inn?;
+        let inn = match inn {
+            // two parts left out may take every box of the fitted range
+            // (replicate_fit): the plain jackknife stands, unweighted
+            Err(Error::Param { .. }) => {
+                return fallback(res, "a nested jackknife sample lacks the fitted boxes");
+            }
+            inn => inn?,
+        };
         let x = gls_weights(&inn, &idx).ok().and_then(|(wi, _)| fit(r, &wi));
         match x {
             Some(x) => lu.push(x),
@@ -2109,6 +2117,93 @@ pub fn analyze(
     let mut acc = TraceMomentAccumulator::new(config)?;
     acc.add_field(field)?;
     acc.finish(fit)
+}
+
+/// Checks fit settings against the sizes `[ny, nx]` of the images of an
+/// ensemble, before any moment is computed (from headers:
+/// [`crate::io::read_shape`]): what [`finish_ensemble`] would refuse
+/// after every image had been read. An explicit `log2 λ` range must lie
+/// within the boxes ([`TraceMomentFitConfig::lambda_range`]), an
+/// explicit lag range within the lags ([`TraceMomentFitConfig::lag_range`]),
+/// and, for the jackknife over the images, the largest fitted box and the
+/// largest fitted lag must be held by two images or more (as
+/// [`finish_jackknife`]'s replicates need). A
+/// default range on images too small for it is left to the moments, which
+/// name the image.
+///
+/// **Errors** as [`TraceMomentFitConfig::validate`],
+/// [`TraceMomentFitConfig::lambda_range`] and
+/// [`TraceMomentFitConfig::lag_range`], and on a fitted box or lag that
+/// only one image holds.
+pub fn check_ensemble_fit(fc: &TraceMomentFitConfig, shapes: &[[usize; 2]]) -> Result<()> {
+    fc.validate()?;
+    let mut levels: Vec<usize> = shapes.iter().map(|s| box_levels(s[0].min(s[1]))).collect();
+    levels.sort_unstable_by(|a, b| b.cmp(a));
+    let Some(&kmax) = levels.first() else {
+        return Ok(());
+    };
+    let lo = match fc.lambda_range(kmax) {
+        Ok((lo, _)) => lo,
+        Err(e) if fc.log2_lambda.is_some() => return Err(e),
+        Err(_) => return Ok(()),
+    };
+    let (_, lag_hi) = fc.lag_range(kmax, sf_lags_of(kmax))?;
+    match levels.get(1) {
+        Some(&next) => {
+            lone_box_check(kmax, lo, (kmax - next) as f64, "one image")?;
+            lone_lag_check(lag_hi, sf_lags_of(next), "one image")
+        }
+        None => Ok(()),
+    }
+}
+
+/// [`sf_lags`] from the box level `kmax` of a side.
+fn sf_lags_of(kmax: usize) -> usize {
+    kmax.saturating_sub(1)
+}
+
+/// The error of a jackknife replicate that lacks the `d` coarsest box
+/// levels of an ensemble whose range starts at `lo` (log2 λ, boxes of
+/// `2^(kmax - lo)` px): only `holder` has the boxes it fits.
+fn lone_box_check(kmax: usize, lo: f64, d: f64, holder: &str) -> Result<()> {
+    if lo - d < -1e-9 {
+        return Err(Error::param(
+            "lambda-fit",
+            format!(
+                "the fit reaches boxes of {} px, which only {holder} holds, so a jackknife \
+                 cannot leave it out: fit from log2 λ = {d} (boxes of at most {} px) or analyse \
+                 images of one size",
+                (kmax as f64 - lo).exp2(),
+                (kmax as f64 - d).exp2()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The error of a jackknife replicate that holds `nj` lags when the
+/// structure functions are fitted up to `log2 l = hi`: only `holder` has
+/// the lags it fits.
+fn lone_lag_check(hi: f64, nj: usize, holder: &str) -> Result<()> {
+    if hi > nj as f64 - 1.0 + 1e-9 {
+        return Err(Error::param(
+            "lag-fit",
+            format!(
+                "the structure functions are fitted up to lags of {} px, which only {holder} \
+                 holds, so a jackknife cannot leave it out: fit lags up to log2 l = {} \
+                 (--lag-fit) or analyse images of one size",
+                hi.exp2(),
+                nj as f64 - 1.0
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The number of structure-function lags `1, 2, .., 2^(n-1)` px of fields
+/// whose smaller side is `side` px: lags up to a quarter of the side.
+pub fn sf_lags(side: usize) -> usize {
+    sf_lags_of(box_levels(side))
 }
 
 /// The coarsest box level `kmax = floor(log2 side)` of fields whose
@@ -2264,5 +2359,80 @@ mod tests {
         };
         let e = analyze_tiled(&[wide, big], &cfg, &fc7).unwrap_err();
         assert!(e.to_string().contains("runs from 0 to 6"), "{e}");
+    }
+
+    /// The check from the sizes alone refuses exactly the fits that
+    /// [`finish_ensemble`] refuses after the moments, with the same reason.
+    #[test]
+    fn ensemble_fit_is_checked_from_the_sizes() {
+        let cfg = TraceMomentConfig::default();
+        let field = |side: usize, i: u64| {
+            let p = crate::synth::fbm::FbmParams { hurst: 0.5 };
+            Field::new(crate::synth::fbm::fbm(p, side, side, 7, i).unwrap())
+        };
+        let mut refused = 0;
+        for sides in [
+            vec![64, 64, 64],
+            vec![64, 64, 128],
+            vec![32, 32, 128],
+            vec![32, 128, 128],
+            vec![16, 16, 16, 16, 16, 128],
+        ] {
+            let parts: Vec<TraceMomentAccumulator> = sides
+                .iter()
+                .enumerate()
+                .map(|(i, &n)| {
+                    let mut a = TraceMomentAccumulator::new(cfg.clone()).unwrap();
+                    a.add_field(&field(n, i as u64)).unwrap();
+                    a
+                })
+                .collect();
+            let shapes: Vec<[usize; 2]> = sides.iter().map(|&n| [n, n]).collect();
+            let ranges = [None, Some((0.0, 4.0)), Some((1.0, 5.0)), Some((2.0, 5.0))];
+            let lags = [None, Some((1.0, 2.0)), Some((0.0, 5.0))];
+            for (range, lag) in ranges.into_iter().flat_map(|r| lags.map(|l| (r, l))) {
+                for universal in [UniversalWeighting::Ols, UniversalWeighting::Gls] {
+                    let fc = TraceMomentFitConfig {
+                        log2_lambda: range,
+                        log2_lag: lag,
+                        universal,
+                        ..Default::default()
+                    };
+                    let early = check_ensemble_fit(&fc, &shapes);
+                    let late = finish_ensemble(&parts, &fc);
+                    let what = format!("{sides:?} {range:?} {lag:?} {universal:?}");
+                    match (early, late) {
+                        (Ok(()), Ok(_)) => {}
+                        (Err(e), Err(l)) => {
+                            refused += 1;
+                            let (e, l) = (e.to_string(), l.to_string());
+                            // the same reason (the late one names the part)
+                            let tail = |m: &str| m.split(" holds").last().unwrap().to_string();
+                            assert_eq!(tail(&e), tail(&l), "{what}: {e} / {l}");
+                        }
+                        (e, l) => panic!("{what}: early {e:?}, late {:?}", l.err()),
+                    }
+                }
+            }
+        }
+        // lone largest boxes (64 px of 128 under the default range, and
+        // explicit ranges from 0 or 1 with 32-px neighbours), lone lags
+        // (16 px under the default lag range beside 32-px images, whose
+        // lags end at 8 px) and ranges beyond the data are among them;
+        // lags up to 4 px pass there
+        assert!(refused >= 8, "{refused}");
+        let fc = |lag| TraceMomentFitConfig {
+            log2_lambda: Some((2.0, 5.0)),
+            log2_lag: lag,
+            ..Default::default()
+        };
+        let mixed = [[32, 32], [32, 32], [128, 128]];
+        let e = check_ensemble_fit(&fc(None), &mixed).unwrap_err();
+        assert!(e.to_string().contains("lags of 16 px"), "{e}");
+        assert!(check_ensemble_fit(&fc(Some((1.0, 2.0))), &mixed).is_ok());
+        let e = check_ensemble_fit(&fc(Some((0.0, 6.0))), &mixed).unwrap_err();
+        assert!(e.to_string().contains("goes beyond the lags"), "{e}");
+        // no size, nothing to check; a bad range still is
+        assert!(check_ensemble_fit(&TraceMomentFitConfig::default(), &[]).is_ok());
     }
 }
