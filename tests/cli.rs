@@ -772,6 +772,39 @@ fn fif_model_in_synth_and_theory() {
     let a = std::fs::read(out.join("fif_0000.npy")).unwrap();
     let b = std::fs::read(out2.join("fif_0000.npy")).unwrap();
     assert_eq!(a, b);
+    // MODEL may name the preset's model (SPEC §13 `synth MODEL [model
+    // options]`, --preset among them): the same image; another model, or
+    // an option the preset fixes, is refused naming the flag
+    let out3 = dir.join("s3");
+    let o3 = out3.to_str().unwrap();
+    let (code, err) = run_bin_stderr(&[
+        "synth", "fif", "--preset", "topo-fif", "--size", "64", "--out", o3,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(std::fs::read(out3.join("fif_0000.npy")).unwrap(), a);
+    let x = dir.join("x3").display().to_string();
+    for (args, word) in [
+        (
+            vec!["fbm", "--preset", "topo-fif"],
+            "topo-fif is a fif preset, not a fbm one",
+        ),
+        (
+            vec!["fif", "--preset", "topo-fif", "--c1", "0.1"],
+            "`c1`: --preset topo-fif fixes",
+        ),
+        (
+            vec!["--preset", "paper-lognormal", "--basis", "haar"],
+            "`basis`",
+        ),
+    ] {
+        let mut a = vec!["synth"];
+        a.extend(args);
+        a.extend(["--size", "64", "--out", &x]);
+        let (code, err) = run_bin_stderr(&a);
+        assert_eq!(code, 2, "{a:?}");
+        assert!(err.contains(word), "{a:?}: {err}");
+        assert!(!Path::new(&x).exists());
+    }
     // missing option: named error, exit 2
     assert_eq!(
         run(&[
@@ -1184,6 +1217,97 @@ fn kernel_refuses_scales_without_wtmmm() {
     assert_eq!(code, 0, "{err}");
     assert!(err.contains("WTMMM at the largest fitted scales"), "{err}");
     assert!(err.contains("of its standard error"), "{err}");
+}
+
+/// Review findings on the statistics commands: a FIF theory with alpha <= 1
+/// (infinite h(q=0)) rescales the pdfs by the data's h0 instead of failing
+/// on a flag never given; a model named where a file goes is said to be
+/// one; missing pixels are recorded and said; a kernel reference scale above
+/// the fit range is warned about.
+#[test]
+fn stats_commands_say_what_they_did() {
+    let dir = scratch("stats_say");
+    let out = dir.join("o");
+    let o = out.display().to_string();
+    let fif = [
+        "pdf",
+        "--theory",
+        "fif",
+        "--alpha",
+        "0.8",
+        "--c1",
+        "0.1",
+        "--hurst",
+        "0.5",
+        "--count",
+        "2",
+        "--size",
+        "128",
+        "--octaves",
+        "3",
+        "--out",
+        &o,
+    ];
+    let (code, err) = run_bin_stderr(&fif);
+    assert_eq!(code, 0, "{err}");
+    let h0 = &json(&out.join("pdf.json"))["h0"];
+    assert_eq!(h0["value"], h0["estimate_from_data"], "{h0}");
+    assert!(
+        h0["source"].as_str().unwrap().contains("not finite"),
+        "{h0}"
+    );
+    std::fs::remove_dir_all(&out).unwrap();
+    for cmd in ["pdf", "kernel", "correlate"] {
+        let (code, err) = run_bin_stderr(&[cmd, "wcascade", "--out", &o]);
+        assert_eq!(code, 2, "{err}");
+        assert!(
+            err.contains("is a model, not a file") && err.contains("--theory wcascade"),
+            "{err}"
+        );
+        assert!(!out.exists());
+    }
+    // a 16 x 16 hole in a 128^2 fBm, analysed as a torus
+    let mut f = fbm(FbmParams { hurst: 0.4 }, 128, 128, 3, 0).unwrap();
+    f.slice_mut(ndarray::s![40..56, 60..76]).fill(f64::NAN);
+    let holed = dir.join("holed.npy");
+    write_npy(&holed, &f).unwrap();
+    let h = holed.display().to_string();
+    for cmd in ["pdf", "kernel", "correlate"] {
+        let o = dir.join(cmd).display().to_string();
+        let mut a = vec![cmd, &h, "--octaves", "3", "--domain", "torus", "--out", &o];
+        if cmd == "kernel" {
+            a.extend(["--fit", "0.5:2", "--refs", "1,2.5"]);
+        }
+        let (code, err) = run_bin_stderr(&a);
+        assert_eq!(code, 0, "{cmd}: {err}");
+        assert!(
+            err.contains(
+                "1 of the 1 image(s) have missing pixels (NaN, inf or nodata; 256 in all)"
+            ),
+            "{cmd}: {err}"
+        );
+        let j = json(&Path::new(&o).join(format!(
+            "{}.json",
+            if cmd == "correlate" {
+                "correlation"
+            } else {
+                cmd
+            }
+        )));
+        assert_eq!(
+            j["params"]["input"]["missing_pixels"]["pixels"], 256,
+            "{cmd}"
+        );
+        if cmd == "kernel" {
+            assert!(
+                err.contains("[2.5] octaves lie above the fit range 0.5:2"),
+                "{err}"
+            );
+        }
+        if cmd == "correlate" {
+            assert_eq!(j["params"]["correlation_margin_px"], 0);
+        }
+    }
 }
 
 /// `pdf` and `kernel` name the input and the cause: a 10x10 image (just

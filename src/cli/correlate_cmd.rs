@@ -308,8 +308,13 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     } else {
         None
     };
-    let cwt_res = sums.cwt.as_ref().map(correlation_estimates).transpose()?;
-    let sk_res = sums.wtmmm.as_ref().map(correlation_estimates).transpose()?;
+    let mut cwt_res = sums.cwt.as_ref().map(correlation_estimates).transpose()?;
+    let mut sk_res = sums.wtmmm.as_ref().map(correlation_estimates).transpose()?;
+    if let Some(w) = input.holes.warning(input.len(), "the correlations") {
+        for r in cwt_res.iter_mut().chain(sk_res.iter_mut()) {
+            r.warnings.push(w.clone());
+        }
+    }
     let side = if input.generated() {
         input.size as f64
     } else {
@@ -320,6 +325,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let l = args.integral_scale.unwrap_or(side);
     make_out_dir(&args.out.out)?;
     let params = json!({"input": input.params_json(), "analysis": super::common::analysis_json(&cfg), "correlation": ccfg,
+        "correlation_margin_px": ccfg.margin_px(),
         "pairs_octaves": pairs_oct, "source": format!("{:?}", args.source).to_lowercase(),
         "set": args.set, "integral_scale": l});
     let body = write_correlation_outputs(

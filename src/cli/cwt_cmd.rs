@@ -22,6 +22,7 @@ pub struct CwtArgs {
     /// Scales in pixels: `a,b,c` or `start:stop:step`.
     #[arg(long, default_value = "2,4,8,16")]
     pub scales: String,
+    /// Analysing wavelet (gauss: 1 vanishing moment; mexican: 3).
     #[arg(long, value_enum, default_value_t = Wavelet::Gauss)]
     pub wavelet: Wavelet,
     #[command(flatten)]

@@ -47,8 +47,8 @@ pub struct KernelArgs {
     #[arg(long, value_enum, default_value = "lines")]
     pub set: WtmmmSet,
     /// Reference scales a' of the C_n(a, a') tables, octaves above a_min (II
-    /// Fig 26) [default: 0.5,1,1.5,2,2.5,3,3.5, those above the fit's lower
-    /// end and within --octaves: 1..3.5 with the default fit 0.5:4].
+    /// Fig 26) [default: 0.5,1,1.5,2,2.5,3,3.5, those inside the fit range
+    /// above its lower end: 1..3.5 with the default fit 0.5:4].
     #[arg(long)]
     pub refs: Option<String>,
     /// Pairs a:a' of the kernel curves, octaves above a_min, comma-separated
@@ -358,6 +358,9 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         .map(|g| kernel_estimates(g, &kopts))
         .transpose()?;
     let rj = scales_at(&scales, &rec);
+    if let Some(w) = input.holes.warning(input.len(), "the WTMMM counted") {
+        main.warnings.push(w);
+    }
     let mut c = main.cumulants.values().to_vec();
     if c[1] < 0.0 {
         // a kernel with c2 < 0 is no density (reconstruct refuses it); the

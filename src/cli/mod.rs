@@ -86,6 +86,8 @@ pub enum Command {
     /// Trace moments K(q), universal alpha and C1, double trace moments, H.
     Tm(tm_cmd::TmArgs),
     /// WTMM against trace moments on one generated ensemble, both against the theory.
+    ///
+    /// q = 1 and 2 join any --q grid: H = tau(1) + 2 and beta = tau(2) + 4 need them.
     Compare(Box<compare_cmd::CompareArgs>),
     /// Pdfs of the WTMMM modulus and argument per scale (II Figs 11-14, 17-20).
     Pdf(pdf_cmd::PdfArgs),
@@ -98,8 +100,9 @@ pub enum Command {
 /// Wavelet and scale-grid options shared by the analysis commands.
 #[derive(Args, Debug, Clone)]
 pub struct CwtOpts {
-    /// Analysing wavelet (gauss: 1 vanishing moment; mexican: 3) [default: gauss, or the
-    /// wavelet of the paper's results for a --preset or --theory model, e.g. mexican for FISC].
+    /// Analysing wavelet (gauss: 1 vanishing moment; mexican: 3) [default: gauss; where a
+    /// command takes a model (--preset, --theory, MODEL), the wavelet of the paper's
+    /// results for it, e.g. mexican for FISC].
     #[arg(long, value_enum)]
     pub wavelet: Option<Wavelet>,
     /// Smallest scale in pixels (std of the Gaussian).
@@ -277,6 +280,12 @@ fn prepare_out(dir: &Path) -> Result<()> {
 
 fn dispatch(cli: Cli) -> Result<Outcome> {
     let (inputs, images, out) = io_of(&cli.command);
+    if let Command::Pdf(pdf_cmd::PdfArgs { input, .. })
+    | Command::Kernel(kernel_cmd::KernelArgs { input, .. })
+    | Command::Correlate(correlate_cmd::CorrelateArgs { input, .. }) = &cli.command
+    {
+        input.refuse_model_names()?;
+    }
     check_inputs(&inputs, images)?;
     let _inputs = crate::io::protect(&inputs);
     let out: Option<PathBuf> = out.map(Path::to_path_buf);

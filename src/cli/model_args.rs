@@ -41,7 +41,8 @@ pub struct ModelOpts {
     /// fif: Lévy index alpha in (0, 2] (2 = log-normal generator).
     #[arg(long, allow_hyphen_values = true)]
     pub alpha: Option<f64>,
-    /// fif: codimension of the mean C1 in [0, 2).
+    /// fif: codimension of the mean C1 in [0, 2) (`synth` needs C1 > 0: C1 = 0 is a
+    /// constant flux, a zero field).
     #[arg(long, allow_hyphen_values = true)]
     pub c1: Option<f64>,
     /// wcascade: law of the multipliers.
@@ -68,7 +69,8 @@ pub struct ModelOpts {
     /// wcascade: which detail coefficients carry the cascade (II Fig 5).
     #[arg(long, value_enum)]
     pub isotropy: Option<Isotropy>,
-    /// fisc: p-model weight p in (0, 1/2].
+    /// fisc: p-model weight p in (0, 1/2] (`synth` needs p < 1/2: p = 1/2 is a uniform
+    /// measure, a zero field).
     #[arg(long, allow_hyphen_values = true)]
     pub p: Option<f64>,
     /// fisc: fractional integration order H*.
@@ -110,10 +112,6 @@ impl ModelOpts {
         add(self.p.is_some(), "p");
         add(self.hstar.is_some(), "hstar");
         v
-    }
-
-    fn any_param(&self) -> bool {
-        !self.given().is_empty()
     }
 
     /// Refuses options that the model ignores (a `--p` given to fbm would
@@ -171,13 +169,33 @@ impl ModelOpts {
     /// missing, or a value is out of range (the message names the flag).
     pub fn resolve(&self, name: Option<ModelName>) -> Result<Resolved> {
         if let Some(p) = &self.preset {
-            if name.is_some() || self.any_param() {
+            let pr = Model::preset(p)?;
+            // MODEL may name the preset's own model (`synth wcascade --preset
+            // paper-lognormal`, as SPEC §13 reads); options may not change it
+            if let Some(f) = self.given().first() {
                 return Err(Error::param(
-                    "preset",
-                    "give either --preset or MODEL with its options, not both",
+                    *f,
+                    format!(
+                        "--preset {} fixes every model option; give MODEL with all its options \
+                         instead of the preset to change one",
+                        pr.name
+                    ),
                 ));
             }
-            let pr = Model::preset(p)?;
+            if let Some(n) = name {
+                let named = n.to_possible_value().map(|v| v.get_name().to_string());
+                if named.as_deref() != Some(pr.model.name()) {
+                    return Err(Error::param(
+                        "preset",
+                        format!(
+                            "{} is a {} preset, not a {} one: drop MODEL (the preset names it)",
+                            pr.name,
+                            pr.model.name(),
+                            named.unwrap_or_default()
+                        ),
+                    ));
+                }
+            }
             return Ok(Resolved {
                 model: pr.model,
                 preset: Some(pr.name),

@@ -116,6 +116,28 @@ impl HoleTally {
         }
     }
 
+    /// `{images, pixels}`: the images with missing pixels and their count
+    /// (recorded with the inputs; zeros when there were none).
+    pub fn json(&self) -> serde_json::Value {
+        json!({"images": self.images.load(Ordering::Relaxed),
+            "pixels": self.pixels.load(Ordering::Relaxed)})
+    }
+
+    /// A warning saying how many images had missing pixels, which leave out
+    /// of `what` every point the wavelet reaches from them; `None` without.
+    pub fn warning(&self, of: usize, what: &str) -> Option<String> {
+        let (k, n) = (
+            self.images.load(Ordering::Relaxed),
+            self.pixels.load(Ordering::Relaxed),
+        );
+        (k > 0).then(|| {
+            format!(
+                "{k} of the {of} image(s) have missing pixels (NaN, inf or nodata; {n} in all): \
+                 {what} leave out every point whose wavelet reaches one"
+            )
+        })
+    }
+
     /// What to add to a "too few maxima" message when images had holes.
     pub fn note(&self, of: usize) -> Option<String> {
         let (k, n) = (
@@ -134,13 +156,33 @@ impl HoleTally {
 }
 
 impl StatsInput {
+    /// Refuses a model name given where a file goes (`kernel wcascade ...`
+    /// as `synth wcascade ...`: here a model is named by --theory, the
+    /// positional arguments are files), before a missing file is blamed.
+    pub fn refuse_model_names(&self) -> Result<()> {
+        for p in &self.images {
+            let name = p.to_string_lossy();
+            if !p.exists() && ModelName::from_str(&name, true).is_ok() {
+                return Err(Error::param(
+                    "IMAGE",
+                    format!(
+                        "`{name}` is a model, not a file: name the model to generate or draw \
+                         with --theory {name} (with its options), or use --preset NAME"
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Checks the flags and resolves the model.
-    ///
-    /// **Errors** naming the flag: neither images nor a model, a model option
-    /// without a model, `--count 0`.
     /// `margin` is `--margin`: it must agree with `--domain` (margin 0 is
     /// the torus), and under `auto` it decides.
+    ///
+    /// **Errors** naming the flag: neither images nor a model, a model option
+    /// without a model, `--count 0`; a model name where a file goes.
     pub fn resolve(&self, margin: Option<usize>) -> Result<Input> {
+        self.refuse_model_names()?;
         let resolved = self.model.resolve_optional(self.theory)?;
         if self.images.is_empty() && resolved.is_none() {
             return Err(Error::param(
@@ -375,7 +417,8 @@ impl Input {
             json!({"generated": {"model": self.model, "name": self.name, "count": self.count,
                 "size": self.size, "seed": self.seed}, "periodic": self.periodic})
         } else {
-            json!({"images": self.images, "theory": self.model, "periodic": self.periodic})
+            json!({"images": self.images, "theory": self.model, "periodic": self.periodic,
+                "missing_pixels": self.holes.json()})
         }
     }
 }
@@ -612,9 +655,16 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let wall = t0.elapsed().as_secs_f64();
     // the estimate is also recorded when --h0 or the theory gives h0
     let mut warning = None;
+    // the theory's h(q=0) is infinite for some models (FIF with alpha <= 1,
+    // whose K(q) has no finite derivative at 0): the data's slope then
+    let theory_h0 = input
+        .model
+        .as_ref()
+        .map(|m| m.h_of_q0())
+        .filter(|h| h.is_finite());
     let h_est = match h0_from_histograms(&hist, fit, args.set) {
         Ok(h) => h,
-        Err(e) if args.h0.is_none() && input.model.is_none() => {
+        Err(e) if args.h0.is_none() && theory_h0.is_none() => {
             let m = format!("{}, or give --h0", super::common::reason(e));
             return Err(input.blame(Error::Input(m)));
         }
@@ -623,10 +673,15 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
             f64::NAN
         }
     };
-    let (h0, h0_source) = match (args.h0, input.model) {
-        (Some(h), _) => (h, "--h0"),
-        (None, Some(m)) => (m.h_of_q0(), "theory h(q=0)"),
-        (None, None) => (h_est, "slope of <ln M> against ln a over the fit range"),
+    let slope = "slope of <ln M> against ln a over the fit range";
+    let (h0, h0_source) = match (args.h0, theory_h0) {
+        (Some(h), _) => (h, "--h0".to_string()),
+        (None, Some(h)) => (h, "theory h(q=0)".to_string()),
+        (None, None) if input.model.is_some() => (
+            h_est,
+            format!("{slope} (the theory's h(q=0) is not finite)"),
+        ),
+        (None, None) => (h_est, slope.to_string()),
     };
     let show = scales_at(&scales, &show_oct);
     let sec = scales_at(&scales, &sec_oct);
@@ -667,7 +722,8 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
             .collect::<Vec<_>>()
     );
     body["wall_seconds"] = json!(wall);
-    body["warnings"] = json!(warning.iter().chain(&few).collect::<Vec<_>>());
+    let holes = input.holes.warning(input.len(), "the WTMMM counted");
+    body["warnings"] = json!(warning.iter().chain(&few).chain(&holes).collect::<Vec<_>>());
     write_json(&dir.join("pdf.json"), &body)?;
     write_pdf_csvs(dir, &show.iter().map(|&j| get(j)).collect::<Vec<_>>())?;
     plot_pdfs(
@@ -689,6 +745,9 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     }
     if let Some(w) = few {
         say!("warning: {}: {w}", input.describe());
+    }
+    if let Some(w) = holes {
+        say!("warning: {w}");
     }
     Ok(Outcome::Ok)
 }

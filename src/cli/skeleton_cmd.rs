@@ -211,6 +211,7 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
             "scales_requested": want}),
     );
     body["shape"] = json!([ny, nx]);
+    body["missing_pixels"] = json!(field.missing_count());
     body["margin"] = json!(sk.margin);
     body["lines"] = json!(sk.lines.len());
     body["per_scale"] = json!(sk.per_scale);

@@ -222,7 +222,7 @@ impl AnalysisConfig {
             let a_max = self.scale_list().last().copied().unwrap_or(0.0);
             return Err(Error::Input(format!(
                 "image {ny}x{nx} is smaller than the wavelet: the interior margin is {margin} px \
-                 on each side at the largest scale {a_max:.1} px (use fewer octaves or a smaller margin: --octaves, --margin)"
+                 on each side at the largest scale {a_max:.1} px (use fewer octaves or a smaller margin: --octaves, --margin; a periodic image, such as the W-cascades, FISC and FIF fields of `wtmm synth`, is analysed whole as a torus with --margin 0)"
             )));
         }
         d.support = self.wavelet.support_radius();

@@ -204,7 +204,10 @@ impl CorrelationConfig {
         Ok(())
     }
 
-    fn margin_px(&self) -> usize {
+    /// The interior margin used (px): 0 on a torus, else `margin` or its
+    /// default, the wavelet's support at the largest correlated scale (plus
+    /// the energy box's reach).
+    pub fn margin_px(&self) -> usize {
         if self.periodic {
             return 0;
         }

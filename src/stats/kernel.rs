@@ -634,8 +634,9 @@ pub struct KernelOptions {
 }
 
 /// The CLI's defaults (`wtmm kernel` on a 5-octave grid): fit 0.5:4 as for
-/// the spectra, the reference scales of II Fig 26 above the fit's start
-/// (the paper's 0.5 needs its `fit: (0.0, 3.5)`), the pairs of II Fig 25.
+/// the spectra, the reference scales of II Fig 26 inside the fit range,
+/// above its start (the paper's 0.5 needs its `fit: (0.0, 3.5)`), the
+/// pairs of II Fig 25.
 impl Default for KernelOptions {
     fn default() -> Self {
         KernelOptions {
@@ -655,8 +656,9 @@ impl KernelOptions {
     /// The paper's reference scales and pairs fitted to a grid of `scales`
     /// (ascending), with the fit range `fit` (octaves), as `wtmm kernel`
     /// without `--refs` and `--pairs`: the references of
-    /// [`DEFAULT_REF_OCTAVES`] that lie on the grid and above the start of
-    /// the fit (`C_n(a, a')` needs a smaller `a` in the fit), the pairs of
+    /// [`DEFAULT_REF_OCTAVES`] that lie on the grid, inside the fit range
+    /// and above its start (`C_n(a, a')` needs a smaller `a` in the fit;
+    /// a larger `a'` would reach scales the fit leaves out), the pairs of
     /// [`DEFAULT_PAIR_OCTAVES`] with octaves beyond the grid's top lowered
     /// onto it, duplicates and collapsed pairs dropped. [`Default`] holds
     /// for 3.5 octaves or more (its top reference and pairs); on a shorter
@@ -667,7 +669,7 @@ impl KernelOptions {
         let top = ((scales[scales.len() - 1] / scales[0]).log2() * 1e9).round() / 1e9;
         let refs = DEFAULT_REF_OCTAVES
             .into_iter()
-            .filter(|&o| octave_on_grid(scales, o) && o > fit.0 + 1e-9)
+            .filter(|&o| octave_on_grid(scales, o) && o > fit.0 + 1e-9 && o <= fit.1 + 1e-9)
             .collect();
         let mut pairs: Vec<(f64, f64)> = Vec::new();
         for (a, b) in DEFAULT_PAIR_OCTAVES {
@@ -1225,6 +1227,22 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         warnings.push(format!(
             "the C_n(a, a') tables are empty (pooled c_n: none): {refs} (fit {}:{} octaves); \
              give references inside the fit range or more octaves (--refs, --octaves)",
+            opts.fit.0, opts.fit.1
+        ));
+    }
+    // a reference above the fit range brings scales the fitted c_n leave
+    // out into the pooled slope (II Fig 26 takes a' inside the range)
+    let above: Vec<f64> = opts
+        .refs
+        .iter()
+        .copied()
+        .filter(|&r| r > opts.fit.1 + 1e-9)
+        .collect();
+    if !above.is_empty() {
+        warnings.push(format!(
+            "reference scale(s) at {above:?} octaves lie above the fit range {}:{}: their \
+             C_n(a, a') reach scales the fitted c_n leave out, and the pooled c_n \
+             (cumulants_pooled) include them",
             opts.fit.0, opts.fit.1
         ));
     }
