@@ -738,14 +738,21 @@ impl Raster {
     /// `levels.0..=levels.1`; a non-finite value (a missing pixel) in
     /// [`NO_VALUE`], which no grey level and no mark uses.
     pub fn grey(img: ArrayView2<f64>, levels: (u8, u8)) -> Self {
+        let range = crate::field::finite_range(img.iter()).unwrap_or((0.0, 0.0));
+        Raster::grey_in(img, levels, range)
+    }
+
+    /// As [`Raster::grey`] with the values `range.0 ..= range.1` spread over
+    /// the levels, values beyond them at the ends.
+    pub fn grey_in(img: ArrayView2<f64>, levels: (u8, u8), range: (f64, f64)) -> Self {
         let (ny, nx) = img.dim();
-        let (lo, hi) = crate::field::finite_range(img.iter()).unwrap_or((0.0, 0.0));
+        let (lo, hi) = range;
         let d = if hi > lo { hi - lo } else { 1.0 };
         let (g0, span) = (levels.0 as f64, levels.1 as f64 - levels.0 as f64);
         let mut rgb = Vec::with_capacity(nx * ny * 3);
         for &v in img.iter() {
             if v.is_finite() {
-                let g = (g0 + span * (v - lo) / d).round() as u8;
+                let g = (g0 + span * ((v - lo) / d).clamp(0.0, 1.0)).round() as u8;
                 rgb.extend_from_slice(&[g, g, g]);
             } else {
                 rgb.extend_from_slice(&NO_VALUE);

@@ -1842,6 +1842,37 @@ fn cwt_is_nan_where_the_wavelet_reaches_missing_pixels() {
     }
 }
 
+/// `cwt` writes every scale asked, even one whose wavelet reaches the
+/// border from every pixel (exact for a periodic image), and says which.
+#[test]
+fn cwt_writes_scales_that_feel_the_border_everywhere_and_says_so() {
+    let dir = scratch("cwt_border");
+    let p = fbm_npy(&dir, "a.npy", 64, 2);
+    let o = dir.join("o");
+    let (code, err) = run_bin_stderr(&[
+        "cwt",
+        &p,
+        "--scales",
+        "2,12",
+        "--out",
+        &o.display().to_string(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    // gauss support ceil(3.2 a): 7 px at a = 2, 39 px at a = 12 (> 32)
+    assert!(
+        err.contains("at a = 12 px the wavelet's support reaches the border"),
+        "{err}"
+    );
+    let j = json(&o.join("cwt.json"));
+    assert_eq!(j["warnings"].as_array().unwrap().len(), 1, "{j}");
+    for k in 0..2 {
+        assert!(o.join(format!("modulus_0{k}.png")).is_file());
+        let m = read_field(o.join(format!("modulus_0{k}.npy"))).unwrap();
+        assert_eq!(m.dim(), (64, 64));
+        assert!(m.data.iter().all(|v| v.is_finite()));
+    }
+}
+
 /// `validate --preset P --count C --size N --octaves 3` and `extra`.
 fn validate_args<'a>(
     preset: &'a str,

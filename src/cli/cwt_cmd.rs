@@ -7,7 +7,7 @@ use serde_json::json;
 
 use super::common::{file_label, header, make_out_dir, parse_list, progress, write_json};
 use super::{OutDir, Outcome};
-use crate::cwt::{CwtPlan, Wavelet, modulus_argument};
+use crate::cwt::{CwtPlan, Wavelet, default_margin, modulus_argument};
 use crate::error::{Error, Result};
 use crate::io::write_npy;
 use crate::plot::{ColorBar, Raster, RasterChart, save_raster_chart};
@@ -48,13 +48,25 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     let plan = CwtPlan::new(ny, nx, args.wavelet, &scales)
         .map_err(|e| super::common::in_file(&args.image, e))?;
     let margin = plan.default_margin();
-    if 2 * margin >= ny.min(nx) {
-        return Err(Error::format(
-            &args.image,
-            format!(
-                "image {ny}x{nx} is too small for scale {:.2} (interior margin {margin} px on each side)",
-                scales.iter().cloned().fold(0.0, f64::max)
-            ),
+    // the whole transform is written; where the wavelet reaches the border
+    // it sees the image's periodic continuation (the FFT's), which is exact
+    // for a periodic image (the synthetic cascades) and not for a DEM
+    let mut warnings = Vec::new();
+    let untrusted: Vec<f64> = scales
+        .iter()
+        .copied()
+        .filter(|&a| 2 * default_margin(args.wavelet, a) >= ny.min(nx))
+        .collect();
+    if !untrusted.is_empty() {
+        warnings.push(format!(
+            "at a = {} px the wavelet's support reaches the border from every pixel of the \
+             {ny}x{nx} image: those transforms see its periodic continuation everywhere (exact \
+             only for a periodic image)",
+            untrusted
+                .iter()
+                .map(|a| format!("{a}"))
+                .collect::<Vec<_>>()
+                .join(", ")
         ));
     }
     let img = field.filled()?;
@@ -86,6 +98,7 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
             save_modulus_png(
                 m.view(),
                 a,
+                default_margin(args.wavelet, a),
                 &format!("{}, {} wavelet", file_label(&args.image), args.wavelet.name()),
                 &args.out.out.join(format!("modulus_{stem}.png")),
             )
@@ -105,6 +118,12 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
         json!({"image": args.image, "wavelet": args.wavelet, "scales": scales}),
     );
     body["margin"] = json!(margin);
+    body["margin_rule"] = json!(format!(
+        "at each scale the transform feels the border within ceil({:.2} a) px of it (the \
+         wavelet's support), outlined in the pictures, whose grey scale spans the values inside",
+        args.wavelet.support_radius()
+    ));
+    body["warnings"] = json!(warnings);
     body["missing_pixels"] = json!(
         field
             .mask
@@ -120,20 +139,55 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     );
     body["scales"] = json!(files);
     write_json(&args.out.out.join("cwt.json"), &body)?;
+    for w in &warnings {
+        say!("warning: {}: {w}", args.image.display());
+    }
     Ok(Outcome::Ok)
 }
 
 /// The modulus at one scale as a grey picture inside pixel axes, with a
 /// grey bar giving the values (white = the largest M; NaN teal, named in
 /// the axis label when there is any).
+/// The modulus at scale `a` in grey, its range that of the pixels farther
+/// than `margin` px from the border (the border's periodic wrap makes
+/// artefacts there that would otherwise set the scale), that interior
+/// outlined in yellow.
 fn save_modulus_png(
     m: ndarray::ArrayView2<f64>,
     a: f64,
+    margin: usize,
     what: &str,
     path: &std::path::Path,
 ) -> Result<()> {
     let (ny, nx) = m.dim();
-    let (lo, hi) = crate::field::finite_range(m.iter()).unwrap_or((0.0, 0.0));
+    let inside = 2 * margin < ny.min(nx);
+    let core = if inside {
+        m.slice(ndarray::s![margin..ny - margin, margin..nx - margin])
+    } else {
+        m.view()
+    };
+    let (lo, hi) = crate::field::finite_range(core.iter()).unwrap_or((0.0, 0.0));
+    let mut raster = Raster::grey_in(m, (0, 255), (lo, hi));
+    if inside && margin > 0 {
+        // as the skeleton pictures draw their domain
+        let m = margin as f64;
+        let (x1, y1) = (nx as f64 - 1.0 - m, ny as f64 - 1.0 - m);
+        for (a, b, c, d) in [
+            (m, m, x1, m),
+            (x1, m, x1, y1),
+            (x1, y1, m, y1),
+            (m, y1, m, m),
+        ] {
+            raster.line(a, b, c, d, (255, 220, 0));
+        }
+    }
+    let mut x_label = "x (px)".to_string();
+    if inside && margin > 0 {
+        x_label += "   yellow: where the border is not felt (grey scale set inside)";
+    }
+    if m.iter().any(|v| v.is_nan()) {
+        x_label += "   teal: no value (the wavelet reaches a missing pixel)";
+    }
     let colorbar = (lo < hi).then(|| ColorBar {
         label: "M".into(),
         range: (lo, hi),
@@ -143,14 +197,10 @@ fn save_modulus_png(
         },
     });
     save_raster_chart(
-        &Raster::grey(m, (0, 255)),
+        &raster,
         &RasterChart {
             title: format!("modulus M(b, a), a = {a:.2} px, {what}"),
-            x_label: if m.iter().any(|v| v.is_nan()) {
-                "x (px)   teal: no value (the wavelet reaches a missing pixel)".into()
-            } else {
-                "x (px)".into()
-            },
+            x_label,
             y_label: "y (px)".into(),
             x_range: (0.0, nx as f64),
             y_range: (0.0, ny as f64),
