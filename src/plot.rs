@@ -1094,6 +1094,17 @@ where
     }
     // ticks as the charts write them (no signed zero); y flipped when down
     let fmt_y = |v: &f64| tick(&(sign * v));
+    // a long x label (a picture's colour key) is set smaller until it fits
+    // under the raster, as a long title is (titled_area)
+    let wide = ("sans-serif", 17.0)
+        .into_font()
+        .box_size(&spec.x_label)
+        .map_or(0.0, |(w, _)| w as f64);
+    let desc = if wide > pw as f64 && wide > 0.0 {
+        (17.0 * pw as f64 / wide).floor().max(10.0)
+    } else {
+        17.0
+    };
     ctx.configure_mesh()
         .disable_mesh()
         .x_desc(&spec.x_label)
@@ -1101,7 +1112,7 @@ where
         .x_label_formatter(&tick)
         .y_label_formatter(&fmt_y)
         .label_style(("sans-serif", 15))
-        .axis_desc_style(("sans-serif", 17))
+        .axis_desc_style(("sans-serif", desc))
         .draw()
         .map_err(|x| e(&x))?;
     // a frame just outside the raster

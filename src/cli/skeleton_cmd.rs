@@ -150,7 +150,16 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     let mut pictures = Vec::new();
     for &j in &draw {
         let sm = &sk.kept[j];
-        let mut r = Raster::from_grey(plan.smoothed(&fi, sm.a).view());
+        let mut smooth = plan.smoothed(&fi, sm.a);
+        // missing pixels (filled for the transform) in the pictures' teal
+        if let Some(mask) = &field.mask {
+            smooth.zip_mut_with(mask, |v, &m| {
+                if m {
+                    *v = f64::NAN
+                }
+            });
+        }
+        let mut r = Raster::from_grey(smooth.view());
         // the analysis domain
         let m = sk.margin as f64;
         let (x1, y1) = (nx as f64 - 1.0 - m, ny as f64 - 1.0 - m);
@@ -194,8 +203,14 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
                     cfg.wavelet.name()
                 ),
                 // the colour key in the picture, not only in skeleton.json
-                x_label: "x (px)   red: chains, green: WTMMM, blue: M along A, yellow: domain"
-                    .into(),
+                x_label: format!(
+                    "x (px)  red: chains, green: WTMMM, blue: M along A, yellow: domain{}",
+                    if field.mask.is_some() {
+                        ", teal: no data"
+                    } else {
+                        ""
+                    }
+                ),
                 y_label: "y (px)".into(),
                 x_range: (0.0, nx as f64),
                 y_range: (0.0, ny as f64),
@@ -217,7 +232,7 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     body["per_scale"] = json!(sk.per_scale);
     body["pictures"] = json!(pictures);
     body["legend"] = json!(
-        "grey: smoothed image phi_a * f (dark = low); red: maxima chains; green dots: WTMMM; blue: arrow of length proportional to M in direction A; yellow: analysis domain"
+        "grey: smoothed image phi_a * f (dark = low); red: maxima chains; green dots: WTMMM; blue: arrow of length proportional to M in direction A; yellow: analysis domain; teal: missing pixels"
     );
     write_json(&args.out.out.join("skeleton.json"), &body)?;
     Ok(Outcome::Ok)
