@@ -2434,5 +2434,34 @@ mod tests {
         assert!(e.to_string().contains("goes beyond the lags"), "{e}");
         // no size, nothing to check; a bad range still is
         assert!(check_ensemble_fit(&TraceMomentFitConfig::default(), &[]).is_ok());
+        // two images hold the largest boxes: the plain jackknife runs, the
+        // GLS fit's nested one (two parts left out) cannot and falls back to
+        // OLS, saying why
+        let sides = [16, 16, 16, 16, 128, 128];
+        let parts: Vec<TraceMomentAccumulator> = sides
+            .iter()
+            .enumerate()
+            .map(|(i, &n)| {
+                let mut a = TraceMomentAccumulator::new(cfg.clone()).unwrap();
+                a.add_field(&field(n, 10 + i as u64)).unwrap();
+                a
+            })
+            .collect();
+        let fc = TraceMomentFitConfig {
+            log2_lambda: Some((1.0, 5.0)),
+            log2_lag: Some((1.0, 2.0)),
+            universal: UniversalWeighting::Gls,
+            ..Default::default()
+        };
+        let shapes: Vec<[usize; 2]> = sides.iter().map(|&n| [n, n]).collect();
+        check_ensemble_fit(&fc, &shapes).unwrap();
+        let (_, r) = finish_ensemble(&parts, &fc).unwrap();
+        assert!(
+            r.universal_fit.starts_with("ols")
+                && r.universal_fit.contains("lacks the fitted boxes"),
+            "{}",
+            r.universal_fit
+        );
+        assert!(r.alpha_stderr.is_finite(), "{}", r.alpha_stderr);
     }
 }
