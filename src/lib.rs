@@ -133,7 +133,10 @@ pub mod tracemoments;
 pub use error::{Error, Result};
 pub use field::Field;
 pub use skeleton::{AnalysisConfig, Skeleton};
-pub use spectra::{PartitionSums, Rule, Spectra, image_sums};
+pub use spectra::{
+    PartitionSums, Rule, Spectra, default_fit, default_q, default_tile_side, image_sums,
+    image_sums_tiled,
+};
 pub use theory::Model;
 
 /// The crate version, recorded in every output.

@@ -30,13 +30,15 @@ use crate::skeleton::Skeleton;
 use crate::stats::fit::{line_fit, slope_change};
 
 /// Which modulus a line contributes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Rule {
     /// `M_L(a) = max_{a' <= a} M(a')` along the line (meant to keep q < 0 stable).
     Sup,
-    /// The modulus at a.
+    /// The modulus at a: the default, as `wtmm analyze`'s (README, "How
+    /// the defaults were chosen").
+    #[default]
     Plain,
 }
 
@@ -1558,8 +1560,10 @@ impl Spectra {
 /// One image through the pipeline: CWT → skeleton → partition sums.
 /// Serial inside (parallelise over images).
 ///
-/// **Errors** on a q grid [`check_q`] refuses, or as
-/// [`crate::skeleton::skeleton_with`].
+/// **Errors** on a q grid [`check_q`] refuses, as
+/// [`crate::skeleton::skeleton_with`], or when the image has no maxima
+/// line at the smallest scale (with its likely cause:
+/// [`crate::skeleton::AnalysisConfig::why_no_maxima`]).
 pub fn image_sums(
     field: &crate::Field,
     cfg: &crate::skeleton::AnalysisConfig,
@@ -1589,6 +1593,11 @@ pub fn image_sums_with(
 /// ([`PartitionSums::from_skeleton_tiled`]; 0 for none): the jackknife
 /// groups when fewer than 3 images make the ensemble
 /// ([`default_tile_side`]).
+///
+/// **Errors** as [`image_sums`], and on tiles narrower than twice the
+/// largest scale (the smallest [`default_tile_side`] gives: neighbouring
+/// tiles share their maxima lines, and a jackknife over them would
+/// understate the errors).
 pub fn image_sums_tiled(
     field: &crate::Field,
     cfg: &crate::skeleton::AnalysisConfig,
@@ -1599,8 +1608,26 @@ pub fn image_sums_tiled(
 ) -> Result<PartitionSums> {
     // before the transform, not at the fit: a bad grid costs nothing
     check_q(q)?;
+    let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
+    let min_side = (2.0 * a_max).ceil() as usize;
+    if tile_side > 0 && tile_side < min_side {
+        return Err(Error::param(
+            "tile_side",
+            format!(
+                "{tile_side} px is narrower than twice the largest scale ({min_side} px at a = \
+                 {a_max:.1} px): tiles that share their maxima lines are no jackknife groups \
+                 (default_tile_side)"
+            ),
+        ));
+    }
     let sk = crate::skeleton::skeleton_with(field, cfg, par, &[])?;
-    Ok(skeleton_sums_tiled(&sk, field, cfg, q, label, tile_side))
+    let sums = skeleton_sums_tiled(&sk, field, cfg, q, label, tile_side);
+    // an image with no line adds nothing to an ensemble: said at once, with
+    // its likely cause, not as an empty fit later
+    if sums.images[0].lines.first().is_none_or(|&n| n == 0) {
+        return Err(Error::Input(cfg.why_no_maxima(field)));
+    }
+    Ok(sums)
 }
 
 /// The tiles of the jackknife of an ensemble of fewer than 3 images of

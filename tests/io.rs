@@ -757,8 +757,24 @@ fn png_sidecar_rules() {
     assert_eq!(f.mask, read("dem_f8.npy").mask);
     assert!(info.warnings.is_empty(), "{:?}", info.warnings);
 
-    // a near miss of a key that changes the values is named
-    std::fs::write(dir.join("s.json"), r#"{"scale": 0.5, "offest": 100}"#).unwrap();
+    // a near miss of a key that changes the values is refused (the values
+    // would be misread), and named beside the key itself
+    for (text, key) in [
+        (r#"{"scale": 0.5, "offest": 100}"#, "offest"),
+        (r#"{"scale": 1, "offset": 0, "nodat": 65535}"#, "nodat"),
+    ] {
+        std::fs::write(dir.join("s.json"), text).unwrap();
+        let err = read_field(&png).unwrap_err().to_string();
+        assert!(
+            err.contains("s.json") && err.contains(&format!("`{key}`")),
+            "{err}"
+        );
+    }
+    std::fs::write(
+        dir.join("s.json"),
+        r#"{"scale": 0.5, "offset": 1, "offest": 100}"#,
+    )
+    .unwrap();
     let (_, info) = read_field_with_info(&png).unwrap();
     assert!(
         info.warnings

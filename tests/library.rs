@@ -175,18 +175,32 @@ fn merging_compares_analyses_by_what_they_do() {
 }
 
 /// A constant image has no maxima at all, and the error says so rather
-/// than blaming the counting domain.
+/// than blaming the counting domain, as soon as its sums are made; one
+/// whose scattered holes leave no pixel to count says that instead. Sums
+/// without lines made otherwise (from a skeleton) fail at the fit, also
+/// calling the image flat.
 #[test]
 fn a_constant_image_is_called_flat() {
     let cfg = torus(2);
-    let s = image_sums(
-        &Field::new(Array2::from_elem((64, 64), 3.0)),
-        &cfg,
-        &[0.0],
-        "c",
-    )
-    .unwrap();
+    let flat = Field::new(Array2::from_elem((64, 64), 3.0));
+    err(image_sums(&flat, &cfg, &[0.0], "c"), "flat");
+    let sk = wtmm::skeleton::skeleton(&flat, &cfg).unwrap();
+    let s = wtmm::spectra::skeleton_sums(&sk, &flat, &cfg, &[0.0], "c");
     err(s.spectra(Rule::Plain, (0.5, 2.0)), "flat");
+    // 2 % of the pixels missing, scattered: no pixel far enough from them
+    let mut f =
+        wtmm::synth::fbm::fbm(wtmm::synth::fbm::FbmParams { hurst: 0.4 }, 128, 128, 1, 0).unwrap();
+    let mut x = 0x9e37_79b9_7f4a_7c15u64;
+    for _ in 0..328 {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        f[[(x % 128) as usize, ((x >> 32) % 128) as usize]] = f64::NAN;
+    }
+    err(
+        image_sums(&Field::new(f), &torus(3), &[0.0], "h"),
+        "missing pixels",
+    );
 }
 
 /// Periodic fields are analysed on the whole torus, others inside the
@@ -241,4 +255,23 @@ fn sums_round_trip_through_json() {
     err(PartitionSums::read_json(&path), "sums.json");
     err(PartitionSums::read_json(dir.join("none.json")), "none.json");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Tiles narrower than twice the largest scale share their maxima lines:
+/// refused as jackknife groups; the default side passes.
+#[test]
+fn tiles_narrower_than_the_lines_are_refused() {
+    let f = Field::new(
+        wtmm::synth::fbm::fbm(wtmm::synth::fbm::FbmParams { hurst: 0.4 }, 128, 128, 2, 0).unwrap(),
+    );
+    let cfg = torus(2);
+    let par = wtmm::skeleton::Parallelism::Serial;
+    // a_max = 1.5 * 2^(2 - 1/10) = 5.57 px: tiles from 12 px
+    err(
+        wtmm::spectra::image_sums_tiled(&f, &cfg, &[0.0], "t", par, 11),
+        "narrower than twice the largest scale",
+    );
+    let side = wtmm::spectra::default_tile_side(&cfg, 128, 128);
+    assert!(side >= 12, "{side}");
+    wtmm::spectra::image_sums_tiled(&f, &cfg, &[0.0], "t", par, side).unwrap();
 }

@@ -90,10 +90,15 @@ fn merge_is_exact_and_order_independent() {
                 |v: &Vec<Vec<f64>>| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&s1.log2_z), bits(&s2.log2_z));
             assert_eq!(bits(&s1.h_qa), bits(&s2.h_qa));
-            assert_eq!(
-                s1.tau.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
-                s2.tau.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
-            );
+            let bits1 = |v: &Vec<f64>| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            for (x, y) in [
+                (&s1.tau, &s2.tau),
+                (&s1.tau_stderr, &s2.tau_stderr),
+                (&s1.h_stderr, &s2.h_stderr),
+                (&s1.d_stderr, &s2.d_stderr),
+            ] {
+                assert_eq!(bits1(x), bits1(y));
+            }
         }
     }
     // and through JSON

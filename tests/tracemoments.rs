@@ -1938,3 +1938,36 @@ fn experiment_surrogate_coverage() {
         );
     }
 }
+
+/// A lone image that cannot give trace moments is named for what it is,
+/// through the tiles as through the whole: all pixels missing, or too
+/// small for the automatic derivative order (H = xi(1) over lags of 2 px
+/// to a quarter of the side: 16 px or more).
+#[test]
+fn unusable_lone_images_say_why() {
+    use wtmm::tracemoments::{TraceMomentFitConfig, analyze, analyze_tiled};
+    let cfg = TraceMomentConfig::default();
+    let fc = TraceMomentFitConfig::for_tiles();
+    let nan = Field::new(Array2::from_elem((64, 64), f64::NAN));
+    for e in [
+        analyze_tiled(std::slice::from_ref(&nan), &cfg, &fc).unwrap_err(),
+        analyze(&nan, cfg.clone(), &fc).unwrap_err(),
+    ] {
+        assert!(e.to_string().contains("every pixel is missing"), "{e}");
+    }
+    for n in [8usize, 12] {
+        let f = Field::new(Array2::from_shape_fn((n, n), |(y, x)| {
+            ((x * 7 + y * 13) % 17) as f64
+        }));
+        for e in [
+            analyze_tiled(std::slice::from_ref(&f), &cfg, &fc).unwrap_err(),
+            analyze(&f, cfg.clone(), &fc).unwrap_err(),
+        ] {
+            assert!(e.to_string().contains("needs 16 px or more"), "{n}: {e}");
+        }
+    }
+    let f = Field::new(Array2::from_shape_fn((16, 16), |(y, x)| {
+        ((x * 7 + y * 13) % 17) as f64
+    }));
+    analyze(&f, cfg, &fc).unwrap();
+}

@@ -185,35 +185,6 @@ pub fn make_out_dir(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Why an image gave no maxima at the smallest scale (the causes seen in
-/// practice, not only a constant image).
-pub const NO_MAXIMA: &str = "no maxima (or no maxima line) at the smallest scale: the image is flat (constant, or \
-     one extreme value such as an untagged nodata dwarfing the rest), or its few maxima do not \
-     link across scales (a lone edge or spike on a smooth background, not a rough surface), or \
-     the counting domain left by the margin is too small (try a smaller --margin or fewer \
-     --octaves)";
-
-/// [`NO_MAXIMA`], or, when the image has missing pixels, how much of the
-/// counting domain they leave (maxima count only farther from them than the
-/// wavelet's support at the largest scale): scattered holes can leave none.
-pub fn no_maxima(field: &crate::field::Field, cfg: &crate::skeleton::AnalysisConfig) -> String {
-    let missing = field.missing_count();
-    match cfg.counting_pixels(field) {
-        Ok((counted, interior)) if missing > 0 => {
-            let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
-            let clearance = cfg.hole_clearance();
-            format!(
-                "no maxima to count: the image has {missing} missing pixels (NaN, inf or \
-                 nodata), and maxima count only farther from them than the wavelet's support \
-                 at the largest scale ({clearance:.0} px at a = {a_max:.1} px), which leaves \
-                 {counted} of the {interior} pixels of the counting domain; fill the gaps \
-                 before the analysis, crop to a gap-free region, or use fewer --octaves"
-            )
-        }
-        _ => NO_MAXIMA.into(),
-    }
-}
-
 /// The analysis configuration as recorded in the outputs, with the margin
 /// resolved to the pixels used (`margin_default` says it was the default
 /// for the wavelet and the largest scale) instead of `null`.

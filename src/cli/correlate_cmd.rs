@@ -36,9 +36,9 @@ use crate::field::Field;
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::correlation::{
-    CorrelationConfig, CorrelationPlan, CorrelationResult, CorrelationSums, Magnitude,
-    correlation_estimates, cwt_correlation, cwt_correlation_tiled, default_tile_side,
-    field_correlation, wtmmm_correlation_tiled,
+    CorrelationConfig, CorrelationPlan, CorrelationResult, CorrelationSums, FIG30_PAIR_OCTAVES,
+    Magnitude, correlation_estimates, cwt_correlation, cwt_correlation_tiled, default_tile_side,
+    field_correlation, pair_scales, wtmmm_correlation_tiled,
 };
 use crate::stats::kernel::{
     KernelConfig, KernelOptions, KernelSums, check_wtmmm_counts, kernel_estimates, nearest_scale,
@@ -47,6 +47,10 @@ use crate::stats::pdf::{ImageWtmmm, Point, WtmmmSet, image_wtmmm};
 use crate::theory::Model;
 
 pub use crate::stats::correlation::PAPER_UNIT;
+
+/// `--pairs`' default, [`crate::stats::correlation::FIG30_PAIR_OCTAVES`]
+/// as the option writes it.
+const FIG30_PAIRS: &str = "1:1,0:1,0:2,1:2";
 
 /// Where the magnitudes come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -88,22 +92,6 @@ pub struct CorrelateArgs {
     pub integral_scale: Option<f64>,
     #[command(flatten)]
     pub out: OutDir,
-}
-
-/// Distinct scales (px) and index pairs for octave pairs.
-fn pair_scales(a_min: f64, pairs: &[(f64, f64)]) -> (Vec<f64>, Vec<(usize, usize)>) {
-    let mut oct: Vec<f64> = pairs.iter().flat_map(|&(a, b)| [a, b]).collect();
-    oct.sort_by(f64::total_cmp);
-    oct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-    let idx = |o: f64| {
-        oct.iter()
-            .position(|&x| (x - o).abs() < 1e-9)
-            .expect("listed")
-    };
-    (
-        oct.iter().map(|o| a_min * o.exp2()).collect(),
-        pairs.iter().map(|&(a, b)| (idx(a), idx(b))).collect(),
-    )
 }
 
 /// The correlation run: plans per image shape, accumulated sums.
@@ -193,7 +181,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve(args.opts.cwt.margin)?;
     let cfg = input.analysis(&args.opts)?;
     let grid = cfg.scale_list();
-    let pairs_oct = pairs_or_default("pairs", args.pairs.as_deref(), "1:1,0:1,0:2,1:2", &grid)?;
+    let pairs_oct = pairs_or_default("pairs", args.pairs.as_deref(), FIG30_PAIRS, &grid)?;
     let (scales, pairs) = pair_scales(cfg.a_min, &pairs_oct);
     if let Some(l) = args.integral_scale
         && !(l > 0.0 && l.is_finite())
@@ -761,8 +749,7 @@ impl ValidationExtras {
             .max()
             .unwrap_or(0);
         kcfg_a.scales = Some(grid[..=top].to_vec());
-        let pairs_oct = [(1.0, 1.0), (0.0, 1.0), (0.0, 2.0), (1.0, 2.0)];
-        let (scales, pairs) = pair_scales(cfg.a_min, &pairs_oct);
+        let (scales, pairs) = pair_scales(cfg.a_min, &FIG30_PAIR_OCTAVES);
         let ccfg = CorrelationConfig {
             wavelet: cfg.wavelet,
             scales,
@@ -1180,4 +1167,22 @@ pub fn pooled_correlation_value(sums: &CorrelationSums, model: &Model, size: usi
     let r = correlation_estimates(sums)?;
     let chk = window_check(&r, model, size as f64, PAPER_UNIT);
     Ok(window_value(&chk, "max_abs_dev_C_ensemble"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--pairs`' default is the library's Fig 30 pairs, and
+    /// `CorrelationConfig::fig30` the configuration they give.
+    #[test]
+    fn the_default_pairs_are_the_librarys() {
+        let grid: Vec<f64> = (0..=30).map(|j| 1.5 * (j as f64 / 10.0).exp2()).collect();
+        let parsed = pairs_or_default("pairs", None, FIG30_PAIRS, &grid).unwrap();
+        assert_eq!(parsed, FIG30_PAIR_OCTAVES.to_vec());
+        let c = CorrelationConfig::fig30(crate::cwt::Wavelet::Gauss, 1.5, true);
+        assert_eq!(c.scales, vec![1.5, 3.0, 6.0]);
+        assert_eq!(c.pairs, vec![(1, 1), (0, 1), (0, 2), (1, 2)]);
+        c.validate().unwrap();
+    }
 }

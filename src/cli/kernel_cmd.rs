@@ -17,7 +17,7 @@ use num_complex::Complex64;
 use serde_json::json;
 
 use super::analyze_cmd::{LineOpts, fit_range};
-use super::common::{f, header, make_out_dir, reason, write_csv, write_json};
+use super::common::{f, header, make_out_dir, write_csv, write_json};
 use super::pdf_cmd::{
     StatsInput, check_octaves, grid_top, no_maxima, octaves_or_default, scales_at,
 };
@@ -347,11 +347,8 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     let mut main = kernel_estimates(main_sums, &kopts)?;
     // scales short of WTMMM: an error for the set asked, a note on the other
     check_wtmmm_counts(main_sums, &kopts).map_err(|e| input.blame(e))?;
-    let mut alt = kernel_estimates(alt_sums, &kopts)?;
-    if let Err(e) = check_wtmmm_counts(alt_sums, &kopts) {
-        alt.warnings
-            .push(format!("these c_n are not reliable: {}", reason(e)));
-    }
+    // (scales short of WTMMM: a warning of the library's)
+    let alt = kernel_estimates(alt_sums, &kopts)?;
     let grid = acc
         .grid
         .as_ref()

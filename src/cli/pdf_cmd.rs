@@ -426,7 +426,7 @@ impl Input {
 /// Why an image gave no maxima: [`Input::fold`] names a file itself, a
 /// generated image is named here.
 pub fn no_maxima(input: &Input, label: &str, field: &Field, cfg: &AnalysisConfig) -> Error {
-    let why = super::common::no_maxima(field, cfg);
+    let why = cfg.why_no_maxima(field);
     if input.generated() {
         Error::Input(format!("{label}: {why}"))
     } else {

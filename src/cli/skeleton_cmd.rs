@@ -82,10 +82,7 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     let sk = skeleton_with(&field, &cfg, Parallelism::Scales, &all)
         .map_err(|e| super::common::in_file(&args.image, e))?;
     if sk.lines.is_empty() {
-        return Err(Error::format(
-            &args.image,
-            super::common::no_maxima(&field, &cfg),
-        ));
+        return Err(Error::format(&args.image, cfg.why_no_maxima(&field)));
     }
     make_out_dir(&args.out.out)?;
     // line id of each (scale, x, y)

@@ -246,7 +246,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     }
     if tiled {
         // tiles are not independent samples for the covariance
-        fc.universal = args.tm.universal_fit.unwrap_or(UniversalWeighting::Ols);
+        fc.universal = args
+            .tm
+            .universal_fit
+            .unwrap_or(TraceMomentFitConfig::for_tiles().universal);
     }
     let mut surrogate_failure = None;
     let (acc, res, shapes) = if tiled {

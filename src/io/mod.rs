@@ -110,10 +110,14 @@ impl ReadInfo {
 const SUPPORTED_READ: &str = ".npy, .tif, .tiff, .png, .pgm, .asc";
 const SUPPORTED_WRITE: &str = ".npy, .tif, .tiff, .png";
 
-/// Reads an image, choosing the format from the extension.
+/// Reads an image, choosing the format from the extension. The readers'
+/// warnings (a colour PNG read as luminance, trailing bytes, a TIFF nodata
+/// tag that could not be read) are dropped: [`read_field_with_info`]
+/// returns them, as the command line prints them.
 ///
 /// **Errors** name the file and the problem (missing, unknown format,
-/// corrupt, not 2D, unsupported sample type, empty).
+/// corrupt, not 2D, unsupported sample type, empty, a PNG sidecar key
+/// that misspells one the reader uses).
 pub fn read_field(path: impl AsRef<Path>) -> Result<Field> {
     read_field_with_info(path.as_ref()).map(|(field, _)| field)
 }

@@ -278,13 +278,27 @@ fn sidecar(
         }
     }
     // provenance keys (source, units, ...) are free; a near miss of a key
-    // that changes the values (`offest`) is a typo worth a word
+    // that changes the values (`offest`) is a typo that would misread them
+    // (heights unscaled, a nodata code read as a height): refused while the
+    // key it resembles is absent, named when both are there
     const READ: [&str; 5] = ["scale", "offset", "nodata", "png_decode", "shape"];
     for key in obj.keys().filter(|k| !READ.contains(&k.as_str())) {
         if let Some(meant) = ["scale", "offset", "nodata"]
             .into_iter()
             .find(|k| edit_distance(key, k) <= 2)
         {
+            let decoded = || {
+                obj.get("png_decode")
+                    .and_then(|v| v.as_str())
+                    .and_then(nodata_from_text)
+                    .is_some()
+            };
+            if !(obj.contains_key(meant) || meant == "nodata" && decoded()) {
+                return Err(bad(format!(
+                    "key `{key}` is not one the reader knows: did you mean `{meant}`? (as it \
+                     is, the values would be read without it)"
+                )));
+            }
             info.warnings.push(format!(
                 "{}: key `{key}` ignored (did you mean `{meant}`?)",
                 path.display()

@@ -260,7 +260,39 @@ impl AnalysisConfig {
         };
         Ok((counted, interior))
     }
+
+    /// Why `field` gave no maxima line at the smallest scale: how much of
+    /// the counting domain its missing pixels leave when it has some
+    /// ([`Self::counting_pixels`]: scattered holes can leave none), else
+    /// [`NO_MAXIMA`], the causes seen in practice.
+    pub fn why_no_maxima(&self, field: &Field) -> String {
+        let missing = field.missing_count();
+        match self.counting_pixels(field) {
+            Ok((counted, interior)) if missing > 0 => {
+                let a_max = self.scale_list().last().copied().unwrap_or(0.0);
+                let clearance = self.hole_clearance();
+                format!(
+                    "no maxima to count: the image has {missing} missing pixels (NaN, inf or \
+                     nodata), and maxima count only farther from them than the wavelet's \
+                     support at the largest scale ({clearance:.0} px at a = {a_max:.1} px), \
+                     which leaves {counted} of the {interior} pixels of the counting domain; \
+                     fill the gaps before the analysis, crop to a gap-free region, or use fewer \
+                     --octaves"
+                )
+            }
+            _ => NO_MAXIMA.into(),
+        }
+    }
 }
+
+/// Why an image gave no maxima at the smallest scale (the causes seen in
+/// practice, not only a constant image); see
+/// [`AnalysisConfig::why_no_maxima`].
+pub const NO_MAXIMA: &str = "no maxima (or no maxima line) at the smallest scale: the image is \
+     flat (constant, or one extreme value such as an untagged nodata dwarfing the rest), or its \
+     few maxima do not link across scales (a lone edge or spike on a smooth background, not a \
+     rough surface), or the counting domain left by the margin is too small (try a smaller \
+     --margin or fewer --octaves)";
 
 /// Counts at one scale.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]

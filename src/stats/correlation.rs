@@ -165,7 +165,46 @@ impl Default for CorrelationConfig {
     }
 }
 
+/// The scale pairs of II Fig 30 in octaves above `a_min` (the paper's
+/// `a1 = a2 = 2`, `(1, 2)`, `(1, 4)`, `(2, 4)` in `σ_W` units), the
+/// default of `wtmm correlate`.
+pub const FIG30_PAIR_OCTAVES: [(f64, f64); 4] = [(1.0, 1.0), (0.0, 1.0), (0.0, 2.0), (1.0, 2.0)];
+
+/// The distinct scales (px, ascending) of octave pairs above `a_min` and
+/// the pairs as indices into them, as [`CorrelationConfig`] takes them.
+pub fn pair_scales(a_min: f64, pairs: &[(f64, f64)]) -> (Vec<f64>, Vec<(usize, usize)>) {
+    let mut oct: Vec<f64> = pairs.iter().flat_map(|&(a, b)| [a, b]).collect();
+    oct.sort_by(f64::total_cmp);
+    oct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+    let idx = |o: f64| {
+        oct.iter()
+            .position(|&x| (x - o).abs() < 1e-9)
+            .expect("listed")
+    };
+    (
+        oct.iter().map(|o| a_min * o.exp2()).collect(),
+        pairs.iter().map(|&(a, b)| (idx(a), idx(b))).collect(),
+    )
+}
+
 impl CorrelationConfig {
+    /// The correlation `wtmm correlate` computes by default: the
+    /// [`FIG30_PAIR_OCTAVES`] above `a_min` with `wavelet`, on the torus
+    /// when `periodic` (the generators' cascades), else inside the default
+    /// margin of the largest of those scales; other settings as
+    /// [`Default`]. (The margin follows the scales correlated, so a pair
+    /// alone reads a larger domain than within these four.)
+    pub fn fig30(wavelet: Wavelet, a_min: f64, periodic: bool) -> Self {
+        let (scales, pairs) = pair_scales(a_min, &FIG30_PAIR_OCTAVES);
+        CorrelationConfig {
+            wavelet,
+            scales,
+            pairs,
+            periodic,
+            ..Default::default()
+        }
+    }
+
     /// **Errors** naming the flag at fault.
     pub fn validate(&self) -> Result<()> {
         if self.scales.is_empty() || self.scales.iter().any(|a| !(a.is_finite() && *a > 0.0)) {

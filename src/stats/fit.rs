@@ -26,6 +26,10 @@ pub fn jackknife_se(v: &[f64]) -> f64 {
     if v.is_empty() || v.iter().any(|x| !x.is_finite()) {
         return f64::NAN;
     }
+    // summed in sorted order: the same bits whatever the order of the parts
+    // (a merge of ensembles in either order)
+    let mut v = v.to_vec();
+    v.sort_unstable_by(f64::total_cmp);
     let n = v.len() as f64;
     let m = v.iter().sum::<f64>() / n;
     ((n - 1.0) / n * v.iter().map(|x| (x - m) * (x - m)).sum::<f64>()).sqrt()

@@ -878,6 +878,17 @@ pub fn check_wtmmm_counts(s: &KernelSums, opts: &KernelOptions) -> Result<()> {
         list.insert(2, "...".into());
     }
     let set = s.set.phrase();
+    if s.images
+        .iter()
+        .all(|im| im.moments.iter().all(|m| m.n == 0))
+    {
+        return Err(Error::Input(format!(
+            "no WTMMM {set} at any scale, over {} image(s): the image is flat (constant), or \
+             its counting domain holds no maxima (too small for the scales, or missing pixels \
+             near every point)",
+            s.images.len()
+        )));
+    }
     Err(Error::Input(format!(
         "fewer than {MIN_WTMMM} WTMMM {set} at {} of the scales the kernel uses (fit range \
          {}:{} octaves, references, pairs), over {} image(s): a = {}; c1..c3 need {MIN_WTMMM} \
@@ -926,9 +937,9 @@ pub fn octave_on_grid(scales: &[f64], o: f64) -> bool {
 /// 57-58; Figs 25-28). See the module doc for the conventions.
 ///
 /// **Errors** if fewer than 3 scales fall in the fit range, an octave is
-/// outside the scales, or a pair is not `a < a'`. The WTMMM counts are not
-/// checked (a scale without WTMMM drops out of the fit): see
-/// [`check_wtmmm_counts`].
+/// outside the scales, or a pair is not `a < a'`. Scales short of WTMMM
+/// drop out of the fits: a warning says so ([`check_wtmmm_counts`], which
+/// a caller that wants them refused calls as well).
 pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelResult> {
     let ns = s.scales.len();
     if s.images.is_empty() {
@@ -1187,6 +1198,15 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         })
         .collect();
     let mut warnings = Vec::new();
+    // scales short of WTMMM drop out of the fits (NaN cumulants): said in
+    // the result, not only by a check the caller might skip
+    if let Err(e) = check_wtmmm_counts(s, opts) {
+        let why = match e {
+            Error::Input(m) => m,
+            e => e.to_string(),
+        };
+        warnings.push(format!("these c_n are not reliable: {why}"));
+    }
     // The plug-in cumulants are biased by about -κ2/n and -3κ3/n
     // (`Moments::cumulants`); n falls like a^-2, so the bias tilts the
     // fitted slopes. Said when the tilt reaches half a standard error (the
@@ -1510,7 +1530,28 @@ mod tests {
             let e = check_wtmmm_counts(&s, &o).unwrap_err().to_string();
             assert!(e.contains("fewer than 3 WTMMM on maxima lines"), "{e}");
             assert!(e.contains("a = 4.00 px (2);"), "{e}");
+            // the estimates run, and say it
+            let r = kernel_estimates(&s, &o).unwrap();
+            assert!(
+                r.warnings
+                    .iter()
+                    .any(|w| w.contains("not reliable") && w.contains("a = 4.00 px (2);")),
+                "{:?}",
+                r.warnings
+            );
         }
+        assert!(
+            !kernel_estimates(&s, &opts)
+                .unwrap()
+                .warnings
+                .iter()
+                .any(|w| w.contains("not reliable"))
+        );
+        // none at all (a flat image): said as such
+        let empty: Vec<Vec<f64>> = vec![Vec::new(); 9];
+        let s0 = KernelSums::from_ln_m(&scales, cfg, WtmmmSet::Lines, &empty, "x").unwrap();
+        let e = check_wtmmm_counts(&s0, &opts).unwrap_err().to_string();
+        assert!(e.contains("no WTMMM on maxima lines at any scale"), "{e}");
     }
 
     /// Three images hold 2, 1 and 1 WTMMM at the top scale: 4 over the

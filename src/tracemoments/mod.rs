@@ -348,6 +348,18 @@ impl Default for TraceMomentFitConfig {
 }
 
 impl TraceMomentFitConfig {
+    /// The settings `wtmm tm` fits one or two images (a DEM) with, through
+    /// [`analyze_tiled`]: the defaults with the OLS universal fit, since
+    /// tiles are not independent samples for the GLS covariance (README,
+    /// "Trace moments: fitting alpha (GLS)"). [`Default`] (GLS) is what an
+    /// ensemble of 3 or more images gets.
+    pub fn for_tiles() -> Self {
+        TraceMomentFitConfig {
+            universal: UniversalWeighting::Ols,
+            ..Default::default()
+        }
+    }
+
     /// The `log2 λ` fit range on box levels `0..=kmax` (`kmax = floor(log2
     /// min(ny, nx))` of the largest field): the one set, or the default
     /// `[1, kmax - 1]` (`[0, kmax]` below 16 px). Known from the image sizes
@@ -534,6 +546,11 @@ impl TraceMomentAccumulator {
                 "image {ny}x{nx} too small for trace moments (8x8)"
             )));
         }
+        if field.valid_count() == 0 {
+            return Err(Error::Input(
+                "every pixel is missing (NaN or nodata)".into(),
+            ));
+        }
         let mask = field.mask.as_ref().map(|m| m.view());
         let diff = match self.config.diff {
             FluxDiff::None => 0.0,
@@ -541,6 +558,14 @@ impl TraceMomentAccumulator {
             FluxDiff::Auto => flux::hurst_sf(field).ok_or_else(|| {
                 Error::Input(match field.range() {
                     Some((lo, hi)) if lo == hi => "constant image: no fluctuations".into(),
+                    // xi(1) is fitted over lags 2 px .. side/4: 2 of them
+                    // from 16 px
+                    _ if sf_lags(ny.min(nx)) < 3 => format!(
+                        "image {ny}x{nx} too small for the automatic derivative order: H = \
+                         xi(1) is fitted over lags of 2 px up to a quarter of the side, which \
+                         needs 16 px or more; give the order (--diff-order; FluxDiff::Order in \
+                         the library)"
+                    ),
                     _ => format!(
                         "cannot estimate H = xi(1) for the automatic derivative order \
                          (--diff-order auto) from the structure function of this {ny}x{nx} \
@@ -1272,8 +1297,9 @@ pub struct TraceMomentResult {
     /// α of the universal fit `K(q) = C1/(α-1) (q^α - q)` over
     /// `0 < q <= universal_q_max` (SPEC §8; NaN if no fit).
     pub alpha: f64,
-    /// Standard error of α: jackknife over the images when there are at
-    /// least 2 ([`finish_ensemble`]), else the regression error
+    /// Standard error of α: jackknife over the parts, the images of an
+    /// ensemble of 2 or more ([`finish_ensemble`]) or the tiles of one or
+    /// two images ([`analyze_tiled`]), else the regression error
     /// (`stderr_method` says which).
     pub alpha_stderr: f64,
     /// The Gauss-Newton error of the universal fit alone (residuals of K(q)
@@ -1367,7 +1393,8 @@ pub struct TraceMomentResult {
     /// H from the spectrum: `(β - 1 + K(2))/2` (TM §6.1.2).
     #[serde(rename = "H")]
     pub h: Option<f64>,
-    /// Jackknife standard error of H (ensembles only).
+    /// Jackknife standard error of H, over the images or the tiles
+    /// (`stderr_method`); `None` without a jackknife ([`analyze`]).
     #[serde(rename = "H_stderr")]
     pub h_stderr: Option<f64>,
     /// H from the structure functions, `ξ(1)`.
@@ -2046,8 +2073,9 @@ pub const TILE_CAVEAT: &str = "the tiles are treated as independent, which field
 /// Trace moments of one or two fields (a DEM) with errors from a jackknife
 /// over tiles of their domains, as `wtmm tm` for fewer than 3 images: tiles
 /// of [`tile_side`], every image's pooled ([`pool_tiles`]), then
-/// [`finish_jackknife`] with `fc` as given (the CLI fits tiles by OLS
-/// unless told otherwise; see [`finish_jackknife`]). The result's warnings
+/// [`finish_jackknife`] with `fc` as given: pass
+/// [`TraceMomentFitConfig::for_tiles`] for the numbers of `wtmm tm` (an
+/// OLS universal fit; [`Default`] fits by GLS). The result's warnings
 /// say how rough the errors are (few tiles) and what tiles cannot see
 /// ([`TILE_CAVEAT`]). Returns the merged accumulator too.
 ///
