@@ -134,8 +134,8 @@ pub use error::{Error, Result};
 pub use field::Field;
 pub use skeleton::{AnalysisConfig, Skeleton};
 pub use spectra::{
-    PartitionSums, Rule, Spectra, default_fit, default_q, default_tile_side, image_sums,
-    image_sums_tiled,
+    PartitionSums, Rule, Spectra, default_fit, default_q, default_tile_side, ensemble_sums,
+    image_sums, image_sums_tiled,
 };
 pub use theory::Model;
 

@@ -1630,6 +1630,45 @@ pub fn image_sums_tiled(
     Ok(sums)
 }
 
+/// The partition sums of an ensemble of fields held in memory, made as
+/// `wtmm analyze` makes them from files: one image at a time in parallel
+/// (a lone image's scales in parallel instead), and, with fewer than 3
+/// images, each split into the tiles of [`default_tile_side`] so that the
+/// jackknife runs over them. `spectra` of the result gives tau(q), h(q),
+/// D(q) with the errors `analyze` reports. Image `i` is labelled `image i`.
+///
+/// **Errors** with no field, or as [`image_sums_tiled`] (naming the image).
+pub fn ensemble_sums(
+    fields: &[crate::Field],
+    cfg: &crate::skeleton::AnalysisConfig,
+    q: &[f64],
+) -> Result<PartitionSums> {
+    use rayon::prelude::*;
+    check_q(q)?;
+    let par = if fields.len() == 1 {
+        crate::skeleton::Parallelism::Scales
+    } else {
+        crate::skeleton::Parallelism::Serial
+    };
+    let parts = fields
+        .par_iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let side = if fields.len() < 3 {
+                let (ny, nx) = f.dim();
+                default_tile_side(cfg, ny, nx)
+            } else {
+                0
+            };
+            image_sums_tiled(f, cfg, q, format!("image {i}"), par, side).map_err(|e| match e {
+                Error::Input(m) => Error::Input(format!("image {i}: {m}")),
+                e => e,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    PartitionSums::merge_all(parts)?.ok_or_else(|| Error::Input("no field given".into()))
+}
+
 /// The tiles of the jackknife of an ensemble of fewer than 3 images of
 /// `ny x nx`: 4 times the largest analysed scale, or twice it when fewer
 /// than 4 such tiles fit in the counting domain. Measured (24 single

@@ -275,3 +275,58 @@ fn tiles_narrower_than_the_lines_are_refused() {
     assert!(side >= 12, "{side}");
     wtmm::spectra::image_sums_tiled(&f, &cfg, &[0.0], "t", par, side).unwrap();
 }
+
+/// `ensemble_sums` is `analyze`'s recipe on fields in memory: tiles for a
+/// lone image, one part per image from 3 images; an image without lines
+/// is named by its index.
+#[test]
+fn ensemble_sums_is_the_recipe_of_analyze() {
+    use wtmm::skeleton::Parallelism;
+    use wtmm::spectra::{default_tile_side, ensemble_sums, image_sums_tiled};
+    let cfg = torus(2);
+    let q = [-1.0, 0.0, 2.0];
+    let fields: Vec<Field> = (0..3)
+        .map(|i| {
+            Field::new(
+                wtmm::synth::fbm::fbm(wtmm::synth::fbm::FbmParams { hurst: 0.4 }, 96, 96, 5, i)
+                    .unwrap(),
+            )
+        })
+        .collect();
+    let bits = |s: &wtmm::Spectra| {
+        (s.tau.iter().chain(&s.tau_stderr))
+            .map(|x| x.to_bits())
+            .collect::<Vec<_>>()
+    };
+    // one image: tiles
+    let one = ensemble_sums(&fields[..1], &cfg, &q).unwrap();
+    let side = default_tile_side(&cfg, 96, 96);
+    let by_hand =
+        image_sums_tiled(&fields[0], &cfg, &q, "image 0", Parallelism::Scales, side).unwrap();
+    let (a, b) = (
+        one.spectra(Rule::Plain, (0.5, 1.5)).unwrap(),
+        by_hand.spectra(Rule::Plain, (0.5, 1.5)).unwrap(),
+    );
+    assert_eq!(bits(&a), bits(&b));
+    assert!(a.stderr_method.contains("tiles"), "{}", a.stderr_method);
+    // three: over the images
+    let three = ensemble_sums(&fields, &cfg, &q).unwrap();
+    let merged = PartitionSums::merge_all(
+        fields
+            .iter()
+            .enumerate()
+            .map(|(i, f)| image_sums(f, &cfg, &q, format!("image {i}")).unwrap()),
+    )
+    .unwrap()
+    .unwrap();
+    let (a, b) = (
+        three.spectra(Rule::Plain, (0.5, 1.5)).unwrap(),
+        merged.spectra(Rule::Plain, (0.5, 1.5)).unwrap(),
+    );
+    assert_eq!(bits(&a), bits(&b));
+    assert_eq!(a.stderr_method, "jackknife over images");
+    let mut bad = fields.clone();
+    bad[2] = Field::new(Array2::from_elem((96, 96), 1.0));
+    err(ensemble_sums(&bad, &cfg, &q), "image 2: ");
+    err(ensemble_sums(&[], &cfg, &q), "no field");
+}
