@@ -161,6 +161,12 @@ impl Multifractal for FifParams {
 }
 
 /// A generator with its parameters (the `MODEL` of the CLI).
+///
+/// The closed forms (`tau`, `h`, `dh`, `beta`, ...) evaluate the formulas
+/// of the model's parameters as given and do not check them: call
+/// [`Model::validate`] first on parameters from outside
+/// ([`TheoryTable::new`], the presets and the command line do), since an
+/// fBm with `H = 2` has a formula but is no fBm.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "model", rename_all = "lowercase")]
 pub enum Model {
