@@ -63,7 +63,7 @@ fn jacksboro_crop_reads_the_same_in_every_format() {
         ("dem.asc", 0.0, true, "text"),
     ];
     for (name, tol, holes, dtype) in cases {
-        let (f, info) = read_field_with_info(&fixture(name)).unwrap_or_else(|e| panic!("{e}"));
+        let (f, info) = read_field_with_info(fixture(name)).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(f.dim(), (40, 56), "{name}");
         assert_eq!(info.dtype, dtype, "{name}");
         assert!(info.warnings.is_empty(), "{name}: {:?}", info.warnings);
@@ -89,7 +89,7 @@ fn jacksboro_crop_reads_the_same_in_every_format() {
             assert_eq!(f.mask, None, "{name}");
         }
     }
-    let (_, info) = read_field_with_info(&fixture("dem_u16.png")).unwrap();
+    let (_, info) = read_field_with_info(fixture("dem_u16.png")).unwrap();
     assert_eq!(info.format, ImageFormat::Png);
     assert_eq!(info.sidecar, Some(fixture("dem_u16.json")));
 }
@@ -111,7 +111,7 @@ fn small_png_files() {
         }
     }
 
-    let (rgb, info) = read_field_with_info(&fixture("rgb.png")).unwrap();
+    let (rgb, info) = read_field_with_info(fixture("rgb.png")).unwrap();
     let lum = |r: f64, g: f64, b: f64| 0.2126 * r + 0.7152 * g + 0.0722 * b;
     let want = array![
         [lum(255., 0., 0.), lum(0., 255., 0.), lum(0., 0., 255.)],
@@ -124,7 +124,7 @@ fn small_png_files() {
         info.warnings
     );
 
-    let (pal, info) = read_field_with_info(&fixture("palette.png")).unwrap();
+    let (pal, info) = read_field_with_info(fixture("palette.png")).unwrap();
     let (r, g, b) = (lum(255., 0., 0.), lum(0., 255., 0.), lum(0., 0., 255.));
     assert!(
         (&pal.data - &array![[r, g], [b, g]])
@@ -162,14 +162,14 @@ fn small_pgm_and_tiff_files() {
     let mut bytes = b"P5 3 2 255#a comment\n\n".to_vec();
     bytes.extend([1u8, 2, 3, 10, 35, 32]);
     std::fs::write(dir.join("c.pgm"), &bytes).unwrap();
-    let (c, info) = read_field_with_info(&dir.join("c.pgm")).unwrap();
+    let (c, info) = read_field_with_info(dir.join("c.pgm")).unwrap();
     assert_eq!(c.data, array![[1., 2., 3.], [10., 35., 32.]]);
     assert!(info.warnings.is_empty(), "{:?}", info.warnings);
 
     let i32 = read("i32.tif");
     assert_eq!(i32.data, array![[-2e9, 0., 7.], [1., 2., 2e9]]);
 
-    let (f64t, info) = read_field_with_info(&fixture("f64.tif")).unwrap();
+    let (f64t, info) = read_field_with_info(fixture("f64.tif")).unwrap();
     assert_eq!(info.dtype, "f64");
     assert!(f64t.is_masked(0, 1));
     assert_eq!(f64t.valid_count(), 5);
@@ -329,7 +329,7 @@ fn read_shape_reads_the_header_alone() {
         ("bad_header.asc", "lacks nrows"),
         ("bad_p6.pgm", "colour"),
     ] {
-        let e = read_shape(&fixture(name)).expect_err(name).to_string();
+        let e = read_shape(fixture(name)).expect_err(name).to_string();
         assert!(e.contains(name) && e.contains(word), "{name}: {e}");
     }
     // the values are what is wrong: only reading them says so
@@ -340,7 +340,7 @@ fn read_shape_reads_the_header_alone() {
         "bad_count.asc",
         "bad_truncated.pgm",
     ] {
-        assert!(read_shape(&fixture(name)).is_ok(), "{name}");
+        assert!(read_shape(fixture(name)).is_ok(), "{name}");
         assert!(read_field(fixture(name)).is_err(), "{name}");
     }
     // text headers read from the first 64 KiB of files far longer
@@ -455,8 +455,8 @@ fn writers_refuse_an_empty_array() {
     let p = dir.join("e.npy");
     let err = write_npy(&p, &e).unwrap_err().to_string();
     assert!(err.contains("e.npy") && err.contains("empty"), "{err}");
-    assert!(write_tiff_f32(&dir.join("e.tif"), &e).is_err());
-    assert!(write_png16(&dir.join("e.png"), &e).is_err());
+    assert!(write_tiff_f32(dir.join("e.tif"), &e).is_err());
+    assert!(write_png16(dir.join("e.png"), &e).is_err());
     assert!(write_npy(&p, &Array2::<f64>::zeros((0, 5))).is_err());
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
 }
@@ -474,18 +474,18 @@ fn write_field_dispatches_and_writes_masks() {
         assert_eq!(back.mask, field.mask, "{name}");
         same_with_nan(&back.data, &field.data, 1e-3);
     }
-    let err = write_field(&dir.join("f.pgm"), &field).unwrap_err();
+    let err = write_field(dir.join("f.pgm"), &field).unwrap_err();
     assert!(err.to_string().contains("f.pgm") && err.to_string().contains("cannot write"));
-    let err = write_tiff_f32(&dir.join("e.tif"), &Array2::zeros((0, 3))).unwrap_err();
+    let err = write_tiff_f32(dir.join("e.tif"), &Array2::zeros((0, 3))).unwrap_err();
     assert!(err.to_string().contains("empty"));
     // float32 would turn these into inf (read back as missing) or all zeros
     for v in [1e40, -1e39, 1e-300] {
         let a = Array2::from_elem((2, 3), v);
-        let err = write_tiff_f32(&dir.join("r.tif"), &a).unwrap_err();
+        let err = write_tiff_f32(dir.join("r.tif"), &a).unwrap_err();
         assert!(err.to_string().contains("float32"), "{v}: {err}");
         assert!(!dir.join("r.tif").exists());
     }
-    let err = write_png16(&dir.join("e.png"), &Array2::zeros((3, 0))).unwrap_err();
+    let err = write_png16(dir.join("e.png"), &Array2::zeros((3, 0))).unwrap_err();
     assert!(err.to_string().contains("empty"));
 }
 
@@ -494,15 +494,15 @@ fn nothing_half_written() {
     let dir = scratch("atomic");
     let a = test_array();
     let missing = dir.join("no_such_dir");
-    assert!(write_npy(&missing.join("a.npy"), &a).is_err());
-    assert!(write_tiff_f32(&missing.join("a.tif"), &a).is_err());
-    assert!(write_png16(&missing.join("a.png"), &a).is_err());
+    assert!(write_npy(missing.join("a.npy"), &a).is_err());
+    assert!(write_tiff_f32(missing.join("a.tif"), &a).is_err());
+    assert!(write_png16(missing.join("a.png"), &a).is_err());
     assert!(!missing.exists());
 
     // The PNG target is a directory: the PNG write fails after the sidecar
     // was written, and the sidecar must go too.
     std::fs::create_dir(dir.join("b.png")).unwrap();
-    let err = write_png16(&dir.join("b.png"), &a).unwrap_err();
+    let err = write_png16(dir.join("b.png"), &a).unwrap_err();
     assert!(err.to_string().contains("b.png"), "{err}");
     let left: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()

@@ -93,8 +93,8 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
         }
         let stem = format!("{j:02}");
         let r = (|| {
-            write_npy(&args.out.out.join(format!("modulus_{stem}.npy")), &m)?;
-            write_npy(&args.out.out.join(format!("argument_{stem}.npy")), &arg)?;
+            write_npy(args.out.out.join(format!("modulus_{stem}.npy")), &m)?;
+            write_npy(args.out.out.join(format!("argument_{stem}.npy")), &arg)?;
             save_modulus_png(
                 m.view(),
                 a,

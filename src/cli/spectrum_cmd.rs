@@ -14,7 +14,7 @@ use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
     CONVENTION, Detrend, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,
-    default_k_range, jackknife_beta_se, power_spectrum,
+    default_k_range, field_power_spectrum, jackknife_beta_se,
 };
 
 #[derive(Args, Debug)]
@@ -120,10 +120,7 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     let spectra: Vec<PowerSpectrum> = fields
         .par_iter()
         .zip(&args.images)
-        .map(|(fl, p)| {
-            let img = fl.filled()?;
-            power_spectrum(img.view(), &cfg).map_err(|e| super::common::in_file(p, e))
-        })
+        .map(|(fl, p)| field_power_spectrum(fl, &cfg).map_err(|e| super::common::in_file(p, e)))
         .collect::<Result<_>>()?;
     let mut ens = PowerSpectrum::default();
     for s in &spectra {

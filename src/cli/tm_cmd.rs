@@ -301,7 +301,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         let sizes = args
             .images
             .iter()
-            .map(|p| crate::io::read_shape(p))
+            .map(crate::io::read_shape)
             .collect::<Result<Vec<_>>>()?;
         check_ensemble_fit(&fc, &sizes)?;
         let (parts, shapes) = accumulate_paths(&args.images, &cfg, quiet)?;

@@ -119,12 +119,13 @@ const SUPPORTED_WRITE: &str = ".npy, .tif, .tiff, .png";
 /// corrupt, not 2D, unsupported sample type, empty, a PNG sidecar key
 /// that misspells one the reader uses).
 pub fn read_field(path: impl AsRef<Path>) -> Result<Field> {
-    read_field_with_info(path.as_ref()).map(|(field, _)| field)
+    read_field_with_info(path).map(|(field, _)| field)
 }
 
 /// Like [`read_field`], also returning the format, the stored sample type and
 /// any warnings.
-pub fn read_field_with_info(path: &Path) -> Result<(Field, ReadInfo)> {
+pub fn read_field_with_info(path: impl AsRef<Path>) -> Result<(Field, ReadInfo)> {
+    let path = path.as_ref();
     let Some(format) = ImageFormat::from_path(path) else {
         return Err(Error::format(
             path,
@@ -156,7 +157,8 @@ pub fn read_field_with_info(path: &Path) -> Result<(Field, ReadInfo)> {
 /// **Errors** as [`read_field`] on a missing file, an unknown format, a
 /// corrupt or unsupported header, an empty or too large image; a file
 /// whose values are corrupt passes here and fails in [`read_field`].
-pub fn read_shape(path: &Path) -> Result<[usize; 2]> {
+pub fn read_shape(path: impl AsRef<Path>) -> Result<[usize; 2]> {
+    let path = path.as_ref();
     let Some(format) = ImageFormat::from_path(path) else {
         return Err(Error::format(
             path,
@@ -182,7 +184,8 @@ pub fn read_shape(path: &Path) -> Result<[usize; 2]> {
 /// Writes a field, choosing the format from the extension: `.npy` (float64),
 /// `.tif`/`.tiff` (float32) or `.png` (16-bit + sidecar JSON, see
 /// [`write_png16`]). Masked pixels are written as NaN (or the PNG nodata).
-pub fn write_field(path: &Path, field: &Field) -> Result<()> {
+pub fn write_field(path: impl AsRef<Path>, field: &Field) -> Result<()> {
+    let path = path.as_ref();
     let data = masked_as_nan(field);
     match ImageFormat::from_path(path) {
         Some(ImageFormat::Npy) => write_npy(path, &data),
@@ -202,7 +205,8 @@ pub fn write_field(path: &Path, field: &Field) -> Result<()> {
 ///
 /// **Errors** on an empty array (the readers refuse one, so it is not
 /// written), or if the file cannot be written.
-pub fn write_npy(path: &Path, a: &Array2<f64>) -> Result<()> {
+pub fn write_npy(path: impl AsRef<Path>, a: &Array2<f64>) -> Result<()> {
+    let path = path.as_ref();
     if a.is_empty() {
         return Err(Error::format(
             path,
@@ -221,7 +225,8 @@ pub fn write_npy(path: &Path, a: &Array2<f64>) -> Result<()> {
 
 /// Writes a 2D array as a one-band float32 TIFF (atomically). NaN stays NaN,
 /// and the GDAL nodata tag says so when there is any.
-pub fn write_tiff_f32(path: &Path, a: &Array2<f64>) -> Result<()> {
+pub fn write_tiff_f32(path: impl AsRef<Path>, a: &Array2<f64>) -> Result<()> {
+    let path = path.as_ref();
     let bytes = tiff::encode_f32(path, a)?;
     write_atomic(path, &bytes)
 }
@@ -231,7 +236,8 @@ pub fn write_tiff_f32(path: &Path, a: &Array2<f64>) -> Result<()> {
 /// `0..=65534` and non-finite ones to 65535; the sidecar holds `scale`,
 /// `offset` and `nodata` so that `value = png*scale + offset` recovers the
 /// data within `scale/2`. [`read_field`] applies the sidecar.
-pub fn write_png16(path: &Path, a: &Array2<f64>) -> Result<Png16Mapping> {
+pub fn write_png16(path: impl AsRef<Path>, a: &Array2<f64>) -> Result<Png16Mapping> {
+    let path = path.as_ref();
     let (png_bytes, mapping) = png::encode_u16(path, a)?;
     let sidecar = path.with_extension("json");
     // the mapping, and what wrote it (every JSON output says so)

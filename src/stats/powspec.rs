@@ -372,8 +372,20 @@ fn detrend(img: &mut Array2<f64>, how: Detrend) {
     }
 }
 
+/// The power spectrum of a field, its missing pixels filled with the
+/// image mean ([`crate::Field::filled`]), as `wtmm spectrum` and the trace
+/// moments compute it.
+///
+/// **Errors** as [`crate::Field::filled`] and [`power_spectrum`].
+pub fn field_power_spectrum(
+    field: &crate::Field,
+    cfg: &PowerSpectrumConfig,
+) -> Result<PowerSpectrum> {
+    power_spectrum(field.filled()?.view(), cfg)
+}
+
 /// Angle-averaged power spectrum of one image (finite values only; fill masked
-/// pixels first).
+/// pixels first, or use [`field_power_spectrum`]).
 ///
 /// **Errors** if a value is not finite, the values are beyond
 /// [`crate::field::AMPLITUDE_LIMIT`], or the image is smaller than 4x4.

@@ -169,7 +169,9 @@ use statrs::distribution::ContinuousCDF;
 use crate::error::{Error, Result};
 use crate::field::Field;
 use crate::stats::fit::{line_fit, mean_std};
-use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, default_k_range, power_spectrum};
+use crate::stats::powspec::{
+    PowerSpectrum, PowerSpectrumConfig, default_k_range, field_power_spectrum,
+};
 use crate::theory::fif::UniversalK;
 
 /// Dimension of space.
@@ -526,7 +528,7 @@ impl TraceMomentAccumulator {
         if let Some(why) = field.amplitude_problem() {
             return Err(Error::Input(why));
         }
-        let ps = power_spectrum(field.filled()?.view(), &self.config.spectrum)?;
+        let ps = field_power_spectrum(field, &self.config.spectrum)?;
         let (phi, ok, diff) = self.field_flux(field)?;
         self.accumulate_flux(&phi, &ok, None)?;
         self.diff_orders.push(diff);
@@ -618,7 +620,7 @@ impl TraceMomentAccumulator {
         whole.accumulate_flux(&phi, &ok, None)?;
         whole.diff_orders.push(diff);
         whole.accumulate_sf(field, None);
-        whole.spectrum = Some(power_spectrum(field.filled()?.view(), &config.spectrum)?);
+        whole.spectrum = Some(field_power_spectrum(field, &config.spectrum)?);
         let (ny, nx) = field.dim();
         let bounds = tile_bounds(ny, nx, tile);
         if bounds.len() < 2 {
