@@ -1095,7 +1095,8 @@ where
     // ticks as the charts write them (no signed zero); y flipped when down
     let fmt_y = |v: &f64| tick(&(sign * v));
     // a long x label (a picture's colour key) is set smaller until it fits
-    // under the raster, as a long title is (titled_area)
+    // under the raster, as a long title is (titled_area); plotters styles
+    // both axis descriptions alike, so the y label follows
     let wide = ("sans-serif", 17.0)
         .into_font()
         .box_size(&spec.x_label)

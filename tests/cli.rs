@@ -786,7 +786,7 @@ fn fif_model_in_synth_and_theory() {
     for (args, word) in [
         (
             vec!["fbm", "--preset", "topo-fif"],
-            "topo-fif is a fif preset, not a fbm one",
+            "topo-fif is a preset of the fif model, not of fbm",
         ),
         (
             vec!["fif", "--preset", "topo-fif", "--c1", "0.1"],

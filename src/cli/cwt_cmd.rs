@@ -145,13 +145,11 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     Ok(Outcome::Ok)
 }
 
-/// The modulus at one scale as a grey picture inside pixel axes, with a
-/// grey bar giving the values (white = the largest M; NaN teal, named in
-/// the axis label when there is any).
-/// The modulus at scale `a` in grey, its range that of the pixels farther
+/// The modulus at scale `a` as a grey picture inside pixel axes, with a
+/// grey bar giving the values: the grey scale spans the pixels farther
 /// than `margin` px from the border (the border's periodic wrap makes
-/// artefacts there that would otherwise set the scale), that interior
-/// outlined in yellow.
+/// artefacts there that would otherwise set it), that interior outlined in
+/// yellow; NaN teal, named in the axis label when there is any.
 fn save_modulus_png(
     m: ndarray::ArrayView2<f64>,
     a: f64,

@@ -188,7 +188,8 @@ impl ModelOpts {
                     return Err(Error::param(
                         "preset",
                         format!(
-                            "{} is a {} preset, not a {} one: drop MODEL (the preset names it)",
+                            "{} is a preset of the {} model, not of {}: drop MODEL (the preset \
+                             names it)",
                             pr.name,
                             pr.model.name(),
                             named.unwrap_or_default()

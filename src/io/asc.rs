@@ -98,10 +98,14 @@ fn text(bytes: &[u8]) -> std::result::Result<&str, String> {
 /// The `(ny, nx)` of a grid from its header (super::read_shape).
 pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
     let (prefix, whole) = read_prefix(path)?;
-    let h = // whole lines: a prefix never ends inside a character
-    text(whole_lines(&prefix, whole))
-        .and_then(Header::parse)
-        .map_err(|reason| Error::format(path, format!("ESRI ASCII grid: {reason}")))?;
+    // whole lines (a prefix never ends inside a character); a header the
+    // prefix does not hold whole (a line longer than it) is read from the
+    // whole file
+    let h = match text(whole_lines(&prefix, whole)).and_then(Header::parse) {
+        Err(_) if !whole => text(&read_bytes(path)?).and_then(Header::parse),
+        h => h,
+    }
+    .map_err(|reason| Error::format(path, format!("ESRI ASCII grid: {reason}")))?;
     Ok((h.ny, h.nx))
 }
 

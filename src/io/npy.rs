@@ -56,13 +56,16 @@ pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
     let (prefix, whole) = read_prefix(path)?;
     let header = match Header::parse(&prefix) {
         // a header longer than the prefix (format 2 allows 4 GiB)
-        Err(_) if !whole => Header::parse(&read_bytes(path)?),
+        Err(e) if !whole && e == TRUNCATED_HEADER => Header::parse(&read_bytes(path)?),
         h => h,
     }
     .map_err(bad)?;
     Dtype::parse(&header.descr).map_err(bad)?;
     header.image_shape().map_err(bad)
 }
+
+/// [`Header::parse`]'s error when the bytes end before the header does.
+const TRUNCATED_HEADER: &str = "truncated header";
 
 struct Header {
     descr: String,
@@ -81,7 +84,7 @@ impl Header {
             1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
             2 | 3 => {
                 if bytes.len() < 12 {
-                    return Err("truncated header".into());
+                    return Err(TRUNCATED_HEADER.into());
                 }
                 (
                     u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
@@ -93,7 +96,7 @@ impl Header {
         let end = start
             .checked_add(len)
             .filter(|&e| e <= bytes.len())
-            .ok_or("truncated header")?;
+            .ok_or(TRUNCATED_HEADER)?;
         let text = std::str::from_utf8(&bytes[start..end]).map_err(|_| "header is not text")?;
         let dict = match PyParser::new(text).value()? {
             Py::Dict(d) => d,

@@ -60,8 +60,13 @@ impl Header {
 /// The `(ny, nx)` of a PGM from its header (super::read_shape).
 pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
     let (prefix, whole) = read_prefix(path)?;
-    let h = Header::parse(whole_lines(&prefix, whole))
-        .map_err(|reason| Error::format(path, format!("PGM: {reason}")))?;
+    // a header the prefix does not hold whole (lines ended by CR or spaces
+    // only, a long comment) is read from the whole file
+    let h = match Header::parse(whole_lines(&prefix, whole)) {
+        Err(_) if !whole => Header::parse(&read_bytes(path)?),
+        h => h,
+    }
+    .map_err(|reason| Error::format(path, format!("PGM: {reason}")))?;
     let size = |n: u64| {
         usize::try_from(n).map_err(|_| Error::format(path, format!("PGM: size {n} is too large")))
     };

@@ -282,18 +282,23 @@ fn sidecar(
     // (heights unscaled, a nodata code read as a height): refused while the
     // key it resembles is absent, named when both are there
     const READ: [&str; 5] = ["scale", "offset", "nodata", "png_decode", "shape"];
-    for key in obj.keys().filter(|k| !READ.contains(&k.as_str())) {
+    for (key, value) in obj.iter().filter(|(k, _)| !READ.contains(&k.as_str())) {
         if let Some(meant) = ["scale", "offset", "nodata"]
             .into_iter()
             .find(|k| edit_distance(key, k) <= 2)
         {
+            // a misspelling: one edit, or two in a key of the same length
+            // (`offest`), holding a number as the key it resembles does;
+            // `data: "SRTM"` or `scale_x` are provenance
+            let d = edit_distance(key, meant);
+            let typo = value.is_number() && (d <= 1 || key.len() == meant.len());
             let decoded = || {
                 obj.get("png_decode")
                     .and_then(|v| v.as_str())
                     .and_then(nodata_from_text)
                     .is_some()
             };
-            if !(obj.contains_key(meant) || meant == "nodata" && decoded()) {
+            if typo && !(obj.contains_key(meant) || meant == "nodata" && decoded()) {
                 return Err(bad(format!(
                     "key `{key}` is not one the reader knows: did you mean `{meant}`? (as it \
                      is, the values would be read without it)"

@@ -1237,7 +1237,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     }
     if tables.iter().all(|t| t.rows.is_empty()) {
         let refs = if opts.refs.is_empty() {
-            "no reference scale lies above the start of the fit range".to_string()
+            "no reference scale lies inside the fit range, above its start".to_string()
         } else {
             format!(
                 "no reference scale (at {:?} octaves) has a fitted scale below it",

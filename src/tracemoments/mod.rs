@@ -543,9 +543,9 @@ impl TraceMomentAccumulator {
     /// The flux of a field, its validity and the differentiation order used.
     fn field_flux(&self, field: &Field) -> Result<(Array2<f64>, Array2<bool>, f64)> {
         let (ny, nx) = field.dim();
-        if ny < 8 || nx < 8 {
+        if ny < MIN_SIDE || nx < MIN_SIDE {
             return Err(Error::Input(format!(
-                "image {ny}x{nx} too small for trace moments (8x8)"
+                "image {ny}x{nx} too small for trace moments ({MIN_SIDE}x{MIN_SIDE})"
             )));
         }
         if field.valid_count() == 0 {
@@ -653,9 +653,9 @@ impl TraceMomentAccumulator {
     /// smaller than 8x8, or a mask of another shape.
     pub fn add_flux(&mut self, phi: ArrayView2<f64>, mask: Option<ArrayView2<bool>>) -> Result<()> {
         let (ny, nx) = phi.dim();
-        if ny < 8 || nx < 8 {
+        if ny < MIN_SIDE || nx < MIN_SIDE {
             return Err(Error::Input(format!(
-                "flux {ny}x{nx} too small for trace moments (8x8)"
+                "flux {ny}x{nx} too small for trace moments ({MIN_SIDE}x{MIN_SIDE})"
             )));
         }
         if let Some(m) = &mask
@@ -1568,20 +1568,31 @@ fn replicate_fit(
     let (lo, hi) = res.fit_log2_lambda;
     let d = kmax.saturating_sub(rep.box_count.len().saturating_sub(1)) as f64;
     lone_box_check(kmax, lo, d, left_out)?;
-    if !res.log2_lag.is_empty() {
-        lone_lag_check(res.fit_log2_lag.1, rep.sf_count.len(), left_out)?;
-    }
+    // the lags the whole fitted (fluxes given directly have no structure
+    // functions; a range reaching beyond the whole's lags fits those it has,
+    // and one holding fewer than 2 fits none, which pins nothing)
+    let log2_lag = match fitted_lags(res.fit_log2_lag, whole.sf_count.len()) {
+        Some(r) if !res.log2_lag.is_empty() => {
+            lone_lag_check(r.1, rep.sf_count.len(), left_out)?;
+            Some(r)
+        }
+        _ => fc.log2_lag,
+    };
     Ok(TraceMomentFitConfig {
-        log2_lambda: Some((lo - d, hi - d)),
-        // (fluxes given directly have no structure functions)
-        log2_lag: if res.log2_lag.is_empty() {
-            fc.log2_lag
-        } else {
-            Some(res.fit_log2_lag)
-        },
+        // levels below 0 do not exist: a fractional start stays on the same
+        // integer levels
+        log2_lambda: Some(((lo - d).max(0.0), hi - d)),
+        log2_lag,
         k_range: res.k_range.or(fc.k_range),
         ..fc.clone()
     })
+}
+
+/// The part of a lag range `(lo, hi)` (log2 l) on the `nj` lags `0..nj`
+/// that holds 2 lags or more, `None` if it holds fewer.
+fn fitted_lags((lo, hi): (f64, f64), nj: usize) -> Option<(f64, f64)> {
+    let hi = hi.min(nj as f64 - 1.0);
+    ((hi - lo.ceil()) >= 1.0 - 1e-9).then_some((lo, hi))
 }
 
 /// How many standard errors a diagnostic of [`diagnostics`] needs before
@@ -2004,7 +2015,10 @@ fn gls_refit(
             // two parts left out may take every box of the fitted range
             // (replicate_fit): the plain jackknife stands, unweighted
             Err(Error::Param { .. }) => {
-                return fallback(res, "a nested jackknife sample lacks the fitted boxes");
+                return fallback(
+                    res,
+                    "a nested jackknife sample lacks the fitted boxes or lags",
+                );
             }
             inn => inn?,
         };
@@ -2167,6 +2181,10 @@ pub fn analyze(
 /// only one image holds.
 pub fn check_ensemble_fit(fc: &TraceMomentFitConfig, shapes: &[[usize; 2]]) -> Result<()> {
     fc.validate()?;
+    // an image too small for any moment is named by the moments
+    if shapes.iter().any(|s| s[0].min(s[1]) < MIN_SIDE) {
+        return Ok(());
+    }
     let mut levels: Vec<usize> = shapes.iter().map(|s| box_levels(s[0].min(s[1]))).collect();
     levels.sort_unstable_by(|a, b| b.cmp(a));
     let Some(&kmax) = levels.first() else {
@@ -2177,15 +2195,21 @@ pub fn check_ensemble_fit(fc: &TraceMomentFitConfig, shapes: &[[usize; 2]]) -> R
         Err(e) if fc.log2_lambda.is_some() => return Err(e),
         Err(_) => return Ok(()),
     };
-    let (_, lag_hi) = fc.lag_range(kmax, sf_lags_of(kmax))?;
+    let lags = fc.lag_range(kmax, sf_lags_of(kmax))?;
     match levels.get(1) {
         Some(&next) => {
             lone_box_check(kmax, lo, (kmax - next) as f64, "one image")?;
-            lone_lag_check(lag_hi, sf_lags_of(next), "one image")
+            match fitted_lags(lags, sf_lags_of(kmax)) {
+                Some((_, hi)) => lone_lag_check(hi, sf_lags_of(next), "one image"),
+                None => Ok(()),
+            }
         }
         None => Ok(()),
     }
 }
+
+/// The smallest side (px) of an image or flux with trace moments.
+pub const MIN_SIDE: usize = 8;
 
 /// [`sf_lags`] from the box level `kmax` of a side.
 fn sf_lags_of(kmax: usize) -> usize {
@@ -2196,14 +2220,16 @@ fn sf_lags_of(kmax: usize) -> usize {
 /// levels of an ensemble whose range starts at `lo` (log2 λ, boxes of
 /// `2^(kmax - lo)` px): only `holder` has the boxes it fits.
 fn lone_box_check(kmax: usize, lo: f64, d: f64, holder: &str) -> Result<()> {
-    if lo - d < -1e-9 {
+    // the fitted levels are the integers from ceil(lo)
+    let first = (lo - 1e-9).ceil();
+    if first - d < -1e-9 {
         return Err(Error::param(
             "lambda-fit",
             format!(
                 "the fit reaches boxes of {} px, which only {holder} holds, so a jackknife \
                  cannot leave it out: fit from log2 λ = {d} (boxes of at most {} px) or analyse \
                  images of one size",
-                (kmax as f64 - lo).exp2(),
+                (kmax as f64 - first).exp2(),
                 (kmax as f64 - d).exp2()
             ),
         ));
@@ -2464,6 +2490,41 @@ mod tests {
         assert!(e.to_string().contains("goes beyond the lags"), "{e}");
         // no size, nothing to check; a bad range still is
         assert!(check_ensemble_fit(&TraceMomentFitConfig::default(), &[]).is_ok());
+        // review cases: images of 12 px (lags 1 and 2 px; the default lag
+        // range reaches 4 px, which no image holds: no lone lag), a
+        // fractional start (log2 λ = 0.5 fits levels 1.., which every image
+        // holds), an image too small for any moment (named by the moments)
+        let accs = |sides: &[usize], cfg: &TraceMomentConfig| -> Vec<TraceMomentAccumulator> {
+            sides
+                .iter()
+                .enumerate()
+                .map(|(i, &n)| {
+                    let mut a = TraceMomentAccumulator::new(cfg.clone()).unwrap();
+                    a.add_field(&field(n, 20 + i as u64)).unwrap();
+                    a
+                })
+                .collect()
+        };
+        let order1 = TraceMomentConfig {
+            diff: FluxDiff::Order(1.0),
+            ..cfg.clone()
+        };
+        let fc = TraceMomentFitConfig::for_tiles();
+        check_ensemble_fit(&fc, &[[12, 12]; 3]).unwrap();
+        finish_ensemble(&accs(&[12, 12, 12], &order1), &fc).unwrap();
+        let half = TraceMomentFitConfig {
+            log2_lambda: Some((0.5, 5.0)),
+            ..TraceMomentFitConfig::for_tiles()
+        };
+        check_ensemble_fit(&half, &[[128, 128], [64, 64], [64, 64]]).unwrap();
+        finish_ensemble(&accs(&[128, 64, 64], &cfg), &half).unwrap();
+        let e = check_ensemble_fit(&half, &[[128, 128], [32, 32], [32, 32]]).unwrap_err();
+        assert!(e.to_string().contains("boxes of 64 px"), "{e}");
+        check_ensemble_fit(
+            &TraceMomentFitConfig::default(),
+            &[[6, 6], [64, 64], [64, 64]],
+        )
+        .unwrap();
         // two images hold the largest boxes: the plain jackknife runs, the
         // GLS fit's nested one (two parts left out) cannot and falls back to
         // OLS, saying why
