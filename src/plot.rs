@@ -771,6 +771,21 @@ impl Raster {
         Raster::grey(img, (60, 230))
     }
 
+    /// Outlines the rectangle `margin` px inside the border (an analysis
+    /// domain) in `c`.
+    pub fn frame(&mut self, margin: usize, c: (u8, u8, u8)) {
+        let m = margin as f64;
+        let (x1, y1) = (self.width as f64 - 1.0 - m, self.height as f64 - 1.0 - m);
+        for (a, b, x, y) in [
+            (m, m, x1, m),
+            (x1, m, x1, y1),
+            (x1, y1, m, y1),
+            (m, y1, m, m),
+        ] {
+            self.line(a, b, x, y, c);
+        }
+    }
+
     /// Sets one pixel (ignored outside).
     pub fn put(&mut self, x: isize, y: isize, c: (u8, u8, u8)) {
         if x < 0 || y < 0 || x >= self.width as isize || y >= self.height as isize {

@@ -168,16 +168,7 @@ fn save_modulus_png(
     let mut raster = Raster::grey_in(m, (0, 255), (lo, hi));
     if inside && margin > 0 {
         // as the skeleton pictures draw their domain
-        let m = margin as f64;
-        let (x1, y1) = (nx as f64 - 1.0 - m, ny as f64 - 1.0 - m);
-        for (a, b, c, d) in [
-            (m, m, x1, m),
-            (x1, m, x1, y1),
-            (x1, y1, m, y1),
-            (m, y1, m, m),
-        ] {
-            raster.line(a, b, c, d, (255, 220, 0));
-        }
+        raster.frame(margin, (255, 220, 0));
     }
     let mut x_label = "x (px)".to_string();
     if inside && margin > 0 {

@@ -158,16 +158,7 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
         }
         let mut r = Raster::from_grey(smooth.view());
         // the analysis domain
-        let m = sk.margin as f64;
-        let (x1, y1) = (nx as f64 - 1.0 - m, ny as f64 - 1.0 - m);
-        for (a, b, c, d) in [
-            (m, m, x1, m),
-            (x1, m, x1, y1),
-            (x1, y1, m, y1),
-            (m, y1, m, m),
-        ] {
-            r.line(a, b, c, d, (255, 220, 0));
-        }
+        r.frame(sk.margin, (255, 220, 0));
         for ch in &sm.chains {
             for &(x, y) in &ch.pixels {
                 r.put(x as isize, y as isize, (220, 30, 30));

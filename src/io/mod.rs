@@ -126,15 +126,7 @@ pub fn read_field(path: impl AsRef<Path>) -> Result<Field> {
 /// any warnings.
 pub fn read_field_with_info(path: impl AsRef<Path>) -> Result<(Field, ReadInfo)> {
     let path = path.as_ref();
-    let Some(format) = ImageFormat::from_path(path) else {
-        return Err(Error::format(
-            path,
-            format!(
-                "unknown image format `{}` (supported: {SUPPORTED_READ})",
-                extension(path)
-            ),
-        ));
-    };
+    let format = read_format(path)?;
     let (field, info) = match format {
         ImageFormat::Npy => npy::read(path)?,
         ImageFormat::Tiff => tiff::read(path)?,
@@ -159,15 +151,7 @@ pub fn read_field_with_info(path: impl AsRef<Path>) -> Result<(Field, ReadInfo)>
 /// whose values are corrupt passes here and fails in [`read_field`].
 pub fn read_shape(path: impl AsRef<Path>) -> Result<[usize; 2]> {
     let path = path.as_ref();
-    let Some(format) = ImageFormat::from_path(path) else {
-        return Err(Error::format(
-            path,
-            format!(
-                "unknown image format `{}` (supported: {SUPPORTED_READ})",
-                extension(path)
-            ),
-        ));
-    };
+    let format = read_format(path)?;
     let (ny, nx) = match format {
         ImageFormat::Npy => npy::shape(path)?,
         ImageFormat::Tiff => tiff::shape(path)?,
@@ -179,6 +163,19 @@ pub fn read_shape(path: impl AsRef<Path>) -> Result<[usize; 2]> {
         return Err(Error::format(path, format!("empty image ({ny} x {nx})")));
     }
     Ok([ny, nx])
+}
+
+/// The format a reader takes `path` in, from its extension.
+fn read_format(path: &Path) -> Result<ImageFormat> {
+    ImageFormat::from_path(path).ok_or_else(|| {
+        Error::format(
+            path,
+            format!(
+                "unknown image format `{}` (supported: {SUPPORTED_READ})",
+                extension(path)
+            ),
+        )
+    })
 }
 
 /// Writes a field, choosing the format from the extension: `.npy` (float64),
