@@ -180,9 +180,9 @@ impl StatsInput {
     /// the torus), and under `auto` it decides.
     ///
     /// **Errors** naming the flag: neither images nor a model, a model option
-    /// without a model, `--count 0`; a model name where a file goes.
+    /// without a model, `--count 0`. (A model name where a file goes is
+    /// refused before, with the inputs: `refuse_model_names`.)
     pub fn resolve(&self, margin: Option<usize>) -> Result<Input> {
-        self.refuse_model_names()?;
         let resolved = self.model.resolve_optional(self.theory)?;
         if self.images.is_empty() && resolved.is_none() {
             return Err(Error::param(
