@@ -663,10 +663,16 @@ impl KernelOptions {
     /// onto it, duplicates and collapsed pairs dropped. [`Default`] holds
     /// for 3.5 octaves or more (its top reference and pairs); on a shorter
     /// grid they are off the scales and [`kernel_estimates`] refuses them.
-    ///
-    /// **Panics** if `scales` is empty.
+    /// An empty grid gets no references and no pairs.
     pub fn for_scales(scales: &[f64], fit: (f64, f64)) -> Self {
-        let top = ((scales[scales.len() - 1] / scales[0]).log2() * 1e9).round() / 1e9;
+        let (Some(&first), Some(&last)) = (scales.first(), scales.last()) else {
+            return KernelOptions {
+                fit,
+                refs: Vec::new(),
+                pairs: Vec::new(),
+            };
+        };
+        let top = ((last / first).log2() * 1e9).round() / 1e9;
         let refs = DEFAULT_REF_OCTAVES
             .into_iter()
             .filter(|&o| octave_on_grid(scales, o) && o > fit.0 + 1e-9 && o <= fit.1 + 1e-9)
@@ -919,10 +925,11 @@ pub fn nearest_scale(scales: &[f64], o: f64) -> usize {
 
 /// True when octave `o` (above the smallest scale) lies on the grid: within
 /// half a step of a grid scale (so octave 3 is the top scale 2.9 of a
-/// 3-octave grid with 10 voices).
-///
-/// **Panics** if `scales` is empty.
+/// 3-octave grid with 10 voices). False on an empty grid.
 pub fn octave_on_grid(scales: &[f64], o: f64) -> bool {
+    if scales.is_empty() {
+        return false;
+    }
     let half = if scales.len() > 1 {
         0.5 * (scales[1] / scales[0]).log2()
     } else {
@@ -1758,5 +1765,8 @@ mod tests {
             KernelOptions::for_scales(&long, (0.5, 4.0)),
             KernelOptions::default()
         );
+        // no grid: nothing to name, and no panic
+        let o = KernelOptions::for_scales(&[], (0.5, 4.0));
+        assert!(o.refs.is_empty() && o.pairs.is_empty());
     }
 }
