@@ -58,7 +58,8 @@ impl UniversalK {
 
     /// `K(q)`; `+∞` for `q < 0` unless α = 2 (or C1 = 0).
     pub fn k(&self, q: f64) -> f64 {
-        if self.c1 == 0.0 || q == 0.0 {
+        // K(0) = K(1) = 0 exactly (conservation; α < 1 would print -0 at 1)
+        if self.c1 == 0.0 || q == 0.0 || q == 1.0 {
             return 0.0;
         }
         if q < 0.0 && !self.gaussian() {
@@ -204,8 +205,13 @@ pub fn h(p: &FifParams, q: f64) -> f64 {
     p.hurst - UniversalK::new(p.alpha, p.c1).k_prime(q)
 }
 
-/// `D(h(q)) = q h(q) - τ(q)`; equals `2 - C1 q^α` for q >= 0.
+/// `D(h(q)) = q h(q) - τ(q)`; equals `2 - C1 q^α` for q >= 0. At q = 0
+/// the limit `-τ(0) = 2` (`q K'(q) -> 0`, also for α <= 1 where
+/// `K'(0+) = -∞`).
 pub fn big_d(p: &FifParams, q: f64) -> f64 {
+    if q == 0.0 {
+        return -tau(p, 0.0);
+    }
     q * h(p, q) - tau(p, q)
 }
 
@@ -222,6 +228,7 @@ pub fn q_divergence(p: &FifParams) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::theory::Model;
 
     const P: FifParams = FifParams {
         alpha: 1.8,
@@ -281,6 +288,9 @@ mod tests {
                 c1: 0.12,
                 hurst: 0.5,
             };
+            // q = 0: h(0) is infinite for α <= 1, D(0) is the limit 2
+            assert_eq!(big_d(&p, 0.0), 2.0, "a {a}");
+            assert_eq!(Model::Fif(p).d_of_q(0.0), 2.0, "a {a}");
             for q in [0.3, 0.8, 1.0, 1.7, 3.0] {
                 let dq = big_d(&p, q);
                 assert!((dq - (2.0 - 0.12 * q.powf(a))).abs() < 1e-12, "a {a} q {q}");

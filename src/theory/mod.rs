@@ -49,8 +49,12 @@ pub trait Multifractal {
     fn tau(&self, q: f64) -> f64;
     /// `h(q) = τ'(q)`.
     fn h(&self, q: f64) -> f64;
-    /// `D(q) = q h(q) - τ(q)`.
+    /// `D(q) = q h(q) - τ(q)`; `-τ(0)` at q = 0, where `q h(q) -> 0` even
+    /// when `h(0)` is infinite (FIF with α <= 1: `q K'(q) -> 0`).
     fn d_of_q(&self, q: f64) -> f64 {
+        if q == 0.0 {
+            return -self.tau(0.0);
+        }
         q * self.h(q) - self.tau(q)
     }
     /// The Legendre transform `D(h)` where it is defined (`None` outside the
