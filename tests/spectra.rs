@@ -494,63 +494,70 @@ fn counted_values(sk: &wtmm::skeleton::Skeleton, j: usize) -> (Vec<f64>, Vec<f64
 fn sup_rule_is_the_running_maximum_along_every_line() {
     let q = [-2.0, -1.0, 0.0, 1.0, 2.0, 3.0];
     let f = Field::new(fbm(FbmParams { hurst: 0.4 }, 256, 256, 31, 0).unwrap());
-    let sk = wtmm::skeleton::skeleton(&f, &small_cfg()).unwrap();
-    let (mut points, mut above) = (0usize, 0usize);
-    for l in &sk.lines {
-        let mut run = f64::NEG_INFINITY;
-        for (j, p) in l.points.iter().enumerate() {
-            run = run.max(p.m);
-            assert_eq!(
-                p.sup.to_bits(),
-                run.to_bits(),
-                "scale {j}: sup {} vs running max {run}",
-                p.sup
-            );
-            assert!(p.sup >= p.m);
-            if j > 0 {
-                assert!(p.sup >= l.points[j - 1].sup, "sup falls along a line");
-            }
-            points += 1;
-            above += (p.sup > p.m) as usize;
-        }
-    }
-    println!("{above} of {points} line points have sup > M");
-    assert!(
-        above * 10 > points,
-        "too few falling moduli to test the rule: {above} of {points}"
-    );
-    let ps = PartitionSums::from_skeleton(&sk, &q, "fbm");
-    let ns = sk.scales.len();
-    let im = &ps.images[0];
-    for j in 0..ns {
-        let (lp, ls) = counted_values(&sk, j);
-        assert_eq!(im.lines[j], lp.len() as u64, "scale {j}: lines counted");
-        if lp.is_empty() {
-            continue;
-        }
-        for (qi, &qv) in q.iter().enumerate() {
-            let got = |c: &wtmm::spectra::Cell| c.e as f64 + c.z.log2();
-            let (zp, zs) = (got(&im.plain[qi * ns + j]), got(&im.sup[qi * ns + j]));
-            let (wp, ws) = (log2_sum_pow(&lp, qv), log2_sum_pow(&ls, qv));
-            // |log2 Z| up to ~40 here: 1e-12 relative on Z is 1.5e-12 in log2
-            assert!(
-                (zp - wp).abs() < 2e-12 * (1.0 + wp.abs()),
-                "plain q={qv} j={j}: {zp} vs {wp}"
-            );
-            assert!(
-                (zs - ws).abs() < 2e-12 * (1.0 + ws.abs()),
-                "sup q={qv} j={j}: {zs} vs {ws}"
-            );
-            if qv > 0.0 {
-                assert!(zs >= zp - 1e-12, "q={qv} j={j}: Z_sup < Z_plain");
-            } else if qv < 0.0 {
-                assert!(zs <= zp + 1e-12, "q={qv} j={j}: Z_sup > Z_plain");
-            } else {
+    // both linking paths carry the sup: the box rule and the chain climb
+    for climb in [false, true] {
+        let mut cfg = small_cfg();
+        cfg.link.climb = climb;
+        let sk = wtmm::skeleton::skeleton(&f, &cfg).unwrap();
+        let climbed: usize = sk.per_scale.iter().map(|c| c.ended.climb).sum();
+        assert_eq!(climbed > 0, climb, "lines linked by climbing: {climbed}");
+        let (mut points, mut above) = (0usize, 0usize);
+        for l in &sk.lines {
+            let mut run = f64::NEG_INFINITY;
+            for (j, p) in l.points.iter().enumerate() {
+                run = run.max(p.m);
                 assert_eq!(
-                    zs.to_bits(),
-                    zp.to_bits(),
-                    "q=0 j={j}: both count the lines"
+                    p.sup.to_bits(),
+                    run.to_bits(),
+                    "climb {climb} scale {j}: sup {} vs running max {run}",
+                    p.sup
                 );
+                assert!(p.sup >= p.m);
+                if j > 0 {
+                    assert!(p.sup >= l.points[j - 1].sup, "sup falls along a line");
+                }
+                points += 1;
+                above += (p.sup > p.m) as usize;
+            }
+        }
+        println!("{above} of {points} line points have sup > M");
+        assert!(
+            above * 10 > points,
+            "too few falling moduli to test the rule: {above} of {points}"
+        );
+        let ps = PartitionSums::from_skeleton(&sk, &q, "fbm");
+        let ns = sk.scales.len();
+        let im = &ps.images[0];
+        for j in 0..ns {
+            let (lp, ls) = counted_values(&sk, j);
+            assert_eq!(im.lines[j], lp.len() as u64, "scale {j}: lines counted");
+            if lp.is_empty() {
+                continue;
+            }
+            for (qi, &qv) in q.iter().enumerate() {
+                let got = |c: &wtmm::spectra::Cell| c.e as f64 + c.z.log2();
+                let (zp, zs) = (got(&im.plain[qi * ns + j]), got(&im.sup[qi * ns + j]));
+                let (wp, ws) = (log2_sum_pow(&lp, qv), log2_sum_pow(&ls, qv));
+                // |log2 Z| up to ~40 here: 1e-12 relative on Z is 1.5e-12 in log2
+                assert!(
+                    (zp - wp).abs() < 2e-12 * (1.0 + wp.abs()),
+                    "plain q={qv} j={j}: {zp} vs {wp}"
+                );
+                assert!(
+                    (zs - ws).abs() < 2e-12 * (1.0 + ws.abs()),
+                    "sup q={qv} j={j}: {zs} vs {ws}"
+                );
+                if qv > 0.0 {
+                    assert!(zs >= zp - 1e-12, "q={qv} j={j}: Z_sup < Z_plain");
+                } else if qv < 0.0 {
+                    assert!(zs <= zp + 1e-12, "q={qv} j={j}: Z_sup > Z_plain");
+                } else {
+                    assert_eq!(
+                        zs.to_bits(),
+                        zp.to_bits(),
+                        "q=0 j={j}: both count the lines"
+                    );
+                }
             }
         }
     }
