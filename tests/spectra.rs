@@ -563,6 +563,59 @@ fn sup_rule_is_the_running_maximum_along_every_line() {
     }
 }
 
+/// The ensemble cells pool the lines of every image: `log2 Z`, `h(q, a)`
+/// and the effective number of lines `n_eff = (Σ w)^2 / Σ w^2` (w = M^q)
+/// of the merged sums equal those recomputed from the pooled moduli. The
+/// images differ in amplitude by 2^±20, so that their cells carry different
+/// exponents `e` and the merge must rescale `z` by `2^(e - emax)` and `z2`
+/// by its square. Rounding: sums of ~10^3 terms in another order, 1e-12
+/// relative.
+#[test]
+fn ensemble_cells_are_those_of_the_pooled_lines() {
+    let q = [-3.0, -1.0, 0.0, 1.0, 2.5, 4.0];
+    let cfg = small_cfg();
+    let sks: Vec<_> = [1.0, 2f64.powi(20), 2f64.powi(-20)]
+        .iter()
+        .enumerate()
+        .map(|(i, &amp)| {
+            let f = fbm(FbmParams { hurst: 0.6 }, 128, 128, 50 + i as u64, 0).unwrap();
+            wtmm::skeleton::skeleton(&Field::new(f * amp), &cfg).unwrap()
+        })
+        .collect();
+    let parts = sks
+        .iter()
+        .map(|sk| PartitionSums::from_skeleton(sk, &q, "fbm"));
+    let sums = PartitionSums::merge_all(parts).unwrap().unwrap();
+    let s = sums.spectra(Rule::Plain, (0.5, 3.0)).unwrap();
+    let ns = sks[0].scales.len();
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * (1.0 + b.abs());
+    for j in 0..ns {
+        let l: Vec<f64> = sks.iter().flat_map(|sk| counted_values(sk, j).0).collect();
+        if l.is_empty() {
+            continue;
+        }
+        for (qi, &qv) in q.iter().enumerate() {
+            let lz = log2_sum_pow(&l, qv);
+            // weights relative to the largest, so that 2^(q l) cannot overflow
+            let w: Vec<f64> = l.iter().map(|&v| (qv * v - lz).exp2()).collect();
+            let n_eff = 1.0 / w.iter().map(|w| w * w).sum::<f64>();
+            let h: f64 = w.iter().zip(&l).map(|(w, l)| w * l).sum();
+            let tag = format!("q={qv} j={j}");
+            assert!(
+                close(s.log2_z[qi][j], lz),
+                "{tag}: log2 Z {} vs {lz}",
+                s.log2_z[qi][j]
+            );
+            assert!(close(s.h_qa[qi][j], h), "{tag}: h {} vs {h}", s.h_qa[qi][j]);
+            assert!(
+                close(s.n_eff[qi][j], n_eff),
+                "{tag}: n_eff {} vs {n_eff}",
+                s.n_eff[qi][j]
+            );
+        }
+    }
+}
+
 /// Where M grows with the scale along every line the two rules are the
 /// same estimator: `max_{a' <= a} M(a') = M(a)`, so the partition sums and
 /// the spectra agree to the last bit. Field: five parallel step edges of
