@@ -1404,4 +1404,61 @@ mod tests {
             }
         }
     }
+
+    /// The tie rule of the NMS (`M(p) > M(p+u)`, `M(p) >= M(p-u)`): on a
+    /// ridge two pixels wide, both of equal modulus, exactly one column is
+    /// WTMM, the one ahead along `u` (a strict or a loose test on both sides
+    /// would keep none or both); a ridge one pixel wide keeps its pixel.
+    /// Both NMS paths: the streaming interior and the wrapped torus rows.
+    #[test]
+    fn ridge_plateau_keeps_one_column() {
+        let (ny, nx) = (16, 24);
+        for (ridge, sign, want) in [
+            (&[10usize, 11][..], 1.0, 11u32),
+            (&[10, 11][..], -1.0, 10),
+            (&[10][..], 1.0, 10),
+            (&[10][..], -1.0, 10),
+        ] {
+            // M falls by 1 per pixel away from the ridge (>= 8 > 0 on the
+            // torus); T real, so u = (sign, 0)
+            let t = Array2::from_shape_fn((ny, nx), |(_, x)| {
+                let d = ridge.iter().map(|&r| x.abs_diff(r)).min().unwrap();
+                Complex64::new(sign * (20.0 - d as f64), 0.0)
+            });
+            for margin in [3, 0] {
+                let dom = Domain::interior(ny, nx, margin);
+                assert_eq!(dom.wraps(2.0), margin == 0);
+                let mut s = DetectScratch::default();
+                let sm = detect(&t, 0, 2.0, &dom, 0.0, true, &mut s);
+                let px: Vec<_> = sm.chains.iter().flat_map(|c| c.pixels.clone()).collect();
+                let tag = format!("ridge {ridge:?} sign {sign} margin {margin}");
+                assert_eq!(sm.n_wtmm, ny - 2 * margin, "{tag}");
+                assert_eq!(px.len(), sm.n_wtmm, "{tag}");
+                assert!(px.iter().all(|&(x, _)| x == want), "{tag}: {px:?}");
+            }
+        }
+    }
+
+    /// `counts` is the half-open rectangle `[x0, x1) x [y0, y1)` and
+    /// `area` its pixel count, by brute force over every pixel.
+    #[test]
+    fn counting_rectangle_is_half_open() {
+        for (ny, nx, margin) in [(9, 13, 2), (8, 8, 0), (6, 11, 3), (4, 4, 2), (5, 7, 9)] {
+            let dom = Domain::interior(ny, nx, margin);
+            let mut n = 0;
+            for y in 0..ny + 2 {
+                for x in 0..nx + 2 {
+                    let inside = x >= margin && x + margin < nx && y >= margin && y + margin < ny;
+                    assert_eq!(
+                        dom.counts(x as u32, y as u32),
+                        inside,
+                        "{ny}x{nx} m{margin} ({x},{y})"
+                    );
+                    n += inside as usize;
+                }
+            }
+            assert_eq!(dom.area(), n, "{ny}x{nx} m{margin}");
+            assert_eq!(dom.is_empty(), n == 0, "{ny}x{nx} m{margin}");
+        }
+    }
 }
