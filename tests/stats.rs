@@ -600,7 +600,9 @@ fn reconstruction_of_a_pure_shift() {
 ///   bins pass the chi-square test of uniformity at the 0.999 quantile (63
 ///   degrees of freedom);
 /// * each of the four sectors holds a quarter of the points within 4
-///   binomial standard errors `sqrt(3/16/N) = 0.001` (before: 0.01);
+///   binomial standard errors `sqrt(3/16/N) = 0.001` (before: 0.01), and
+///   its `P(ln M | A)` and `P(M | A)` are those of the law (A independent
+///   of M);
 /// * the rescaled grid is `M / (a/a_min)^h0` and the (T1, T2) density
 ///   integrates to the law's expectation for its grid of cells within 4
 ///   standard deviations of the multinomial counts (before: between 0.9
@@ -712,6 +714,32 @@ fn pdfs_of_a_known_law() {
             "sector {}: {} of {big_n}",
             s.centre,
             s.n
+        );
+        // A is independent of M here, so P(ln M | A) is the law: a density,
+        // N(0, 1) on [0, d) within 4 binomial errors of the sector's count,
+        // and P(M | A) = P(ln M | A)/M (the trapezoid identity above)
+        let ns = s.n as f64;
+        assert_eq!((s.p_ln_m.len(), s.p_m.len()), (sp.m.len(), sp.m.len()));
+        assert!((s.p_ln_m.iter().sum::<f64>() * d - 1.0).abs() < 1e-12);
+        let se = (p0 * (1.0 - p0) / ns).sqrt() / d;
+        assert!(
+            (s.p_ln_m[i] - p0 / d).abs() < 4.0 * se,
+            "sector {}: P(ln M) on [0, {d}): {} vs {} +- {se}",
+            s.centre,
+            s.p_ln_m[i],
+            p0 / d
+        );
+        let mass: f64 =
+            sp.m.windows(2)
+                .zip(s.p_m.windows(2))
+                .map(|(m, p)| 0.5 * (p[0] + p[1]) * (m[1] - m[0]))
+                .sum();
+        let (f0, fl) = (s.p_ln_m[0], s.p_ln_m[s.p_ln_m.len() - 1]);
+        let want = d.sinh() / d - 0.5 * ((d.exp() - 1.0) * fl + (1.0 - (-d).exp()) * f0);
+        assert!(
+            (mass - want).abs() < 1e-12,
+            "sector {}: mass {mass} vs {want}",
+            s.centre
         );
     }
     // the (T1, T2) density integrates to what this law puts in its cells:
