@@ -234,6 +234,59 @@ fn kernel_recovers_known_cumulants_lognormal_and_logpoisson() {
     }
 }
 
+/// The kernel's phase is unwrapped: with `ln M = m log2(L/a) ± δ` (two
+/// points per scale, so `C_a(p) = e^(i p m t) cos(p δ)` and `Ĝ(p) =
+/// e^(i p m Δt)` exactly) the phase of `Ĝ` over `|p| <= 8` is the straight
+/// line `m p Δt`, here up to 3.4π for the 5-octave pair, not folded into
+/// (-π, π]. Rounding only: 1e-9.
+#[test]
+fn kernel_phase_is_unwrapped() {
+    let scales = half_octave_scales();
+    let (m, delta, l) = (-0.38 * LN_2, 0.01, 2f64.powi(8));
+    let vals: Vec<Vec<f64>> = scales
+        .iter()
+        .map(|&a| {
+            let u = m * (l / a).log2();
+            vec![u - delta, u + delta]
+        })
+        .collect();
+    let one = |i: usize| {
+        KernelSums::from_ln_m(
+            &scales,
+            KernelConfig::default(),
+            WtmmmSet::All,
+            &vals,
+            format!("line {i}"),
+        )
+        .unwrap()
+    };
+    let mut s = one(0);
+    s.merge(&one(1)).unwrap();
+    let opts = KernelOptions {
+        pairs: vec![(0.0, 5.0), (1.0, 4.0)],
+        ..opts_all_scales()
+    };
+    let k = kernel_estimates(&s, &opts).unwrap();
+    let mut widest: f64 = 0.0;
+    for kc in &k.kernels {
+        for (i, &p) in kc.p.iter().enumerate() {
+            let want = m * p / LN_2;
+            assert!(
+                (kc.phase_norm[i] - want).abs() < 1e-9,
+                "pair {}-{} at p = {p}: phase/ln(a'/a) {} vs {want}",
+                kc.octave,
+                kc.octave_ref,
+                kc.phase_norm[i]
+            );
+            widest = widest.max(kc.phase[i].abs());
+        }
+    }
+    assert!(
+        widest > 3.0 * PI,
+        "largest |phase| {widest}: no wrap tested"
+    );
+}
+
 /// Plug-in (empirical-distribution) cumulants `κ_1..κ_kmax` of `u`
 /// (index n holds κ_n; κ_0 = 0), from the central moments by the recursion
 /// `κ_n = μ_n - Σ_{m=2}^{n-1} C(n-1, m-1) κ_m μ_{n-m}` (κ_1 of the centred
