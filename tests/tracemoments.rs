@@ -1971,3 +1971,214 @@ fn unusable_lone_images_say_why() {
     }));
     analyze(&f, cfg, &fc).unwrap();
 }
+
+// ------------------------------------ normalisation by the ensemble mean
+
+/// Every normalised output of the trace moments is blind to the field's
+/// units (SPEC §8: φ is normalised so that its ensemble mean is 1): 4
+/// topo-fif fields of 128² and the same fields times 3, through the whole
+/// default chain (auto fractional derivative, gradient modulus, DTM, the
+/// spectrum), give the same moment tables `log2 <φ_λ^q>` at every q and
+/// level, and hence the same K(q), intercepts, log2 λ_eff, K(q, η), α, C1,
+/// q_s, H and β. `log2 <φ_λ^q>` is `log2 Σ φ_λ^q - log2 count - q log2 <φ>`;
+/// the last term is what cancels the `3^q`. Only the structure functions
+/// are of the field itself: `log2 S_q` moves by `q log2 3` exactly.
+///
+/// Tolerance: the scaled fields differ by one rounding per pixel (1e-16
+/// relative), which the filters (the fractional derivative's estimated
+/// order too), log-sums and line fits carry at a few hundred ulp (measured:
+/// 2e-12 at most on the moment tables), so `1e-9` relative (plus `1e-12`
+/// absolute for the values that are 0 up to rounding, at q = 1) leaves a
+/// margin of 500 while any error in the normalisation's power of the mean
+/// shows at `|q - 1| log2 3`, 0.16 already at q = 0.9. (The slopes K(q)
+/// cannot see such an error: it is the same at every level; the
+/// intercepts and λ_eff do.) α, C1, q_s and H come from the universal
+/// fit, whose α is the argmin of a least-squares sum by golden section: a
+/// minimum pins its argument only to `sqrt(ε) ≈ 1.5e-8` relative
+/// (measured here: α 5e-11, q_s 1.1e-9), so those get `1e-6`.
+#[test]
+fn normalised_trace_moments_ignore_the_field_scale() {
+    let arrays: Vec<Array2<f64>> = (0..4)
+        .map(|i| fif(&FifParams::TOPO, 128, 128, 21, i).unwrap())
+        .collect();
+    let run = |scale: f64| {
+        let parts: Vec<TraceMomentAccumulator> = arrays
+            .iter()
+            .map(|a| {
+                let mut acc = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+                acc.add_field(&Field::new(a.mapv(|v| scale * v))).unwrap();
+                acc
+            })
+            .collect();
+        merge_except(&parts, &[])
+            .finish(&TraceMomentFitConfig::default())
+            .unwrap()
+    };
+    let (a, b) = (run(1.0), run(3.0));
+    let close = |what: &str, x: f64, y: f64, rel: f64| {
+        assert!(
+            x == y
+                || (x.is_nan() && y.is_nan())
+                || (x - y).abs() <= rel * x.abs().max(y.abs()) + 1e-12,
+            "{what}: {x} for the field, {y} for 3 x the field"
+        );
+    };
+    let same = |what: &str, x: f64, y: f64| close(what, x, y, 1e-9);
+    let all = |what: &str, x: &[f64], y: &[f64]| {
+        assert_eq!(x.len(), y.len(), "{what}");
+        for (i, (u, v)) in x.iter().zip(y).enumerate() {
+            same(&format!("{what}[{i}]"), *u, *v);
+        }
+    };
+    for (iq, q) in a.q.iter().enumerate() {
+        all(
+            &format!("log2 moments at q = {q}"),
+            &a.log2_moments[iq],
+            &b.log2_moments[iq],
+        );
+    }
+    for (iq, q) in a.dtm_q.iter().enumerate() {
+        for (ie, eta) in a.eta.iter().enumerate() {
+            all(
+                &format!("DTM moments at q = {q}, eta = {eta}"),
+                &a.log2_moments_eta[iq][ie],
+                &b.log2_moments_eta[iq][ie],
+            );
+        }
+    }
+    all("K", &a.k, &b.k);
+    all("K intercept", &a.k_intercept, &b.k_intercept);
+    for (iq, (x, y)) in a.k_eta.iter().zip(&b.k_eta).enumerate() {
+        all(&format!("K(q, eta) at dtm q {}", a.dtm_q[iq]), x, y);
+    }
+    all("xi", &a.xi, &b.xi);
+    for (what, x, y) in [
+        ("log2 lambda_eff", a.log2_lambda_eff, b.log2_lambda_eff),
+        ("DTM alpha", a.dtm_alpha, b.dtm_alpha),
+        ("DTM C1", a.dtm_c1, b.dtm_c1),
+        ("diff order", a.diff_order, b.diff_order),
+        ("beta", a.beta.unwrap(), b.beta.unwrap()),
+    ] {
+        same(what, x, y);
+    }
+    for (what, x, y) in [
+        ("alpha", a.alpha, b.alpha),
+        ("C1", a.c1, b.c1),
+        ("q_s", a.q_s, b.q_s),
+        ("H", a.h.unwrap(), b.h.unwrap()),
+    ] {
+        close(what, x, y, 1e-6);
+    }
+    // the moments are not trivially flat: the check has something to see
+    let i2 = a.q.iter().position(|&q| (q - 2.0).abs() < 1e-9).unwrap();
+    assert!(
+        a.log2_lambda_eff.is_finite() && a.k[i2] > 0.05,
+        "log2 lambda_eff {}, K(2) {}",
+        a.log2_lambda_eff,
+        a.k[i2]
+    );
+    let shift = 3f64.log2();
+    for (iq, q) in a.sf_q.iter().enumerate() {
+        let moved: Vec<f64> = a.log2_sf[iq].iter().map(|v| v + q * shift).collect();
+        all(&format!("log2 S_q at q = {q}"), &moved, &b.log2_sf[iq]);
+    }
+}
+
+/// `(what, z)` for the normalised moments of 64 log-normal [`cascade`]s of
+/// 64² (6 steps, C1 = 0.1, seed `seed`) multiplied by 3: z is the estimate
+/// minus its exact expectation over its jackknife error (over the images,
+/// computed here: the library reports none for the moments). Exact (the
+/// cascade's multipliers have `<W> = 1`, so `<φ> = 3`, and the
+/// normalisation must remove `3^q`): at the pixels (log2 λ = 6) the bare
+/// `log2 <φ^q> = 6 K(q)` for every q, tested at 0 < q <= 2, q != 1 (where
+/// it is 0 with no error); at every level, q = 2, the dressed
+/// `k log2 <W²> + log2 <Z²_(6-k)>` of `lognormal_cascade_recovers_k_alpha_c1`.
+fn scaled_cascade_moment_z(seed: u64) -> Vec<(String, f64)> {
+    use rayon::prelude::*;
+    let (steps, c1) = (6, 0.1);
+    let s = (c1 * 2.0 * std::f64::consts::LN_2).sqrt();
+    let parts: Vec<TraceMomentAccumulator> = (0..64u64)
+        .into_par_iter()
+        .map(|i| {
+            let mut a = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+            a.add_flux((cascade(steps, s, seed, i) * 3.0).view(), None)
+                .unwrap();
+            a
+        })
+        .collect();
+    let fc = TraceMomentFitConfig::default();
+    let res = merge_except(&parts, &[]).finish(&fc).unwrap();
+    let loo: Vec<TraceMomentResult> = (0..parts.len())
+        .into_par_iter()
+        .map(|i| merge_except(&parts, &[i]).finish(&fc).unwrap())
+        .collect();
+    let z = |iq: usize, lev: usize, want: f64| {
+        let v: Vec<f64> = loo.iter().map(|r| r.log2_moments[iq][lev]).collect();
+        (res.log2_moments[iq][lev] - want) / wtmm::stats::jackknife_se(&v)
+    };
+    let mut out = Vec::new();
+    let w2 = (s * s).exp();
+    let mut z2 = vec![1.0f64];
+    for m in 1..=steps {
+        z2.push(w2 * z2[m - 1] / 4.0 + 0.75);
+    }
+    let i2 = res.q.iter().position(|&q| (q - 2.0).abs() < 1e-9).unwrap();
+    for (lev, &x) in res.log2_lambda.iter().enumerate() {
+        let k = x as usize;
+        let want = k as f64 * w2.log2() + z2[steps - k].log2();
+        out.push((format!("q = 2, log2 lambda = {k}"), z(i2, lev, want)));
+    }
+    assert_eq!(res.log2_lambda[0], steps as f64, "level 0 is the pixel");
+    for (iq, &q) in res.q.iter().enumerate() {
+        if q <= 2.0 + 1e-9 && (q - 1.0).abs() > 1e-9 {
+            let want = steps as f64 * c1 * (q * q - q);
+            out.push((format!("pixels, q = {q}"), z(iq, 0, want)));
+        }
+    }
+    out
+}
+
+/// The normalised moment tables are the theory's values, not only their
+/// slopes (SPEC §8): on a cascade multiplied by 3 (`scaled_cascade_moment_z`)
+/// every tested `log2 <φ_λ^q>` lies within 4 jackknife errors of its exact
+/// expectation. Honest errors: over 32 independent ensembles (seeds
+/// 200-231, `experiment_scaled_cascade_moments`) the z of every tested
+/// moment had sd 0.73-1.06 and lay within [-2.79, 1.87] (with 16 images of
+/// 128² instead the sampling distribution was skewed, z down to -4.0,
+/// hence 64 images).
+/// A normalisation by `<φ>` instead of `<φ>^q` would move every value by
+/// `(q - 1) log2 3`: 1.58 at q = 2, where the error is about 0.1-0.2.
+/// About 0.5 s.
+#[test]
+fn normalised_moments_of_a_scaled_cascade_are_exact() {
+    let zs = scaled_cascade_moment_z(12);
+    assert!(zs.len() >= 25, "{} values tested", zs.len());
+    let worst = zs.iter().map(|(_, z)| z.abs()).fold(0.0, f64::max);
+    println!(
+        "scaled cascade: worst of {} moments {worst:.2} errors",
+        zs.len()
+    );
+    for (what, z) in zs {
+        assert!(z.abs() < 4.0, "{what}: {z:+.2} jackknife errors from exact");
+    }
+}
+
+/// The calibration of `normalised_moments_of_a_scaled_cascade_are_exact`
+/// (not a check; `cargo test --release --test tracemoments
+/// experiment_scaled_cascade_moments -- --ignored --nocapture`, env SEEDS
+/// (default 32) ensembles from seed 200; about 15 s): the mean, sd and range
+/// of z per tested moment.
+#[test]
+#[ignore]
+fn experiment_scaled_cascade_moments() {
+    let seeds: u64 = std::env::var("SEEDS").map_or(32, |s| s.parse().unwrap());
+    let runs: Vec<Vec<(String, f64)>> = (200..200 + seeds).map(scaled_cascade_moment_z).collect();
+    for (j, (what, _)) in runs[0].iter().enumerate() {
+        let v: Vec<f64> = runs.iter().map(|r| r[j].1).collect();
+        let (m, sd) = mean_std(&v);
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+        println!("{what}: z mean {m:+.2} sd {sd:.2} in [{lo:+.2}, {hi:+.2}]");
+    }
+}
