@@ -2273,12 +2273,15 @@ fn experiment_kappa_per_scale() {
 }
 
 /// Diagnostic: the same over every other pixel of the CWT grid (no WTMMM
-/// selection). Environment: SIGMA2, M, SIZE, N.
+/// selection). Environment: SIGMA2 (default 0.03 ln 2, paper-lognormal),
+/// M, SIZE, N.
 #[test]
 #[ignore]
 #[allow(clippy::needless_range_loop)]
 fn experiment_kappa_cwt_grid() {
-    let s2: f64 = std::env::var("SIGMA2").unwrap().parse().unwrap();
+    let s2: f64 = std::env::var("SIGMA2")
+        .map(|v| v.parse::<f64>().unwrap())
+        .unwrap_or(0.03 * LN_2);
     let m: f64 = std::env::var("M")
         .map(|v| v.parse::<f64>().unwrap())
         .unwrap_or(-0.38)
