@@ -621,6 +621,49 @@ mod tests {
         }
     }
 
+    /// The bins by brute force: bin b of `B` per octave holds the modes with
+    /// `π 2^-(b+1)/B < |k| <= π 2^-b/B` (k = 0 and the corners beyond
+    /// Nyquist left out), reported at the geometric mean of their |k| with
+    /// the mean of their densities; |k| from the signed DFT frequencies.
+    #[test]
+    fn bins_hold_their_modes_at_the_geometric_mean() {
+        let pi = std::f64::consts::PI;
+        for &(ny, nx, bpo) in &[(9, 12, 4), (16, 16, 1), (20, 7, 3)] {
+            let s = Array2::from_shape_fn((ny, nx), |(ky, kx)| 1.0 + (ky * 31 + kx * 7) as f64);
+            let got = PowerSpectrum::from_density(s.view(), bpo).unwrap().points();
+            let mut want: std::collections::BTreeMap<i64, (f64, f64, f64)> = Default::default();
+            for ((ky, kx), &v) in s.indexed_iter() {
+                let sk = |m: usize, n: usize| {
+                    let m = m as f64;
+                    let n = n as f64;
+                    if m <= n / 2.0 { m } else { m - n }
+                };
+                let (fx, fy) = (
+                    2.0 * pi * sk(kx, nx) / nx as f64,
+                    2.0 * pi * sk(ky, ny) / ny as f64,
+                );
+                let k = fx.hypot(fy);
+                if k == 0.0 || k > pi {
+                    continue;
+                }
+                let b = ((pi / k).log2() * bpo as f64).floor() as i64;
+                let lo = pi * 2f64.powf(-((b + 1) as f64) / bpo as f64);
+                let hi = pi * 2f64.powf(-(b as f64) / bpo as f64);
+                assert!(k > lo * (1.0 - 1e-12) && k <= hi * (1.0 + 1e-12));
+                let e = want.entry(-b).or_default();
+                *e = (e.0 + k.ln(), e.1 + v, e.2 + 1.0);
+            }
+            assert_eq!(got.len(), want.len(), "{ny}x{nx} {bpo}");
+            for (g, (_, &(lk, sv, c))) in got.iter().zip(&want) {
+                let (k, sm) = ((lk / c).exp(), sv / c);
+                assert!(
+                    (g.0 - k).abs() < 1e-12 * k && (g.1 - sm).abs() < 1e-12 * sm,
+                    "{ny}x{nx} {bpo}: {g:?} vs ({k}, {sm})"
+                );
+            }
+        }
+    }
+
     /// `bins_in_range`, which bins only the modes below `2 k_hi`, counts
     /// the bins of the whole spectrum: square and not, odd sizes, one to
     /// eight bins per octave, ranges ending on bin edges and at Nyquist.
