@@ -731,6 +731,33 @@ mod tests {
         assert_eq!(xs(&lines[0]), vec![50, 54]);
     }
 
+    /// Exact ties (common on the integer grid) are broken by index, so the
+    /// skeleton does not depend on the order the cells are scanned in: a
+    /// line equidistant from two candidates takes the lower WTMMM index; a
+    /// candidate equidistant from two lines goes to the lower line id.
+    #[test]
+    fn ties_go_to_the_lower_index() {
+        let s0 = scale(0, 1.5, &[(50, 50, 1.0)]);
+        for (pts, want) in [
+            ([(52, 50, 1.0), (48, 50, 1.0)], 52),
+            ([(48, 50, 1.0), (52, 50, 1.0)], 48),
+            ([(50, 52, 1.0), (52, 50, 1.0)], 50),
+        ] {
+            let (lines, _) = link(LinkParams::default(), &[s0.clone(), scale(1, 1.6, &pts)]);
+            assert_eq!(lines[0].points[1].x, want, "{pts:?}");
+        }
+        let s1 = scale(1, 1.6, &[(42, 50, 1.0)]);
+        for (pts, winner) in [
+            ([(40, 50, 1.0), (44, 50, 1.0)], 0),
+            ([(44, 50, 1.0), (40, 50, 1.0)], 0),
+        ] {
+            let (lines, ends) = link(LinkParams::default(), &[scale(0, 1.5, &pts), s1.clone()]);
+            assert_eq!(lines[winner].points.len(), 2, "{pts:?}");
+            assert_eq!(lines[1 - winner].points.len(), 1, "{pts:?}");
+            assert_eq!(ends[1].contested, 1);
+        }
+    }
+
     #[test]
     fn a_contested_candidate_goes_to_the_nearer_line_and_the_other_ends() {
         // lines at x = 40 and 43; the candidate at 42 is 2 px from the first
