@@ -733,14 +733,20 @@ fn pdfs_of_a_known_law() {
         chi2 < q999(bins - 1),
         "P(ln M) is not N(0, 1): chi2 {chi2:.1}"
     );
-    // P(M) = P(ln M)/M: the trapezoid over M, exactly
-    let mass: f64 =
-        sp.m.windows(2)
-            .zip(sp.p_m.windows(2))
-            .map(|(m, p)| 0.5 * (p[0] + p[1]) * (m[1] - m[0]))
-            .sum();
-    let (f0, fl) = (sp.p_ln_m[0], sp.p_ln_m[sp.p_ln_m.len() - 1]);
-    let want = d.sinh() / d - 0.5 * ((d.exp() - 1.0) * fl + (1.0 - (-d).exp()) * f0);
+    // P(M) = P(ln M)/M: the trapezoid over M of P(M) is, exactly, this
+    // function of P(ln M) at its two ends (a density of total mass 1 on
+    // bins of width d in ln M); (mass, want)
+    let trapezoid = |p_m: &[f64], p_ln_m: &[f64]| {
+        let mass: f64 =
+            sp.m.windows(2)
+                .zip(p_m.windows(2))
+                .map(|(m, p)| 0.5 * (p[0] + p[1]) * (m[1] - m[0]))
+                .sum();
+        let (f0, fl) = (p_ln_m[0], p_ln_m[p_ln_m.len() - 1]);
+        let want = d.sinh() / d - 0.5 * ((d.exp() - 1.0) * fl + (1.0 - (-d).exp()) * f0);
+        (mass, want)
+    };
+    let (mass, want) = trapezoid(&sp.p_m, &sp.p_ln_m);
     assert!((mass - want).abs() < 1e-12, "mass {mass} vs {want}");
     // rescaled: x = M / 2^0.5, density multiplied by 2^0.5
     assert!((sp.rescaled_m[i] * 2f64.sqrt() - sp.m[i]).abs() < 1e-12);
@@ -782,13 +788,7 @@ fn pdfs_of_a_known_law() {
             s.p_ln_m[i],
             p0 / d
         );
-        let mass: f64 =
-            sp.m.windows(2)
-                .zip(s.p_m.windows(2))
-                .map(|(m, p)| 0.5 * (p[0] + p[1]) * (m[1] - m[0]))
-                .sum();
-        let (f0, fl) = (s.p_ln_m[0], s.p_ln_m[s.p_ln_m.len() - 1]);
-        let want = d.sinh() / d - 0.5 * ((d.exp() - 1.0) * fl + (1.0 - (-d).exp()) * f0);
+        let (mass, want) = trapezoid(&s.p_m, &s.p_ln_m);
         assert!(
             (mass - want).abs() < 1e-12,
             "sector {}: mass {mass} vs {want}",
