@@ -748,6 +748,40 @@ fn tiff_photometric_nodata_and_size() {
     }
 }
 
+/// A GDAL nodata tag that cannot be read (its byte count corrupt: 768 MiB
+/// claimed in a 100-byte file, or text running past the end of the file)
+/// is said in a warning, not dropped in silence, and its claimed size is
+/// not allocated.
+#[test]
+fn tiff_unreadable_nodata_tag_is_said() {
+    let dir = scratch("tiff_nodata_tag");
+    for le in [true, false] {
+        let i16s = ordered(le, &[-9999i16, 1, 2, 3, 4, 5].map(i16::to_le_bytes));
+        let good = tiff_by_hand(le, (3, 2), 1, 16, 2, &i16s, Some("-9999"));
+        // the nodata entry is the last of 11 (tags in order)
+        let e = 8 + 2 + 12 * 10;
+        assert_eq!(good[e..e + 2], ordered(le, &[42113u16.to_le_bytes()]));
+        for (name, count, word) in [
+            ("huge_count.tif", 0x3000_0006u32, "805306374 bytes"),
+            ("past_eof.tif", 200, "cannot be read"),
+        ] {
+            let mut b = good.clone();
+            b[e + 4..e + 8].copy_from_slice(&ordered(le, &[count.to_le_bytes()]));
+            let p = dir.join(name);
+            std::fs::write(&p, b).unwrap();
+            let (f, info) = read_field_with_info(&p).unwrap();
+            assert!(!f.is_masked(0, 0), "{name}: no nodata known");
+            assert!(
+                info.warnings
+                    .iter()
+                    .any(|w| w.contains("GDAL nodata tag") && w.contains(word)),
+                "{name}: {:?}",
+                info.warnings
+            );
+        }
+    }
+}
+
 #[test]
 fn png_sidecar_rules() {
     let dir = scratch("sidecar");

@@ -85,9 +85,36 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
             "unsupported bit depth {bits} (need 8, 16, 32 or 64)"
         )));
     }
-    let nodata_text = match dec.find_tag(Tag::GdalNodata) {
-        Ok(Some(v)) => v.into_string().ok(),
-        _ => None,
+    let mut info_warnings = Vec::new();
+    // The tag is a number as text. Its byte count is checked before the
+    // decoder reads it (it allocates the count first: a corrupt count in
+    // a 100-byte file asks for up to the 1 GiB decoding limit), and one
+    // that cannot be read is said: dropped in silence, its missing pixels
+    // would be read as values.
+    let nodata_text = match dec.image_ifd().find_entry(Tag::GdalNodata) {
+        None => None,
+        Some(entry) if entry.count() > MAX_NODATA_TEXT => {
+            info_warnings.push(format!(
+                "GDAL nodata tag declares {} bytes, not a number (at most {MAX_NODATA_TEXT}); \
+                 ignored: missing pixels, if any, are read as values",
+                entry.count()
+            ));
+            None
+        }
+        Some(_) => match dec
+            .find_tag(Tag::GdalNodata)
+            .map(|v| v.map(|v| v.into_string()))
+        {
+            Ok(Some(Ok(text))) => Some(text),
+            Ok(None) => None,
+            Ok(Some(Err(e))) | Err(e) => {
+                info_warnings.push(format!(
+                    "GDAL nodata tag cannot be read ({e}); ignored: missing pixels, if any, \
+                     are read as values"
+                ));
+                None
+            }
+        },
     };
     let more_images = dec.more_images();
 
@@ -115,6 +142,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     values.truncate(nx * ny);
 
     let mut info = ReadInfo::new(ImageFormat::Tiff, dtype);
+    info.warnings = info_warnings;
     let mut nodata = None;
     if let Some(text) = nodata_text {
         let t = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
@@ -139,6 +167,10 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     }
     Ok((field_from(path, ny, nx, values, nodata)?, info))
 }
+
+/// The longest GDAL nodata text read: a number (GDAL writes at most ~25
+/// characters, e.g. `-3.4028234663852886e+38`), with room for padding.
+const MAX_NODATA_TEXT: u64 = 256;
 
 /// Rewrites a PhotometricInterpretation of 0 (WhiteIsZero) in the first
 /// IFD to 1 (BlackIsZero), in place; true if it did. The decoder offers no
