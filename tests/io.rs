@@ -782,6 +782,32 @@ fn tiff_unreadable_nodata_tag_is_said() {
     }
 }
 
+/// A corrupt tag the decoder quotes whole (a sample format tag of 1000
+/// values) gives an error of a few lines, not kilobytes.
+#[test]
+fn tiff_decoder_errors_are_short() {
+    let dir = scratch("tiff_long_error");
+    let pixels = vec![7u8; 2000];
+    let mut b = tiff_by_hand(true, (50, 40), 1, 8, 1, &pixels, None);
+    // SampleFormat (339), the 10th entry: 1000 SHORTs read from offset 0
+    let e = 8 + 2 + 12 * 9;
+    assert_eq!(b[e..e + 2], 339u16.to_le_bytes());
+    b[e + 4..e + 8].copy_from_slice(&1000u32.to_le_bytes());
+    b[e + 8..e + 12].copy_from_slice(&0u32.to_le_bytes());
+    let p = dir.join("long_error.tif");
+    std::fs::write(&p, b).unwrap();
+    for err in [
+        read_field(&p).unwrap_err().to_string(),
+        read_shape(&p).unwrap_err().to_string(),
+    ] {
+        assert!(
+            err.contains("long_error.tif") && err.contains("sample format"),
+            "{err}"
+        );
+        assert!(err.len() < 400, "{} chars: {err}", err.len());
+    }
+}
+
 #[test]
 fn png_sidecar_rules() {
     let dir = scratch("sidecar");

@@ -25,8 +25,12 @@ pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
         path: path.into(),
         source,
     })?;
-    let tiff_err =
-        |e: tiff::TiffError| Error::format(path, format!("TIFF: corrupt or unsupported: {e}"));
+    let tiff_err = |e: tiff::TiffError| {
+        Error::format(
+            path,
+            format!("TIFF: corrupt or unsupported: {}", decoder_error(&e)),
+        )
+    };
     let mut dec = Decoder::new(std::io::BufReader::new(file)).map_err(tiff_err)?;
     let (w, h) = dec.dimensions().map_err(tiff_err)?;
     let (nx, ny) = (w as usize, h as usize);
@@ -42,7 +46,8 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     // BlackIsZero instead.
     let white_is_zero = patch_white_is_zero(&mut bytes);
     let bad = |reason: String| Error::format(path, format!("TIFF: {reason}"));
-    let tiff_err = |e: tiff::TiffError| bad(format!("corrupt or unsupported: {e}"));
+    let tiff_err =
+        |e: tiff::TiffError| bad(format!("corrupt or unsupported: {}", decoder_error(&e)));
     let limits = {
         let mut l = Limits::default();
         l.decoding_buffer_size = MAX_DECODE_BYTES;
@@ -109,8 +114,9 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
             Ok(None) => None,
             Ok(Some(Err(e))) | Err(e) => {
                 info_warnings.push(format!(
-                    "GDAL nodata tag cannot be read ({e}); ignored: missing pixels, if any, \
-                     are read as values"
+                    "GDAL nodata tag cannot be read ({}); ignored: missing pixels, if any, \
+                     are read as values",
+                    decoder_error(&e)
                 ));
                 None
             }
@@ -171,6 +177,22 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
 /// The longest GDAL nodata text read: a number (GDAL writes at most ~25
 /// characters, e.g. `-3.4028234663852886e+38`), with room for padding.
 const MAX_NODATA_TEXT: u64 = 256;
+
+/// A decoder error for a message, cut short: the decoder quotes some
+/// corrupt tags whole (a sample format tag of 1000 values is 15 KB of
+/// text), which would bury the file's name and the problem.
+fn decoder_error(e: &tiff::TiffError) -> String {
+    const MAX: usize = 200;
+    let s = e.to_string();
+    if s.len() <= MAX {
+        return s;
+    }
+    let cut = (0..=MAX)
+        .rev()
+        .find(|&i| s.is_char_boundary(i))
+        .unwrap_or(0);
+    format!("{}... ({} more characters)", &s[..cut], s.len() - cut)
+}
 
 /// Rewrites a PhotometricInterpretation of 0 (WhiteIsZero) in the first
 /// IFD to 1 (BlackIsZero), in place; true if it did. The decoder offers no
