@@ -633,6 +633,8 @@ mod tests {
             let got = PowerSpectrum::from_density(s.view(), bpo).unwrap().points();
             let mut want: std::collections::BTreeMap<i64, (f64, f64, f64)> = Default::default();
             for ((ky, kx), &v) in s.indexed_iter() {
+                // signed frequency index written out, not `fourier::signed_bin`:
+                // the reference must not share the code it checks
                 let sk = |m: usize, n: usize| {
                     let m = m as f64;
                     let n = n as f64;
