@@ -808,6 +808,155 @@ fn tiff_decoder_errors_are_short() {
     }
 }
 
+/// A tag the decoder reads whose values run past the end of the file (a
+/// corrupt count made the decoder allocate 128-255 MiB for a 300-byte
+/// file), and an image larger than the file's strips can hold, are refused
+/// as corrupt before the decoder sizes anything by them, by both readers.
+#[test]
+fn tiff_header_larger_than_the_file_is_refused() {
+    let dir = scratch("tiff_layout");
+    let pixels: Vec<u8> = (0..6).collect();
+    for le in [true, false] {
+        let good = tiff_by_hand(le, (3, 2), 1, 8, 1, &pixels, None);
+        let len = good.len();
+        // StripOffsets, the 6th entry: 2^25 LONGs from byte 8
+        let e = 8 + 2 + 12 * 5;
+        assert_eq!(good[e..e + 2], ordered(le, &[273u16.to_le_bytes()]));
+        let mut offsets = good.clone();
+        offsets[e + 4..e + 8].copy_from_slice(&ordered(le, &[(1u32 << 25).to_le_bytes()]));
+        offsets[e + 8..e + 12].copy_from_slice(&ordered(le, &[8u32.to_le_bytes()]));
+        // 3000 x 2000 bytes declared, uncompressed, in a file of ~150 bytes
+        let mut big = tiff_by_hand(le, (3000, 2000), 1, 8, 1, &pixels, None);
+        let big_len = big.len();
+        let rows = 8 + 2 + 12 * 7; // RowsPerStrip: one strip, as written
+        assert_eq!(big[rows..rows + 2], ordered(le, &[278u16.to_le_bytes()]));
+        big[rows + 8..rows + 12].copy_from_slice(&ordered(le, &[2000u32.to_le_bytes()]));
+        for (name, bytes, words) in [
+            (
+                "offsets.tif",
+                offsets,
+                vec![
+                    "StripOffsets (273)".to_string(),
+                    format!("33554432 values at byte 8, past the end of the file ({len} bytes)"),
+                ],
+            ),
+            (
+                "big.tif",
+                big,
+                vec![
+                    "declares 2000 x 3000 samples of 8 bits".to_string(),
+                    format!("a file of {big_len} bytes can hold (uncompressed)"),
+                ],
+            ),
+        ] {
+            let p = dir.join(name);
+            std::fs::write(&p, bytes).unwrap();
+            for err in [
+                read_field(&p).unwrap_err().to_string(),
+                read_shape(&p).unwrap_err().to_string(),
+            ] {
+                assert!(
+                    err.contains(name) && err.contains("truncated or corrupt"),
+                    "{err}"
+                );
+                for w in &words {
+                    assert!(err.contains(w.as_str()), "{name}: {err}");
+                }
+            }
+        }
+        // a compression the decoder cannot read: said before it sizes the
+        // image's buffer (5 x 16 M float32 had been 310 MiB)
+        let mut odd = good.clone();
+        let c = 8 + 2 + 12 * 3;
+        assert_eq!(odd[c..c + 2], ordered(le, &[259u16.to_le_bytes()]));
+        odd[c + 8..c + 10].copy_from_slice(&ordered(le, &[163u16.to_le_bytes()]));
+        // an entry of 8-byte values with a count of 0 (had panicked)
+        let mut empty = good.clone();
+        let f = 8 + 2 + 12 * 9; // SampleFormat
+        empty[f + 2..f + 4].copy_from_slice(&ordered(le, &[12u16.to_le_bytes()]));
+        empty[f + 4..f + 8].copy_from_slice(&[0; 4]);
+        for (name, bytes, word) in [
+            ("odd.tif", odd, "compression method 163 is not supported"),
+            (
+                "empty.tif",
+                empty,
+                "`SampleFormat` did not have the expected value type",
+            ),
+        ] {
+            let p = dir.join(name);
+            std::fs::write(&p, bytes).unwrap();
+            for err in [
+                read_field(&p).unwrap_err().to_string(),
+                read_shape(&p).unwrap_err().to_string(),
+            ] {
+                assert!(err.contains(name) && err.contains(word), "{err}");
+            }
+        }
+        // the same file with its pixels all there reads
+        let whole = tiff_by_hand(le, (300, 200), 1, 8, 1, &vec![5u8; 60_000], None);
+        let p = dir.join("whole.tif");
+        std::fs::write(&p, whole).unwrap();
+        assert_eq!(read_field(&p).unwrap().data.dim(), (200, 300));
+    }
+}
+
+/// CRC-32 of PNG chunks (ISO 3309, as the PNG spec's annex D), bit by bit.
+fn png_crc(data: &[u8]) -> u32 {
+    let mut c = !0u32;
+    for &b in data {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 == 1 {
+                0xedb8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+/// A PNG whose IHDR declares more pixels than its file can inflate to
+/// (zlib: at most 1032-fold) is refused before the decoder sizes its buffer
+/// by the header (an 89-byte file had declared 510 MiB).
+#[test]
+fn png_header_larger_than_the_file_is_refused() {
+    let dir = scratch("png_layout");
+    let p = dir.join("small.png");
+    write_png16(
+        &p,
+        &Array2::from_shape_fn((3, 4), |(i, j)| (i * 4 + j) as f64),
+    )
+    .unwrap();
+    let mut b = std::fs::read(&p).unwrap();
+    // IHDR data at bytes 16..29, its CRC after it
+    assert_eq!(&b[12..16], b"IHDR");
+    b[16..20].copy_from_slice(&5000u32.to_be_bytes());
+    b[20..24].copy_from_slice(&4000u32.to_be_bytes());
+    let crc = png_crc(&b[12..29]);
+    b[29..33].copy_from_slice(&crc.to_be_bytes());
+    let q = dir.join("liar.png");
+    std::fs::write(&q, &b).unwrap();
+    // 16-bit grey: 4000 rows of 1 + 10000 bytes
+    let want = format!(
+        "declares 4000 x 5000 pixels (40004000 bytes of image data), more than a file of {} \
+         bytes can hold",
+        b.len()
+    );
+    for err in [
+        read_field(&q).unwrap_err().to_string(),
+        read_shape(&q).unwrap_err().to_string(),
+    ] {
+        assert!(
+            err.contains("liar.png") && err.contains("truncated or corrupt") && err.contains(&want),
+            "{err}"
+        );
+    }
+    // the same header with its data in the file reads (checked: the
+    // small original still does)
+    assert_eq!(read_field(&p).unwrap().data.dim(), (3, 4));
+}
+
 #[test]
 fn png_sidecar_rules() {
     let dir = scratch("sidecar");

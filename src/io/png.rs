@@ -46,8 +46,9 @@ pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
         source,
     })?;
     let bad = |reason: String| Error::format(path, format!("PNG: {reason}"));
-    let mut head = Vec::with_capacity(24);
-    std::io::Read::read_to_end(&mut std::io::Read::take(file, 24), &mut head).map_err(
+    let file_len = file.metadata().map(|m| m.len()).ok();
+    let mut head = Vec::with_capacity(26);
+    std::io::Read::read_to_end(&mut std::io::Read::take(file, 26), &mut head).map_err(
         |source| Error::Read {
             path: path.into(),
             source,
@@ -69,7 +70,47 @@ pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
         return Err(bad(format!("empty image ({ny} x {nx})")));
     }
     check_pixels(path, ny, nx)?;
+    if let Some(reason) = file_len.and_then(|len| too_small_for_its_header(&head, len)) {
+        return Err(bad(reason));
+    }
     Ok((ny, nx))
+}
+
+/// The most a zlib stream expands: DEFLATE's longest match (258 bytes)
+/// costs at least 2 bits, so 1032:1 (RFC 1951; zlib's `deflateBound`).
+const MAX_ZLIB_RATIO: u64 = 1032;
+
+/// Why a file of `len` bytes cannot hold the image its IHDR declares, if it
+/// cannot: the image data (one filter byte per row and the packed
+/// samples, PNG spec 7.2) is more than the whole file can inflate to. Said
+/// before the decoder sizes its buffer by the header (an 89-byte file had
+/// declared 510 MiB); `None` when the IHDR is incomplete (the decoder says
+/// why) or the size is possible.
+fn too_small_for_its_header(ihdr: &[u8], len: u64) -> Option<String> {
+    let be = |i: usize| -> Option<u64> {
+        Some(u32::from_be_bytes(ihdr.get(i..i + 4)?.try_into().ok()?) as u64)
+    };
+    if ihdr.get(..8)? != PNG_SIGNATURE || ihdr.get(12..16)? != b"IHDR" {
+        return None;
+    }
+    let (w, h) = (be(16)?, be(20)?);
+    let (depth, colour) = (*ihdr.get(24)? as u64, *ihdr.get(25)?);
+    let channels = match colour {
+        0 | 3 => 1,
+        2 => 3,
+        4 => 2,
+        6 => 4,
+        _ => return None,
+    };
+    let row = (w * channels * depth).div_ceil(8) + 1;
+    let need = row.checked_mul(h)?;
+    (need > MAX_ZLIB_RATIO.saturating_mul(len)).then(|| {
+        format!(
+            "truncated or corrupt: the header declares {h} x {w} pixels ({need} bytes of \
+             image data), more than a file of {len} bytes can hold (zlib expands at most \
+             {MAX_ZLIB_RATIO}-fold)"
+        )
+    })
 }
 
 /// The eight bytes every PNG file starts with.
@@ -88,6 +129,10 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
         if w == 0 || h == 0 {
             return Err(bad(format!("empty image ({h} x {w})")));
         }
+        check_pixels(path, h as usize, w as usize)?;
+    }
+    if let Some(reason) = too_small_for_its_header(&bytes, bytes.len() as u64) {
+        return Err(bad(reason));
     }
     let mut dec = Decoder::new_with_limits(
         Cursor::new(&bytes[..]),

@@ -1,7 +1,7 @@
 //! TIFF reader (one band; GeoTIFF tags other than GDAL nodata are ignored)
 //! and float32 writer.
 
-use std::io::Cursor;
+use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use ndarray::Array2;
@@ -31,7 +31,28 @@ pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
             format!("TIFF: corrupt or unsupported: {}", decoder_error(&e)),
         )
     };
-    let mut dec = Decoder::new(std::io::BufReader::new(file)).map_err(tiff_err)?;
+    let len = file
+        .metadata()
+        .map(|m| m.len())
+        .map_err(|source| Error::Read {
+            path: path.into(),
+            source,
+        })?;
+    let mut reader = std::io::BufReader::new(file);
+    let corrupt =
+        |reason: String| Error::format(path, format!("TIFF: truncated or corrupt: {reason}"));
+    let (shape, refusal) = check_layout(&mut reader, len).map_err(corrupt)?;
+    if let Some((ny, nx)) = shape {
+        check_pixels(path, ny, nx)?;
+    }
+    if let Some(why) = refusal {
+        return Err(Error::format(path, format!("TIFF: {why}")));
+    }
+    std::io::Seek::rewind(&mut reader).map_err(|source| Error::Read {
+        path: path.into(),
+        source,
+    })?;
+    let mut dec = Decoder::new(reader).map_err(tiff_err)?;
     let (w, h) = dec.dimensions().map_err(tiff_err)?;
     let (nx, ny) = (w as usize, h as usize);
     check_pixels(path, ny, nx)?;
@@ -48,6 +69,16 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let bad = |reason: String| Error::format(path, format!("TIFF: {reason}"));
     let tiff_err =
         |e: tiff::TiffError| bad(format!("corrupt or unsupported: {}", decoder_error(&e)));
+    // before the decoder sizes anything by the header
+    let corrupt = |reason: String| bad(format!("truncated or corrupt: {reason}"));
+    let (shape, refusal) =
+        check_layout(&mut Cursor::new(&bytes[..]), bytes.len() as u64).map_err(corrupt)?;
+    if let Some((ny, nx)) = shape {
+        check_pixels(path, ny, nx)?;
+    }
+    if let Some(why) = refusal {
+        return Err(bad(why));
+    }
     let limits = {
         let mut l = Limits::default();
         l.decoding_buffer_size = MAX_DECODE_BYTES;
@@ -192,6 +223,180 @@ fn decoder_error(e: &tiff::TiffError) -> String {
         .find(|&i| s.is_char_boundary(i))
         .unwrap_or(0);
     format!("{}... ({} more characters)", &s[..cut], s.len() - cut)
+}
+
+/// The tags the decoder reads while it opens an image (tiff 0.11,
+/// `decoder/image.rs`): the values of each are checked to lie inside the
+/// file before it allocates them.
+const DECODER_TAGS: [u16; 19] = [
+    256, 257, 258, 259, 262, 273, 277, 278, 279, 284, 317, 322, 323, 324, 325, 338, 339, 347, 530,
+];
+
+/// The first image directory, checked before the decoder reads it: the
+/// decoder sizes a tag's values by its count before it reads them (a
+/// corrupt count in a 300-byte file made it allocate up to 255 MiB), and
+/// its image buffer by the declared size before it reads a strip. Refused
+/// here: a directory or a tag the decoder reads whose values run past the
+/// end of the file, an image larger than the file can decompress to, and
+/// a compression the decoder does not know. Returns the declared
+/// `(ny, nx)` when the directory gives them, and why the image cannot be
+/// read (the caller says a size over the pixel limit first); `(None,
+/// None)` leaves a file that is not a TIFF, or a header this walk cannot
+/// read, to the decoder's own error.
+fn check_layout<R: Read + Seek>(r: &mut R, len: u64) -> std::result::Result<Layout, String> {
+    let mut head = [0u8; 16];
+    let got = read_upto(r, &mut head);
+    let le = match &head[..2] {
+        b"II" => true,
+        b"MM" => false,
+        _ => return Ok((None, None)),
+    };
+    let uint = |s: &[u8]| -> u64 {
+        let mut v = 0u64;
+        for i in 0..s.len() {
+            v = v << 8 | s[if le { s.len() - 1 - i } else { i }] as u64;
+        }
+        v
+    };
+    // classic: 12-byte entries (2-byte count), 4-byte values; BigTIFF:
+    // 20-byte entries (8-byte count), 8-byte values (TIFF 6.0 §2; BigTIFF)
+    let big = match (got >= 8).then(|| uint(&head[2..4])) {
+        Some(42) => false,
+        Some(43) if got >= 16 => true,
+        _ => return Ok((None, None)),
+    };
+    let (word, count_w, entry) = if big { (8, 8, 20) } else { (4, 2, 12) };
+    let ifd = if big {
+        uint(&head[8..16])
+    } else {
+        uint(&head[4..8])
+    };
+    let mut nbuf = [0u8; 8];
+    if r.seek(SeekFrom::Start(ifd)).is_err() || read_upto(r, &mut nbuf[..count_w]) < count_w {
+        return Err(format!(
+            "the first image directory, at byte {ifd}, lies past the end of the file ({len} bytes)"
+        ));
+    }
+    let n = uint(&nbuf[..count_w]);
+    let end = n
+        .checked_mul(entry as u64)
+        .and_then(|b| b.checked_add(ifd.checked_add(count_w as u64)?));
+    if end.is_none_or(|e| e > len) {
+        return Err(format!(
+            "the first image directory ({n} entries at byte {ifd}) runs past the end of the \
+             file ({len} bytes)"
+        ));
+    }
+    let mut entries = vec![0u8; n as usize * entry];
+    if read_upto(r, &mut entries) < entries.len() {
+        return Err(format!(
+            "the first image directory at byte {ifd} cannot be read"
+        ));
+    }
+    let (mut w, mut h, mut bits, mut compression) = (None, None, None, 1u64);
+    for e in entries.chunks_exact(entry) {
+        let (tag, typ) = (uint(&e[..2]) as u16, uint(&e[2..4]));
+        let count = uint(&e[4..4 + word as usize]);
+        let value = &e[4 + word as usize..];
+        // bytes per value of each field type (TIFF 6.0 §2, BigTIFF 16-18)
+        let size = match typ {
+            1 | 2 | 6 | 7 => 1,
+            3 | 8 => 2,
+            4 | 9 | 11 | 13 => 4,
+            5 | 10 | 12 | 16 | 17 | 18 => 8,
+            _ => continue, // unknown types are skipped by the decoder
+        };
+        let bytes = count.checked_mul(size);
+        if bytes.is_some_and(|b| b <= word) {
+            // the value sits in the entry; the first one is what we need
+            let first = value.get(..size as usize).map_or(0, uint);
+            match (tag, count) {
+                (256, 1) => w = Some(first),
+                (257, 1) => h = Some(first),
+                (258, _) => bits = Some(first),
+                (259, 1) => compression = first,
+                _ => {}
+            }
+        } else if DECODER_TAGS.contains(&tag) {
+            let at = uint(value);
+            if bytes
+                .and_then(|b| b.checked_add(at))
+                .is_none_or(|e| e > len)
+            {
+                let name = format!("{:?}", Tag::from_u16_exhaustive(tag));
+                return Err(format!(
+                    "tag {name} ({tag}) declares {count} values at byte {at}, past the end of the \
+                     file ({len} bytes)"
+                ));
+            }
+        }
+    }
+    let (Some(w), Some(h)) = (w, h) else {
+        return Ok((None, None));
+    };
+    let shape = usize::try_from(h).ok().zip(usize::try_from(w).ok());
+    // how far each compression can expand: PackBits a 2-byte run to 128
+    // bytes; LZW a code of at least 9 bits to at most 4096 bytes (3641:1);
+    // deflate 1032:1 (RFC 1951); none not at all. Others are left to the
+    // decoder.
+    let ratio = match compression {
+        1 => 1,
+        32773 => 64,
+        5 => 4096,
+        8 | 32946 => 1032,
+        // what this build's decoder also reads (tiff's default features
+        // and zstd), unbounded here: JPEG, CCITT fax 4, zstd
+        7 | 4 | 50000 => return Ok((shape, None)),
+        // refused now: the decoder would size its buffer by the header
+        // before it finds it cannot decode the strips
+        c => {
+            let why = format!(
+                "compression method {c} is not supported (none, LZW, deflate, PackBits, \
+                 zstd, JPEG and CCITT fax 4 are)"
+            );
+            return Ok((shape, Some(why)));
+        }
+    };
+    let need = w
+        .checked_mul(h)
+        .and_then(|px| px.checked_mul(bits.unwrap_or(1)))
+        .map(|b| b.div_ceil(8));
+    if need.is_none_or(|b| b > ratio * len) {
+        let how = match compression {
+            1 => "uncompressed",
+            32773 => "PackBits",
+            5 => "LZW",
+            _ => "deflate",
+        };
+        let why = format!(
+            "truncated or corrupt: the header declares {h} x {w} samples of {} bits, more \
+             than a file of {len} bytes can hold ({how}{})",
+            bits.unwrap_or(1),
+            if ratio > 1 {
+                format!(" expands at most {ratio}-fold")
+            } else {
+                String::new()
+            }
+        );
+        return Ok((shape, Some(why)));
+    }
+    Ok((shape, None))
+}
+
+/// [`check_layout`]: the declared `(ny, nx)`, and why the image cannot be
+/// read.
+type Layout = (Option<(usize, usize)>, Option<String>);
+
+/// Reads into `buf` until it is full or the reader ends; the bytes read.
+fn read_upto<R: Read>(r: &mut R, buf: &mut [u8]) -> usize {
+    let mut got = 0;
+    while got < buf.len() {
+        match r.read(&mut buf[got..]) {
+            Ok(0) | Err(_) => break,
+            Ok(k) => got += k,
+        }
+    }
+    got
 }
 
 /// Rewrites a PhotometricInterpretation of 0 (WhiteIsZero) in the first
