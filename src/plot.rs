@@ -231,7 +231,15 @@ fn data_range(chart: &Chart) -> ((f64, f64), (f64, f64)) {
         if !r.0.is_finite() {
             return (0.0, 1.0);
         }
-        let d = (r.1 - r.0).abs().max(1e-9);
+        let d = (r.1 - r.0).abs();
+        // a single value (one point, a flat line): a span around it, not
+        // an axis of one repeated tick label
+        let mag = r.0.abs().max(r.1.abs());
+        if d <= 1e-9 * mag {
+            let c = 0.5 * (r.0 + r.1);
+            let half = if mag > 0.0 { 0.1 * mag } else { 0.1 };
+            return (c - half, c + half);
+        }
         (r.0 - 0.05 * d, r.1 + 0.05 * d)
     };
     (
