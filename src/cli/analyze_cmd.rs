@@ -194,6 +194,8 @@ pub struct AnalyzeArgs {
 /// Closed-form curves drawn over estimates.
 pub struct TheoryCurves {
     pub name: String,
+    /// The name with the model's parameters, for the legends.
+    pub label: String,
     pub tau: Box<dyn Fn(f64) -> f64>,
     /// (h, D(h)) samples.
     pub dh: Vec<(f64, f64)>,
@@ -208,6 +210,7 @@ pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> Result<TheoryCurve
     let m = *model;
     Ok(TheoryCurves {
         name: name.to_string(),
+        label: format!("{name} ({})", super::common::model_params_label(model)),
         tau: Box::new(move |qq| m.tau(qq)),
         dh: t.dh_h.iter().cloned().zip(t.dh_d.iter().cloned()).collect(),
         sample: None,
@@ -431,8 +434,28 @@ fn describe(s: &Spectra, sums: &PartitionSums) -> String {
         .analysis
         .as_ref()
         .map_or(String::new(), |a| format!(", {}", a.wavelet.name()));
-    format!("{} x {sizes}{wavelet}, {} rule", s.images, s.rule.name())
+    // the files analysed, when the images are files (not generated ones)
+    let file = |i: &crate::spectra::ImagePartial| {
+        let p = Path::new(&i.label);
+        p.extension().map(|_| super::common::file_label(p))
+    };
+    let files = match sums.images.as_slice() {
+        [one] => file(one).map(|f| format!("{f}, ")),
+        [first, .., last] => file(first)
+            .zip(file(last))
+            .map(|(a, b)| format!("{a} .. {b}, ")),
+        [] => None,
+    }
+    .unwrap_or_default();
+    format!(
+        "{files}{} x {sizes}{wavelet}, {} rule",
+        s.images,
+        s.rule.name()
+    )
 }
+
+/// Palette index of the theory curves (dark grey).
+const THEORY_COLOR: usize = 9;
 
 /// II Fig 10: (a) log2 Z vs log2 a, (b) h(q, a) vs log2 a, (c) tau(q), (d) D(h).
 pub fn plot_spectra(
@@ -448,7 +471,7 @@ pub fn plot_spectra(
     let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
     let mut za = Chart {
         title: format!("(a) partition functions: {what}"),
-        x_label: "log2 a".into(),
+        x_label: "log2 a  (a in px)".into(),
         y_label: "log2 Z(q, a)".into(),
         ..Default::default()
     };
@@ -456,7 +479,7 @@ pub fn plot_spectra(
         // the level is a weighted mean of log2 M, not an exponent: the
         // slope is h(q) (SPEC §4), as tau(q) is that of log2 Z
         title: format!("(b) h(q, a), slopes h(q): {what}"),
-        x_label: "log2 a".into(),
+        x_label: "log2 a  (a in px)".into(),
         y_label: "h(q, a) = Σ W log2 M".into(),
         ..Default::default()
     };
@@ -511,6 +534,18 @@ pub fn plot_spectra(
             ));
         }
     }
+    // one legend line for the fitted lines: what they are and where
+    for chart in [&mut za, &mut hb] {
+        chart.series.push(Series::new(
+            format!(
+                "lines: fits over a = {:.1}-{:.1} px",
+                s.fit_scales.0, s.fit_scales.1
+            ),
+            Vec::new(),
+            Style::Line,
+            THEORY_COLOR,
+        ));
+    }
     save_chart(&za, &dir.join("logZ.png"))?;
     save_chart(&hb, &dir.join("hqa.png"))?;
     let mut tc = Chart {
@@ -564,10 +599,12 @@ pub fn plot_spectra(
             .map(|i| s.q[0] + (s.q[nq - 1] - s.q[0]) * i as f64 / 200.0)
             .collect();
         tc.series.push(Series::new(
-            format!("theory: {}", t.name),
+            format!("theory: {}", t.label),
             qs.iter().map(|&q| (q, (t.tau)(q))).collect(),
             Style::Line,
-            1,
+            // dark grey, as compare's and kernel's theory: red is trace
+            // moments in compare, and too near the Legendre line's orange
+            THEORY_COLOR,
         ));
         let style = if t.dh.len() > 1 {
             Style::Line
@@ -575,10 +612,10 @@ pub fn plot_spectra(
             Style::Markers
         };
         dc.series.push(Series::new(
-            format!("theory: {}", t.name),
+            format!("theory: {}", t.label),
             t.dh.clone(),
             style,
-            1,
+            THEORY_COLOR,
         ));
         if let Some(pts) = &t.sample {
             tc.series.push(Series::new(

@@ -486,6 +486,36 @@ pub fn note_caveats(body: &mut serde_json::Value, model: Option<&crate::theory::
     }
 }
 
+/// A model's parameters for a figure's legend or title ("H = 0.33",
+/// "α = 1.8, C1 = 0.12, H = 0.7"): a theory curve says which theory.
+pub fn model_params_label(model: &crate::theory::Model) -> String {
+    use crate::synth::wcascade::Law;
+    use crate::theory::Model;
+    // up to 4 decimals, trailing zeros dropped
+    let n = |v: f64| {
+        let s = format!("{v:.4}");
+        let s = s.trim_end_matches('0').trim_end_matches('.');
+        if s == "-0" {
+            "0".to_string()
+        } else {
+            s.to_string()
+        }
+    };
+    match model {
+        Model::Fbm(p) => format!("H = {}", n(p.hurst)),
+        Model::Fif(p) => format!("α = {}, C1 = {}, H = {}", n(p.alpha), n(p.c1), n(p.hurst)),
+        Model::Fisc(p) => format!("p = {}, H* = {}", n(p.p), n(p.hstar)),
+        Model::WCascade(p) => match p.law {
+            Law::LogNormal { m, sigma2 } => format!("m = {}, σ² = {}", n(m), n(sigma2)),
+            Law::LogPoisson {
+                gamma,
+                beta,
+                lambda,
+            } => format!("γ = {}, β = {}, λ = {}", n(gamma), n(beta), n(lambda)),
+        },
+    }
+}
+
 /// `n` and the word, in the plural unless `n` is 1 ("1 image", "3 images").
 pub fn count_of(n: usize, word: &str) -> String {
     if n == 1 {

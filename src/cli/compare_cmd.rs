@@ -598,7 +598,13 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         ],
         &rows,
     )?;
-    plot_tau(dir, &name, &model, &q, &wtmm, &tm)?;
+    let label = format!(
+        "{name} ({}), {} of {s}x{s}",
+        super::common::model_params_label(&model),
+        super::common::count_of(args.count, "image"),
+        s = args.size
+    );
+    plot_tau(dir, &label, &model, &q, &wtmm, &tm)?;
     plot_k(dir, &t_all, Some(("target q xi(1) - xi(q)", &k_target)))?;
     // the full-ensemble outputs of each method, as `analyze` and `tm` write them
     let wdir = dir.join("wtmm");

@@ -641,7 +641,10 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         }
     };
     let lab = |kc: &crate::stats::kernel::KernelCurve| {
-        format!("a = 2^{:.1}, a' = 2^{:.1}", kc.octave, kc.octave_ref)
+        format!(
+            "a = 2^{:.1}, a' = 2^{:.1} a_min ({:.1}, {:.1} px)",
+            kc.octave, kc.octave_ref, kc.a, kc.a_ref
+        )
     };
     let mut charts = [
         ("kernel_lnG.png", "ln |G_aa'(p)| (II Fig 25a)", "ln |G|"),
@@ -650,7 +653,11 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
             "ln |G_aa'(p)| / ln(a'/a) (II Fig 25b)",
             "ln |G| / ln(a'/a)",
         ),
-        ("kernel_phase.png", "phase of G_aa'(p) (II Fig 25c)", "Phi"),
+        (
+            "kernel_phase.png",
+            "phase of G_aa'(p) (II Fig 25c)",
+            "Phi (rad)",
+        ),
         (
             "kernel_phase_collapse.png",
             "phase / ln(a'/a) (II Fig 25d)",
@@ -798,7 +805,7 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         let what = ["c1", "c1, c2", "c1, c2, c3"][first.c.len().clamp(1, 3) - 1];
         let mut c = Chart {
             title: title(&format!(
-                "P_a' pushed to a = {:.2} px, {what} (Fig 29)",
+                "P_a' pushed to a = {:.2} px, {what} (II Fig 29)",
                 first.a_to
             )),
             x_label: "M".into(),
@@ -818,17 +825,23 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                 .collect()
         };
         c.series.push(Series::new(
-            format!("measured at a = {:.2}", first.a_to),
+            format!("measured at a = {:.2} px", first.a_to),
             to_m(&first.ln_m, &first.measured),
             Style::Markers,
             9,
         ));
         for (i, r) in rs.iter().enumerate() {
+            // the colour of a' in the cumulant figures (C_n(a, a'))
+            let colour = k
+                .tables
+                .iter()
+                .position(|t| (t.a_ref - r.a_from).abs() <= 1e-6 * r.a_from)
+                .unwrap_or(i);
             c.series.push(Series::new(
-                format!("from a' = {:.2} (L1 = {:.3})", r.a_from, r.l1),
+                format!("from a' = {:.2} px (L1 distance {:.3})", r.a_from, r.l1),
                 to_m(&r.ln_m, &r.predicted),
                 Style::Line,
-                i,
+                colour,
             ));
         }
         save_chart(&c, &dir.join(file))?;

@@ -893,10 +893,11 @@ fn pts(x: &[f64], y: &[f64], log: bool) -> Vec<(f64, f64)> {
 fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: f64) -> Result<()> {
     // a scale with few WTMMM says so in the figure too (not only on stderr)
     let label = |s: &ScalePdf| {
+        // the sample behind each curve: a histogram of 125 maxima is noisy
         let few = if s.n < 100 {
             format!(", only {} WTMMM", s.n)
         } else {
-            String::new()
+            format!(", {} WTMMM", s.n)
         };
         format!("a = 2^{:.1} a_min ({:.1} px){few}", s.octave, s.a)
     };

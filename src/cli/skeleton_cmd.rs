@@ -185,7 +185,7 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
             &r,
             &RasterChart {
                 title: format!(
-                    "{}: chains and WTMMM, a = {:.2} px, {} (II Figs 9, 15)",
+                    "{} smoothed at a = {:.2} px: chains and WTMMM, {} (II Figs 9, 15)",
                     super::common::file_label(&args.image),
                     sm.a,
                     cfg.wavelet.name()

@@ -251,7 +251,10 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         ]
     };
     chart.series.push(Series::new(
-        format!("fit over [{k_lo:.3}, {k_hi:.3}]: beta = {:.3}", fit.beta),
+        format!(
+            "fit over [{k_lo:.3}, {k_hi:.3}] rad/px: beta = {:.3}",
+            fit.beta
+        ),
         line(fit.beta, fit.line.intercept),
         Style::Line,
         1,

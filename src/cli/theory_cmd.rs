@@ -123,8 +123,9 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
         make_out_dir(dir)?;
         write_json(&dir.join("theory.json"), &body)?;
         let name = r.preset.unwrap_or(r.model.name());
+        let params = super::common::model_params_label(&r.model);
         let tc = Chart {
-            title: format!("tau(q): {name}"),
+            title: format!("tau(q): {name} ({params})"),
             x_label: "q".into(),
             y_label: "tau(q)".into(),
             series: vec![Series::new(
@@ -142,7 +143,7 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
             Style::Markers
         };
         let dc = Chart {
-            title: format!("D(h): {name}"),
+            title: format!("D(h): {name} ({params})"),
             x_label: "h".into(),
             y_label: "D(h)".into(),
             series: vec![Series::new(

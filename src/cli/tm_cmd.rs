@@ -741,6 +741,15 @@ pub fn write_outputs(
 
 const LOG10_2: f64 = std::f64::consts::LOG10_2;
 
+/// `v ± se` with `prec` decimals, or `v` alone when the error is unknown.
+fn pm(v: f64, se: f64, prec: usize) -> String {
+    if se.is_finite() {
+        format!("{v:.prec$} ± {se:.prec$}")
+    } else {
+        format!("{v:.prec$}")
+    }
+}
+
 /// The orders shown in TM Figs 19, 25-26 (top to bottom 2.18 ... 0.04),
 /// plus 3, snapped to the grid.
 fn shown_q(q: &[f64]) -> Vec<usize> {
@@ -805,8 +814,11 @@ fn plot_moments(dir: &Path, r: &TraceMomentResult) -> Result<()> {
 pub fn plot_k(dir: &Path, r: &TraceMomentResult, theory: Option<(&str, &[f64])>) -> Result<()> {
     let mut c = Chart {
         title: format!(
-            "K(q): alpha = {:.2}, C1 = {:.3} (fit q <= {:.2}), q_s = {:.2}",
-            r.alpha, r.c1, r.universal_q_max, r.q_s
+            "K(q): alpha = {}, C1 = {} (fit q <= {:.2}), q_s = {:.2}",
+            pm(r.alpha, r.alpha_stderr, 2),
+            pm(r.c1, r.c1_stderr, 3),
+            r.universal_q_max,
+            r.q_s
         ),
         x_label: "q".into(),
         y_label: "K(q)".into(),
@@ -864,27 +876,41 @@ pub fn plot_k(dir: &Path, r: &TraceMomentResult, theory: Option<(&str, &[f64])>)
 fn plot_dtm(dir: &Path, r: &TraceMomentResult) -> Result<()> {
     let mut c = Chart {
         title: format!(
-            "double trace moments: alpha = {:.2}, C1 = {:.3}",
-            r.dtm_alpha, r.dtm_c1
+            "double trace moments{}: alpha = {}, C1 = {:.3}",
+            r.dtm_q
+                .first()
+                .map_or(String::new(), |q| format!(" (q = {q})")),
+            pm(r.dtm_alpha, r.dtm_alpha_stderr, 2),
+            r.dtm_c1
         ),
         x_label: "log10 η".into(),
         y_label: "log10 |K(q, η)|".into(),
         ..Default::default()
     };
     for (iq, d) in r.dtm.iter().enumerate() {
-        let pts: Vec<(f64, f64)> = r
+        // the error bar of log10 |K|: se / (|K| ln 10)
+        let (pts, err): (Vec<(f64, f64)>, Vec<f64>) = r
             .eta
             .iter()
             .zip(&r.k_eta[iq])
-            .filter(|(_, k)| **k * (d.q - 1.0) > 0.0)
-            .map(|(e, k)| (e.log10(), k.abs().log10()))
-            .collect();
-        c.series.push(Series::new(
-            format!("q = {}", d.q),
-            pts,
-            Style::Markers,
-            2 * iq,
-        ));
+            .enumerate()
+            .filter(|(_, (_, k))| **k * (d.q - 1.0) > 0.0)
+            .map(|(ie, (e, k))| {
+                let se = r
+                    .k_eta_stderr
+                    .get(iq)
+                    .and_then(|v| v.get(ie))
+                    .copied()
+                    .unwrap_or(f64::NAN);
+                (
+                    (e.log10(), k.abs().log10()),
+                    se / (k.abs() * std::f64::consts::LN_10),
+                )
+            })
+            .unzip();
+        c.series.push(
+            Series::new(format!("q = {}", d.q), pts, Style::Markers, 2 * iq).with_errors(err),
+        );
         if d.alpha.is_finite() && d.c1.is_finite() {
             // log K = α log η + log(C1 |shape(α, q)|)
             let b = (d.c1 * universal_shape(d.alpha, d.q).abs()).log10();
