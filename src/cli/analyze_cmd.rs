@@ -425,31 +425,14 @@ pub fn write_outputs(
 
 /// What the figures show, for their titles: images and sizes, wavelet, rule.
 fn describe(s: &Spectra, sums: &PartitionSums) -> String {
-    let sizes = match s.image_shapes.as_slice() {
-        [one] if one.ny == one.nx => format!("{}^2", one.nx),
-        [one] => format!("{}x{}", one.ny, one.nx),
-        _ => "mixed sizes".into(),
-    };
     let wavelet = sums
         .analysis
         .as_ref()
         .map_or(String::new(), |a| format!(", {}", a.wavelet.name()));
-    // the files analysed, when the images are files (not generated ones)
-    let file = |i: &crate::spectra::ImagePartial| {
-        let p = Path::new(&i.label);
-        p.extension().map(|_| super::common::file_label(p))
-    };
-    let files = match sums.images.as_slice() {
-        [one] => file(one).map(|f| format!("{f}, ")),
-        [first, .., last] => file(first)
-            .zip(file(last))
-            .map(|(a, b)| format!("{a} .. {b}, ")),
-        [] => None,
-    }
-    .unwrap_or_default();
+    let labels: Vec<&str> = sums.images.iter().map(|i| i.label.as_str()).collect();
     format!(
-        "{files}{} x {sizes}{wavelet}, {} rule",
-        s.images,
+        "{}{wavelet}, {} rule",
+        super::common::data_label(&labels, s.images, &s.image_shapes),
         s.rule.name()
     )
 }
@@ -594,6 +577,21 @@ pub fn plot_spectra(
         Style::Line,
         3,
     ));
+    // D = 2, the dimension of the support: an estimate above it is a bias
+    // (or mixed regimes), not a dimension (see the Legendre warnings)
+    let finite_h = || s.h.iter().chain(&s.legendre_h).filter(|h| h.is_finite());
+    let (h_lo, h_hi) = (
+        finite_h().copied().fold(f64::INFINITY, f64::min),
+        finite_h().copied().fold(f64::NEG_INFINITY, f64::max),
+    );
+    if h_lo < h_hi {
+        dc.series.push(Series::new(
+            "D = 2 (the support)",
+            vec![(h_lo, 2.0), (h_hi, 2.0)],
+            Style::Dashed,
+            THEORY_COLOR,
+        ));
+    }
     if let Some(t) = theory {
         let qs: Vec<f64> = (0..=200)
             .map(|i| s.q[0] + (s.q[nq - 1] - s.q[0]) * i as f64 / 200.0)

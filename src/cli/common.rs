@@ -251,6 +251,31 @@ pub fn file_label(p: &std::path::Path) -> String {
         .map_or_else(|| p.display().to_string(), |f| f.to_string_lossy().into())
 }
 
+/// The data behind a figure, for its title: the file (or first .. last
+/// files) when the images are files, their number and size
+/// ("levi_fell_dem.npy, 1 x 400^2"; "a.npy .. d.npy, 4 x 512^2";
+/// generated images have labels without an extension and are not named).
+pub fn data_label(labels: &[&str], images: usize, shapes: &[crate::spectra::ShapeCount]) -> String {
+    let sizes = match shapes {
+        [one] if one.ny == one.nx => format!("{}^2", one.nx),
+        [one] => format!("{}x{}", one.ny, one.nx),
+        _ => "mixed sizes".into(),
+    };
+    let file = |l: &str| {
+        let p = std::path::Path::new(l);
+        p.extension().map(|_| file_label(p))
+    };
+    let files = match labels {
+        [one] => file(one).map(|f| format!("{f}, ")),
+        [first, .., last] => file(first)
+            .zip(file(last))
+            .map(|(a, b)| format!("{a} .. {b}, ")),
+        [] => None,
+    }
+    .unwrap_or_default();
+    format!("{files}{images} x {sizes}")
+}
+
 pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
     serde_json::json!({"version": crate::VERSION, "build": crate::BUILD, "command": command, "params": params})
 }

@@ -605,7 +605,12 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         s = args.size
     );
     plot_tau(dir, &label, &model, &q, &wtmm, &tm)?;
-    plot_k(dir, &t_all, Some(("target q xi(1) - xi(q)", &k_target)))?;
+    plot_k(
+        dir,
+        &t_all,
+        Some(("target q xi(1) - xi(q)", &k_target)),
+        &label,
+    )?;
     // the full-ensemble outputs of each method, as `analyze` and `tm` write them
     let wdir = dir.join("wtmm");
     make_out_dir(&wdir)?;
@@ -628,6 +633,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         &t_all,
         tm_acc.spectrum.as_ref(),
         &[],
+        &label,
     )?;
 
     let text = table(

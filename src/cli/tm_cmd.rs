@@ -351,6 +351,13 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     make_out_dir(&args.out.out)?;
     // box levels are in pixels: images of several sizes weigh by their area
     let shapes = crate::spectra::ShapeCount::tally(shapes);
+    let labels: Vec<String> = args
+        .images
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect();
+    let labels: Vec<&str> = labels.iter().map(String::as_str).collect();
+    let what = super::common::data_label(&labels, args.images.len(), &shapes);
     let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit)});
     write_outputs(
@@ -360,6 +367,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         &res,
         acc.spectrum.as_ref(),
         &extra,
+        &what,
     )?;
     show!("{}", summary(&res));
     for w in res.warnings.iter().chain(&tm_warnings(&res)).chain(&extra) {
@@ -618,6 +626,7 @@ pub fn write_outputs(
     res: &TraceMomentResult,
     spectrum: Option<&PowerSpectrum>,
     extra_warnings: &[String],
+    what: &str,
 ) -> Result<()> {
     write_json(
         &dir.join("tm.json"),
@@ -729,12 +738,12 @@ pub fn write_outputs(
             &rows,
         )?;
     }
-    plot_moments(dir, res)?;
-    plot_k(dir, res, None)?;
-    plot_dtm(dir, res)?;
-    plot_sf(dir, res)?;
+    plot_moments(dir, res, what)?;
+    plot_k(dir, res, None, what)?;
+    plot_dtm(dir, res, what)?;
+    plot_sf(dir, res, what)?;
     if let Some(ps) = spectrum {
-        plot_spectrum(dir, res, ps)?;
+        plot_spectrum(dir, res, ps, what)?;
     }
     Ok(())
 }
@@ -766,11 +775,11 @@ fn shown_q(q: &[f64]) -> Vec<usize> {
 
 /// Seed 000 Figs 19, 25: `log10 <φ_λ^q>` against `log10 λ` with the fitted
 /// lines, extended to their common crossing λ_eff (the effective outer scale).
-fn plot_moments(dir: &Path, r: &TraceMomentResult) -> Result<()> {
+fn plot_moments(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
     let mut c = Chart {
         title: format!(
-            "trace moments, {} image(s), fit λ = 2^{}..2^{}",
-            r.images, r.fit_log2_lambda.0, r.fit_log2_lambda.1
+            "trace moments, fit λ = 2^{}..2^{}: {what}",
+            r.fit_log2_lambda.0, r.fit_log2_lambda.1
         ),
         x_label: "log10 λ  (λ = L / l)".into(),
         y_label: "log10 <φ_λ^q>".into(),
@@ -811,10 +820,15 @@ fn plot_moments(dir: &Path, r: &TraceMomentResult) -> Result<()> {
 
 /// Seed 000 Figs 20, 27-28: K(q) with the universal fit, the fit range and
 /// q_s. `theory`: an optional (name, K(q)) curve on the same grid.
-pub fn plot_k(dir: &Path, r: &TraceMomentResult, theory: Option<(&str, &[f64])>) -> Result<()> {
+pub fn plot_k(
+    dir: &Path,
+    r: &TraceMomentResult,
+    theory: Option<(&str, &[f64])>,
+    what: &str,
+) -> Result<()> {
     let mut c = Chart {
         title: format!(
-            "K(q): alpha = {}, C1 = {} (fit q <= {:.2}), q_s = {:.2}",
+            "K(q): alpha = {}, C1 = {} (fit q <= {:.2}), q_s = {:.2}: {what}",
             pm(r.alpha, r.alpha_stderr, 2),
             pm(r.c1, r.c1_stderr, 3),
             r.universal_q_max,
@@ -873,10 +887,10 @@ pub fn plot_k(dir: &Path, r: &TraceMomentResult, theory: Option<(&str, &[f64])>)
 /// fitted line of slope α over the η fit range (K(q, η) < 0 for q < 1: the
 /// fit takes |K| there, and so does the plot; values of the other sign are
 /// noise and left out, as in the fit).
-fn plot_dtm(dir: &Path, r: &TraceMomentResult) -> Result<()> {
+fn plot_dtm(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
     let mut c = Chart {
         title: format!(
-            "double trace moments{}: alpha = {}, C1 = {:.3}",
+            "double trace moments{}: alpha = {}, C1 = {:.3}: {what}",
             r.dtm_q
                 .first()
                 .map_or(String::new(), |q| format!(" (q = {q})")),
@@ -928,10 +942,10 @@ fn plot_dtm(dir: &Path, r: &TraceMomentResult) -> Result<()> {
 }
 
 /// Generalised structure functions `log2 <|Δf(l)|^q>` against `log2 l`.
-fn plot_sf(dir: &Path, r: &TraceMomentResult) -> Result<()> {
+fn plot_sf(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
     let mut c = Chart {
         title: format!(
-            "structure functions, fit log2 l {}:{}, H_sf = {}",
+            "structure functions, fit log2 l {}:{}, H_sf = {}: {what}",
             r.fit_log2_lag.0,
             r.fit_log2_lag.1,
             r.h_sf.map_or("n/a".into(), |h| format!("{h:.3}"))
@@ -956,11 +970,11 @@ fn plot_sf(dir: &Path, r: &TraceMomentResult) -> Result<()> {
 }
 
 /// The ensemble's angle-averaged spectrum with the fitted slope.
-fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum) -> Result<()> {
+fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum, what: &str) -> Result<()> {
     let pts = ps.points();
     let mut c = Chart {
         title: format!(
-            "angle-averaged spectrum: beta = {} (angle-integrated: {}), H = {}",
+            "angle-averaged spectrum: beta = {} (angle-integrated: {}), H = {}: {what}",
             r.beta_averaged.map_or("n/a".into(), |b| format!("{b:.3}")),
             r.beta.map_or("n/a".into(), |b| format!("{b:.3}")),
             r.h.map_or("n/a".into(), |h| format!("{h:.3}"))
