@@ -210,6 +210,15 @@ pub fn ramp(t: f64) -> RGBColor {
     )
 }
 
+/// Viridis (matplotlib's default, perceptually uniform and readable in
+/// grey and by colour-blind readers) for `t` in [0, 1]: for magnitudes such
+/// as a log density, where a diverging map's neutral middle would read as
+/// "nothing".
+pub fn viridis(t: f64) -> RGBColor {
+    use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
+    ViridisRGB.get_color(t.clamp(0.0, 1.0) as f32)
+}
+
 fn data_range(chart: &Chart) -> ((f64, f64), (f64, f64)) {
     let mut xs = (f64::INFINITY, f64::NEG_INFINITY);
     let mut ys = (f64::INFINITY, f64::NEG_INFINITY);
@@ -828,8 +837,8 @@ impl Raster {
 /// A colour bar beside a raster chart: the colours `colors(t)`, t from 0
 /// (bottom) to 1 (top), labelled with the values they stand for, linearly
 /// from `range.0` (t = 0) to `range.1` (t = 1). For a density coloured
-/// with `ramp((log10(v / peak) + 4) / 4)`, say, the bar is
-/// `ColorBar::ramp("log10 density / peak", (-4.0, 0.0))`.
+/// with `viridis((log10(v / peak) + 4) / 4)`, say, the bar is
+/// `ColorBar::viridis("log10 density / peak", (-4.0, 0.0))`.
 #[derive(Clone, Debug)]
 pub struct ColorBar {
     /// Label along the bar (what the colours stand for).
@@ -847,6 +856,15 @@ impl ColorBar {
             label: label.into(),
             range,
             colors: ramp,
+        }
+    }
+
+    /// A bar of [`viridis`] from `range.0` to `range.1`.
+    pub fn viridis(label: impl Into<String>, range: (f64, f64)) -> Self {
+        ColorBar {
+            label: label.into(),
+            range,
+            colors: viridis,
         }
     }
 }
@@ -993,7 +1011,10 @@ fn raster_layout(raster: &Raster, spec: &RasterChart) -> Result<((u32, u32), (u3
                 .into_font()
                 .box_size(&spec.title)
                 .map_or(0, |(w, _)| w);
-            let width = (frame_w + pw).max(title_w + 2 * MARGIN).max(MIN_WIDTH);
+            // a long title is set smaller (titled_area), down to 16 pt,
+            // before the picture is widened for it
+            let title_min = (title_w as f64 * 16.0 / 22.0).ceil() as u32;
+            let width = (frame_w + pw).max(title_min + 2 * MARGIN).max(MIN_WIDTH);
             Ok(((width, frame_h + ph), (pw, ph)))
         }
     }

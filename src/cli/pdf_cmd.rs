@@ -29,7 +29,7 @@ use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::field::Field;
 use crate::plot::{
-    Chart, ColorBar, Raster, RasterChart, Series, Style, ramp, save_chart, save_raster_chart,
+    Chart, ColorBar, Raster, RasterChart, Series, Style, save_chart, save_raster_chart, viridis,
 };
 use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::fit::line_fit;
@@ -1037,7 +1037,8 @@ fn joint_picture(s: &ScalePdf, title: String, path: &Path) -> Result<()> {
             if !(v > 0.0 && peak > 0.0) {
                 continue;
             }
-            let c = ramp((((v / peak).log10() + 4.0) / 4.0).clamp(0.0, 1.0));
+            // a sequential map for a magnitude; empty cells stay white
+            let c = viridis((((v / peak).log10() + 4.0) / 4.0).clamp(0.0, 1.0));
             // row 0 at the top: the largest T2
             r.put(ix as isize, (n - 1 - iy) as isize, (c.0, c.1, c.2));
         }
@@ -1054,7 +1055,7 @@ fn joint_picture(s: &ScalePdf, title: String, path: &Path) -> Result<()> {
             x_range: range,
             y_range: range,
             y_up: true,
-            colorbar: Some(ColorBar::ramp("log10 density / peak", (-4.0, 0.0))),
+            colorbar: Some(ColorBar::viridis("log10 density / peak", (-4.0, 0.0))),
             size: None,
         },
         path,
