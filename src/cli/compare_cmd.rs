@@ -608,7 +608,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     plot_k(
         dir,
         &t_all,
-        Some(("target q xi(1) - xi(q)", &k_target)),
+        Some(("theory: K(q) = q xi(1) - xi(q), xi = tau + 2", &k_target)),
         &label,
     )?;
     // the full-ensemble outputs of each method, as `analyze` and `tm` write them

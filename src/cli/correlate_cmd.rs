@@ -659,7 +659,7 @@ fn write_correlation_outputs(
                     let name = if matches!(m, Model::Fbm(_)) {
                         "theory: C = 0 (II Fig 30b)"
                     } else {
-                        "II eq 76"
+                        "theory: II eq 76"
                     };
                     c.series.push(Series::new(name, pts, Style::Line, 9));
                 }

@@ -753,7 +753,7 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
     for n in 0..3 {
         let mut c = Chart {
             title: title(&format!(
-                "C{}(a, a'): c{} = {:.4} +- {:.4} (II Fig 26{})",
+                "C{}(a, a'): c{} = {:.4} ± {:.4} (II Fig 26{})",
                 n + 1,
                 n + 1,
                 est[n],

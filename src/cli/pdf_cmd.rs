@@ -998,7 +998,7 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
         for (k, q) in s.sectors.iter().enumerate() {
             let deg = q.centre.to_degrees();
             cs.series.push(Series::new(
-                format!("A = {deg:.0} +- 22.5 deg (n = {})", q.n),
+                format!("A = {deg:.0} ± 22.5° (n = {})", q.n),
                 pts(&s.m, &q.p_m, true),
                 Style::LineMarkers,
                 k,

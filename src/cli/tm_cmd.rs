@@ -975,9 +975,14 @@ fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum, what: &s
     let mut c = Chart {
         title: format!(
             "angle-averaged spectrum: beta = {} (angle-integrated: {}), H = {}: {what}",
-            r.beta_averaged.map_or("n/a".into(), |b| format!("{b:.3}")),
+            // one slope, one error: the two betas differ by 1 (SPEC §8)
+            r.beta_averaged.map_or("n/a".into(), |b| pm(
+                b,
+                r.beta_stderr.unwrap_or(f64::NAN),
+                3
+            )),
             r.beta.map_or("n/a".into(), |b| format!("{b:.3}")),
-            r.h.map_or("n/a".into(), |h| format!("{h:.3}"))
+            r.h.map_or("n/a".into(), |h| pm(h, r.h_stderr.unwrap_or(f64::NAN), 3))
         ),
         x_label: "log2 |k| (rad/px)".into(),
         y_label: "log2 S(|k|), angle-averaged".into(),

@@ -803,8 +803,17 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let pts = ens.spectrum.points();
     let mut chart = Chart {
         title: format!(
-            "{name}: beta = {:.3} (theory {:.3})",
-            beta_fit.beta, th.beta
+            "{name}, {} x {}^2: beta = {:.3}{} (theory {:.3})",
+            args.count,
+            args.size,
+            beta_fit.beta,
+            // a jackknife error needs 3 images
+            if beta_se.is_finite() {
+                format!(" ± {beta_se:.3}")
+            } else {
+                String::new()
+            },
+            th.beta
         ),
         x_label: "log2 |k| (rad/px)".into(),
         y_label: "log2 S(|k|)".into(),
