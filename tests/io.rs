@@ -808,6 +808,31 @@ fn tiff_decoder_errors_are_short() {
     }
 }
 
+/// LZW-tiled TIFFs that the tiff crate's LZW reader fails ("no lzw end
+/// code found", image-rs/image-tiff#395) read through wtmm's own LZW
+/// decoder, value for value, and say so; one it reads itself (the
+/// floating-point predictor) reads without the warning.
+#[test]
+fn lzw_tiles_read_where_the_tiff_crate_fails() {
+    let reference = read("dem_f8.npy");
+    for (name, dtype, fallback) in [
+        ("dem_u16_tiled_lzw.tif", "u16", true),
+        ("dem_i16_tiled_lzw_pred.tif", "i16", true),
+        ("dem_f32_tiled_lzw_fpred.tif", "f32", false),
+    ] {
+        let (f, info) = read_field_with_info(fixture(name)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(info.dtype, dtype, "{name}");
+        let said = info.warnings.iter().any(|w| w.contains("image-tiff#395"));
+        assert_eq!(said, fallback, "{name}: {:?}", info.warnings);
+        assert_eq!(f.dim(), (40, 56), "{name}");
+        for ((y, x), &r) in reference.data.indexed_iter() {
+            if r.is_finite() {
+                assert_eq!(f.data[[y, x]], r, "{name} ({y},{x})");
+            }
+        }
+    }
+}
+
 /// A tag the decoder reads whose values run past the end of the file (a
 /// corrupt count made the decoder allocate 128-255 MiB for a 300-byte
 /// file), and an image larger than the file's strips can hold, are refused

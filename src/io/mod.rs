@@ -20,6 +20,7 @@ mod npy;
 mod pgm;
 mod png;
 mod tiff;
+mod tiff_lzw;
 
 pub use atomic::{
     OutputBatch, Protected, file_identity, outputs_committed, protect, remove_temporaries,

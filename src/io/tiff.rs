@@ -155,19 +155,24 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     };
     let more_images = dec.more_images();
 
-    let image = dec.read_image().map_err(tiff_err)?;
-    let (dtype, values): (&str, Vec<f64>) = match image {
-        DecodingResult::U8(v) => ("u8", v.into_iter().map(f64::from).collect()),
-        DecodingResult::U16(v) => ("u16", v.into_iter().map(f64::from).collect()),
-        DecodingResult::U32(v) => ("u32", v.into_iter().map(f64::from).collect()),
-        DecodingResult::U64(v) => ("u64", v.into_iter().map(|x| x as f64).collect()),
-        DecodingResult::I8(v) => ("i8", v.into_iter().map(f64::from).collect()),
-        DecodingResult::I16(v) => ("i16", v.into_iter().map(f64::from).collect()),
-        DecodingResult::I32(v) => ("i32", v.into_iter().map(f64::from).collect()),
-        DecodingResult::I64(v) => ("i64", v.into_iter().map(|x| x as f64).collect()),
-        DecodingResult::F16(v) => ("f16", v.into_iter().map(f64::from).collect()),
-        DecodingResult::F32(v) => ("f32", v.into_iter().map(f64::from).collect()),
-        DecodingResult::F64(v) => ("f64", v),
+    let (dtype, values) = match dec.read_image() {
+        Ok(image) => samples(image),
+        // the crate's LZW reader fails some valid tiles (tiff_lzw's docs)
+        Err(e) if e.to_string().to_lowercase().contains("lzw") => {
+            let decoded = super::tiff_lzw::decode(&bytes).map_err(|why| {
+                bad(format!(
+                    "corrupt or unsupported: {} (and by wtmm's own LZW reader: {why})",
+                    decoder_error(&e)
+                ))
+            })?;
+            info_warnings.push(format!(
+                "LZW decoded by wtmm's own reader: the tiff crate's stopped with `{}` \
+                 (a known fault on valid tiled files, image-rs/image-tiff#395)",
+                decoder_error(&e)
+            ));
+            decoded
+        }
+        Err(e) => return Err(tiff_err(e)),
     };
     if values.len() < nx * ny {
         return Err(bad(format!(
@@ -203,6 +208,23 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
             .push("the file holds more than one image; only the first was read".into());
     }
     Ok((field_from(path, ny, nx, values, nodata)?, info))
+}
+
+/// The decoder's samples as f64, with their dtype name.
+fn samples(image: DecodingResult) -> (&'static str, Vec<f64>) {
+    match image {
+        DecodingResult::U8(v) => ("u8", v.into_iter().map(f64::from).collect()),
+        DecodingResult::U16(v) => ("u16", v.into_iter().map(f64::from).collect()),
+        DecodingResult::U32(v) => ("u32", v.into_iter().map(f64::from).collect()),
+        DecodingResult::U64(v) => ("u64", v.into_iter().map(|x| x as f64).collect()),
+        DecodingResult::I8(v) => ("i8", v.into_iter().map(f64::from).collect()),
+        DecodingResult::I16(v) => ("i16", v.into_iter().map(f64::from).collect()),
+        DecodingResult::I32(v) => ("i32", v.into_iter().map(f64::from).collect()),
+        DecodingResult::I64(v) => ("i64", v.into_iter().map(|x| x as f64).collect()),
+        DecodingResult::F16(v) => ("f16", v.into_iter().map(f64::from).collect()),
+        DecodingResult::F32(v) => ("f32", v.into_iter().map(f64::from).collect()),
+        DecodingResult::F64(v) => ("f64", v),
+    }
 }
 
 /// The longest GDAL nodata text read: a number (GDAL writes at most ~25
