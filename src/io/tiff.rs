@@ -9,6 +9,7 @@ use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::encoder::{TiffEncoder, colortype};
 use tiff::tags::Tag;
 
+use super::tiff_lzw::uint;
 use super::{ImageFormat, ReadInfo, check_pixels, field_from, read_bytes};
 use crate::error::{Error, Result};
 use crate::field::Field;
@@ -273,13 +274,7 @@ fn check_layout<R: Read + Seek>(r: &mut R, len: u64) -> std::result::Result<Layo
         b"MM" => false,
         _ => return Ok((None, None)),
     };
-    let uint = |s: &[u8]| -> u64 {
-        let mut v = 0u64;
-        for i in 0..s.len() {
-            v = v << 8 | s[if le { s.len() - 1 - i } else { i }] as u64;
-        }
-        v
-    };
+    let uint = |s: &[u8]| uint(s, le);
     // classic: 12-byte entries (2-byte count), 4-byte values; BigTIFF:
     // 20-byte entries (8-byte count), 8-byte values (TIFF 6.0 §2; BigTIFF)
     let big = match (got >= 8).then(|| uint(&head[2..4])) {
@@ -433,13 +428,7 @@ fn patch_white_is_zero(b: &mut [u8]) -> bool {
         _ => return false,
     };
     let uint = |b: &[u8], at: usize, n: usize| -> Option<u64> {
-        let s = b.get(at..at.checked_add(n)?)?;
-        let mut v = 0u64;
-        for i in 0..n {
-            let byte = if le { s[n - 1 - i] } else { s[i] };
-            v = v << 8 | byte as u64;
-        }
-        Some(v)
+        Some(uint(b.get(at..at.checked_add(n)?)?, le))
     };
     // classic: the first IFD's offset (4 bytes) at byte 4, a 2-byte entry
     // count, 12-byte entries with the value at byte 8; BigTIFF: 8 bytes at

@@ -172,8 +172,7 @@ fn undo_predictor(row: &mut [u8], predictor: u64, bps: usize, le: bool) -> Resul
 fn sample(s: &[u8], dtype: &str, le: bool) -> f64 {
     let v = uint(s, le);
     match dtype {
-        "u8" | "u16" | "u32" => v as f64,
-        "u64" => v as f64,
+        "u8" | "u16" | "u32" | "u64" => v as f64,
         "i8" => v as u8 as i8 as f64,
         "i16" => v as u16 as i16 as f64,
         "i32" => v as u32 as i32 as f64,
@@ -266,8 +265,8 @@ impl Ifd {
     }
 }
 
-/// An unsigned integer from its bytes in the file's byte order.
-fn uint(s: &[u8], le: bool) -> u64 {
+/// An unsigned integer from its bytes (at most 8) in the file's byte order.
+pub(super) fn uint(s: &[u8], le: bool) -> u64 {
     let mut v = 0u64;
     for k in 0..s.len() {
         v = v << 8 | s[if le { s.len() - 1 - k } else { k }] as u64;
