@@ -9,7 +9,6 @@ use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::encoder::{TiffEncoder, colortype};
 use tiff::tags::Tag;
 
-use super::tiff_lzw::uint;
 use super::{ImageFormat, ReadInfo, check_pixels, field_from, read_bytes};
 use crate::error::{Error, Result};
 use crate::field::Field;
@@ -267,66 +266,20 @@ const DECODER_TAGS: [u16; 19] = [
 /// None)` leaves a file that is not a TIFF, or a header this walk cannot
 /// read, to the decoder's own error.
 fn check_layout<R: Read + Seek>(r: &mut R, len: u64) -> std::result::Result<Layout, String> {
-    let mut head = [0u8; 16];
-    let got = read_upto(r, &mut head);
-    let le = match &head[..2] {
-        b"II" => true,
-        b"MM" => false,
-        _ => return Ok((None, None)),
+    let Some(ifd) = Ifd::read(r, len)? else {
+        return Ok((None, None));
     };
-    let uint = |s: &[u8]| uint(s, le);
-    // classic: 12-byte entries (2-byte count), 4-byte values; BigTIFF:
-    // 20-byte entries (8-byte count), 8-byte values (TIFF 6.0 §2; BigTIFF)
-    let big = match (got >= 8).then(|| uint(&head[2..4])) {
-        Some(42) => false,
-        Some(43) if got >= 16 => true,
-        _ => return Ok((None, None)),
-    };
-    let (word, count_w, entry) = if big { (8, 8, 20) } else { (4, 2, 12) };
-    let ifd = if big {
-        uint(&head[8..16])
-    } else {
-        uint(&head[4..8])
-    };
-    let mut nbuf = [0u8; 8];
-    if r.seek(SeekFrom::Start(ifd)).is_err() || read_upto(r, &mut nbuf[..count_w]) < count_w {
-        return Err(format!(
-            "the first image directory, at byte {ifd}, lies past the end of the file ({len} bytes)"
-        ));
-    }
-    let n = uint(&nbuf[..count_w]);
-    let end = n
-        .checked_mul(entry as u64)
-        .and_then(|b| b.checked_add(ifd.checked_add(count_w as u64)?));
-    if end.is_none_or(|e| e > len) {
-        return Err(format!(
-            "the first image directory ({n} entries at byte {ifd}) runs past the end of the \
-             file ({len} bytes)"
-        ));
-    }
-    let mut entries = vec![0u8; n as usize * entry];
-    if read_upto(r, &mut entries) < entries.len() {
-        return Err(format!(
-            "the first image directory at byte {ifd} cannot be read"
-        ));
-    }
     let (mut w, mut h, mut bits, mut compression) = (None, None, None, 1u64);
-    for e in entries.chunks_exact(entry) {
-        let (tag, typ) = (uint(&e[..2]) as u16, uint(&e[2..4]));
-        let count = uint(&e[4..4 + word as usize]);
-        let value = &e[4 + word as usize..];
-        // bytes per value of each field type (TIFF 6.0 §2, BigTIFF 16-18)
-        let size = match typ {
-            1 | 2 | 6 | 7 => 1,
-            3 | 8 => 2,
-            4 | 9 | 11 | 13 => 4,
-            5 | 10 | 12 | 16 | 17 | 18 => 8,
-            _ => continue, // unknown types are skipped by the decoder
+    for e in &ifd.entries {
+        let (tag, count) = (e.tag, e.count);
+        // unknown types are skipped by the decoder
+        let Some(size) = type_size(e.typ) else {
+            continue;
         };
         let bytes = count.checked_mul(size);
-        if bytes.is_some_and(|b| b <= word) {
+        if bytes.is_some_and(|b| b <= e.field.len() as u64) {
             // the value sits in the entry; the first one is what we need
-            let first = value.get(..size as usize).map_or(0, uint);
+            let first = e.field.get(..size as usize).map_or(0, |s| uint(s, ifd.le));
             match (tag, count) {
                 (256, 1) => w = Some(first),
                 (257, 1) => h = Some(first),
@@ -335,7 +288,7 @@ fn check_layout<R: Read + Seek>(r: &mut R, len: u64) -> std::result::Result<Layo
                 _ => {}
             }
         } else if DECODER_TAGS.contains(&tag) {
-            let at = uint(value);
+            let at = uint(&e.field, ifd.le);
             if bytes
                 .and_then(|b| b.checked_add(at))
                 .is_none_or(|e| e > len)
@@ -403,6 +356,110 @@ fn check_layout<R: Read + Seek>(r: &mut R, len: u64) -> std::result::Result<Layo
 /// [`check_layout`]: the declared `(ny, nx)`, and why the image cannot be
 /// read.
 type Layout = (Option<(usize, usize)>, Option<String>);
+
+/// The first image directory of a TIFF, classic or BigTIFF (TIFF 6.0 §2;
+/// BigTIFF: 8-byte counts, values and offsets).
+pub(super) struct Ifd {
+    /// Little-endian (`II`) or big-endian (`MM`).
+    pub le: bool,
+    pub entries: Vec<Entry>,
+}
+
+/// One directory entry: its value field holds the values when they fit
+/// (4 bytes, 8 in BigTIFF), else their offset.
+pub(super) struct Entry {
+    pub tag: u16,
+    pub typ: u16,
+    pub count: u64,
+    pub field: Vec<u8>,
+}
+
+impl Ifd {
+    /// `Ok(None)` for a file whose header is not a TIFF's (the decoder
+    /// says why); `Err` when the directory lies or runs past the end of
+    /// the file (`len` bytes).
+    pub(super) fn read<R: Read + Seek>(
+        r: &mut R,
+        len: u64,
+    ) -> std::result::Result<Option<Ifd>, String> {
+        let mut head = [0u8; 16];
+        let got = read_upto(r, &mut head);
+        let le = match &head[..2] {
+            b"II" => true,
+            b"MM" => false,
+            _ => return Ok(None),
+        };
+        let big = match (got >= 8).then(|| uint(&head[2..4], le)) {
+            Some(42) => false,
+            Some(43) if got >= 16 => true,
+            _ => return Ok(None),
+        };
+        // classic: 12-byte entries after a 2-byte count; BigTIFF: 20-byte
+        // entries after an 8-byte count
+        let (word, count_w) = if big { (8, 8) } else { (4, 2) };
+        let entry = 4 + 2 * word;
+        let ifd = uint(if big { &head[8..16] } else { &head[4..8] }, le);
+        let mut nbuf = [0u8; 8];
+        if r.seek(SeekFrom::Start(ifd)).is_err() || read_upto(r, &mut nbuf[..count_w]) < count_w {
+            return Err(format!(
+                "the first image directory, at byte {ifd}, lies past the end of the file \
+                 ({len} bytes)"
+            ));
+        }
+        let n = uint(&nbuf[..count_w], le);
+        let end = n
+            .checked_mul(entry as u64)
+            .and_then(|b| b.checked_add(ifd.checked_add(count_w as u64)?));
+        if end.is_none_or(|e| e > len) {
+            return Err(format!(
+                "the first image directory ({n} entries at byte {ifd}) runs past the end of \
+                 the file ({len} bytes)"
+            ));
+        }
+        let mut raw = vec![0u8; n as usize * entry];
+        if read_upto(r, &mut raw) < raw.len() {
+            return Err(format!(
+                "the first image directory at byte {ifd} cannot be read"
+            ));
+        }
+        let entries = raw
+            .chunks_exact(entry)
+            .map(|e| Entry {
+                tag: uint(&e[..2], le) as u16,
+                typ: uint(&e[2..4], le) as u16,
+                count: uint(&e[4..4 + word], le),
+                field: e[4 + word..].to_vec(),
+            })
+            .collect();
+        Ok(Some(Ifd { le, entries }))
+    }
+
+    /// The entry of `tag`, if any.
+    pub(super) fn entry(&self, tag: u16) -> Option<&Entry> {
+        self.entries.iter().find(|e| e.tag == tag)
+    }
+}
+
+/// Bytes per value of a field type (TIFF 6.0 §2; BigTIFF 16-18); `None`
+/// for a type neither knows.
+pub(super) fn type_size(typ: u16) -> Option<u64> {
+    match typ {
+        1 | 2 | 6 | 7 => Some(1),
+        3 | 8 => Some(2),
+        4 | 9 | 11 | 13 => Some(4),
+        5 | 10 | 12 | 16 | 17 | 18 => Some(8),
+        _ => None,
+    }
+}
+
+/// An unsigned integer from its bytes (at most 8) in the file's byte order.
+pub(super) fn uint(s: &[u8], le: bool) -> u64 {
+    let mut v = 0u64;
+    for k in 0..s.len() {
+        v = v << 8 | s[if le { s.len() - 1 - k } else { k }] as u64;
+    }
+    v
+}
 
 /// Reads into `buf` until it is full or the reader ends; the bytes read.
 fn read_upto<R: Read>(r: &mut R, buf: &mut [u8]) -> usize {

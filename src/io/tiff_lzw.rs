@@ -10,15 +10,17 @@
 //! decodes TIFF chunks otherwise; it reads one band, strips or tiles,
 //! predictors 1-3 (TIFF 6.0 §14; Adobe Technical Note 3 for 3).
 
-use std::io::{Cursor, Read, Seek, SeekFrom};
+use std::io::Cursor;
+
+use super::tiff::{Ifd, type_size, uint};
 
 /// Samples of the first image of the TIFF `b` as f64, with their dtype
 /// name; `Err` says why it cannot (the caller reports the crate's error
 /// beside it).
 pub(super) fn decode(b: &[u8]) -> Result<(&'static str, Vec<f64>), String> {
-    let ifd = Ifd::read(b)?;
+    let ifd = Ifd::read(&mut Cursor::new(b), b.len() as u64)?.ok_or("not a TIFF")?;
     let one = |tag: u16, default: Option<u64>| -> Result<u64, String> {
-        match ifd.values(b, tag)?.first() {
+        match values(&ifd, b, tag)?.first() {
             Some(&v) => Ok(v),
             None => default.ok_or_else(|| format!("tag {tag} missing")),
         }
@@ -45,16 +47,17 @@ pub(super) fn decode(b: &[u8]) -> Result<(&'static str, Vec<f64>), String> {
         _ => return Err(format!("sample format {format} of {bits} bits")),
     };
     // chunks: tiles, or strips of RowsPerStrip rows the width of the image
-    let (cw, ch, offsets, counts) = if ifd.has(322) {
+    let tiled = ifd.entry(322).is_some();
+    let (cw, ch, offsets, counts) = if tiled {
         (
             one(322, None)? as usize,
             one(323, None)? as usize,
-            ifd.values(b, 324)?,
-            ifd.values(b, 325)?,
+            values(&ifd, b, 324)?,
+            values(&ifd, b, 325)?,
         )
     } else {
         let rows = (one(278, Some(h as u64))? as usize).min(h);
-        (w, rows, ifd.values(b, 273)?, ifd.values(b, 279)?)
+        (w, rows, values(&ifd, b, 273)?, values(&ifd, b, 279)?)
     };
     if cw == 0 || ch == 0 || w == 0 || h == 0 {
         return Err("empty chunks".into());
@@ -72,7 +75,7 @@ pub(super) fn decode(b: &[u8]) -> Result<(&'static str, Vec<f64>), String> {
     for c in 0..n_chunks {
         let (x0, y0) = ((c % across) * cw, (c / across) * ch);
         // a strip holds only the rows left in the image; a tile is whole
-        let rows = if ifd.has(322) { ch } else { ch.min(h - y0) };
+        let rows = if tiled { ch } else { ch.min(h - y0) };
         let row_bytes = cw * bps;
         let (at, n) = (offsets[c] as usize, counts[c] as usize);
         let src = at
@@ -182,96 +185,29 @@ fn sample(s: &[u8], dtype: &str, le: bool) -> f64 {
     }
 }
 
-/// The first image directory: its entries, classic or BigTIFF.
-struct Ifd {
-    le: bool,
-    /// (tag, type, count, the value field's bytes)
-    entries: Vec<(u16, u16, u64, Vec<u8>)>,
-}
-
-impl Ifd {
-    fn read(b: &[u8]) -> Result<Ifd, String> {
-        let le = match b.get(..2) {
-            Some(b"II") => true,
-            Some(b"MM") => false,
-            _ => return Err("not a TIFF".into()),
-        };
-        let mut r = Cursor::new(b);
-        let word = |r: &mut Cursor<&[u8]>, n: usize| -> Result<u64, String> {
-            let mut buf = [0u8; 8];
-            r.read_exact(&mut buf[..n]).map_err(|e| e.to_string())?;
-            Ok(uint(&buf[..n], le))
-        };
-        r.set_position(2);
-        let big = match word(&mut r, 2)? {
-            42 => false,
-            43 => true,
-            v => return Err(format!("version {v}")),
-        };
-        let ifd = if big {
-            r.set_position(8);
-            word(&mut r, 8)?
-        } else {
-            word(&mut r, 4)?
-        };
-        r.seek(SeekFrom::Start(ifd)).map_err(|e| e.to_string())?;
-        let n = word(&mut r, if big { 8 } else { 2 })?;
-        let value_len = if big { 8 } else { 4 };
-        if n.saturating_mul(value_len as u64 + 4) > b.len() as u64 {
-            return Err("directory past the end of the file".into());
-        }
-        let mut entries = Vec::with_capacity(n as usize);
-        for _ in 0..n {
-            let tag = word(&mut r, 2)? as u16;
-            let typ = word(&mut r, 2)? as u16;
-            let count = word(&mut r, value_len)?;
-            let mut v = vec![0u8; value_len];
-            r.read_exact(&mut v).map_err(|e| e.to_string())?;
-            entries.push((tag, typ, count, v));
-        }
-        Ok(Ifd { le, entries })
-    }
-
-    fn has(&self, tag: u16) -> bool {
-        self.entries.iter().any(|e| e.0 == tag)
-    }
-
-    /// The unsigned values of `tag` (BYTE, SHORT, LONG or LONG8), in the
-    /// entry or where its offset points; empty when absent.
-    fn values(&self, b: &[u8], tag: u16) -> Result<Vec<u64>, String> {
-        let Some((_, typ, count, field)) = self.entries.iter().find(|e| e.0 == tag) else {
-            return Ok(Vec::new());
-        };
-        let size = match typ {
-            1 => 1,
-            3 => 2,
-            4 | 13 => 4,
-            16 | 18 => 8,
-            t => return Err(format!("tag {tag} has type {t}")),
-        };
-        let len = (*count as usize)
-            .checked_mul(size)
-            .filter(|&l| l <= b.len())
-            .ok_or_else(|| format!("tag {tag}: {count} values"))?;
-        let data = if len <= field.len() {
-            &field[..len]
-        } else {
-            let at = uint(field, self.le) as usize;
-            at.checked_add(len)
-                .and_then(|end| b.get(at..end))
-                .ok_or_else(|| format!("tag {tag} lies past the end of the file"))?
-        };
-        Ok(data.chunks_exact(size).map(|s| uint(s, self.le)).collect())
-    }
-}
-
-/// An unsigned integer from its bytes (at most 8) in the file's byte order.
-pub(super) fn uint(s: &[u8], le: bool) -> u64 {
-    let mut v = 0u64;
-    for k in 0..s.len() {
-        v = v << 8 | s[if le { s.len() - 1 - k } else { k }] as u64;
-    }
-    v
+/// The unsigned values of `tag` (BYTE, SHORT, LONG or LONG8) in the file
+/// `b`, from the entry or where its offset points; empty when absent.
+fn values(ifd: &Ifd, b: &[u8], tag: u16) -> Result<Vec<u64>, String> {
+    let Some(e) = ifd.entry(tag) else {
+        return Ok(Vec::new());
+    };
+    let size = match e.typ {
+        1 | 3 | 4 | 13 | 16 | 18 => type_size(e.typ).unwrap_or(1) as usize,
+        t => return Err(format!("tag {tag} has type {t}")),
+    };
+    let len = (e.count as usize)
+        .checked_mul(size)
+        .filter(|&l| l <= b.len())
+        .ok_or_else(|| format!("tag {tag}: {} values", e.count))?;
+    let data = if len <= e.field.len() {
+        &e.field[..len]
+    } else {
+        let at = uint(&e.field, ifd.le) as usize;
+        at.checked_add(len)
+            .and_then(|end| b.get(at..end))
+            .ok_or_else(|| format!("tag {tag} lies past the end of the file"))?
+    };
+    Ok(data.chunks_exact(size).map(|s| uint(s, ifd.le)).collect())
 }
 
 #[cfg(test)]
