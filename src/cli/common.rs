@@ -255,14 +255,18 @@ pub fn file_label(p: &std::path::Path) -> String {
 /// files) when the images are files, their number and size
 /// ("levi_fell_dem.npy, 1 x 400^2"; "a.npy .. d.npy, 4 x 512^2";
 /// generated images have labels without an extension and are not named).
-pub fn data_label(labels: &[&str], images: usize, shapes: &[crate::spectra::ShapeCount]) -> String {
+pub fn data_label(
+    labels: &[impl AsRef<std::path::Path>],
+    images: usize,
+    shapes: &[crate::spectra::ShapeCount],
+) -> String {
     let sizes = match shapes {
         [one] if one.ny == one.nx => format!("{}^2", one.nx),
         [one] => format!("{}x{}", one.ny, one.nx),
         _ => "mixed sizes".into(),
     };
-    let file = |l: &str| {
-        let p = std::path::Path::new(l);
+    let file = |l: &dyn AsRef<std::path::Path>| {
+        let p = l.as_ref();
         p.extension().map(|_| file_label(p))
     };
     let files = match labels {
@@ -508,6 +512,16 @@ pub fn note_caveats(body: &mut serde_json::Value, model: Option<&crate::theory::
     let caveats = model.map(|m| m.caveats()).unwrap_or_default();
     if !caveats.is_empty() {
         body["caveats"] = serde_json::json!(caveats);
+    }
+}
+
+/// `v ± se` with `prec` decimals, or `v` alone when the error is unknown
+/// (a jackknife needs 3 images), for figure titles.
+pub fn plus_minus(v: f64, se: f64, prec: usize) -> String {
+    if se.is_finite() {
+        format!("{v:.prec$} ± {se:.prec$}")
+    } else {
+        format!("{v:.prec$}")
     }
 }
 

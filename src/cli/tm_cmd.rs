@@ -10,8 +10,8 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::{
-    available_memory, f, header, make_out_dir, parse_list, parse_q, parse_range, progress,
-    write_csv, write_json,
+    available_memory, f, header, make_out_dir, parse_list, parse_q, parse_range, plus_minus,
+    progress, write_csv, write_json,
 };
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
@@ -351,13 +351,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     make_out_dir(&args.out.out)?;
     // box levels are in pixels: images of several sizes weigh by their area
     let shapes = crate::spectra::ShapeCount::tally(shapes);
-    let labels: Vec<String> = args
-        .images
-        .iter()
-        .map(|p| p.display().to_string())
-        .collect();
-    let labels: Vec<&str> = labels.iter().map(String::as_str).collect();
-    let what = super::common::data_label(&labels, args.images.len(), &shapes);
+    let what = super::common::data_label(&args.images, args.images.len(), &shapes);
     let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit)});
     write_outputs(
@@ -750,15 +744,6 @@ pub fn write_outputs(
 
 const LOG10_2: f64 = std::f64::consts::LOG10_2;
 
-/// `v ± se` with `prec` decimals, or `v` alone when the error is unknown.
-fn pm(v: f64, se: f64, prec: usize) -> String {
-    if se.is_finite() {
-        format!("{v:.prec$} ± {se:.prec$}")
-    } else {
-        format!("{v:.prec$}")
-    }
-}
-
 /// The orders shown in TM Figs 19, 25-26 (top to bottom 2.18 ... 0.04),
 /// plus 3, snapped to the grid.
 fn shown_q(q: &[f64]) -> Vec<usize> {
@@ -829,8 +814,8 @@ pub fn plot_k(
     let mut c = Chart {
         title: format!(
             "K(q): alpha = {}, C1 = {} (fit q <= {:.2}), q_s = {:.2}: {what}",
-            pm(r.alpha, r.alpha_stderr, 2),
-            pm(r.c1, r.c1_stderr, 3),
+            plus_minus(r.alpha, r.alpha_stderr, 2),
+            plus_minus(r.c1, r.c1_stderr, 3),
             r.universal_q_max,
             r.q_s
         ),
@@ -894,7 +879,7 @@ fn plot_dtm(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
             r.dtm_q
                 .first()
                 .map_or(String::new(), |q| format!(" (q = {q})")),
-            pm(r.dtm_alpha, r.dtm_alpha_stderr, 2),
+            plus_minus(r.dtm_alpha, r.dtm_alpha_stderr, 2),
             r.dtm_c1
         ),
         x_label: "log10 η".into(),
@@ -976,13 +961,17 @@ fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum, what: &s
         title: format!(
             "angle-averaged spectrum: beta = {} (angle-integrated: {}), H = {}: {what}",
             // one slope, one error: the two betas differ by 1 (SPEC §8)
-            r.beta_averaged.map_or("n/a".into(), |b| pm(
+            r.beta_averaged.map_or("n/a".into(), |b| plus_minus(
                 b,
                 r.beta_stderr.unwrap_or(f64::NAN),
                 3
             )),
             r.beta.map_or("n/a".into(), |b| format!("{b:.3}")),
-            r.h.map_or("n/a".into(), |h| pm(h, r.h_stderr.unwrap_or(f64::NAN), 3))
+            r.h.map_or("n/a".into(), |h| plus_minus(
+                h,
+                r.h_stderr.unwrap_or(f64::NAN),
+                3
+            ))
         ),
         x_label: "log2 |k| (rad/px)".into(),
         y_label: "log2 S(|k|), angle-averaged".into(),

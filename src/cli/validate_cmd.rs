@@ -803,16 +803,10 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let pts = ens.spectrum.points();
     let mut chart = Chart {
         title: format!(
-            "{name}, {} x {}^2: beta = {:.3}{} (theory {:.3})",
+            "{name}, {} x {}^2: beta = {} (theory {:.3})",
             args.count,
             args.size,
-            beta_fit.beta,
-            // a jackknife error needs 3 images
-            if beta_se.is_finite() {
-                format!(" ± {beta_se:.3}")
-            } else {
-                String::new()
-            },
+            super::common::plus_minus(beta_fit.beta, beta_se, 3),
             th.beta
         ),
         x_label: "log2 |k| (rad/px)".into(),
