@@ -15,7 +15,6 @@ use std::sync::Once;
 
 use ndarray::ArrayView2;
 use plotters::coord::Shift;
-use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
 use plotters::element::MultiLineText;
 use plotters::prelude::*;
@@ -581,14 +580,51 @@ fn draw_legend<DB: DrawingBackend>(
     Ok(())
 }
 
-/// A tick label as plotters writes it, without the sign of a zero (a key
-/// point a rounding step below 0 printed as "-0.0").
-fn tick(v: &f64) -> String {
-    let s = <RangedCoordf64 as ValueFormatter<f64>>::format(v);
-    match s.strip_prefix('-') {
-        Some(rest) if rest.parse::<f64>() == Ok(0.0) => rest.to_string(),
-        _ => s,
+/// The number of tick labels plotters' mesh asks an axis for (its default).
+const TICKS: usize = 11;
+
+/// The tick labels of one axis, all with the same number of decimals: as
+/// many as the finest of the axis's tick values needs (at most 6), so
+/// integer ticks read "-4", not "-4.0", and a 0.25 step reads "0.50", not
+/// "0.5" beside "0.25". plotters prints each value alone, in its shortest
+/// form with at least one decimal.
+#[derive(Clone, Copy, Debug)]
+struct Ticks {
+    decimals: usize,
+}
+
+impl Ticks {
+    /// The labels for an axis spanning `lo..hi`, whose ticks are plotters'
+    /// key points of that range (what its mesh draws).
+    fn of(lo: f64, hi: f64) -> Ticks {
+        use plotters::coord::ranged1d::Ranged;
+        let keys = RangedCoordf64::from(lo..hi).key_points(TICKS);
+        let decimals = keys.iter().map(|&v| decimals_of(v)).max().unwrap_or(0);
+        Ticks { decimals }
     }
+
+    /// `v` with the axis's decimals and no sign on a zero (a key point a
+    /// rounding step below 0 would print "-0.0").
+    fn label(&self, v: f64) -> String {
+        let s = format!("{v:.*}", self.decimals);
+        match s.strip_prefix('-') {
+            Some(rest) if rest.parse::<f64>() == Ok(0.0) => rest.to_string(),
+            _ => s,
+        }
+    }
+}
+
+/// The fewest decimals (at most 6) that write `v` to within a rounding
+/// error of its size (key points are multiples of a step like 0.25 computed
+/// in floating point, so 0.30000000000000004 needs 1).
+fn decimals_of(v: f64) -> usize {
+    let tol = 1e-9 * v.abs().max(1e-6);
+    (0..6)
+        .find(|&d| {
+            let f = 10f64.powi(d as i32);
+            ((v * f).round() / f - v).abs() <= tol
+        })
+        .unwrap_or(6)
 }
 
 fn draw<DB: DrawingBackend>(
@@ -603,11 +639,15 @@ where
     let area = titled_area(&root, &chart.title)?;
     let plan = plan(&area, chart)?;
     let mut ctx = build(&area, (plan.x, plan.y), plan.right)?;
+    let (tx, ty) = (Ticks::of(plan.x.0, plan.x.1), Ticks::of(plan.y.0, plan.y.1));
+    let (fx, fy) = (|v: &f64| tx.label(*v), |v: &f64| ty.label(*v));
     ctx.configure_mesh()
         .x_desc(&chart.x_label)
         .y_desc(&chart.y_label)
-        .x_label_formatter(&tick)
-        .y_label_formatter(&tick)
+        .x_labels(TICKS)
+        .y_labels(TICKS)
+        .x_label_formatter(&fx)
+        .y_label_formatter(&fy)
         .label_style(("sans-serif", 15))
         .axis_desc_style(("sans-serif", 17))
         .light_line_style(RGBColor(235, 235, 235))
@@ -1137,7 +1177,12 @@ where
         .map_err(|x| e(&x))?;
     }
     // ticks as the charts write them (no signed zero); y flipped when down
-    let fmt_y = |v: &f64| tick(&(sign * v));
+    let (tx, ty) = (
+        Ticks::of(spec.x_range.0, spec.x_range.1),
+        Ticks::of(y_lo, y_hi),
+    );
+    let fmt_x = |v: &f64| tx.label(*v);
+    let fmt_y = |v: &f64| ty.label(sign * v);
     // a long x label (a picture's colour key) is set smaller until it fits
     // under the raster, as a long title is (titled_area); plotters styles
     // both axis descriptions alike, so the y label follows
@@ -1154,7 +1199,9 @@ where
         .disable_mesh()
         .x_desc(&spec.x_label)
         .y_desc(&spec.y_label)
-        .x_label_formatter(&tick)
+        .x_labels(TICKS)
+        .y_labels(TICKS)
+        .x_label_formatter(&fmt_x)
         .y_label_formatter(&fmt_y)
         .label_style(("sans-serif", 15))
         .axis_desc_style(("sans-serif", desc))
@@ -1439,9 +1486,44 @@ mod tests {
         assert_eq!(runs.len(), 3);
         assert_eq!(runs.iter().map(|r| r.len()).collect::<Vec<_>>(), [2, 1, 2]);
         assert_eq!(runs[2], [(5.0, 1.0), (6.0, 2.0)]);
-        assert_eq!(tick(&-1e-17), tick(&0.0));
-        assert!(!tick(&-1e-17).starts_with('-'), "{}", tick(&-1e-17));
-        assert!(tick(&-0.5).starts_with('-'));
+        let t = Ticks::of(-1.0, 1.0);
+        assert_eq!(t.label(-1e-17), t.label(0.0));
+        assert!(!t.label(-1e-17).starts_with('-'), "{}", t.label(-1e-17));
+        assert!(t.label(-0.5).starts_with('-'));
+    }
+
+    /// Every label of an axis has the decimals its finest tick needs:
+    /// integer steps print no ".0", a 0.25 step prints two decimals on all.
+    #[test]
+    fn tick_labels_share_their_decimals() {
+        use plotters::coord::ranged1d::Ranged;
+        let labels = |lo: f64, hi: f64| {
+            let t = Ticks::of(lo, hi);
+            RangedCoordf64::from(lo..hi)
+                .key_points(TICKS)
+                .iter()
+                .map(|&v| t.label(v))
+                .collect::<Vec<_>>()
+        };
+        let q = labels(-6.6, 9.6);
+        assert!(q.contains(&"-4".to_string()), "{q:?}");
+        assert!(q.iter().all(|l| !l.contains('.')), "{q:?}");
+        let h = labels(0.0, 0.5);
+        assert!(h.contains(&"0.05".to_string()), "{h:?}");
+        assert!(h.contains(&"0.10".to_string()), "{h:?}");
+        assert!(
+            h.iter()
+                .all(|l| l.split('.').nth(1).map(str::len) == Some(2)),
+            "{h:?}"
+        );
+        let d = labels(1.9, 2.1);
+        assert!(
+            d.iter()
+                .all(|l| l.split('.').nth(1).map(str::len) == Some(2)),
+            "{d:?}"
+        );
+        let px = labels(0.0, 1024.0);
+        assert!(px.contains(&"200".to_string()), "{px:?}");
     }
 
     #[test]

@@ -649,17 +649,25 @@ fn write_correlation_outputs(
                 );
             }
             if let Some(m) = model {
+                // eq 76 holds for dx > sup(a1, a2) (II §5): the curve starts
+                // where it applies to the first pair, not at dx = 1 px
+                let x0 = r
+                    .pairs
+                    .iter()
+                    .map(|p| p.a1.max(p.a2).log2())
+                    .fold(f64::INFINITY, f64::min)
+                    .max(0.0);
                 let pts: Vec<(f64, f64)> = (0..=200)
                     .filter_map(|i| {
-                        let x = xmax * i as f64 / 200.0;
+                        let x = x0 + (xmax - x0) * i as f64 / 200.0;
                         m.magnitude_correlation(x.exp2(), l).map(|v| (x, v))
                     })
                     .collect();
-                if !pts.is_empty() {
+                if x0 < xmax && !pts.is_empty() {
                     let name = if matches!(m, Model::Fbm(_)) {
-                        "theory: C = 0 (II Fig 30b)"
+                        "theory: C = 0 (II Fig 30b), dx > sup(a1, a2)"
                     } else {
-                        "theory: II eq 76"
+                        "theory: II eq 76, dx > sup(a1, a2)"
                     };
                     c.series.push(Series::new(name, pts, Style::Line, 9));
                 }
