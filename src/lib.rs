@@ -93,6 +93,26 @@
 //! universal multifractal fields drawn with the DEM's estimates, shape and
 //! missing pixels (a parametric bootstrap; `wtmm tm --surrogates K`).
 //!
+//! # Messages name the command line's flags
+//!
+//! Errors and warnings are written for the people who read them, most of
+//! whom run the `wtmm` command: where a message advises a change ("fewer
+//! --octaves or a smaller --margin"), it names the flag. The same knobs in
+//! the library:
+//!
+//! | flag | library |
+//! |---|---|
+//! | `--wavelet`, `--octaves`, `--voices`, `--margin` | [`AnalysisConfig`] `wavelet`, `octaves`, `voices`, `margin` (and the same fields of [`stats::correlation::CorrelationConfig`]) |
+//! | `--ratio` | [`skeleton::LinkParams`] `ratio` (`AnalysisConfig::link`) |
+//! | `--fit` | the `fit` argument of [`PartitionSums::spectra`]; [`stats::kernel::KernelOptions`] `fit` |
+//! | `--refs`, `--pairs` (kernel) | [`stats::kernel::KernelOptions`] `refs`, `pairs` |
+//! | `--pairs`, `--max-dx` (correlate) | [`stats::correlation::CorrelationConfig`] `pairs`, `max_dx` |
+//! | `--lnm-bin`, `--arg-bins` | [`stats::pdf::PdfConfig`] `dlnm`, `arg_bins` |
+//! | `--diff-order`, `--frac-int` | [`tracemoments::TraceMomentConfig`] `diff` ([`tracemoments::FluxDiff`]), `frac_int` |
+//! | `--lambda-fit`, `--lag-fit`, `--k-range`, `--q-fit-max`, `--universal-fit` | [`tracemoments::TraceMomentFitConfig`] `log2_lambda`, `log2_lag`, `k_range`, `q_fit_max`, `universal` |
+//! | `--surrogates K` | [`tracemoments::surrogate_errors`] |
+//! | `--out` | the directory a caller writes to ([`io::write_atomic`] refuses to overwrite a file registered with [`io::protect`]) |
+//!
 //! # References
 //!
 //! The docs cite: **II** (e.g. "II §3.2", "II eq 76"), the method paper:

@@ -2587,7 +2587,7 @@ fn every_command_writes_the_spec_keys() {
             assert!(out(name).join(f).is_file(), "{name}/{f} missing");
         }
     };
-    let head = ["version", "build", "command", "params"];
+    let head = ["version", "build", "command", "params", "command_line"];
 
     let mut a = vec!["analyze"];
     a.extend_from_slice(&im);
@@ -2685,6 +2685,16 @@ fn every_command_writes_the_spec_keys() {
     run_to(&["demo", "--size", "128", "--count", "2"], "demo");
     let v = json(&out("demo").join("validation.json"));
     has(&v, &head, "validation.json");
+    // demo is a validate run: its parameters are validate's, and the
+    // command line says what was typed
+    assert_eq!(v["command"], "validate");
+    let typed: Vec<&str> = v["command_line"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a.as_str().unwrap())
+        .collect();
+    assert_eq!(&typed[..5], ["wtmm", "--quiet", "demo", "--size", "128"]);
     has(&v, &["model", "criteria"], "validation.json");
     for c in v["criteria"].as_array().unwrap() {
         has(

@@ -280,8 +280,39 @@ pub fn data_label(
     format!("{files}{images} x {sizes}")
 }
 
+thread_local! {
+    /// The command line being run (set by `run_from` on the thread that
+    /// parses it and writes the outputs; tests run commands in parallel
+    /// threads, so it is not process-wide).
+    static COMMAND_LINE: std::cell::RefCell<Option<Vec<String>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Records `args` as the command line of the outputs this thread writes
+/// until the guard drops.
+pub(super) fn record_command_line(args: Vec<String>) -> CommandLineGuard {
+    COMMAND_LINE.with(|c| *c.borrow_mut() = Some(args));
+    CommandLineGuard
+}
+
+/// Clears the recorded command line when dropped.
+pub(super) struct CommandLineGuard;
+
+impl Drop for CommandLineGuard {
+    fn drop(&mut self) {
+        COMMAND_LINE.with(|c| *c.borrow_mut() = None);
+    }
+}
+
+/// The provenance every JSON output starts with: version, build, the
+/// command and its parameters, and the command line as typed (`demo` runs
+/// `validate`, whose parameters it records; the command line says so).
 pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
-    serde_json::json!({"version": crate::VERSION, "build": crate::BUILD, "command": command, "params": params})
+    let mut h = serde_json::json!({"version": crate::VERSION, "build": crate::BUILD, "command": command, "params": params});
+    if let Some(cl) = COMMAND_LINE.with(|c| c.borrow().clone()) {
+        h["command_line"] = serde_json::json!(cl);
+    }
+    h
 }
 
 /// `MemAvailable` of /proc/meminfo in bytes (Linux); `None` elsewhere.

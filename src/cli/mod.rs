@@ -495,6 +495,21 @@ where
     // '--octaves'"), rather than read as an unknown flag with clap's tip
     // of `-- -1`, which would not help (clap sets this per argument only)
     let cmd = negative_values(<Cli as clap::CommandFactory>::command());
+    let args: Vec<std::ffi::OsString> = args.into_iter().map(Into::into).collect();
+    // as typed, with the program's path reduced to its name
+    let typed = args
+        .iter()
+        .enumerate()
+        .map(|(i, a)| match i {
+            0 => Path::new(a)
+                .file_name()
+                .unwrap_or(a)
+                .to_string_lossy()
+                .into_owned(),
+            _ => a.to_string_lossy().into_owned(),
+        })
+        .collect();
+    let _typed = common::record_command_line(typed);
     let parsed = cmd
         .try_get_matches_from(args)
         .and_then(|m| <Cli as clap::FromArgMatches>::from_arg_matches(&m));
