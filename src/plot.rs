@@ -1327,6 +1327,13 @@ pub fn save_raster_chart(raster: &Raster, spec: &RasterChart, path: &Path) -> Re
 /// What made the picture, as a comment after the XML declaration (if any);
 /// the JSON beside it holds the parameters.
 fn tag_svg(s: &mut String) {
+    // the viewer sets an SVG's text: ask for the font the layout was
+    // measured with (legend boxes, title widths), then Verdana, whose
+    // metrics are close (DejaVu Sans descends from Bitstream Vera)
+    *s = s.replace(
+        "font-family=\"sans-serif\"",
+        "font-family=\"DejaVu Sans, Verdana, sans-serif\"",
+    );
     let tag = format!("<!-- wtmm {} ({}) -->", crate::VERSION, crate::BUILD);
     match s.find("?>") {
         Some(i) => s.insert_str(i + 2, &format!("\n{tag}")),

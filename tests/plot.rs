@@ -265,6 +265,9 @@ fn raster_chart_png_and_svg_of_the_requested_size() {
     save_chart(&fan_chart(), &chart_svg).unwrap();
     let c = std::fs::read_to_string(&chart_svg).unwrap();
     assert!(c.contains(&format!("<!-- {version} -->")) && c.trim_end().ends_with("</svg>"));
+    // the text asks for the font its layout was measured with
+    assert!(c.contains("font-family=\"DejaVu Sans, Verdana, sans-serif\""));
+    assert!(!c.contains("font-family=\"sans-serif\""));
     // automatic size: the axes around an integer zoom of the raster
     let sk = d.join("skeleton.png");
     save_raster_chart(&skeleton_raster(256, 192), &skeleton_spec(), &sk).unwrap();
