@@ -54,7 +54,15 @@ pub fn parse_list(flag: &str, s: &str) -> Result<Vec<f64>> {
     let mut v = v;
     v.sort_by(f64::total_cmp);
     if let Some(w) = v.windows(2).find(|w| w[1] - w[0] < 1e-9) {
-        return Err(bad(&format!("{} is given twice", w[0])));
+        return Err(bad(&if w[1] == w[0] {
+            format!("{} is given twice", w[0])
+        } else {
+            format!(
+                "{} and {} are closer than 1e-9 (the Legendre transform divides by their \
+                 difference)",
+                w[0], w[1]
+            )
+        }));
     }
     Ok(v)
 }
@@ -694,6 +702,8 @@ mod tests {
                 .to_string()
                 .contains("1 is given twice")
         );
+        let e = parse_list("q", "0,1e-10").unwrap_err().to_string();
+        assert!(e.contains("0 and 0.0000000001 are closer than 1e-9"), "{e}");
     }
 
     #[test]

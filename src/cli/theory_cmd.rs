@@ -53,7 +53,7 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
         && p.c1 > 0.0
     {
         notes.push(
-            if p.alpha > 1.0 + crate::theory::fif::ALPHA_ONE_EPS {
+            if p.alpha > 1.0 && !crate::theory::fif::alpha_is_one(p.alpha) {
                 "q < 0: tau(q) = q h_max - 2 is the spectrum truncated at h_max, where D = 2; \
              the strict Legendre transform of K (defined for q >= 0 only) gives D = 2 for every \
              h >= h_max and tau(q < 0) = -inf (src/theory/mod.rs)"
@@ -101,6 +101,25 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
              straight line there (finite size and statistics), so these q are not a test of \
              the estimator",
             t.h_min, t.h_max
+        ));
+    }
+    // the other nulls: a tau beyond f64 (a log-Poisson beta^q at q = -700)
+    let fif_q_neg = matches!(r.model, Model::Fif(p) if p.alpha < 2.0 && p.c1 > 0.0);
+    let beyond: Vec<String> = q
+        .iter()
+        .zip(&t.tau)
+        .filter(|&(&v, tau)| {
+            let noted = fif_q_neg && v < 0.0;
+            !tau.is_finite() && !noted
+        })
+        .map(|(v, _)| v.to_string())
+        .collect();
+    if !beyond.is_empty() {
+        notes.push(format!(
+            "tau(q) is beyond the range of a double at {} of the q ({}): written as null, \
+             with h and D there",
+            beyond.len(),
+            beyond.join(", ")
         ));
     }
     notes.extend(r.model.caveats());

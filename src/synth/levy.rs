@@ -85,7 +85,7 @@ impl ExtremalLevy {
     /// **Errors** unless `0 < α <= 2`.
     pub fn new(alpha: f64) -> Result<Self> {
         validate_alpha(alpha)?;
-        let one = (alpha - 1.0).abs() < ALPHA_ONE_EPS;
+        let one = (alpha - 1.0).abs() <= ALPHA_ONE_EPS;
         let (b, scale, shift) = if one {
             (0.0, 1.0, 0.0)
         } else {
@@ -207,7 +207,7 @@ mod tests {
         }
         let emp = Complex64::new(re / n, im / n);
         let it = Complex64::new(0.0, t);
-        let th = if (alpha - 1.0).abs() < ALPHA_ONE_EPS {
+        let th = if (alpha - 1.0).abs() <= ALPHA_ONE_EPS {
             (it * it.ln()).exp()
         } else {
             // (it)^α on the principal branch: |t|^α e^{iπα sgn(t)/2}

@@ -183,7 +183,8 @@ impl Law {
                         "sigma2",
                         format!(
                             "the cascade does not converge: need |m|/sigma > 2 sqrt(ln 2) = {:.4} \
-                             (h_min = -m/ln2 - 2 sigma/sqrt(ln2) > 0, II eqs 31-32), \
+                             (h_min = -m/ln2 - 2 sigma/sqrt(ln2) > 0 by II eq 32; II eq 31 prints sigma^2 \
+                             for sigma, which mixes units), \
                              got |m|/sigma = {:.4}, h_min = {h_min:.4}",
                             2.0 * LN_2.sqrt(),
                             -m / sigma2.sqrt(),

@@ -146,7 +146,7 @@ impl Multifractal for FifParams {
         let h_min = fif::h(self, qs);
         let h_max = if self.alpha >= 2.0 {
             fif::h(self, -qs)
-        } else if self.alpha > 1.0 + fif::ALPHA_ONE_EPS {
+        } else if self.alpha > 1.0 && !fif::alpha_is_one(self.alpha) {
             // α within ALPHA_ONE_EPS of 1 is α = 1, as in K(q)
             self.hurst + self.c1 / (self.alpha - 1.0)
         } else {
