@@ -36,8 +36,8 @@ use crate::stats::fit::{line_fit, slope_change};
 pub enum Rule {
     /// `M_L(a) = max_{a' <= a} M(a')` along the line (meant to keep q < 0 stable).
     Sup,
-    /// The modulus at a: the default, as `wtmm analyze`'s (README, "How
-    /// the defaults were chosen").
+    /// The modulus at a: the default of the library and of every command
+    /// (README, "How the defaults were chosen").
     #[default]
     Plain,
 }

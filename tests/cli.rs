@@ -1691,7 +1691,7 @@ fn merge_says_which_files_it_reads() {
     let want = format!(
         "{spectra}: not a partition-sums file (the spectra.json of `wtmm analyze`): merge reads \
          the sums.json (partition sums) that analyze, validate, demo and merge write, and compare \
-         in its wtmm/; {} is beside it: invalid type:",
+         in its wtmm/; {} is beside it; the JSON reader said: invalid type:",
         dir.join("A/sums.json").display()
     );
     assert!(err.contains(&want), "{err}");
@@ -1709,7 +1709,7 @@ fn merge_says_which_files_it_reads() {
     assert!(
         err.contains(&format!(
             "{js}: not a partition-sums file: merge reads the sums.json"
-        )) && err.contains("wtmm/: expected value at line 1 column 1"),
+        )) && err.contains("wtmm/; the JSON reader said: expected value at line 1 column 1"),
         "{err}"
     );
     // a sums file that fails its checks keeps the library's message

@@ -102,9 +102,11 @@ pub fn check_fit(r: (f64, f64), span: f64, step: f64, what: &str) -> Result<()> 
         return Err(Error::param(
             "fit",
             format!(
-                "{}:{} must lie within 0:{span} octaves{what}",
+                "{}:{} must lie within 0:{span} octaves (HI = {span} fits up to the top \
+                 scale, {} octaves above a_min){what}",
                 crate::error::short(r.0),
-                crate::error::short(r.1)
+                crate::error::short(r.1),
+                crate::error::short(span - step)
             ),
         ));
     }
@@ -140,7 +142,8 @@ pub struct SpectraOpts {
     /// Modulus along a maxima line: plain (M at a) or sup (max of M over scales <= a).
     #[arg(long, value_enum, default_value_t = Rule::Plain)]
     pub rule: Rule,
-    /// Same as `--rule plain` (kept for scripts).
+    /// Same as `--rule plain`, the default: changes nothing (kept for
+    /// scripts that name it).
     #[arg(long, conflicts_with = "rule")]
     pub plain: bool,
 }

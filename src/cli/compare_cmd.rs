@@ -709,13 +709,17 @@ fn table(
     );
     let _ = writeln!(
         s,
-        "WTMM: {} wavelet, {} rule, fit {:.2}-{:.2} px; TM: {:?} flux after differentiation {:?} (mean order {:.3}), fit log2 lambda {}:{}, universal fit q <= {:.2} (q_s {:.2}); TM alpha {} +- {}, C1 {} +- {} ({})\n",
+        "WTMM: {} wavelet, {} rule, fit {:.2}-{:.2} px; TM: {} flux after differentiation {} (mean order {:.3}), fit log2 lambda {}:{}, universal fit q <= {:.2} (q_s {:.2}); TM alpha {} +- {}, C1 {} +- {} ({})\n",
         wavelet.name(),
         rule.name(),
         w.fit_scales.0,
         w.fit_scales.1,
-        t.flux,
-        t.diff,
+        t.flux.name(),
+        match t.diff {
+            crate::tracemoments::FluxDiff::None => "none".to_string(),
+            crate::tracemoments::FluxDiff::Auto => "auto".to_string(),
+            crate::tracemoments::FluxDiff::Order(d) => format!("of order {d}"),
+        },
         t.diff_order,
         t.fit_log2_lambda.0,
         t.fit_log2_lambda.1,

@@ -182,7 +182,7 @@ fn read_sums(p: &Path) -> Result<PartitionSums> {
 }
 
 /// "not a partition-sums file (the spectra.json of `wtmm analyze`): merge
-/// reads ...; DIR/sums.json is beside it: DETAIL".
+/// reads ...; DIR/sums.json is beside it; the JSON reader said: DETAIL".
 fn not_sums(path: &Path, detail: &str) -> String {
     // another output of wtmm carries the command that wrote it
     let command = std::fs::read_to_string(path)
@@ -200,7 +200,7 @@ fn not_sums(path: &Path, detail: &str) -> String {
     } else {
         String::new()
     };
-    format!("not a partition-sums file{what}: {SUMS_FILES}{beside}: {detail}")
+    format!("not a partition-sums file{what}: {SUMS_FILES}{beside}; the JSON reader said: {detail}")
 }
 
 /// The same image in two shards (same label and the same sums) would be

@@ -59,7 +59,8 @@ pub fn run(args: TheoryArgs, _quiet: bool) -> Result<Outcome> {
              h >= h_max and tau(q < 0) = -inf (src/theory/mod.rs)"
             } else {
                 "q < 0: for alpha <= 1, K'(0+) = -inf, so h_max = +inf and tau(q < 0) = -inf: \
-             written as null (src/theory/mod.rs)"
+             written as null (src/theory/mod.rs); the D(h) curve stops at h(q = 0.001), \
+             where D = 2 - C1 0.001^alpha"
             }
             .to_string(),
         );

@@ -576,7 +576,8 @@ pub struct TheoryTable {
     #[serde(rename = "K", skip_serializing_if = "Option::is_none", default)]
     pub k: Option<Vec<f64>>,
     /// The D(h) curve sampled on `[h_min, h_max]` (one point for a
-    /// monofractal).
+    /// monofractal); where `h_max` is infinite (FIF with α <= 1, D -> 2 as
+    /// h -> ∞) up to `h(q = 0.001)`, where `D = 2 - C1 0.001^α`.
     pub dh_h: Vec<f64>,
     /// `D(h)` at each `dh_h` (JSON `dh_D`).
     #[serde(rename = "dh_D")]

@@ -24,6 +24,16 @@ pub enum FluxKind {
     Wavelet,
 }
 
+impl FluxKind {
+    /// The name the command line and the JSON use (`gradient`, `wavelet`).
+    pub fn name(self) -> &'static str {
+        match self {
+            FluxKind::Gradient => "gradient",
+            FluxKind::Wavelet => "wavelet",
+        }
+    }
+}
+
 /// Fractional differentiation applied to the field before the modulus
 /// (TM §5.2: inverting the fractional integration of order H needs "a
 /// fractional differentiation of order H or greater"). The total order of the
