@@ -590,7 +590,11 @@ const TICKS: usize = 11;
 /// form with at least one decimal.
 #[derive(Clone, Copy, Debug)]
 struct Ticks {
+    /// Digits after the point, of the plain number or (`sci`) of the mantissa.
     decimals: usize,
+    /// Scientific notation: ticks that would need more than 6 decimals
+    /// (a c3 of 1e-6) or 8 digits before the point.
+    sci: bool,
 }
 
 impl Ticks {
@@ -599,14 +603,48 @@ impl Ticks {
     fn of(lo: f64, hi: f64) -> Ticks {
         use plotters::coord::ranged1d::Ranged;
         let keys = RangedCoordf64::from(lo..hi).key_points(TICKS);
-        let decimals = keys.iter().map(|&v| decimals_of(v)).max().unwrap_or(0);
-        Ticks { decimals }
+        // every tick writable with at most 6 decimals (None if one is not)
+        let plain = keys
+            .iter()
+            .map(|&v| decimals_of(v))
+            .collect::<Option<Vec<usize>>>()
+            .map(|d| d.into_iter().max());
+        let top = keys.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        match plain {
+            Some(Some(decimals)) if top < 1e7 => Ticks {
+                decimals,
+                sci: false,
+            },
+            // the mantissa's digits: down to the step between the ticks
+            _ if keys.len() >= 2 && top > 0.0 => {
+                let step = (keys[1] - keys[0]).abs();
+                let digits = top.log10().floor() - step.log10().floor();
+                Ticks {
+                    decimals: digits.clamp(0.0, 6.0) as usize,
+                    sci: true,
+                }
+            }
+            _ => Ticks {
+                decimals: 6,
+                sci: top >= 1e7,
+            },
+        }
     }
 
     /// `v` with the axis's decimals and no sign on a zero (a key point a
     /// rounding step below 0 would print "-0.0").
     fn label(&self, v: f64) -> String {
-        let s = format!("{v:.*}", self.decimals);
+        let s = if self.sci {
+            // no "0e0" for a zero between the ticks of a tiny range
+            let tiny = v.abs() < 1e-300;
+            if tiny {
+                "0".to_string()
+            } else {
+                format!("{v:.*e}", self.decimals)
+            }
+        } else {
+            format!("{v:.*}", self.decimals)
+        };
         match s.strip_prefix('-') {
             Some(rest) if rest.parse::<f64>() == Ok(0.0) => rest.to_string(),
             _ => s,
@@ -616,15 +654,13 @@ impl Ticks {
 
 /// The fewest decimals (at most 6) that write `v` to within a rounding
 /// error of its size (key points are multiples of a step like 0.25 computed
-/// in floating point, so 0.30000000000000004 needs 1).
-fn decimals_of(v: f64) -> usize {
-    let tol = 1e-9 * v.abs().max(1e-6);
-    (0..6)
-        .find(|&d| {
-            let f = 10f64.powi(d as i32);
-            ((v * f).round() / f - v).abs() <= tol
-        })
-        .unwrap_or(6)
+/// in floating point, so 0.30000000000000004 needs 1); `None` if 6 do not.
+fn decimals_of(v: f64) -> Option<usize> {
+    let tol = 1e-9 * v.abs().max(1e-12);
+    (0..=6).find(|&d| {
+        let f = 10f64.powi(d as i32);
+        ((v * f).round() / f - v).abs() <= tol
+    })
 }
 
 fn draw<DB: DrawingBackend>(
@@ -1531,6 +1567,16 @@ mod tests {
         );
         let px = labels(0.0, 1024.0);
         assert!(px.contains(&"200".to_string()), "{px:?}");
+        // tiny and huge values: a mantissa down to the step, not "0.000000"
+        let c3 = labels(1.0e-6, 1.5e-6);
+        assert!(c3.contains(&"1.20e-6".to_string()), "{c3:?}");
+        let e7 = labels(0.0, 4e-7);
+        assert!(
+            e7.contains(&"0".to_string()) && e7.contains(&"1.0e-7".to_string()),
+            "{e7:?}"
+        );
+        let big = labels(0.0, 5e8);
+        assert!(big.contains(&"1.0e8".to_string()), "{big:?}");
     }
 
     #[test]
