@@ -595,6 +595,9 @@ struct Ticks {
     /// Scientific notation: ticks that would need more than 6 decimals
     /// (a c3 of 1e-6) or 8 digits before the point.
     sci: bool,
+    /// A tick this close to 0 is 0 (key points are multiples of the step
+    /// computed in floating point: a zero can come out as -2.8e-17).
+    zero: f64,
 }
 
 impl Ticks {
@@ -603,48 +606,52 @@ impl Ticks {
     fn of(lo: f64, hi: f64) -> Ticks {
         use plotters::coord::ranged1d::Ranged;
         let keys = RangedCoordf64::from(lo..hi).key_points(TICKS);
+        let step = match keys.as_slice() {
+            [a, b, ..] => (b - a).abs(),
+            _ => (hi - lo).abs(),
+        };
+        // rounding errors of the key points are far below their step
+        let tol = 1e-6 * step;
+        let zero = tol;
         // every tick writable with at most 6 decimals (None if one is not)
         let plain = keys
             .iter()
-            .map(|&v| decimals_of(v))
+            .map(|&v| decimals_of(v, tol))
             .collect::<Option<Vec<usize>>>()
-            .map(|d| d.into_iter().max());
+            .map(|d| d.into_iter().max().unwrap_or(0));
         let top = keys.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         match plain {
-            Some(Some(decimals)) if top < 1e7 => Ticks {
+            Some(decimals) if top < 1e7 => Ticks {
                 decimals,
                 sci: false,
+                zero,
             },
             // the mantissa's digits: down to the step between the ticks
-            _ if keys.len() >= 2 && top > 0.0 => {
-                let step = (keys[1] - keys[0]).abs();
-                let digits = top.log10().floor() - step.log10().floor();
-                Ticks {
-                    decimals: digits.clamp(0.0, 6.0) as usize,
-                    sci: true,
-                }
-            }
+            _ if step > 0.0 && top > 0.0 => Ticks {
+                decimals: (top.log10().floor() - step.log10().floor()).clamp(0.0, 6.0) as usize,
+                sci: true,
+                zero,
+            },
             _ => Ticks {
                 decimals: 6,
                 sci: top >= 1e7,
+                zero,
             },
         }
     }
 
-    /// `v` with the axis's decimals and no sign on a zero (a key point a
-    /// rounding step below 0 would print "-0.0").
+    /// `v` with the axis's decimals; a zero is "0" in scientific notation
+    /// and has no sign in either.
     fn label(&self, v: f64) -> String {
-        let s = if self.sci {
-            // no "0e0" for a zero between the ticks of a tiny range
-            let tiny = v.abs() < 1e-300;
-            if tiny {
+        let v = if v.abs() <= self.zero { 0.0 } else { v };
+        if self.sci {
+            return if v == 0.0 {
                 "0".to_string()
             } else {
                 format!("{v:.*e}", self.decimals)
-            }
-        } else {
-            format!("{v:.*}", self.decimals)
-        };
+            };
+        }
+        let s = format!("{v:.*}", self.decimals);
         match s.strip_prefix('-') {
             Some(rest) if rest.parse::<f64>() == Ok(0.0) => rest.to_string(),
             _ => s,
@@ -652,11 +659,9 @@ impl Ticks {
     }
 }
 
-/// The fewest decimals (at most 6) that write `v` to within a rounding
-/// error of its size (key points are multiples of a step like 0.25 computed
-/// in floating point, so 0.30000000000000004 needs 1); `None` if 6 do not.
-fn decimals_of(v: f64) -> Option<usize> {
-    let tol = 1e-9 * v.abs().max(1e-12);
+/// The fewest decimals (at most 6) that write `v` to within `tol`; `None`
+/// if 6 do not.
+fn decimals_of(v: f64, tol: f64) -> Option<usize> {
     (0..=6).find(|&d| {
         let f = 10f64.powi(d as i32);
         ((v * f).round() / f - v).abs() <= tol
@@ -1575,6 +1580,11 @@ mod tests {
             e7.contains(&"0".to_string()) && e7.contains(&"1.0e-7".to_string()),
             "{e7:?}"
         );
+        // a zero key point computed as -2.8e-17 is a plain 0
+        let mixed = labels(-0.17, 0.19);
+        assert!(mixed.contains(&"0.00".to_string()), "{mixed:?}");
+        let t = Ticks::of(-0.17, 0.19);
+        assert_eq!(t.label(-2.8e-17), "0.00");
         let big = labels(0.0, 5e8);
         assert!(big.contains(&"1.0e8".to_string()), "{big:?}");
     }

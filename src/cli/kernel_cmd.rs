@@ -753,11 +753,10 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
     for n in 0..3 {
         let mut c = Chart {
             title: title(&format!(
-                "C{}(a, a'): c{} = {:.4} ± {:.4} (II Fig 26{})",
+                "C{}(a, a'): c{} = {} (II Fig 26{})",
                 n + 1,
                 n + 1,
-                est[n],
-                se[n],
+                super::common::plus_minus(est[n], se[n], 4),
                 ['a', 'b', 'c'][n]
             )),
             x_label: "ln(a'/a)".into(),
@@ -778,12 +777,34 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                 .with_errors(t.rows.iter().map(|r| r.c_stderr[n]).collect()),
             );
         }
+        // the headline c_n is the slope of kappa_n(ln M) against ln a over
+        // the fit range, not a fit to the points drawn; on a cascade the
+        // two agree, on other data (a DEM) they need not, so both are drawn
         c.series.push(Series::new(
-            format!("fit: {:.4}", est[n]),
+            format!(
+                "c{} = {:.4} (slope of kappa{}(ln M) over ln a; the title's)",
+                n + 1,
+                est[n],
+                n + 1
+            ),
             vec![(0.0, 0.0), (xmax, est[n] * xmax)],
             Style::Line,
             9,
         ));
+        let pooled = [&k.pooled.c1, &k.pooled.c2, &k.pooled.c3][n];
+        if pooled.value.is_finite() {
+            c.series.push(Series::new(
+                format!(
+                    "fit to these points, through 0: {}",
+                    super::common::plus_minus(pooled.value, pooled.stderr, 4)
+                ),
+                vec![(0.0, 0.0), (xmax, pooled.value * xmax)],
+                Style::Line,
+                // not the headline's grey, theory's olive, nor a reference
+                // scale's colour (0..6)
+                7,
+            ));
+        }
         if let Some(t) = th {
             c.series.push(Series::new(
                 format!("theory: {:.4}", t[n]),
