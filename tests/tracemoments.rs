@@ -1833,6 +1833,15 @@ fn surrogate_errors_are_the_scatter_of_fif_draws_analysed_alike() {
     assert!((sg.alpha.bias_stderr - sd / 8f64.sqrt()).abs() < 1e-12);
     let rms = (sg.runs.iter().map(|r| r.alpha_stderr.powi(2)).sum::<f64>() / 8.0).sqrt();
     assert!((sg.alpha.stderr_ratio - rms / sd).abs() < 1e-12);
+    // a bias beyond the error is a warning naming it, and only then
+    for (name, st) in [("alpha", &sg.alpha), ("C1", &sg.c1), ("H", &sg.h)] {
+        let warned = sg
+            .warnings
+            .iter()
+            .any(|w| w.starts_with(&format!("{name}: biased")));
+        let big = st.bias.abs() > st.sd && st.bias.abs() > 2.0 * st.bias_stderr;
+        assert_eq!(warned, big, "{name}: {st:?} {:?}", sg.warnings);
+    }
     // thread count
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
