@@ -1142,6 +1142,34 @@ fn a_copied_image_is_refused() {
     assert_eq!(code, 0, "{err}");
 }
 
+/// Two images whose own spectral exponents differ far beyond their errors
+/// (fBm with H = 0.2 and 0.8: beta 2.4 and 3.6) are warned of: the pooled
+/// beta, weighted by power, would describe mostly one of them. Two draws of
+/// one process are not (seeds 11-22 at 256^2, H = 0.3: no warning in 12).
+#[test]
+fn spectrum_warns_when_two_images_differ() {
+    let dir = scratch("spectrum_two_processes");
+    let npy = |name: &str, hurst: f64, seed: u64| {
+        let p = dir.join(name);
+        write_npy(&p, &fbm(FbmParams { hurst }, 128, 128, seed, 0).unwrap()).unwrap();
+        p.display().to_string()
+    };
+    let (a, b, c) = (
+        npy("a.npy", 0.2, 1),
+        npy("b.npy", 0.8, 2),
+        npy("c.npy", 0.2, 3),
+    );
+    let o = dir.join("o").display().to_string();
+    let (code, err) = run_bin_stderr(&["spectrum", &a, &b, "--out", &o]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("do not look like one process"), "{err}");
+    let js = json(&dir.join("o/spectrum.json"));
+    assert!(js["warnings"].to_string().contains("analyse them apart"));
+    let (code, err) = run_bin_stderr(&["spectrum", &a, &c, "--out", &o]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("do not look like one process"), "{err}");
+}
+
 /// A negative number given to an option is refused by that option's
 /// parser, named, not taken for an unknown flag (clap's tip `-- -1` would
 /// not help); a negative value where one is valid still parses.
