@@ -1170,6 +1170,39 @@ fn spectrum_warns_when_two_images_differ() {
     assert!(!err.contains("do not look like one process"), "{err}");
 }
 
+/// A DEM in whole units with runs of equal pixels (TM §5.2's quantised
+/// topography) is named, with `--frac-int` as the cure; the same field
+/// unrounded, or with `--frac-int`, is not.
+#[test]
+fn tm_names_a_quantised_dem() {
+    let dir = scratch("tm_quantised");
+    let f = fbm(FbmParams { hurst: 0.7 }, 256, 256, 4, 0).unwrap();
+    // a relief of ~40 units in whole units: many equal neighbours
+    let (lo, hi) = f
+        .iter()
+        .fold((f64::MAX, f64::MIN), |m, &v| (m.0.min(v), m.1.max(v)));
+    let q = f.mapv(|v| (40.0 * (v - lo) / (hi - lo)).round());
+    let (pq, pf) = (dir.join("q.npy"), dir.join("f.npy"));
+    write_npy(&pq, &q).unwrap();
+    write_npy(&pf, &f).unwrap();
+    let o = dir.join("o").display().to_string();
+    let said = |args: &[&str]| {
+        let (code, err) = run_bin_stderr(args);
+        assert_eq!(code, 0, "{err}");
+        err.contains("every value is a whole number")
+    };
+    let (q, f) = (pq.display().to_string(), pf.display().to_string());
+    assert!(said(&["tm", &q, "--out", &o]));
+    let tm = json(&dir.join("o/tm.json"));
+    assert!(
+        tm["warnings"].to_string().contains("--frac-int"),
+        "{}",
+        tm["warnings"]
+    );
+    assert!(!said(&["tm", &q, "--frac-int", "--out", &o]));
+    assert!(!said(&["tm", &f, "--out", &o]));
+}
+
 /// A negative number given to an option is refused by that option's
 /// parser, named, not taken for an unknown flag (clap's tip `-- -1` would
 /// not help); a negative value where one is valid still parses.

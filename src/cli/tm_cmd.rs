@@ -281,7 +281,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             .iter()
             .map(|f| {
                 let (ny, nx) = f.dim();
-                ([ny, nx], ny * nx - f.valid_count())
+                ([ny, nx], ny * nx - f.valid_count(), quantised(f))
             })
             .collect();
         let mut res = res;
@@ -311,6 +311,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     // the flux skips missing pixels; the spectrum (beta, H) sees them filled
     // with the image mean
     let missing: Vec<usize> = shapes.iter().map(|s| s.1).collect();
+    let quant: Vec<Option<f64>> = shapes.iter().map(|s| s.2).collect();
     let shapes: Vec<[usize; 2]> = shapes.iter().map(|s| s.0).collect();
     let mut extra = Vec::new();
     // as the other commands: jackknife errors over few images (or tiles of
@@ -322,6 +323,21 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             n,
             &format!("a jackknife over {n} images"),
         ));
+    }
+    // TM §5.2: the zero gradients of a quantised DEM; --frac-int is the cure
+    if cfg.frac_int.is_none() {
+        for (q, p) in quant.iter().zip(&args.images) {
+            if let Some(eq) = q.filter(|&eq| eq > 0.01) {
+                extra.push(format!(
+                    "{}: every value is a whole number and {:.0} % of horizontal neighbours are \
+                     equal: a quantised DEM, whose zero gradients bias the flux's low moments \
+                     (TM §5.2); --frac-int (order 0.1) smooths them (README: Jacksboro's alpha \
+                     1.49 -> 1.44)",
+                    p.display(),
+                    100.0 * eq
+                ));
+            }
+        }
     }
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
@@ -410,7 +426,29 @@ fn draw_surrogates(
 }
 
 /// An image's `[ny, nx]` and its number of missing pixels.
-type ImageInfo = ([usize; 2], usize);
+/// An image's `[ny, nx]`, missing pixels, and (when every value is a
+/// whole number) the fraction of equal horizontal neighbours.
+type ImageInfo = ([usize; 2], usize, Option<f64>);
+
+/// For a field whose valid values are all whole numbers (a DEM in whole
+/// metres), the fraction of valid horizontal neighbour pairs that are
+/// equal: there the gradient flux is exactly 0 (TM §5.2).
+fn quantised(f: &crate::Field) -> Option<f64> {
+    let valid = |v: &f64| v.is_finite();
+    if !f.data.iter().filter(|v| valid(v)).all(|v| v.fract() == 0.0) {
+        return None;
+    }
+    let (mut pairs, mut equal) = (0usize, 0usize);
+    for row in f.data.rows() {
+        for (a, b) in row.iter().zip(row.iter().skip(1)) {
+            if valid(a) && valid(b) {
+                pairs += 1;
+                equal += (a == b) as usize;
+            }
+        }
+    }
+    (pairs > 0).then(|| equal as f64 / pairs as f64)
+}
 
 /// Reads and accumulates every image (in parallel), one accumulator per
 /// image in input order (for the jackknife of [`finish_ensemble`]), with
@@ -431,7 +469,8 @@ pub fn accumulate_paths(
                 .map_err(|e| super::common::in_file(p, e))?;
             pb.inc(1);
             let (ny, nx) = field.dim();
-            Ok((acc, ([ny, nx], ny * nx - field.valid_count())))
+            let q = quantised(&field);
+            Ok((acc, ([ny, nx], ny * nx - field.valid_count(), q)))
         })
         .collect::<Result<_>>()?;
     pb.finish_and_clear();
