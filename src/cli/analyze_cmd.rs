@@ -543,9 +543,11 @@ pub fn plot_spectra(
         y_label: "tau(q)".into(),
         ..Default::default()
     };
+    // which errors the bars are (the method's details are in spectra.json)
+    let how = s.stderr_method.split(" (").next().unwrap_or("");
     tc.series.push(
         Series::new(
-            "estimate",
+            format!("estimate ± 1 se ({how})"),
             s.q.iter().cloned().zip(s.tau.iter().cloned()).collect(),
             Style::Markers,
             0,

@@ -252,7 +252,7 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
                 "mixed sizes".into()
             };
             format!(
-                "Power spectrum of {what} ({size}): beta = {:.3} ± {:.3}",
+                "Angle-averaged power spectrum of {what} ({size}): beta = {:.3} ± {:.3}",
                 fit.beta, beta_se
             )
         },

@@ -803,7 +803,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let pts = ens.spectrum.points();
     let mut chart = Chart {
         title: format!(
-            "{name}, {} x {}^2: beta = {} (theory {:.3})",
+            "{name}, {} x {}^2: angle-averaged beta = {} (theory {:.3})",
             args.count,
             args.size,
             super::common::plus_minus(beta_fit.beta, beta_se, 3),
