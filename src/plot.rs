@@ -46,6 +46,9 @@ pub enum Style {
     Markers,
     /// A solid line with a dot at each point.
     LineMarkers,
+    /// Open circles only: estimates the analysis flags (drawn beside the
+    /// filled ones so that a figure shows what its warnings say).
+    OpenMarkers,
 }
 
 /// One curve.
@@ -382,7 +385,7 @@ fn ink<DB: DrawingBackend>(ctx: &Ctx<DB>, chart: &Chart) -> Vec<(f64, f64)> {
     };
     for s in &chart.series {
         let pts = s.finite_points();
-        if s.style != Style::Markers {
+        if !matches!(s.style, Style::Markers | Style::OpenMarkers) {
             for w in s.runs().iter().flat_map(|r| r.windows(2)) {
                 segment(w[0], w[1], &mut out);
             }
@@ -567,12 +570,14 @@ fn draw_legend<DB: DrawingBackend>(
         let line =
             |a: i32, b: i32| PathElement::new(vec![(x + a, y), (x + b, y)], c.stroke_width(2));
         let dot = Circle::new((x + 9, y), 3, c.filled());
+        let ring = Circle::new((x + 9, y), 3, c.stroke_width(1));
         match s.style {
             Style::Line => root.draw(&line(0, 18)),
             Style::Dashed => root
                 .draw(&line(0, 7))
                 .and_then(|_| root.draw(&line(11, 18))),
             Style::Markers => root.draw(&dot),
+            Style::OpenMarkers => root.draw(&ring),
             Style::LineMarkers => root.draw(&line(0, 18)).and_then(|_| root.draw(&dot)),
         }
         .map_err(|x| e(&x))?;
@@ -718,6 +723,10 @@ where
             }
             Style::Markers => ctx
                 .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
+                .map(|_| ())
+                .map_err(|x| e(&x))?,
+            Style::OpenMarkers => ctx
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.stroke_width(1))))
                 .map(|_| ())
                 .map_err(|x| e(&x))?,
         };

@@ -14,7 +14,9 @@ use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::skeleton::{AnalysisConfig, LinkParams, Parallelism, SearchRadius};
-use crate::spectra::{PartitionSums, Rule, Spectra, default_tile_side, image_sums_tiled};
+use crate::spectra::{
+    PartitionSums, Rule, SLOPE_CHANGE_WARN, Spectra, default_tile_side, image_sums_tiled,
+};
 use crate::theory::{Model, TheoryTable};
 
 /// Options of every command that builds maxima lines: the scale grid and
@@ -423,7 +425,37 @@ pub fn write_outputs(
                 .collect();
         write_csv(&dir.join(name), &hdr_ref, &rows)?;
     }
-    plot_spectra(dir, s, &describe(s, sums), theory)
+    let order = sums.analysis.as_ref().map(|a| f64::from(a.wavelet.order()));
+    plot_spectra(dir, s, &describe(s, sums), theory, order)
+}
+
+/// The q whose estimate the warnings flag as no exponent: a curved log2 Z
+/// (local slope changing by more than [`SLOPE_CHANGE_WARN`] over the fit)
+/// or an h within 0.01 of the wavelet's order or above (II §3.1), as in
+/// [`Spectra`]'s warnings.
+fn flagged_q(s: &Spectra, order: Option<f64>) -> Vec<bool> {
+    (0..s.q.len())
+        .map(|i| {
+            let curved = s
+                .tau_slope_change
+                .get(i)
+                .is_some_and(|&c| c.abs() > SLOPE_CHANGE_WARN);
+            let beyond = order.is_some_and(|o| s.h[i] >= o - 0.01);
+            curved || beyond
+        })
+        .collect()
+}
+
+/// `points` split by `flag`: (unflagged, flagged), NaN where the other is.
+fn split_points(points: &[(f64, f64)], flag: &[bool]) -> [Vec<(f64, f64)>; 2] {
+    let nan = (f64::NAN, f64::NAN);
+    [false, true].map(|want| {
+        points
+            .iter()
+            .zip(flag)
+            .map(|(&p, &f)| if f == want { p } else { nan })
+            .collect()
+    })
 }
 
 /// What the figures show, for their titles: images and sizes, wavelet, rule.
@@ -449,8 +481,13 @@ pub fn plot_spectra(
     s: &Spectra,
     what: &str,
     theory: Option<&TheoryCurves>,
+    wavelet_order: Option<f64>,
 ) -> Result<()> {
     let nq = s.q.len();
+    // estimates the warnings call no exponent are drawn open, so that the
+    // figures say what the warnings do
+    let flag = flagged_q(s, wavelet_order);
+    let flag_name = "flagged (open): curved log2 Z or h at the wavelet's order; see the warnings";
     // a readable subset of q: about 9 curves
     let step = nq.div_ceil(9).max(1);
     let shown: Vec<usize> = (0..nq).step_by(step).collect();
@@ -545,15 +582,17 @@ pub fn plot_spectra(
     };
     // which errors the bars are (the method's details are in spectra.json)
     let how = s.stderr_method.split(" (").next().unwrap_or("");
+    let tau_pts: Vec<(f64, f64)> = s.q.iter().cloned().zip(s.tau.iter().cloned()).collect();
+    let [good, bad] = split_points(&tau_pts, &flag);
     tc.series.push(
-        Series::new(
-            format!("estimate ± 1 se ({how})"),
-            s.q.iter().cloned().zip(s.tau.iter().cloned()).collect(),
-            Style::Markers,
-            0,
-        )
-        .with_errors(s.tau_stderr.clone()),
+        Series::new(format!("estimate ± 1 se ({how})"), good, Style::Markers, 0)
+            .with_errors(s.tau_stderr.clone()),
     );
+    if flag.contains(&true) {
+        tc.series.push(
+            Series::new(flag_name, bad, Style::OpenMarkers, 0).with_errors(s.tau_stderr.clone()),
+        );
+    }
     let mut dc = Chart {
         title: format!("(d) D(h): {what}"),
         x_label: "h".into(),
@@ -561,16 +600,20 @@ pub fn plot_spectra(
         ..Default::default()
     };
     // both coordinates are estimates: jackknife errors of h(q) and D(q)
+    let dh_pts: Vec<(f64, f64)> = s.h.iter().cloned().zip(s.d.iter().cloned()).collect();
+    let [good, bad] = split_points(&dh_pts, &flag);
     dc.series.push(
-        Series::new(
-            "canonical h(q), D(q)",
-            s.h.iter().cloned().zip(s.d.iter().cloned()).collect(),
-            Style::Markers,
-            0,
-        )
-        .with_errors(s.d_stderr.clone())
-        .with_x_errors(s.h_stderr.clone()),
+        Series::new("canonical h(q), D(q)", good, Style::Markers, 0)
+            .with_errors(s.d_stderr.clone())
+            .with_x_errors(s.h_stderr.clone()),
     );
+    if flag.contains(&true) {
+        dc.series.push(
+            Series::new(flag_name, bad, Style::OpenMarkers, 0)
+                .with_errors(s.d_stderr.clone())
+                .with_x_errors(s.h_stderr.clone()),
+        );
+    }
     // a line, so that it hides neither the canonical points nor their bars
     dc.series.push(Series::new(
         "Legendre of tau(q)",
@@ -629,9 +672,10 @@ pub fn plot_spectra(
             ));
         }
     }
-    // the estimates last, on top of the curves
-    tc.series.rotate_left(1);
-    dc.series.rotate_left(1);
+    // the estimates (and the flagged ones) last, on top of the curves
+    let n_est = 1 + usize::from(flag.contains(&true));
+    tc.series.rotate_left(n_est);
+    dc.series.rotate_left(n_est);
     save_chart(&tc, &dir.join("tau.png"))?;
     save_chart(&dc, &dir.join("dh.png"))
 }
