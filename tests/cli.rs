@@ -2685,6 +2685,7 @@ fn every_command_writes_the_spec_keys() {
             "dh.png",
             "logZ.png",
             "hqa.png",
+            "slopes.png",
         ],
     );
 

@@ -429,6 +429,51 @@ pub fn write_outputs(
     plot_spectra(dir, s, &describe(s, sums), theory, order)
 }
 
+/// The local slopes of `log2 Z(q, a)`, over one octave centred on each
+/// scale, against `log2 a`, with each fitted tau(q) drawn over the fit
+/// range: where a curve is flat and on its line the partition function is a
+/// power law; where it drifts, the fitted tau(q) is an average of slopes
+/// (what the curvature warning measures, `tau_slope_change`).
+fn local_slopes(s: &Spectra, shown: &[usize], what: &str) -> Chart {
+    let l = &s.log2_scales;
+    // half an octave of scales either side (5 at 10 voices)
+    let step = if l.len() > 1 { l[1] - l[0] } else { 1.0 };
+    let w = ((0.5 / step).round() as usize).max(1);
+    let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
+    let mut c = Chart {
+        title: format!("local slopes of log2 Z(q, a), over one octave: {what}"),
+        x_label: "log2 a  (a in px)".into(),
+        y_label: "d log2 Z / d log2 a".into(),
+        ..Default::default()
+    };
+    for (k, &qi) in shown.iter().enumerate() {
+        let z = &s.log2_z[qi];
+        let pts: Vec<(f64, f64)> = (w..l.len().saturating_sub(w))
+            .map(|j| (l[j], (z[j + w] - z[j - w]) / (l[j + w] - l[j - w])))
+            .collect();
+        c.series
+            .push(Series::new(format!("q = {}", s.q[qi]), pts, Style::Line, k));
+        if s.tau[qi].is_finite() {
+            c.series.push(Series::new(
+                "",
+                vec![(lo, s.tau[qi]), (hi, s.tau[qi])],
+                Style::Dashed,
+                k,
+            ));
+        }
+    }
+    c.series.push(Series::new(
+        format!(
+            "dashed: fitted tau(q) over a = {:.1}-{:.1} px",
+            s.fit_scales.0, s.fit_scales.1
+        ),
+        Vec::new(),
+        Style::Dashed,
+        THEORY_COLOR,
+    ));
+    c
+}
+
 /// The q whose estimate the warnings flag as no exponent: a curved log2 Z
 /// (local slope changing by more than [`SLOPE_CHANGE_WARN`] over the fit)
 /// or an h within 0.01 of the wavelet's order or above (II §3.1), as in
@@ -571,6 +616,7 @@ pub fn plot_spectra(
     }
     save_chart(&za, &dir.join("logZ.png"))?;
     save_chart(&hb, &dir.join("hqa.png"))?;
+    save_chart(&local_slopes(s, &shown, what), &dir.join("slopes.png"))?;
     let mut tc = Chart {
         title: format!(
             "(c) tau(q), fit {:.1}-{:.1} px: {what}",

@@ -74,11 +74,12 @@ pub fn run(args: DemoArgs, quiet: bool) -> Result<Outcome> {
          On 32 images of 1024x1024 the paper's gauss wavelet reads the kernel's c2 low and the\n\
          correlation below II eq 76 (the README's \"Validation results\" says why).\n\
          Report: {}\n\
-         Plots:  {} {} {} {} {}\n\
+         Plots:  {} {} {} {} {} {}\n\
          \x20       {} (II Figs 25-28) {} (II Fig 30)\n",
         p("validation.txt"),
         p("logZ.png"),
         p("hqa.png"),
+        p("slopes.png"),
         p("tau.png"),
         p("dh.png"),
         p("spectrum.png"),
