@@ -891,7 +891,7 @@ impl PartitionSums {
         let curved: Vec<Option<f64>> = (0..nq)
             .map(|qi| {
                 let d = est.slope_change[qi];
-                (est.tau[qi].is_finite() && d.abs() > SLOPE_CHANGE_WARN).then_some(d)
+                (est.tau[qi].is_finite() && is_curved(d)).then_some(d)
             })
             .collect();
         // a run of several q quotes its extreme value and where it is
@@ -940,7 +940,9 @@ impl PartitionSums {
         // own error is larger than 0.01)
         if let Some(w) = self.analysis.as_ref().map(|a| a.wavelet) {
             let order = f64::from(w.order());
-            let at: Vec<usize> = (0..nq).filter(|&qi| est.h[qi] >= order - 0.01).collect();
+            let at: Vec<usize> = (0..nq)
+                .filter(|&qi| at_wavelet_order(est.h[qi], order))
+                .collect();
             if let (Some(&first), Some(&last)) = (at.first(), at.last()) {
                 let top = at.iter().map(|&qi| est.h[qi]).fold(f64::MIN, f64::max);
                 let moments = if order == 1.0 { "moment" } else { "moments" };
@@ -1120,6 +1122,19 @@ impl PartitionSums {
 /// power law, tau ~ 0, a poor one and passes strong curvature where tau is
 /// steep.)
 pub const SLOPE_CHANGE_WARN: f64 = 0.2;
+/// Whether a slope change of log2 Z over the fit (`tau_slope_change`) is
+/// flagged as no power law (beyond [`SLOPE_CHANGE_WARN`] either way).
+pub fn is_curved(slope_change: f64) -> bool {
+    slope_change.abs() > SLOPE_CHANGE_WARN
+}
+
+/// Whether h is flagged as at or beyond what a wavelet with `order`
+/// vanishing moments can measure (II §3.1): within 0.01 of the order or
+/// above (the warnings of [`Spectra`] say why 0.01).
+pub fn at_wavelet_order(h: f64, order: f64) -> bool {
+    h >= order - 0.01
+}
+
 /// Effective number of lines below which a cell is flagged as dominated.
 pub const N_EFF_WARN: f64 = 10.0;
 

@@ -15,7 +15,7 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::skeleton::{AnalysisConfig, LinkParams, Parallelism, SearchRadius};
 use crate::spectra::{
-    PartitionSums, Rule, SLOPE_CHANGE_WARN, Spectra, default_tile_side, image_sums_tiled,
+    PartitionSums, Rule, Spectra, at_wavelet_order, default_tile_side, image_sums_tiled, is_curved,
 };
 use crate::theory::{Model, TheoryTable};
 
@@ -475,17 +475,13 @@ fn local_slopes(s: &Spectra, shown: &[usize], what: &str) -> Chart {
 }
 
 /// The q whose estimate the warnings flag as no exponent: a curved log2 Z
-/// (local slope changing by more than [`SLOPE_CHANGE_WARN`] over the fit)
-/// or an h within 0.01 of the wavelet's order or above (II §3.1), as in
-/// [`Spectra`]'s warnings.
+/// ([`is_curved`]) or an h at the wavelet's order ([`at_wavelet_order`]),
+/// the tests [`Spectra`]'s warnings use.
 fn flagged_q(s: &Spectra, order: Option<f64>) -> Vec<bool> {
     (0..s.q.len())
         .map(|i| {
-            let curved = s
-                .tau_slope_change
-                .get(i)
-                .is_some_and(|&c| c.abs() > SLOPE_CHANGE_WARN);
-            let beyond = order.is_some_and(|o| s.h[i] >= o - 0.01);
+            let curved = s.tau_slope_change.get(i).is_some_and(|&c| is_curved(c));
+            let beyond = order.is_some_and(|o| at_wavelet_order(s.h[i], o));
             curved || beyond
         })
         .collect()

@@ -425,7 +425,6 @@ fn draw_surrogates(
     out
 }
 
-/// An image's `[ny, nx]` and its number of missing pixels.
 /// An image's `[ny, nx]`, missing pixels, and (when every value is a
 /// whole number) the fraction of equal horizontal neighbours.
 type ImageInfo = ([usize; 2], usize, Option<f64>);

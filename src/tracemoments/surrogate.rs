@@ -426,7 +426,7 @@ pub fn surrogate_errors_with_progress(
 mod tests {
     use super::*;
 
-    /// Jacksboro's alpha (32 draws: bias +0.207 +- 0.017, sd 0.067) is
+    /// Jacksboro's alpha (16 draws: bias +0.207 +- 0.017, sd 0.067) is
     /// warned of, high; a bias within the error, or not resolved by the
     /// draws, is not.
     #[test]
