@@ -1203,6 +1203,43 @@ fn tm_names_a_quantised_dem() {
     assert!(!said(&["tm", &f, "--out", &o]));
 }
 
+/// analyze prints its answer (stdout, as tm does): the fit, the error
+/// method, h(0) and D(h(0)) and tau(2) with their errors, as spectra.json
+/// holds them, and the q its figures draw open.
+#[test]
+fn analyze_prints_its_answer() {
+    let dir = scratch("analyze_summary");
+    let imgs: Vec<String> = (0..3)
+        .map(|i| fbm_npy(&dir, &format!("f{i}.npy"), 192, 40 + i))
+        .collect();
+    let o = dir.join("o").display().to_string();
+    let mut args: Vec<&str> = vec!["analyze"];
+    args.extend(imgs.iter().map(String::as_str));
+    args.extend_from_slice(&["--octaves", "3", "--margin", "20", "--out", &o]);
+    let (code, stdout, err) = run_bin_output(&args, true);
+    assert_eq!(code, 0, "{err}");
+    let s = json(&dir.join("o/spectra.json"));
+    let q: Vec<f64> = s["q"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let i0 = q.iter().position(|&v| v == 0.0).unwrap();
+    let get = |k: &str| s[k][i0].as_f64().unwrap();
+    assert!(stdout.starts_with("analyze: "), "{stdout}");
+    assert!(stdout.contains("errors: jackknife over images"), "{stdout}");
+    let want = format!(
+        "h(q=0) = {:.3} +- {:.3}, D(h(q=0)) = {:.3} +- {:.3}",
+        get("h"),
+        get("h_stderr"),
+        get("D"),
+        get("D_stderr")
+    );
+    assert!(stdout.contains(&want), "{want}\n{stdout}");
+    assert!(stdout.contains("tau(2) = "), "{stdout}");
+}
+
 /// A negative number given to an option is refused by that option's
 /// parser, named, not taken for an unknown flag (clap's tip `-- -1` would
 /// not help); a negative value where one is valid still parses.

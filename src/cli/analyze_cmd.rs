@@ -282,10 +282,72 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         &other,
         theory.as_ref(),
     )?;
+    show!("{}", summary(&spectra, &sums));
     for w in &spectra.warnings {
         say!("warning: {w}");
     }
     Ok(Outcome::Ok)
+}
+
+/// The answer in a few lines (stdout, as `tm`'s): what was fitted, the
+/// numbers a paper quotes (h(0), D(h(0)), tau(2) and the beta it implies,
+/// the range of h), with their errors, and which q the warnings flag.
+fn summary(s: &Spectra, sums: &PartitionSums) -> String {
+    let pm = |i: usize, v: &[f64], e: &[f64]| match e[i].is_finite() {
+        true => format!("{:.3} +- {:.3}", v[i], e[i]),
+        false => format!("{:.3}", v[i]),
+    };
+    let at = |q0: f64| s.q_index(q0).filter(|&i| (s.q[i] - q0).abs() < 1e-9);
+    let order = sums.analysis.as_ref().map(|a| f64::from(a.wavelet.order()));
+    let flag = flagged_q(s, order);
+    let mut out = format!(
+        "analyze: {}, fit a = {:.1}-{:.1} px; errors: {}\n",
+        describe(s, sums),
+        s.fit_scales.0,
+        s.fit_scales.1,
+        s.stderr_method
+    );
+    if let Some(i) = at(0.0) {
+        out += &format!(
+            "  h(q=0) = {}, D(h(q=0)) = {}\n",
+            pm(i, &s.h, &s.h_stderr),
+            pm(i, &s.d, &s.d_stderr)
+        );
+    }
+    if let Some(i) = at(2.0) {
+        out += &format!(
+            "  tau(2) = {} (beta = tau(2) + 4 = {:.3}, angle-averaged)\n",
+            pm(i, &s.tau, &s.tau_stderr),
+            s.tau[i] + 4.0
+        );
+    }
+    // the h the fitted q span, over the q the warnings do not flag
+    let kept: Vec<usize> = (0..s.q.len())
+        .filter(|&i| !flag[i] && s.h[i].is_finite())
+        .collect();
+    let hs = kept.iter().map(|&i| s.h[i]);
+    let (lo, hi) = (
+        hs.clone().fold(f64::INFINITY, f64::min),
+        hs.fold(f64::NEG_INFINITY, f64::max),
+    );
+    if lo <= hi {
+        out += &format!(
+            "  h(q) spans {lo:.3} .. {hi:.3} over the {} of {} q not flagged\n",
+            kept.len(),
+            s.q.len()
+        );
+    }
+    let flagged: Vec<String> = (0..s.q.len())
+        .filter(|&i| flag[i])
+        .map(|i| s.q[i].to_string())
+        .collect();
+    if !flagged.is_empty() {
+        out += &format!(
+            "  flagged (open circles in tau.png and dh.png; see the warnings): q = {}\n",
+            flagged.join(", ")
+        );
+    }
+    out
 }
 
 /// Reads and analyses every image (in parallel over images); a bad or
