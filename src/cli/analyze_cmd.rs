@@ -298,8 +298,7 @@ fn summary(s: &Spectra, sums: &PartitionSums) -> String {
         false => format!("{:.3}", v[i]),
     };
     let at = |q0: f64| s.q_index(q0).filter(|&i| (s.q[i] - q0).abs() < 1e-9);
-    let order = sums.analysis.as_ref().map(|a| f64::from(a.wavelet.order()));
-    let flag = flagged_q(s, order);
+    let flag = flagged_q(s, wavelet_order(sums));
     let mut out = format!(
         "analyze: {}, fit a = {:.1}-{:.1} px; errors: {}\n",
         describe(s, sums),
@@ -487,8 +486,13 @@ pub fn write_outputs(
                 .collect();
         write_csv(&dir.join(name), &hdr_ref, &rows)?;
     }
-    let order = sums.analysis.as_ref().map(|a| f64::from(a.wavelet.order()));
-    plot_spectra(dir, s, &describe(s, sums), theory, order)
+    plot_spectra(dir, s, &describe(s, sums), theory, wavelet_order(sums))
+}
+
+/// The vanishing moments of the wavelet the sums were made with (`None`
+/// for sums that do not record their analysis).
+fn wavelet_order(sums: &PartitionSums) -> Option<f64> {
+    sums.analysis.as_ref().map(|a| f64::from(a.wavelet.order()))
 }
 
 /// The local slopes of `log2 Z(q, a)`, over one octave centred on each
