@@ -590,8 +590,8 @@ const TICKS: usize = 11;
 
 /// The tick labels of one axis, all with the same number of decimals: as
 /// many as the finest of the axis's tick values needs (at most 6), so
-/// integer ticks read "-4", not "-4.0", and a 0.25 step reads "0.50", not
-/// "0.5" beside "0.25". plotters prints each value alone, in its shortest
+/// integer ticks read "-4", not "-4.0", and a 0.05 step reads "0.10", not
+/// "0.1" beside "0.05". plotters prints each value alone, in its shortest
 /// form with at least one decimal.
 #[derive(Clone, Copy, Debug)]
 struct Ticks {
@@ -1550,7 +1550,7 @@ mod tests {
     }
 
     /// Every label of an axis has the decimals its finest tick needs:
-    /// integer steps print no ".0", a 0.25 step prints two decimals on all.
+    /// integer steps print no ".0", a 0.05 step prints two decimals on all.
     #[test]
     fn tick_labels_share_their_decimals() {
         use plotters::coord::ranged1d::Ranged;

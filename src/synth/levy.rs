@@ -53,6 +53,13 @@ use std::f64::consts::FRAC_PI_2;
 /// Within this distance of 1, α is treated as exactly 1.
 const ALPHA_ONE_EPS: f64 = 1e-9;
 
+/// Whether α is taken as 1 (the α = 1 forms of the generator and of the
+/// closed forms in [`crate::theory::fif`]: one test for both, so that no α
+/// gets the α = 1 form in one quantity and the α ≠ 1 form in another).
+pub(crate) fn alpha_is_one(alpha: f64) -> bool {
+    (alpha - 1.0).abs() <= ALPHA_ONE_EPS
+}
+
 /// **Errors** unless `0 < α <= 2`.
 pub fn validate_alpha(alpha: f64) -> Result<()> {
     if !(alpha > 0.0 && alpha <= 2.0) {
@@ -85,7 +92,7 @@ impl ExtremalLevy {
     /// **Errors** unless `0 < α <= 2`.
     pub fn new(alpha: f64) -> Result<Self> {
         validate_alpha(alpha)?;
-        let one = (alpha - 1.0).abs() <= ALPHA_ONE_EPS;
+        let one = alpha_is_one(alpha);
         let (b, scale, shift) = if one {
             (0.0, 1.0, 0.0)
         } else {
@@ -207,7 +214,7 @@ mod tests {
         }
         let emp = Complex64::new(re / n, im / n);
         let it = Complex64::new(0.0, t);
-        let th = if (alpha - 1.0).abs() <= ALPHA_ONE_EPS {
+        let th = if alpha_is_one(alpha) {
             (it * it.ln()).exp()
         } else {
             // (it)^α on the principal branch: |t|^α e^{iπα sgn(t)/2}

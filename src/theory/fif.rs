@@ -31,15 +31,10 @@ use crate::synth::fif::FifParams;
 /// Dimension of space.
 pub const D: f64 = 2.0;
 
-/// α within this of 1 is α = 1 (the limit forms `C1 q ln q`, ...).
-const ALPHA_ONE_EPS: f64 = 1e-9;
-
-/// Whether α is taken as 1: one test for K, its derivative, the
-/// codimension, h_max and the notes, so that no α gets the α = 1 form in
-/// one quantity and the α > 1 form in another.
-pub(crate) fn alpha_is_one(alpha: f64) -> bool {
-    (alpha - 1.0).abs() <= ALPHA_ONE_EPS
-}
+/// Whether α is taken as 1 (the limit forms `C1 q ln q`, ...): the
+/// generator's test, used for K, its derivative, the codimension, h_max
+/// and the notes alike.
+pub(crate) use crate::synth::levy::alpha_is_one;
 
 /// `(q^(α-1) - 1) / (α - 1)` for `q > 0`, α not 1, without the
 /// cancellation of the difference near α = 1 (there `q^α - q` loses the

@@ -147,7 +147,7 @@ impl Multifractal for FifParams {
         let h_max = if self.alpha >= 2.0 {
             fif::h(self, -qs)
         } else if self.alpha > 1.0 && !fif::alpha_is_one(self.alpha) {
-            // α within ALPHA_ONE_EPS of 1 is α = 1, as in K(q)
+            // α within 1e-9 of 1 is α = 1, as in K(q) (fif::alpha_is_one)
             self.hurst + self.c1 / (self.alpha - 1.0)
         } else {
             f64::INFINITY
