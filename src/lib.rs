@@ -108,6 +108,7 @@
 //! | `--refs`, `--pairs` (kernel) | [`stats::kernel::KernelOptions`] `refs`, `pairs` |
 //! | `--pairs`, `--max-dx` (correlate) | [`stats::correlation::CorrelationConfig`] `pairs`, `max_dx` |
 //! | `--lnm-bin`, `--arg-bins` | [`stats::pdf::PdfConfig`] `dlnm`, `arg_bins` |
+//! | `--bins` (pdf) | [`stats::pdf::PdfOptions`] `bins` |
 //! | `--diff-order`, `--frac-int` | [`tracemoments::TraceMomentConfig`] `diff` ([`tracemoments::FluxDiff`]), `frac_int` |
 //! | `--lambda-fit`, `--lag-fit`, `--k-range`, `--q-fit-max`, `--universal-fit` | [`tracemoments::TraceMomentFitConfig`] `log2_lambda`, `log2_lag`, `k_range`, `q_fit_max`, `universal` |
 //! | `--surrogates K` | [`tracemoments::surrogate_errors`] |

@@ -1540,8 +1540,22 @@ fn pdf_refuses_a_shown_scale_without_wtmmm() {
     assert!(
         warnings
             .iter()
-            .any(|w| w.as_str().unwrap().contains("few spikes")),
+            .any(|w| w.as_str().unwrap().contains("rest on few points")),
         "{warnings:?}"
+    );
+    // and on wider bins than --lnm-bin (0.05), a whole number of them,
+    // recorded in pdf.json and pdf_M.csv
+    assert_eq!(written["params"]["bins"], "auto");
+    let w = written["pdfs"][0]["bin_width"].as_f64().unwrap();
+    let k = w / 0.05;
+    assert!(k > 1.5 && (k - k.round()).abs() < 1e-9, "bin width {w}");
+    let csv = std::fs::read_to_string(out.join("pdf_M.csv")).unwrap();
+    assert!(
+        csv.lines()
+            .next()
+            .unwrap()
+            .ends_with(",lnM_bin_width,count"),
+        "{csv}"
     );
 }
 

@@ -35,7 +35,8 @@ use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::fit::line_fit;
 use crate::stats::kernel::{nearest_scale, octave_on_grid};
 use crate::stats::pdf::{
-    PdfConfig, PdfOptions, ScalePdf, WtmmmHistograms, WtmmmSet, image_wtmmm, wtmmm_pdfs,
+    DensityBins, PdfConfig, PdfOptions, ScalePdf, WtmmmHistograms, WtmmmSet, image_wtmmm,
+    wtmmm_pdfs,
 };
 use crate::theory::Model;
 
@@ -538,9 +539,16 @@ pub struct PdfArgs {
     /// the slope of <ln M> against ln a over the fit range).
     #[arg(long, allow_negative_numbers = true)]
     pub h0: Option<f64>,
-    /// Bin width of ln M.
+    /// Bin width of ln M in the accumulated histograms (the finest the pdfs
+    /// can be drawn on).
     #[arg(long, default_value_t = 0.05)]
     pub lnm_bin: f64,
+    /// Bins of the pdfs drawn and written: auto = per scale, the
+    /// Freedman-Diaconis width 2 IQR n^(-1/3) of its ln M as a whole number of
+    /// --lnm-bin (wider where a scale has few WTMMM); fixed = --lnm-bin at
+    /// every scale.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub bins: DensityBins,
     /// Number of bins of the argument A over [-pi, pi) (a multiple of 16).
     #[arg(long, default_value_t = 64)]
     pub arg_bins: usize,
@@ -694,6 +702,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         &PdfOptions {
             show: all,
             h0,
+            bins: args.bins,
             ..Default::default()
         },
     )?;
@@ -703,7 +712,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let mut body = header(
         "pdf",
         json!({"input": input.params_json(), "analysis": super::common::analysis_json(&cfg), "set": args.set,
-            "fit_octaves": fit, "binning": pcfg}),
+            "fit_octaves": fit, "binning": pcfg, "bins": args.bins}),
     );
     super::common::note_caveats(&mut body, input.model.as_ref());
     body["set"] = json!(args.set);
@@ -717,7 +726,8 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         sec.iter()
             .map(|&j| {
                 let p = get(j);
-                json!({"a": p.a, "octave": p.octave, "m": p.m, "sectors": p.sectors})
+                json!({"a": p.a, "octave": p.octave, "m": p.sector_m,
+                    "lnM_bin_width": p.sector_bin_width, "sectors": p.sectors})
             })
             .collect::<Vec<_>>()
     );
@@ -752,7 +762,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     Ok(Outcome::Ok)
 }
 
-/// Below this many WTMMM a pdf is a handful of spikes: drawn, but flagged.
+/// Below this many WTMMM a pdf rests on few points: drawn, but flagged.
 pub const FEW_WTMMM: u64 = 100;
 
 /// The scales a pdf is drawn at (`--show`, `--sectors-at`) need WTMMM: an
@@ -793,7 +803,8 @@ pub fn check_shown_counts(
         .collect();
     Ok((!few.is_empty()).then(|| {
         format!(
-            "fewer than {FEW_WTMMM} WTMMM {set} at a = {}: those pdfs are a few spikes",
+            "fewer than {FEW_WTMMM} WTMMM {set} at a = {}: those pdfs rest on few points (a \
+             few spikes on fixed bins, a few wide bins on auto ones)",
             at(&few)
         )
     }))
@@ -812,6 +823,8 @@ fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf]) -> Result<()> {
                 f(s.p_m[i]),
                 f(s.rescaled_m[i]),
                 f(s.p_rescaled[i]),
+                f(s.bin_width),
+                s.count[i].to_string(),
             ]);
         }
     }
@@ -826,6 +839,8 @@ fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf]) -> Result<()> {
             "P_M",
             "M_rescaled",
             "P_M_rescaled",
+            "lnM_bin_width",
+            "count",
         ],
         &rows,
     )?;
@@ -839,20 +854,28 @@ fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf]) -> Result<()> {
     let mut rows = Vec::new();
     for s in p {
         for sec in &s.sectors {
-            for i in 0..s.m.len() {
+            for i in 0..s.sector_m.len() {
                 rows.push(vec![
                     f(s.a),
                     f(s.octave),
                     f(sec.centre),
-                    f(s.m[i]),
+                    f(s.sector_m[i]),
                     f(sec.p_m[i]),
+                    f(s.sector_bin_width),
                 ]);
             }
         }
     }
     write_csv(
         &dir.join("pdf_M_sectors.csv"),
-        &["a", "octave", "sector_centre", "M", "P_M_given_sector"],
+        &[
+            "a",
+            "octave",
+            "sector_centre",
+            "M",
+            "P_M_given_sector",
+            "lnM_bin_width",
+        ],
         &rows,
     )?;
     let mut rows = Vec::new();
@@ -892,15 +915,19 @@ fn pts(x: &[f64], y: &[f64], log: bool) -> Vec<(f64, f64)> {
 
 fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: f64) -> Result<()> {
     // a scale with few WTMMM says so in the figure too (not only on stderr)
-    let label = |s: &ScalePdf| {
+    let label_w = |s: &ScalePdf, width: f64| {
         // the sample behind each curve: a histogram of 125 maxima is noisy
         let few = if s.n < 100 {
             format!(", only {} WTMMM", s.n)
         } else {
             format!(", {} WTMMM", s.n)
         };
-        format!("a = 2^{:.1} a_min ({:.1} px){few}", s.octave, s.a)
+        format!(
+            "a = 2^{:.1} a_min ({:.1} px){few}, bins {width:.2} in ln M",
+            s.octave, s.a
+        )
     };
+    let label = |s: &ScalePdf| label_w(s, s.bin_width);
     let title = |t: &str| {
         if name.is_empty() {
             t.to_string()
@@ -913,9 +940,8 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
         .iter()
         .map(|s| {
             let mut acc = 0.0;
-            let d = s.ln_m.get(1).map_or(0.05, |u| u - s.ln_m[0]);
             for (i, p) in s.p_ln_m.iter().enumerate() {
-                acc += p * d;
+                acc += p * s.bin_width;
                 if acc > 0.999 {
                     return s.m[i];
                 }
@@ -990,7 +1016,10 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
     save_chart(&cr, &dir.join("lnpdf_rescaled.png"))?;
     for (n, s) in sec.iter().enumerate() {
         let mut cs = Chart {
-            title: title(&format!("P(M | A mod pi), {} (II Fig 18)", label(s))),
+            title: title(&format!(
+                "P(M | A mod pi), {} (II Fig 18)",
+                label_w(s, s.sector_bin_width)
+            )),
             x_label: "M".into(),
             y_label: "ln P_a(M | A)".into(),
             ..Default::default()
@@ -999,7 +1028,7 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
             let deg = q.centre.to_degrees();
             cs.series.push(Series::new(
                 format!("A = {deg:.0} ± 22.5° (n = {})", q.n),
-                pts(&s.m, &q.p_m, true),
+                pts(&s.sector_m, &q.p_m, true),
                 Style::LineMarkers,
                 k,
             ));

@@ -23,6 +23,10 @@
 //! the joint density of `(T1, T2) = (M cos A, M sin A)` (Figs 13, 19:
 //! `p(T1, T2) = P(ln M, A)/M²`), and the rescaled pdfs of the
 //! self-similarity test II eq 39, `M / (a/a_min)^h` (Figs 14b, 20b).
+//! The densities are reported on the accumulator's bins
+//! ([`DensityBins::Fixed`]) or, per scale, on whole multiples of them sized
+//! to the scale's sample ([`DensityBins::Auto`], the Freedman-Diaconis
+//! width): a scale with a hundred WTMMM then shows its shape, not a comb.
 //!
 //! ```
 //! use wtmm::stats::pdf::{PdfConfig, PdfOptions, WtmmmHistograms, wtmmm_pdfs};
@@ -472,6 +476,9 @@ pub struct PdfOptions {
     pub joint_cells: usize,
     /// The `(T1, T2)` grid covers `|T_i| <= ` this quantile of M.
     pub joint_quantile: f64,
+    /// Width of the `ln M` bins of the densities (the accumulator keeps its
+    /// own fixed width `dlnm`).
+    pub bins: DensityBins,
 }
 
 impl Default for PdfOptions {
@@ -481,6 +488,34 @@ impl Default for PdfOptions {
             h0: 0.0,
             joint_cells: 81,
             joint_quantile: 0.99,
+            bins: DensityBins::Fixed,
+        }
+    }
+}
+
+/// Width of the `ln M` bins a density is reported on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum DensityBins {
+    /// The accumulator's width `dlnm` at every scale (bins shared by all
+    /// scales and images).
+    #[default]
+    Fixed,
+    /// Per scale, the Freedman-Diaconis width `2 IQR n^(-1/3)` of its `ln M`
+    /// rounded to a whole number of accumulator bins (at least one): a
+    /// scale with few WTMMM gets wider bins instead of a comb of spikes and
+    /// empty bins, a large ensemble keeps the fine ones. The four sector
+    /// densities share one width, that of the smallest sector's count.
+    Auto,
+}
+
+impl DensityBins {
+    /// The name on the command line and in outputs.
+    pub fn name(self) -> &'static str {
+        match self {
+            DensityBins::Fixed => "fixed",
+            DensityBins::Auto => "auto",
         }
     }
 }
@@ -492,9 +527,9 @@ pub struct SectorPdf {
     pub centre: f64,
     /// Number of WTMMM in the sector.
     pub n: u64,
-    /// `P(M | sector)` on the grid `m` of the scale.
+    /// `P(M | sector)` on the scale's `sector_m`.
     pub p_m: Vec<f64>,
-    /// `P(ln M | sector)` on the grid `ln_m`.
+    /// `P(ln M | sector)` on the scale's `sector_ln_m`.
     pub p_ln_m: Vec<f64>,
 }
 
@@ -519,6 +554,12 @@ pub struct ScalePdf {
     pub octave: f64,
     /// Number of WTMMM at this scale (all images).
     pub n: u64,
+    /// Width of the `ln M` bins of this scale's densities (the
+    /// accumulator's `dlnm` times a whole number, [`DensityBins`]).
+    pub bin_width: f64,
+    /// WTMMM counted in each `ln M` bin (on `ln_m`): the densities are
+    /// `count / (n bin_width)`, and the counts give their counting errors.
+    pub count: Vec<u64>,
     /// Bin centres of `ln M` and the density of `ln M`.
     pub ln_m: Vec<f64>,
     /// `P(ln M)` (natural log; integrates to 1 over `ln_m`).
@@ -531,7 +572,15 @@ pub struct ScalePdf {
     pub arg: Vec<f64>,
     /// `P(A)` (per radian) on `arg`.
     pub p_arg: Vec<f64>,
-    /// `P(M | A mod π)` in the four sectors `kπ/4 ± π/8` (II Figs 12, 18).
+    /// Width of the `ln M` bins of the sector densities: `bin_width`, or
+    /// with [`DensityBins::Auto`] the width for the smallest sector's count.
+    pub sector_bin_width: f64,
+    /// Bin centres of `ln M` of the sector densities.
+    pub sector_ln_m: Vec<f64>,
+    /// `M = exp(sector_ln_m)`.
+    pub sector_m: Vec<f64>,
+    /// `P(M | A mod π)` in the four sectors `kπ/4 ± π/8` (II Figs 12, 18),
+    /// on `sector_m`.
     pub sectors: Vec<SectorPdf>,
     /// II eq 39: `M / (a/a_min)^h0` and its density `s P(M)`.
     pub rescaled_m: Vec<f64>,
@@ -578,13 +627,25 @@ pub fn wtmmm_pdfs(h: &WtmmmHistograms, opts: &PdfOptions) -> Result<Vec<ScalePdf
 }
 
 fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
-    let h = &hs.hist[j];
     let nb = hs.config.arg_bins;
-    let d = hs.config.dlnm;
+    let k = match opts.bins {
+        DensityBins::Fixed => 1,
+        DensityBins::Auto => fd_factor(&hs.hist[j], nb, hs.config.dlnm, hs.hist[j].n),
+    };
+    let h = &coarsen(&hs.hist[j], nb, k);
+    let d = hs.config.dlnm * k as f64;
     let a = hs.scales[j];
     let a_min = hs.scales[0];
     let n = h.n.max(1) as f64;
-    let (ln_m, p_ln_m) = hs.ln_m_density(j);
+    let count: Vec<u64> = h
+        .counts
+        .chunks_exact(nb)
+        .map(|row| row.iter().sum())
+        .collect();
+    let ln_m: Vec<f64> = (0..h.rows)
+        .map(|r| (h.lo as f64 + r as f64 + 0.5) * d)
+        .collect();
+    let p_ln_m: Vec<f64> = count.iter().map(|&c| c as f64 / (n * d)).collect();
     let m: Vec<f64> = ln_m.iter().map(|u| u.exp()).collect();
     let p_m: Vec<f64> = p_ln_m.iter().zip(&m).map(|(p, mm)| p / mm).collect();
     let da = 2.0 * PI / nb as f64;
@@ -596,33 +657,41 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
         }
     }
     p_arg.iter_mut().for_each(|v| *v /= n * da);
-    // sectors of A mod π: bin b covers A in [-π + b da, ...), so A mod π
-    // corresponds to b mod (nb/2); sector k is centred on kπ/4 = 8k (nb/64) bins
-    let half = nb / 2;
-    let per_sector = nb / 8; // π/4 wide
-    let sectors = (0..4)
-        .map(|k| {
-            let c = k * per_sector; // index (mod half) of the sector centre
-            let in_sector = |b: usize| {
-                let r = (b % half + half - c + per_sector / 2) % half;
-                r < per_sector
-            };
-            let mut rows = vec![0u64; h.rows];
-            for (r, row) in rows.iter_mut().enumerate() {
-                *row = (0..nb)
-                    .filter(|&b| in_sector(b))
-                    .map(|b| h.counts[r * nb + b])
-                    .sum();
-            }
+    let fine = &hs.hist[j];
+    let sector_rows = |h: &ScaleHist| sector_counts(h, nb);
+    // a sector holds about a quarter of the scale's WTMMM: its own
+    // Freedman-Diaconis width (the scale's spread, the smallest sector's n),
+    // one grid for the four so that they compare bin by bin
+    let ks = match opts.bins {
+        DensityBins::Fixed => 1,
+        DensityBins::Auto => {
+            let n_min = sector_rows(fine)
+                .iter()
+                .map(|rows| rows.iter().sum::<u64>())
+                .min()
+                .unwrap_or(0);
+            fd_factor(fine, nb, hs.config.dlnm, n_min)
+        }
+    };
+    let hsec = coarsen(fine, nb, ks);
+    let ds = hs.config.dlnm * ks as f64;
+    let sector_ln_m: Vec<f64> = (0..hsec.rows)
+        .map(|r| (hsec.lo as f64 + r as f64 + 0.5) * ds)
+        .collect();
+    let sector_m: Vec<f64> = sector_ln_m.iter().map(|u| u.exp()).collect();
+    let sectors = sector_rows(&hsec)
+        .into_iter()
+        .enumerate()
+        .map(|(k, rows)| {
             let ns: u64 = rows.iter().sum();
             let p_ln: Vec<f64> = rows
                 .iter()
-                .map(|&c| c as f64 / (ns.max(1) as f64 * d))
+                .map(|&c| c as f64 / (ns.max(1) as f64 * ds))
                 .collect();
             SectorPdf {
                 centre: k as f64 * PI / 4.0,
                 n: ns,
-                p_m: p_ln.iter().zip(&m).map(|(p, mm)| p / mm).collect(),
+                p_m: p_ln.iter().zip(&sector_m).map(|(p, mm)| p / mm).collect(),
                 p_ln_m: p_ln,
             }
         })
@@ -636,7 +705,12 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
         a,
         octave: (a / a_min).log2(),
         n: h.n,
-        joint: joint_density(hs, j, opts),
+        bin_width: d,
+        count,
+        sector_bin_width: ds,
+        sector_ln_m,
+        sector_m,
+        joint: joint_density(h, nb, d, opts),
         ln_m,
         p_ln_m,
         m,
@@ -650,11 +724,9 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
 }
 
 /// `p(T1, T2) = P(ln M, A) / M²` sampled at the cell centres of a square
-/// grid (polar histogram cell containing each point; 0 outside the data).
-fn joint_density(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> JointDensity {
-    let h = &hs.hist[j];
-    let nb = hs.config.arg_bins;
-    let d = hs.config.dlnm;
+/// grid (polar histogram cell containing each point; 0 outside the data),
+/// from the histogram `h` of `ln M` bins of width `d` and `nb` argument bins.
+fn joint_density(h: &ScaleHist, nb: usize, d: f64, opts: &PdfOptions) -> JointDensity {
     let nc = opts.joint_cells;
     if h.n == 0 {
         return JointDensity {
@@ -696,6 +768,77 @@ fn joint_density(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> JointDens
         }
     }
     JointDensity { t, density }
+}
+
+/// The Freedman-Diaconis bin width `2 IQR n^(-1/3)` (Freedman & Diaconis
+/// 1981: the width that minimises the integrated squared error of a
+/// histogram of a smooth density) of the scale's `ln M`, for a sample of
+/// `n`, as a whole number of the accumulator's bins `d` (at least 1). The
+/// quartiles are read from the cumulative counts, linear within a bin.
+fn fd_factor(h: &ScaleHist, nb: usize, d: f64, n: u64) -> usize {
+    if h.n < 2 || n < 2 {
+        return 1;
+    }
+    let rows: Vec<u64> = h.counts.chunks_exact(nb).map(|r| r.iter().sum()).collect();
+    let quantile = |q: f64| -> f64 {
+        let target = q * h.n as f64;
+        let mut acc = 0.0;
+        for (r, &c) in rows.iter().enumerate() {
+            let next = acc + c as f64;
+            if next >= target && c > 0 {
+                let frac = (target - acc) / c as f64;
+                return (h.lo as f64 + r as f64 + frac) * d;
+            }
+            acc = next;
+        }
+        (h.lo as f64 + rows.len() as f64) * d
+    };
+    let iqr = quantile(0.75) - quantile(0.25);
+    let width = 2.0 * iqr * (n as f64).powf(-1.0 / 3.0);
+    ((width / d).round() as usize).clamp(1, rows.len().max(1))
+}
+
+/// The `ln M` counts of each of the four sectors of `A mod π` centred on
+/// `kπ/4` (`± π/8`): argument bin `b` covers `A` in `[-π + b dA, ...)`, so
+/// `A mod π` corresponds to `b mod (nb/2)`, and sector k is centred on
+/// bin `k nb/8` of that half.
+fn sector_counts(h: &ScaleHist, nb: usize) -> [Vec<u64>; 4] {
+    let half = nb / 2;
+    let per_sector = nb / 8; // π/4 wide
+    std::array::from_fn(|k| {
+        let c = k * per_sector;
+        let in_sector = |b: usize| (b % half + half - c + per_sector / 2) % half < per_sector;
+        h.counts
+            .chunks_exact(nb)
+            .map(|row| (0..nb).filter(|&b| in_sector(b)).map(|b| row[b]).sum())
+            .collect()
+    })
+}
+
+/// The histogram with `k` accumulator bins of `ln M` merged into one: the
+/// wide bin `K` holds the fine bins `kK .. kK + k - 1`, so its edges are
+/// multiples of `k dlnm` (exact sums of counts; `k = 1` is a copy).
+fn coarsen(h: &ScaleHist, nb: usize, k: usize) -> ScaleHist {
+    if k <= 1 || h.rows == 0 {
+        return h.clone();
+    }
+    let ki = k as i64;
+    let lo = h.lo.div_euclid(ki);
+    let hi = (h.lo + h.rows as i64 - 1).div_euclid(ki);
+    let rows = (hi - lo + 1) as usize;
+    let mut counts = vec![0u64; rows * nb];
+    for (r, row) in h.counts.chunks_exact(nb).enumerate() {
+        let big = ((h.lo + r as i64).div_euclid(ki) - lo) as usize;
+        for (c, &v) in counts[big * nb..(big + 1) * nb].iter_mut().zip(row) {
+            *c += v;
+        }
+    }
+    ScaleHist {
+        lo,
+        rows,
+        counts,
+        n: h.n,
+    }
 }
 
 #[cfg(test)]
@@ -780,5 +923,112 @@ mod tests {
         let (_, p) = ab.ln_m_density(0);
         let total: f64 = p.iter().sum::<f64>() * ab.config.dlnm;
         assert!((total - 1.0).abs() < 1e-12);
+    }
+
+    /// Wide bins hold whole accumulator bins: bin K of width k dlnm holds
+    /// the fine bins kK .. kK + k - 1, on both sides of ln M = 0, and the
+    /// counts are summed exactly (argument bins kept apart).
+    #[test]
+    fn coarsen_sums_whole_bins() {
+        let mut h = WtmmmHistograms::new(&[1.0], PdfConfig::default()).unwrap();
+        // one point in each fine bin -7 ..= 4 (ln M from -0.35 to 0.25),
+        // the odd bins at A = 1
+        for k in -7..=4i64 {
+            let arg = if k % 2 == 0 { 0.0 } else { 1.0 };
+            h.add(0, ((k as f64 + 0.5) * 0.05).exp(), arg);
+        }
+        let c = coarsen(&h.hist[0], 64, 3);
+        // -7 -> -3; -6..-4 -> -2; -3..-1 -> -1; 0..2 -> 0; 3, 4 -> 1
+        assert_eq!((c.lo, c.rows, c.n), (-3, 5, 12));
+        let rows: Vec<u64> = c.counts.chunks_exact(64).map(|r| r.iter().sum()).collect();
+        assert_eq!(rows, vec![1, 3, 3, 3, 2]);
+        assert_eq!(c.counts.iter().sum::<u64>(), 12);
+        let at_one = arg_bin(1.0, 64);
+        // wide bin -2 holds fine -6 (A = 0), -5 (A = 1), -4 (A = 0)
+        assert_eq!(c.counts[64 + at_one], 1);
+        assert_eq!(coarsen(&h.hist[0], 64, 1), h.hist[0]);
+    }
+
+    /// `DensityBins::Auto` on a standard normal ln M. The Freedman-Diaconis
+    /// width `2 IQR n^(-1/3)` of N(0, 1) (IQR 1.349) is 0.1349 at n = 8000:
+    /// 2.70 bins of 0.05, so 3 (the sample IQR's sd, 1.17/sqrt(n) = 0.013,
+    /// moves the ratio by 0.026, far from the roundings at 2.5 and 3.5);
+    /// at n = 200 000 it is 0.046, one bin. The wide-bin densities
+    /// integrate to 1, their counts add up to n, and they fit the normal
+    /// bin probabilities (chi-square at the 0.999 quantile, bins with at
+    /// least 5 expected points, tails pooled). At n = 8000 the sectors
+    /// (about 2000 points each) get 2 x 1.349 x 2000^(-1/3) = 0.214: 4.3
+    /// bins, so 4 (the smallest of the four counts, about 1950, moves it
+    /// to 4.3, still 4 of the IQR's sd from 4.5), and each sector density
+    /// integrates to 1 on that grid.
+    #[test]
+    fn auto_bins_follow_freedman_diaconis() {
+        use rand::RngExt;
+        use rand_distr::{Distribution, Normal};
+        use statrs::distribution::{ChiSquared, ContinuousCDF, Normal as StdNormal};
+        let phi = StdNormal::new(0.0, 1.0).unwrap();
+        let law = Normal::new(0.0, 1.0).unwrap();
+        for (n, k_expected) in [(8000usize, 3usize), (200_000, 1)] {
+            let mut h = WtmmmHistograms::new(&[1.0], PdfConfig::default()).unwrap();
+            let mut rng = crate::synth::rng_for(5, n as u64);
+            for _ in 0..n {
+                let u: f64 = law.sample(&mut rng);
+                h.add(0, u.exp(), rng.random_range(-PI..PI));
+            }
+            let opts = PdfOptions {
+                show: vec![0],
+                bins: DensityBins::Auto,
+                ..Default::default()
+            };
+            let p = &wtmmm_pdfs(&h, &opts).unwrap()[0];
+            let w = p.bin_width;
+            assert!(
+                (w - 0.05 * k_expected as f64).abs() < 1e-12,
+                "n = {n}: width {w}"
+            );
+            let mass: f64 = p.p_ln_m.iter().sum::<f64>() * w;
+            assert!((mass - 1.0).abs() < 1e-12, "n = {n}: mass {mass}");
+            assert_eq!(p.count.iter().sum::<u64>(), n as u64);
+            if n == 8000 {
+                assert!(
+                    (p.sector_bin_width - 0.2).abs() < 1e-12,
+                    "{}",
+                    p.sector_bin_width
+                );
+                for sec in &p.sectors {
+                    assert_eq!(sec.p_ln_m.len(), p.sector_ln_m.len());
+                    let mass: f64 = sec.p_ln_m.iter().sum::<f64>() * p.sector_bin_width;
+                    assert!((mass - 1.0).abs() < 1e-12, "sector {}: {mass}", sec.centre);
+                }
+            }
+            // bin edges are multiples of the wide width
+            for &u in &p.ln_m {
+                let e = u / w - 0.5;
+                assert!((e - e.round()).abs() < 1e-9, "centre {u}");
+            }
+            let nf = n as f64;
+            let (mut chi2, mut dof, mut t_obs, mut t_exp) = (0.0, 0usize, 0.0, 0.0);
+            for (&u, &c) in p.ln_m.iter().zip(&p.count) {
+                let exp = nf * (phi.cdf(u + 0.5 * w) - phi.cdf(u - 0.5 * w));
+                if exp < 5.0 {
+                    t_obs += c as f64;
+                    t_exp += exp;
+                    continue;
+                }
+                chi2 += (c as f64 - exp).powi(2) / exp;
+                dof += 1;
+            }
+            t_exp += nf
+                - p.ln_m
+                    .iter()
+                    .map(|&u| nf * (phi.cdf(u + 0.5 * w) - phi.cdf(u - 0.5 * w)))
+                    .sum::<f64>();
+            chi2 += (t_obs - t_exp).powi(2) / t_exp;
+            let q = ChiSquared::new(dof as f64).unwrap().inverse_cdf(0.999);
+            assert!(
+                chi2 < q,
+                "n = {n}: chi2 {chi2:.1} on {dof} dof, quantile {q:.1}"
+            );
+        }
     }
 }
