@@ -872,10 +872,10 @@ impl Raster {
         }
     }
 
-    /// Grey background for drawing on: levels 60..230, so that marks in
-    /// colour stand out at both ends.
+    /// Grey background for drawing on: levels 60..230 ([`BACKGROUND_GREY`]),
+    /// so that marks in colour stand out at both ends.
     pub fn from_grey(img: ArrayView2<f64>) -> Self {
-        Raster::grey(img, (60, 230))
+        Raster::grey(img, BACKGROUND_GREY)
     }
 
     /// Outlines the rectangle `margin` px inside the border (an analysis
@@ -949,6 +949,16 @@ impl ColorBar {
         }
     }
 
+    /// A bar of the grey of [`Raster::from_grey`] from `range.0` (its
+    /// darkest) to `range.1`.
+    pub fn background_grey(label: impl Into<String>, range: (f64, f64)) -> Self {
+        ColorBar {
+            label: label.into(),
+            range,
+            colors: background_grey,
+        }
+    }
+
     /// A bar of [`viridis`] from `range.0` to `range.1`.
     pub fn viridis(label: impl Into<String>, range: (f64, f64)) -> Self {
         ColorBar {
@@ -957,6 +967,16 @@ impl ColorBar {
             colors: viridis,
         }
     }
+}
+
+/// The grey levels of [`Raster::from_grey`] (the lowest value, the highest).
+pub const BACKGROUND_GREY: (u8, u8) = (60, 230);
+
+/// The colour of [`Raster::from_grey`] at `t` in [0, 1] (for its colour bar).
+pub fn background_grey(t: f64) -> RGBColor {
+    let (g0, g1) = (BACKGROUND_GREY.0 as f64, BACKGROUND_GREY.1 as f64);
+    let g = (g0 + (g1 - g0) * t.clamp(0.0, 1.0)).round() as u8;
+    RGBColor(g, g, g)
 }
 
 /// The axes around a [`Raster`] (see [`save_raster_chart`]): the raster
@@ -1287,8 +1307,13 @@ where
             )
         }))
         .map_err(|x| e(&x))?;
+        // the same tick labels as the axes (500, not 500.0)
+        let tb = Ticks::of(lo, hi);
+        let fb = |v: &f64| tb.label(*v);
         bar.configure_mesh()
             .disable_mesh()
+            .y_labels(TICKS)
+            .y_label_formatter(&fb)
             .y_desc(&cb.label)
             .label_style(("sans-serif", 15))
             .axis_desc_style(("sans-serif", 17))

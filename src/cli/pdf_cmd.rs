@@ -1039,8 +1039,9 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
         joint_picture(
             s,
             title(&format!(
-                "joint density of (T1, T2), central 99 %, {} (II Fig 19)",
-                label(s)
+                "joint density of (T1, T2), central 99 %, {} x {} in A (II Fig 19)",
+                label_w(s, s.joint.lnm_bin_width),
+                s.joint.arg_bins
             )),
             &dir.join(format!("joint_T_{n}.png")),
         )?;

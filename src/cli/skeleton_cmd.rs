@@ -12,7 +12,7 @@ use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
 use super::{OutDir, Outcome};
 use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
-use crate::plot::{Raster, RasterChart, save_raster_chart};
+use crate::plot::{ColorBar, Raster, RasterChart, save_raster_chart};
 use crate::skeleton::{Parallelism, skeleton_with};
 
 #[derive(Args, Debug)]
@@ -157,6 +157,10 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
             });
         }
         let mut r = Raster::from_grey(smooth.view());
+        // the grey's key: the smoothed values it spans
+        let colorbar = crate::field::finite_range(smooth.iter())
+            .filter(|(lo, hi)| lo < hi)
+            .map(|range| ColorBar::background_grey("phi_a * f", range));
         // the analysis domain
         r.frame(sk.margin, (255, 220, 0));
         for ch in &sm.chains {
@@ -202,6 +206,7 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
                 y_label: "y (px)".into(),
                 x_range: (0.0, nx as f64),
                 y_range: (0.0, ny as f64),
+                colorbar,
                 ..Default::default()
             },
             &args.out.out.join(&name),

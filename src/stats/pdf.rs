@@ -506,7 +506,9 @@ pub enum DensityBins {
     /// rounded to a whole number of accumulator bins (at least one): a
     /// scale with few WTMMM gets wider bins instead of a comb of spikes and
     /// empty bins, a large ensemble keeps the fine ones. The four sector
-    /// densities share one width, that of the smallest sector's count.
+    /// densities share one width, that of the smallest sector's count; the
+    /// joint density of `(T1, T2)` merges `ln M` and argument bins by
+    /// Scott's bivariate rule `3.5 σ n^(-1/4)`.
     Auto,
 }
 
@@ -541,6 +543,10 @@ pub struct JointDensity {
     pub t: Vec<f64>,
     /// `p(T1, T2) = P(ln M, A) / M²`, row-major with T2 along the rows.
     pub density: Vec<f64>,
+    /// Width of the `ln M` bins of the polar histogram sampled.
+    pub lnm_bin_width: f64,
+    /// Number of its argument bins over `[-π, π)`.
+    pub arg_bins: usize,
 }
 
 /// The densities of one scale (II Figs 11-14, 17-20).
@@ -696,6 +702,16 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
             }
         })
         .collect();
+    // the joint density spreads the points over two variables: its own,
+    // coarser bins (in both) when asked for
+    let joint = match opts.bins {
+        DensityBins::Fixed => joint_density(fine, nb, hs.config.dlnm, opts),
+        DensityBins::Auto => {
+            let (kj, ka) = joint_factors(fine, nb, hs.config.dlnm);
+            let hj = coarsen_args(&coarsen(fine, nb, kj), ka);
+            joint_density(&hj, nb / ka, hs.config.dlnm * kj as f64, opts)
+        }
+    };
     // II eq 39 with a in units of a_min (the paper's σ_W units)
     let s = (a / a_min).powf(opts.h0);
     let rescaled_m = m.iter().map(|v| v / s).collect();
@@ -710,7 +726,7 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
         sector_bin_width: ds,
         sector_ln_m,
         sector_m,
-        joint: joint_density(h, nb, d, opts),
+        joint,
         ln_m,
         p_ln_m,
         m,
@@ -732,6 +748,8 @@ fn joint_density(h: &ScaleHist, nb: usize, d: f64, opts: &PdfOptions) -> JointDe
         return JointDensity {
             t: vec![0.0; nc],
             density: vec![0.0; nc * nc],
+            lnm_bin_width: d,
+            arg_bins: nb,
         };
     }
     // extent: the quantile of M
@@ -767,17 +785,19 @@ fn joint_density(h: &ScaleHist, nb: usize, d: f64, opts: &PdfOptions) -> JointDe
             density[iy * nc + ix] = c as f64 / norm / m2;
         }
     }
-    JointDensity { t, density }
+    JointDensity {
+        t,
+        density,
+        lnm_bin_width: d,
+        arg_bins: nb,
+    }
 }
 
-/// The Freedman-Diaconis bin width `2 IQR n^(-1/3)` (Freedman & Diaconis
-/// 1981: the width that minimises the integrated squared error of a
-/// histogram of a smooth density) of the scale's `ln M`, for a sample of
-/// `n`, as a whole number of the accumulator's bins `d` (at least 1). The
-/// quartiles are read from the cumulative counts, linear within a bin.
-fn fd_factor(h: &ScaleHist, nb: usize, d: f64, n: u64) -> usize {
-    if h.n < 2 || n < 2 {
-        return 1;
+/// The interquartile range of the scale's `ln M` from the cumulative
+/// counts of its bins of width `d` (linear within a bin); 0 below 2 points.
+fn iqr_ln_m(h: &ScaleHist, nb: usize, d: f64) -> f64 {
+    if h.n < 2 {
+        return 0.0;
     }
     let rows: Vec<u64> = h.counts.chunks_exact(nb).map(|r| r.iter().sum()).collect();
     let quantile = |q: f64| -> f64 {
@@ -793,9 +813,59 @@ fn fd_factor(h: &ScaleHist, nb: usize, d: f64, n: u64) -> usize {
         }
         (h.lo as f64 + rows.len() as f64) * d
     };
-    let iqr = quantile(0.75) - quantile(0.25);
-    let width = 2.0 * iqr * (n as f64).powf(-1.0 / 3.0);
-    ((width / d).round() as usize).clamp(1, rows.len().max(1))
+    quantile(0.75) - quantile(0.25)
+}
+
+/// A width as a whole number of bins `d`, at least 1 and at most `most`.
+fn whole_bins(width: f64, d: f64, most: usize) -> usize {
+    ((width / d).round() as usize).clamp(1, most.max(1))
+}
+
+/// The Freedman-Diaconis bin width `2 IQR n^(-1/3)` (Freedman & Diaconis
+/// 1981: the width that minimises the integrated squared error of a
+/// histogram of a smooth density) of the scale's `ln M`, for a sample of
+/// `n`, as a whole number of the accumulator's bins `d` (at least 1).
+fn fd_factor(h: &ScaleHist, nb: usize, d: f64, n: u64) -> usize {
+    if n < 2 {
+        return 1;
+    }
+    let width = 2.0 * iqr_ln_m(h, nb, d) * (n as f64).powf(-1.0 / 3.0);
+    whole_bins(width, d, h.rows)
+}
+
+/// Bins of the joint density of `(ln M, A)` by Scott's bivariate rule
+/// (Scott 1992, *Multivariate density estimation*, eq 3.66: `3.5 σ_i
+/// n^(-1/4)` per variable, the n^(-1/4) of two dimensions), with the robust
+/// `σ = IQR / 1.349` for `ln M` and `2π/√12` for an `A` spread over the
+/// circle: `(k, ka)`, `k` accumulator bins of `ln M` and `ka` argument bins
+/// (a power of two dividing `nb`, at most `nb/8` so that at least eight
+/// directions remain).
+fn joint_factors(h: &ScaleHist, nb: usize, d: f64) -> (usize, usize) {
+    if h.n < 2 {
+        return (1, 1);
+    }
+    let shrink = 3.5 * (h.n as f64).powf(-0.25);
+    let k = whole_bins(shrink * iqr_ln_m(h, nb, d) / 1.349, d, h.rows);
+    let da = 2.0 * PI / nb as f64;
+    let wa = shrink * 2.0 * PI / 12f64.sqrt();
+    let mut ka = 1;
+    while 2 * ka <= nb / 8 && nb.is_multiple_of(2 * ka) && (2 * ka) as f64 * da <= wa {
+        ka *= 2;
+    }
+    (k, ka)
+}
+
+/// The histogram with `ka` neighbouring argument bins merged into one
+/// (`nb / ka` bins over `[-π, π)`; `ka` divides `nb`).
+fn coarsen_args(h: &ScaleHist, ka: usize) -> ScaleHist {
+    if ka <= 1 {
+        return h.clone();
+    }
+    let counts = h.counts.chunks_exact(ka).map(|c| c.iter().sum()).collect();
+    ScaleHist {
+        counts,
+        ..h.clone()
+    }
 }
 
 /// The `ln M` counts of each of the four sectors of `A mod π` centred on
@@ -947,6 +1017,58 @@ mod tests {
         // wide bin -2 holds fine -6 (A = 0), -5 (A = 1), -4 (A = 0)
         assert_eq!(c.counts[64 + at_one], 1);
         assert_eq!(coarsen(&h.hist[0], 64, 1), h.hist[0]);
+    }
+
+    /// Merged argument bins hold whole neighbouring bins, so the counts
+    /// (and the ln M rows) are kept exactly.
+    #[test]
+    fn coarsen_args_sums_neighbours() {
+        let mut h = WtmmmHistograms::new(&[1.0], PdfConfig::default()).unwrap();
+        for b in 0..64 {
+            let arg = -PI + (b as f64 + 0.5) * 2.0 * PI / 64.0;
+            for _ in 0..b {
+                h.add(0, 1.0, arg);
+            }
+        }
+        let c = coarsen_args(&h.hist[0], 4);
+        assert_eq!((c.lo, c.rows, c.n), (h.hist[0].lo, 1, h.hist[0].n));
+        // bins 4i .. 4i + 3 hold 4i + (4i + 1) + (4i + 2) + (4i + 3) points
+        let want: Vec<u64> = (0..16).map(|i| 16 * i + 6).collect();
+        assert_eq!(c.counts, want);
+    }
+
+    /// The joint density's bins follow Scott's bivariate rule `3.5 σ
+    /// n^(-1/4)`: at n = 10 000 the factor is 0.35, so ln M ~ N(0, 1) gets
+    /// 0.35 = 7 bins of 0.05 (the sample IQR moves that by 0.06 bin), and A
+    /// uniform (σ = 2π/√12 = 1.81) 0.63 rad, whose largest power-of-two
+    /// merge of the 64 bins of 0.098 rad is 4: 16 directions. With fixed
+    /// bins the accumulator's are used.
+    #[test]
+    fn joint_bins_follow_scott() {
+        use rand::RngExt;
+        use rand_distr::{Distribution, Normal};
+        let law = Normal::new(0.0, 1.0).unwrap();
+        let mut h = WtmmmHistograms::new(&[1.0], PdfConfig::default()).unwrap();
+        let mut rng = crate::synth::rng_for(6, 0);
+        for _ in 0..10_000 {
+            let u: f64 = law.sample(&mut rng);
+            h.add(0, u.exp(), rng.random_range(-PI..PI));
+        }
+        let mut opts = PdfOptions {
+            show: vec![0],
+            bins: DensityBins::Auto,
+            ..Default::default()
+        };
+        let j = &wtmmm_pdfs(&h, &opts).unwrap()[0].joint;
+        assert!(
+            (j.lnm_bin_width - 0.35).abs() < 1e-12,
+            "{}",
+            j.lnm_bin_width
+        );
+        assert_eq!(j.arg_bins, 16);
+        opts.bins = DensityBins::Fixed;
+        let j = &wtmmm_pdfs(&h, &opts).unwrap()[0].joint;
+        assert_eq!((j.lnm_bin_width, j.arg_bins), (0.05, 64));
     }
 
     /// `DensityBins::Auto` on a standard normal ln M. The Freedman-Diaconis
