@@ -2491,3 +2491,28 @@ fn experiment_fif_other_alpha() {
         );
     }
 }
+
+/// The structure-function lines drawn in `sf.png` are the fits that gave
+/// xi(q): over the lags fitted, the residuals about `xi log2 l +
+/// xi_intercept` sum to zero and are orthogonal to `log2 l` (the normal
+/// equations of least squares), to rounding.
+#[test]
+fn sf_fit_lines_are_the_least_squares_lines() {
+    let (f, cfg) = periodic_fbm(0.4, 128, 5);
+    let r = lone(&f, &cfg);
+    let (lo, hi) = r.fit_log2_lag;
+    assert_eq!(r.xi_intercept.len(), r.sf_q.len());
+    for (i, q) in r.sf_q.iter().enumerate() {
+        let (mut s0, mut s1, mut n) = (0.0, 0.0, 0);
+        for (&x, &y) in r.log2_lag.iter().zip(&r.log2_sf[i]) {
+            if x >= lo - 1e-9 && x <= hi + 1e-9 {
+                let e = y - (r.xi[i] * x + r.xi_intercept[i]);
+                s0 += e;
+                s1 += e * x;
+                n += 1;
+            }
+        }
+        assert!(n >= 3, "q = {q}: {n} lags fitted");
+        assert!(s0.abs() < 1e-9 && s1.abs() < 1e-9, "q = {q}: {s0} {s1}");
+    }
+}

@@ -796,6 +796,23 @@ fn shown_q(q: &[f64]) -> Vec<usize> {
     v
 }
 
+/// The points `(x scale, y scale)` split into those whose `x` passes
+/// `inside` and the others (each drawn as its own series).
+fn split_by(
+    x: &[f64],
+    y: &[f64],
+    scale: f64,
+    inside: impl Fn(f64) -> bool,
+) -> (Vec<(f64, f64)>, Vec<(f64, f64)>) {
+    let (i, o): (Vec<(f64, f64)>, Vec<(f64, f64)>) = x
+        .iter()
+        .zip(y)
+        .map(|(&a, &b)| (a, b))
+        .partition(|&(a, _)| inside(a));
+    let s = |v: Vec<(f64, f64)>| v.into_iter().map(|(a, b)| (a * scale, b * scale)).collect();
+    (s(i), s(o))
+}
+
 /// Seed 000 Figs 19, 25: `log10 <φ_λ^q>` against `log10 λ` with the fitted
 /// lines, extended to their common crossing λ_eff (the effective outer scale).
 fn plot_moments(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
@@ -804,7 +821,7 @@ fn plot_moments(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
             "trace moments, fit λ = 2^{}..2^{}: {what}",
             r.fit_log2_lambda.0, r.fit_log2_lambda.1
         ),
-        x_label: "log10 λ  (λ = L / l)".into(),
+        x_label: "log10 λ  (λ = L / l; open: scales outside the fit)".into(),
         y_label: "log10 <φ_λ^q>".into(),
         ..Default::default()
     };
@@ -815,19 +832,19 @@ fn plot_moments(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
     } else {
         0.0
     };
+    // the scales fitted filled, the others open
+    let (flo, fhi) = r.fit_log2_lambda;
+    let fitted = |x: f64| x >= flo - 1e-9 && x <= fhi + 1e-9;
     for (n, &i) in shown_q(&r.q).iter().enumerate() {
-        let pts: Vec<(f64, f64)> = r
-            .log2_lambda
-            .iter()
-            .zip(&r.log2_moments[i])
-            .map(|(x, y)| (x * LOG10_2, y * LOG10_2))
-            .collect();
+        let (inside, outside) = split_by(&r.log2_lambda, &r.log2_moments[i], LOG10_2, fitted);
         c.series.push(Series::new(
             format!("q = {:.2}, K = {:.3}", r.q[i], r.k[i]),
-            pts,
+            inside,
             Style::Markers,
             n,
         ));
+        c.series
+            .push(Series::new("", outside, Style::OpenMarkers, n));
         let (k, b) = (r.k[i], r.k_intercept[i] * LOG10_2);
         if k.is_finite() && b.is_finite() {
             c.series.push(Series::new(
@@ -973,21 +990,32 @@ fn plot_sf(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
             r.fit_log2_lag.1,
             r.h_sf.map_or("n/a".into(), |h| format!("{h:.3}"))
         ),
-        x_label: "log2 l (px)".into(),
+        x_label: "log2 l (px; open: lags outside the fit)".into(),
         y_label: "log2 <|Δf(l)|^q>".into(),
         ..Default::default()
     };
+    let (llo, lhi) = r.fit_log2_lag;
+    let fitted = |x: f64| x >= llo - 1e-9 && x <= lhi + 1e-9;
     for (i, q) in r.sf_q.iter().enumerate() {
+        let (inside, outside) = split_by(&r.log2_lag, &r.log2_sf[i], 1.0, fitted);
         c.series.push(Series::new(
             format!("q = {q}, xi = {:.3}", r.xi[i]),
-            r.log2_lag
-                .iter()
-                .copied()
-                .zip(r.log2_sf[i].iter().copied())
-                .collect(),
-            Style::LineMarkers,
+            inside,
+            Style::Markers,
             i,
         ));
+        c.series
+            .push(Series::new("", outside, Style::OpenMarkers, i));
+        // the fitted line over the lags fitted
+        let (k, b) = (r.xi[i], r.xi_intercept.get(i).copied().unwrap_or(f64::NAN));
+        if k.is_finite() && b.is_finite() {
+            c.series.push(Series::new(
+                "",
+                vec![(llo, b + k * llo), (lhi, b + k * lhi)],
+                Style::Line,
+                i,
+            ));
+        }
     }
     save_chart(&c, &dir.join("sf.png"))
 }

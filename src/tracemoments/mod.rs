@@ -1088,7 +1088,7 @@ impl TraceMomentAccumulator {
         let log2_lag: Vec<f64> = (0..nj).map(|j| j as f64).collect();
         let (llo, lhi) = fc.lag_range(kmax as usize, nj)?;
         let mut log2_sf = Vec::new();
-        let (mut xi, mut xi_se) = (Vec::new(), Vec::new());
+        let (mut xi, mut xi_se, mut xi_b) = (Vec::new(), Vec::new(), Vec::new());
         for (iq, _) in self.config.sf_q.iter().enumerate() {
             let s: Vec<f64> = (0..nj)
                 .map(|j| {
@@ -1109,6 +1109,7 @@ impl TraceMomentAccumulator {
             let f = line_fit(&xs, &ys);
             xi.push(f.map_or(f64::NAN, |f| f.slope));
             xi_se.push(f.map_or(f64::NAN, |f| f.slope_stderr));
+            xi_b.push(f.map_or(f64::NAN, |f| f.intercept));
             log2_sf.push(s);
         }
         let h_sf = self
@@ -1183,6 +1184,7 @@ impl TraceMomentAccumulator {
             sf_q: self.config.sf_q.clone(),
             xi,
             xi_stderr: xi_se,
+            xi_intercept: xi_b,
             log2_lag,
             log2_sf,
             fit_log2_lag: (llo, lhi),
@@ -1386,6 +1388,10 @@ pub struct TraceMomentResult {
     pub xi: Vec<f64>,
     /// Regression standard errors of ξ(q).
     pub xi_stderr: Vec<f64>,
+    /// Intercepts of the ξ(q) fits (`log2 <|Δf(l)|^q> = ξ log2 l + b`),
+    /// for drawing them.
+    #[serde(default)]
+    pub xi_intercept: Vec<f64>,
     /// `log2 l` of the lags `l = 2^j` px, `j = 0, 1, ...`.
     pub log2_lag: Vec<f64>,
     /// `log2 <|Δf(l)|^q>` per q per lag.
