@@ -803,14 +803,12 @@ fn split_by(
     y: &[f64],
     scale: f64,
     inside: impl Fn(f64) -> bool,
-) -> (Vec<(f64, f64)>, Vec<(f64, f64)>) {
-    let (i, o): (Vec<(f64, f64)>, Vec<(f64, f64)>) = x
-        .iter()
-        .zip(y)
-        .map(|(&a, &b)| (a, b))
-        .partition(|&(a, _)| inside(a));
-    let s = |v: Vec<(f64, f64)>| v.into_iter().map(|(a, b)| (a * scale, b * scale)).collect();
-    (s(i), s(o))
+) -> [Vec<(f64, f64)>; 2] {
+    let mut out = [Vec::new(), Vec::new()];
+    for (&a, &b) in x.iter().zip(y) {
+        out[usize::from(!inside(a))].push((a * scale, b * scale));
+    }
+    out
 }
 
 /// Seed 000 Figs 19, 25: `log10 <φ_λ^q>` against `log10 λ` with the fitted
@@ -836,7 +834,7 @@ fn plot_moments(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
     let (flo, fhi) = r.fit_log2_lambda;
     let fitted = |x: f64| x >= flo - 1e-9 && x <= fhi + 1e-9;
     for (n, &i) in shown_q(&r.q).iter().enumerate() {
-        let (inside, outside) = split_by(&r.log2_lambda, &r.log2_moments[i], LOG10_2, fitted);
+        let [inside, outside] = split_by(&r.log2_lambda, &r.log2_moments[i], LOG10_2, fitted);
         c.series.push(Series::new(
             format!("q = {:.2}, K = {:.3}", r.q[i], r.k[i]),
             inside,
@@ -997,7 +995,7 @@ fn plot_sf(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
     let (llo, lhi) = r.fit_log2_lag;
     let fitted = |x: f64| x >= llo - 1e-9 && x <= lhi + 1e-9;
     for (i, q) in r.sf_q.iter().enumerate() {
-        let (inside, outside) = split_by(&r.log2_lag, &r.log2_sf[i], 1.0, fitted);
+        let [inside, outside] = split_by(&r.log2_lag, &r.log2_sf[i], 1.0, fitted);
         c.series.push(Series::new(
             format!("q = {q}, xi = {:.3}", r.xi[i]),
             inside,
