@@ -249,7 +249,33 @@ fn synth_fif_then_tm() {
         );
         assert!(res.stderr_method.contains("jackknife over 8 images"));
         assert_library(&tm, &cfg, fit_json(&fc), &res, &[]);
+        // estimates.csv: each exponent by each method, as in tm.json
+        let est = std::fs::read_to_string(out.join("estimates.csv")).unwrap();
+        let rows: Vec<&str> = est.lines().collect();
+        assert_eq!(rows.len(), 8, "{est}");
+        for (row, key) in [
+            (1, "alpha"),
+            (2, "C1"),
+            (3, "dtm_alpha"),
+            (4, "dtm_C1"),
+            (5, "H"),
+            (6, "H_sf"),
+            (7, "beta"),
+        ] {
+            // every method has a comma, so it is quoted: the value follows it
+            let value: f64 = rows[row]
+                .rsplit("\",")
+                .next()
+                .unwrap()
+                .split(',')
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap();
+            assert_eq!(value, num(&tm, key), "{key}: {}", rows[row]);
+        }
         for f in [
+            "estimates.csv",
             "K.csv",
             "moments.csv",
             "dtm.csv",

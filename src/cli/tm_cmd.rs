@@ -692,6 +692,18 @@ pub fn write_outputs(
             &rows,
         )?;
     }
+    write_csv(
+        &dir.join("estimates.csv"),
+        &[
+            "quantity",
+            "method",
+            "value",
+            "stderr",
+            "stderr_surrogates",
+            "range",
+        ],
+        &estimate_rows(res),
+    )?;
     let ku = k_universal(res, &res.q);
     let tau = tau_from_tm(res);
     let rows: Vec<Vec<String>> = (0..res.q.len())
@@ -778,6 +790,91 @@ pub fn write_outputs(
         plot_spectrum(dir, res, ps, what)?;
     }
     Ok(())
+}
+
+/// The rows of `estimates.csv`: each exponent by each method, side by side
+/// with its error and the range it was fitted over (alpha and C1 by trace
+/// and double trace moments, H by the spectrum and by the structure
+/// functions, beta). `stderr` is the method of `stderr_method` (jackknife
+/// or regression); `stderr_surrogates` the surrogates' sd where measured.
+fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
+    let opt = |v: Option<f64>| v.map_or(String::new(), f);
+    let sur = r.surrogates.as_ref();
+    let lam = format!(
+        "log2 lambda {}:{}",
+        r.fit_log2_lambda.0, r.fit_log2_lambda.1
+    );
+    let eta = format!("eta {}:{}", f(r.dtm_eta_range.0), f(r.dtm_eta_range.1));
+    let k = r
+        .k_range
+        .map_or(String::new(), |(a, b)| format!("k {a:.4}:{b:.4} rad/px"));
+    let lag = format!("log2 l {}:{} px", r.fit_log2_lag.0, r.fit_log2_lag.1);
+    let tm = format!(
+        "trace moments, universal fit over 0 < q <= {:.2}",
+        r.universal_q_max
+    );
+    let dtm = format!(
+        "double trace moments, q = {}",
+        r.dtm_q.first().copied().unwrap_or(f64::NAN)
+    );
+    vec![
+        vec![
+            "alpha".into(),
+            tm.clone(),
+            f(r.alpha),
+            f(r.alpha_stderr),
+            opt(sur.map(|s| s.alpha.sd)),
+            lam.clone(),
+        ],
+        vec![
+            "C1".into(),
+            tm,
+            f(r.c1),
+            f(r.c1_stderr),
+            opt(sur.map(|s| s.c1.sd)),
+            lam,
+        ],
+        vec![
+            "alpha".into(),
+            dtm.clone(),
+            f(r.dtm_alpha),
+            f(r.dtm_alpha_stderr),
+            String::new(),
+            eta.clone(),
+        ],
+        vec![
+            "C1".into(),
+            dtm,
+            f(r.dtm_c1),
+            String::new(),
+            String::new(),
+            eta,
+        ],
+        vec![
+            "H".into(),
+            "spectrum, (beta - 1 + K(2))/2".into(),
+            opt(r.h),
+            opt(r.h_stderr),
+            opt(sur.map(|s| s.h.sd)),
+            k.clone(),
+        ],
+        vec![
+            "H".into(),
+            "structure functions, xi(1)".into(),
+            opt(r.h_sf),
+            opt(r.h_sf_stderr),
+            String::new(),
+            lag,
+        ],
+        vec![
+            "beta".into(),
+            "spectrum, angle-integrated".into(),
+            opt(r.beta),
+            opt(r.beta_stderr),
+            String::new(),
+            k,
+        ],
+    ]
 }
 
 const LOG10_2: f64 = std::f64::consts::LOG10_2;
