@@ -218,7 +218,7 @@ pub fn write_csv(path: &Path, header: &[&str], rows: &[Vec<String>]) -> Result<(
 }
 
 /// A CSV field, quoted as RFC 4180 says when it holds a comma, a quote or a
-/// line break (column names like `K(q=1.5,eta)`, file names).
+/// line break (file names, methods such as `spectrum, angle-integrated`).
 fn csv_field(v: &str) -> std::borrow::Cow<'_, str> {
     if v.contains([',', '"', '\n', '\r']) {
         format!("\"{}\"", v.replace('"', "\"\"")).into()

@@ -741,8 +741,8 @@ pub fn write_outputs(
     // double trace moments
     let mut hdr = vec!["eta".to_string()];
     for q in &res.dtm_q {
-        hdr.push(format!("K(q={q},eta)"));
-        hdr.push(format!("K(q={q},eta)_stderr"));
+        hdr.push(format!("K_eta(q={q})"));
+        hdr.push(format!("K_eta(q={q})_stderr"));
     }
     let hdr_ref: Vec<&str> = hdr.iter().map(String::as_str).collect();
     let rows: Vec<Vec<String>> = (0..res.eta.len())

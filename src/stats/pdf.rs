@@ -417,9 +417,7 @@ impl WtmmmHistograms {
         let h = &self.hist[j];
         let nb = self.config.arg_bins;
         let d = self.config.dlnm;
-        let u = (0..h.rows)
-            .map(|r| (h.lo as f64 + r as f64 + 0.5) * d)
-            .collect();
+        let u = centres(h, d);
         let p = (0..h.rows)
             .map(|r| {
                 let c: u64 = h.counts[r * nb..(r + 1) * nb].iter().sum();
@@ -510,16 +508,6 @@ pub enum DensityBins {
     /// joint density of `(T1, T2)` merges `ln M` and argument bins by
     /// Scott's bivariate rule `3.5 σ n^(-1/4)`.
     Auto,
-}
-
-impl DensityBins {
-    /// The name on the command line and in outputs.
-    pub fn name(self) -> &'static str {
-        match self {
-            DensityBins::Fixed => "fixed",
-            DensityBins::Auto => "auto",
-        }
-    }
 }
 
 /// Density of M conditioned on `A mod π` in `centre ± π/8`.
@@ -648,9 +636,7 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
         .chunks_exact(nb)
         .map(|row| row.iter().sum())
         .collect();
-    let ln_m: Vec<f64> = (0..h.rows)
-        .map(|r| (h.lo as f64 + r as f64 + 0.5) * d)
-        .collect();
+    let ln_m = centres(h, d);
     let p_ln_m: Vec<f64> = count.iter().map(|&c| c as f64 / (n * d)).collect();
     let m: Vec<f64> = ln_m.iter().map(|u| u.exp()).collect();
     let p_m: Vec<f64> = p_ln_m.iter().zip(&m).map(|(p, mm)| p / mm).collect();
@@ -681,9 +667,7 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
     };
     let hsec = coarsen(fine, nb, ks);
     let ds = hs.config.dlnm * ks as f64;
-    let sector_ln_m: Vec<f64> = (0..hsec.rows)
-        .map(|r| (hsec.lo as f64 + r as f64 + 0.5) * ds)
-        .collect();
+    let sector_ln_m = centres(&hsec, ds);
     let sector_m: Vec<f64> = sector_ln_m.iter().map(|u| u.exp()).collect();
     let sectors = sector_rows(&hsec)
         .into_iter()
@@ -883,6 +867,13 @@ fn sector_counts(h: &ScaleHist, nb: usize) -> [Vec<u64>; 4] {
             .map(|row| (0..nb).filter(|&b| in_sector(b)).map(|b| row[b]).sum())
             .collect()
     })
+}
+
+/// The `ln M` bin centres of a histogram of bins of width `d`.
+fn centres(h: &ScaleHist, d: f64) -> Vec<f64> {
+    (0..h.rows)
+        .map(|r| (h.lo as f64 + r as f64 + 0.5) * d)
+        .collect()
 }
 
 /// The histogram with `k` accumulator bins of `ln M` merged into one: the
