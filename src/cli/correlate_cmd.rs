@@ -612,7 +612,14 @@ fn write_correlation_outputs(
                     } else {
                         format!("{name}: ")
                     },
-                    if ens { "ensemble" } else { "per-image" },
+                    // one image: its mean is the ensemble's, the two
+                    // figures the same (said, so that none looks for a
+                    // difference)
+                    match (ens, r.images) {
+                        (_, 1) => "per-image = ensemble (one image)",
+                        (true, _) => "ensemble",
+                        (false, _) => "per-image",
+                    },
                     if r.source == "cwt" {
                         "CWT grid"
                     } else {
