@@ -1191,56 +1191,90 @@ pub const UNLIKE_ALPHA: f64 = 0.001;
 /// one process); it is flagged beyond the quantile `1 - α/(2 K m)`
 /// (two-sided, Bonferroni over the K images and the m exponents tested),
 /// so that a homogeneous ensemble raises a warning in about 0.1 % of runs.
+/// An image without its own estimate (NaN: no line at the top of the fit
+/// in it alone) is left out of that exponent's test and named in a warning
+/// of its own; an exponent with fewer than [`UNLIKE_MIN_IMAGES`] estimates
+/// is not tested.
 pub fn unlike_images(per_image: &[ImageExponents]) -> Vec<String> {
     use statrs::distribution::{ContinuousCDF, StudentsT};
-    let k = per_image.len();
-    if k < UNLIKE_MIN_IMAGES {
+    if per_image.len() < UNLIKE_MIN_IMAGES {
         return Vec::new();
     }
     let series: [(&str, Vec<f64>); 2] = [
         ("h(q=0)", per_image.iter().map(|e| e.h_q0).collect()),
         ("tau(q=2)", per_image.iter().map(|e| e.tau_q2).collect()),
     ];
-    let tested: Vec<&(&str, Vec<f64>)> = series
+    // an image without an estimate of its own (no line at the top of the
+    // fit, common for images smaller than the others) is left out of that
+    // exponent's test, not the whole test
+    let finite = |v: &[f64]| -> Vec<usize> { (0..v.len()).filter(|&i| v[i].is_finite()).collect() };
+    let tested: Vec<(&str, &Vec<f64>, Vec<usize>)> = series
         .iter()
-        .filter(|(_, v)| v.iter().all(|x| x.is_finite()))
+        .map(|(name, v)| (*name, v, finite(v)))
+        .filter(|(_, _, idx)| idx.len() >= UNLIKE_MIN_IMAGES)
         .collect();
-    if tested.is_empty() {
-        return Vec::new();
-    }
-    let t_law = StudentsT::new(0.0, 1.0, (k - 2) as f64).expect("k >= 4");
-    let level = UNLIKE_ALPHA / (2.0 * k as f64 * tested.len() as f64);
-    let limit = t_law.inverse_cdf(1.0 - level);
-    let mut out = Vec::new();
-    for (i, e) in per_image.iter().enumerate() {
-        let mut said = Vec::new();
-        for (name, v) in &tested {
-            let rest: Vec<f64> = (0..k).filter(|&j| j != i).map(|j| v[j]).collect();
+    let mut said: Vec<Vec<String>> = vec![Vec::new(); per_image.len()];
+    for (name, v, idx) in &tested {
+        let k = idx.len();
+        let t_law = StudentsT::new(0.0, 1.0, (k - 2) as f64).expect("k >= 4");
+        let level = UNLIKE_ALPHA / (2.0 * k as f64 * tested.len() as f64);
+        let limit = t_law.inverse_cdf(1.0 - level);
+        for &i in idx {
+            let rest: Vec<f64> = idx.iter().filter(|&&j| j != i).map(|&j| v[j]).collect();
             let m = rest.iter().sum::<f64>() / (k - 1) as f64;
             let var = rest.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (k - 2) as f64;
-            let scale = (var * (1.0 + 1.0 / (k - 1) as f64)).sqrt();
-            let t = (v[i] - m) / scale;
-            // identical others (sd 0) with a different value: flagged too
-            if t.abs() > limit || (scale == 0.0 && v[i] != m) {
-                said.push(format!(
+            let t = (v[i] - m) / (var * (1.0 + 1.0 / (k - 1) as f64)).sqrt();
+            // identical others (sd 0) with a different value: t is infinite
+            if t.abs() > limit {
+                said[i].push(format!(
                     "{name} = {:.3} against {m:.3} +- {:.3} (mean and sd of the other {}), t = \
-                     {t:.1}",
+                     {t:.1} beyond {limit:.1}",
                     v[i],
                     var.sqrt(),
                     k - 1
                 ));
             }
         }
-        if !said.is_empty() {
-            out.push(format!(
-                "image {} looks unlike the others: {} (beyond {limit:.1}, the {} % family-wise \
-                 threshold for {k} images): the ensemble may mix processes (per_image lists each \
-                 image's exponents), and its jackknife errors then measure the mix",
+    }
+    let mut out: Vec<String> = said
+        .iter()
+        .zip(per_image)
+        .filter(|(s, _)| !s.is_empty())
+        .map(|(s, e)| {
+            format!(
+                "{} looks unlike the others: {} (the {} % family-wise threshold of the \
+                 studentized deleted residual): the ensemble may mix processes (per_image lists \
+                 each image's exponents), and its jackknife errors then measure the mix",
                 e.label,
-                said.join("; "),
+                s.join("; "),
                 UNLIKE_ALPHA * 100.0
-            ));
-        }
+            )
+        })
+        .collect();
+    // NaN in an exponent some images have (a whole NaN series is a q the
+    // grid lacks, not a shortage of lines)
+    let missing: Vec<&str> = (0..per_image.len())
+        .filter(|&i| {
+            series
+                .iter()
+                .any(|(_, v)| !v[i].is_finite() && v.iter().any(|x| x.is_finite()))
+        })
+        .map(|i| per_image[i].label.as_str())
+        .collect();
+    if !missing.is_empty() {
+        let list = match missing.len() {
+            0..=3 => missing.join(", "),
+            n => format!("{}, ... ({n} images)", missing[..2].join(", ")),
+        };
+        out.push(format!(
+            "{list}: no h(q=0) or tau(q=2) of their own (no maxima line at the top of the fit \
+             in the image alone), left out of the unlike-image test{}",
+            if tested.is_empty() {
+                ", which then had too few images to run"
+            } else {
+                ""
+            }
+        ));
     }
     out
 }
@@ -2279,6 +2313,85 @@ mod tests {
         s
     }
 
+    /// `per_image` and the unlike-image test through [`PartitionSums::spectra`]:
+    /// five images of pure power laws `M = a^h` (h = 0.30, 0.31, 0.29,
+    /// 0.30, 0.80, the same counts) give each its own h(q=0) = h and
+    /// tau(q=2) = 2h + the counts' exponent, and
+    /// the fifth is named (the by-hand t = 54.8 of `unlike_images_by_hand`);
+    /// a sixth image whose values stop below the fit's top has no estimate
+    /// of its own, is left out and named, and the fifth is still named.
+    #[test]
+    fn per_image_exponents_and_the_unlike_test() {
+        let scales: Vec<f64> = (0..41).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+        let q: Vec<f64> = (-2..=4).map(f64::from).collect();
+        let image = |h: f64, top: f64, label: &str| {
+            let values: Vec<Vec<f64>> = scales
+                .iter()
+                .map(|&a| {
+                    let n = if a <= top {
+                        7 * (600.0 / (a / 1.5).powi(2)).ceil() as usize
+                    } else {
+                        0
+                    };
+                    vec![h * a.log2(); n]
+                })
+                .collect();
+            PartitionSums::from_log2_values(&scales, &values, &q, label).unwrap()
+        };
+        let hs = [0.30, 0.31, 0.29, 0.30, 0.80];
+        let mut sums = image(hs[0], 1e9, "a0");
+        for (i, &h) in hs.iter().enumerate().skip(1) {
+            sums.merge(&image(h, 1e9, &format!("a{i}"))).unwrap();
+        }
+        let sp = sums.spectra(Rule::Plain, (0.5, 4.0)).unwrap();
+        assert_eq!(sp.per_image.len(), 5);
+        // the counts n(a) are the same in every image, so tau(2) - 2h is too
+        let t0 = sp.per_image[0].tau_q2 - 2.0 * hs[0];
+        for (e, &h) in sp.per_image.iter().zip(&hs) {
+            assert!((e.h_q0 - h).abs() < 1e-9, "{e:?}");
+            assert!((e.tau_q2 - 2.0 * h - t0).abs() < 1e-9, "{e:?}");
+        }
+        let named: Vec<&String> = sp
+            .warnings
+            .iter()
+            .filter(|w| w.contains("looks unlike"))
+            .collect();
+        assert!(
+            named.len() == 1 && named[0].starts_with("a4 looks unlike"),
+            "{named:?}"
+        );
+        // a sixth image whose lines end at 6 px, below the fit's top
+        sums.merge(&image(0.3, 6.0, "short")).unwrap();
+        let sp = sums.spectra(Rule::Plain, (0.5, 4.0)).unwrap();
+        assert!(sp.per_image[5].h_q0.is_nan() && sp.per_image[5].tau_q2.is_nan());
+        assert!(
+            sp.warnings.iter().any(|w| w.starts_with("a4 looks unlike")),
+            "{:?}",
+            sp.warnings
+        );
+        assert!(
+            sp.warnings
+                .iter()
+                .any(|w| w.starts_with("short: no h(q=0)")),
+            "{:?}",
+            sp.warnings
+        );
+        // below 4 images: no per-image exponents at all
+        let three = {
+            let mut s = image(0.3, 1e9, "b0");
+            s.merge(&image(0.3, 1e9, "b1")).unwrap();
+            s.merge(&image(0.8, 1e9, "b2")).unwrap();
+            s
+        };
+        assert!(
+            three
+                .spectra(Rule::Plain, (0.5, 4.0))
+                .unwrap()
+                .per_image
+                .is_empty()
+        );
+    }
+
     /// A power law is flagged by how much its local slope changes, not by
     /// R^2: Z(q, a) ~ a^tau with tau(4) = 0 exactly (h = 1/2) passes at
     /// every q, and log2 M = h L + c L^2 (L = log2 a) is flagged exactly
@@ -2478,14 +2591,16 @@ mod tests {
     /// 0.5 / (0.008165 sqrt(1 + 1/4)) = 54.8, beyond the t_3 quantile at
     /// 1 - 0.001/20 (28.0); for the first, with 0.80 among the others, t
     /// = -0.58. Only the last image is named, with its values; tau(q=2),
-    /// within 0.015 of each other, flags none. Below 4 images nothing is tested.
+    /// within 0.015 of each other, flags none. Below 4 images nothing is
+    /// tested. An image without estimates is left out (the rest tested) and
+    /// named, and when fewer than 4 remain that is said.
     #[test]
     fn unlike_images_by_hand() {
         let tau = [-1.40, -1.41, -1.39, -1.40, -1.405];
         let w = unlike_images(&exps(&[0.30, 0.31, 0.29, 0.30, 0.80], &tau));
         assert_eq!(w.len(), 1, "{w:?}");
         assert!(
-            w[0].contains("image im4") && w[0].contains("h(q=0) = 0.800"),
+            w[0].starts_with("im4 looks unlike") && w[0].contains("h(q=0) = 0.800"),
             "{w:?}"
         );
         assert!(
@@ -2497,6 +2612,24 @@ mod tests {
         // a q grid without 0: only tau(q=2) is tested
         let w = unlike_images(&exps(&[f64::NAN; 5], &[-1.4, -1.41, -1.39, -1.4, -0.9]));
         assert!(w.len() == 1 && w[0].contains("tau(q=2) = -0.900"), "{w:?}");
+        // an image without estimates (no line at the top of the fit) is
+        // left out and named; the others are still tested, over 5
+        let mut h = vec![0.30, 0.31, 0.29, 0.30, 0.80, f64::NAN];
+        let mut t = vec![-1.40, -1.41, -1.39, -1.40, -1.405, f64::NAN];
+        let w = unlike_images(&exps(&h, &t));
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(w[0].starts_with("im4 looks unlike"), "{w:?}");
+        assert!(
+            w[1].starts_with("im5: no h(q=0)") && w[1].contains("left out"),
+            "{w:?}"
+        );
+        // too few left: nothing tested, and said
+        h.truncate(4);
+        t.truncate(4);
+        h[3] = f64::NAN;
+        t[3] = f64::NAN;
+        let w = unlike_images(&exps(&h, &t));
+        assert!(w.len() == 1 && w[0].contains("too few images"), "{w:?}");
     }
 
     /// Under the hypothesis it tests (16 images of one normal law per
@@ -2533,7 +2666,7 @@ mod tests {
                 .filter(|_| {
                     unlike_images(&draw(shift))
                         .iter()
-                        .any(|m| m.contains("image im7 "))
+                        .any(|m| m.starts_with("im7 looks unlike"))
                 })
                 .count()
         };

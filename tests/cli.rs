@@ -249,10 +249,23 @@ fn synth_fif_then_tm() {
         );
         assert!(res.stderr_method.contains("jackknife over 8 images"));
         assert_library(&tm, &cfg, fit_json(&fc), &res, &[]);
-        // estimates.csv: each exponent by each method, as in tm.json
+        // estimates.csv: each exponent by each method, as in tm.json, with
+        // its error and (8 images) the jackknife over them for every row
         let est = std::fs::read_to_string(out.join("estimates.csv")).unwrap();
-        let rows: Vec<&str> = est.lines().collect();
+        let rows: Vec<Vec<String>> = est.lines().map(csv_fields).collect();
         assert_eq!(rows.len(), 8, "{est}");
+        assert_eq!(
+            rows[0],
+            [
+                "quantity",
+                "method",
+                "value",
+                "stderr",
+                "stderr_method",
+                "stderr_surrogates",
+                "range"
+            ]
+        );
         for (row, key) in [
             (1, "alpha"),
             (2, "C1"),
@@ -262,17 +275,15 @@ fn synth_fif_then_tm() {
             (6, "H_sf"),
             (7, "beta"),
         ] {
-            // every method has a comma, so it is quoted: the value follows it
-            let value: f64 = rows[row]
-                .rsplit("\",")
-                .next()
-                .unwrap()
-                .split(',')
-                .next()
-                .unwrap()
-                .parse()
-                .unwrap();
-            assert_eq!(value, num(&tm, key), "{key}: {}", rows[row]);
+            let r = &rows[row];
+            assert_eq!(r[2].parse::<f64>().unwrap(), num(&tm, key), "{key}: {r:?}");
+            assert_eq!(
+                r[3].parse::<f64>().unwrap(),
+                num(&tm, &format!("{key}_stderr")),
+                "{key}: {r:?}"
+            );
+            assert!(r[4].starts_with("jackknife over 8 images"), "{key}: {r:?}");
+            assert!(!r[6].is_empty(), "{key}: {r:?}");
         }
         for f in [
             "estimates.csv",
@@ -3521,4 +3532,23 @@ fn tm_surrogates_on_a_lone_image() {
     let t = json(&o4.join("tm.json"));
     assert!(t.get("surrogates").is_none());
     assert!(!o4.join("surrogates.csv").exists());
+}
+
+/// The fields of one CSV line (RFC 4180 quoting, as `write_csv` writes).
+fn csv_fields(line: &str) -> Vec<String> {
+    let (mut out, mut cur, mut quoted) = (Vec::new(), String::new(), false);
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                cur.push('"');
+                chars.next();
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => out.push(std::mem::take(&mut cur)),
+            (c, _) => cur.push(c),
+        }
+    }
+    out.push(cur);
+    out
 }

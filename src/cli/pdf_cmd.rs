@@ -545,8 +545,9 @@ pub struct PdfArgs {
     pub lnm_bin: f64,
     /// Bins of the pdfs drawn and written: auto = per scale, the
     /// Freedman-Diaconis width 2 IQR n^(-1/3) of its ln M as a whole number of
-    /// --lnm-bin (wider where a scale has few WTMMM); fixed = --lnm-bin at
-    /// every scale.
+    /// --lnm-bin (wider where a scale has few WTMMM), of A for P(A) in merged
+    /// --arg-bins, and Scott's rule for the joint density; fixed = --lnm-bin
+    /// and --arg-bins everywhere.
     #[arg(long, value_enum, default_value = "auto")]
     pub bins: DensityBins,
     /// Number of bins of the argument A over [-pi, pi) (a multiple of 16).
@@ -735,7 +736,11 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let holes = input.holes.warning(input.len(), "the WTMMM counted");
     body["warnings"] = json!(warning.iter().chain(&few).chain(&holes).collect::<Vec<_>>());
     write_json(&dir.join("pdf.json"), &body)?;
-    write_pdf_csvs(dir, &show.iter().map(|&j| get(j)).collect::<Vec<_>>())?;
+    write_pdf_csvs(
+        dir,
+        &show.iter().map(|&j| get(j)).collect::<Vec<_>>(),
+        &sec.iter().map(|&j| get(j)).collect::<Vec<_>>(),
+    )?;
     plot_pdfs(
         dir,
         &input.title(cfg.wavelet),
@@ -810,7 +815,9 @@ pub fn check_shown_counts(
     }))
 }
 
-fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf]) -> Result<()> {
+/// pdf_M.csv, pdf_A.csv and joint_T.csv at the `--show` scales `p`,
+/// pdf_M_sectors.csv at the `--sectors-at` scales `sec` (as the figures).
+fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf], sec: &[&ScalePdf]) -> Result<()> {
     let mut rows = Vec::new();
     for s in p {
         for i in 0..s.m.len() {
@@ -852,7 +859,7 @@ fn write_pdf_csvs(dir: &Path, p: &[&ScalePdf]) -> Result<()> {
     }
     write_csv(&dir.join("pdf_A.csv"), &["a", "octave", "A", "P_A"], &rows)?;
     let mut rows = Vec::new();
-    for s in p {
+    for s in sec {
         for sec in &s.sectors {
             for i in 0..s.sector_m.len() {
                 rows.push(vec![
@@ -928,6 +935,17 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
         )
     };
     let label = |s: &ScalePdf| label_w(s, s.bin_width);
+    // P(A) has its own bins: their number, not the width in ln M
+    let label_a = |s: &ScalePdf| {
+        let few = if s.n < 100 { "only " } else { "" };
+        format!(
+            "a = 2^{:.1} a_min ({:.1} px), {few}{} WTMMM, {} bins in A",
+            s.octave,
+            s.a,
+            s.n,
+            s.arg.len()
+        )
+    };
     let title = |t: &str| {
         if name.is_empty() {
             t.to_string()
@@ -985,7 +1003,7 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
             k,
         ));
         ca.series.push(Series::new(
-            label(s),
+            label_a(s),
             pts(&s.arg, &s.p_arg, false),
             Style::LineMarkers,
             k,

@@ -699,6 +699,7 @@ pub fn write_outputs(
             "method",
             "value",
             "stderr",
+            "stderr_method",
             "stderr_surrogates",
             "range",
         ],
@@ -795,8 +796,10 @@ pub fn write_outputs(
 /// The rows of `estimates.csv`: each exponent by each method, side by side
 /// with its error and the range it was fitted over (alpha and C1 by trace
 /// and double trace moments, H by the spectrum and by the structure
-/// functions, beta). `stderr` is the method of `stderr_method` (jackknife
-/// or regression); `stderr_surrogates` the surrogates' sd where measured.
+/// functions, beta). Each row's `stderr_method` says what its `stderr` is
+/// (the jackknife of tm.json's `stderr_method`, or a regression's);
+/// `stderr_surrogates` is the surrogates' sd where measured; the DTM range
+/// is the eta its first fit used.
 fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
     let opt = |v: Option<f64>| v.map_or(String::new(), f);
     let sur = r.surrogates.as_ref();
@@ -804,7 +807,11 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
         "log2 lambda {}:{}",
         r.fit_log2_lambda.0, r.fit_log2_lambda.1
     );
-    let eta = format!("eta {}:{}", f(r.dtm_eta_range.0), f(r.dtm_eta_range.1));
+    // the eta the first DTM fit used (q eta <= q_s/2 may cut the top)
+    let eta = r.dtm.first().map_or_else(
+        || format!("eta {}:{}", f(r.dtm_eta_range.0), f(r.dtm_eta_range.1)),
+        |d| format!("eta {:.3}:{:.3}", d.eta_used.0, d.eta_used.1),
+    );
     let k = r
         .k_range
         .map_or(String::new(), |(a, b)| format!("k {a:.4}:{b:.4} rad/px"));
@@ -817,12 +824,37 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
         "double trace moments, q = {}",
         r.dtm_q.first().copied().unwrap_or(f64::NAN)
     );
+    // which error each row has: the jackknife's (stderr_method), except
+    // beta on the tiles of one image, which share its spectrum and keep the
+    // fit's error, and H from it, which then adds half of that
+    let jk = r.jackknife_groups >= 2;
+    let method = |jackknifed: bool| {
+        if jackknifed {
+            r.stderr_method.clone()
+        } else {
+            "regression".to_string()
+        }
+    };
+    let tiles = r.stderr_method.contains("tiles");
+    let beta_method = match (jk, tiles) {
+        (true, false) => r.stderr_method.clone(),
+        _ => "regression (the spectrum's fit)".to_string(),
+    };
+    let h_method = match (jk, tiles) {
+        (true, true) => format!(
+            "{}, with half the spectrum fit's error of beta",
+            r.stderr_method
+        ),
+        (true, false) => r.stderr_method.clone(),
+        _ => "regression".to_string(),
+    };
     vec![
         vec![
             "alpha".into(),
             tm.clone(),
             f(r.alpha),
             f(r.alpha_stderr),
+            method(jk),
             opt(sur.map(|s| s.alpha.sd)),
             lam.clone(),
         ],
@@ -831,6 +863,7 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
             tm,
             f(r.c1),
             f(r.c1_stderr),
+            method(jk),
             opt(sur.map(|s| s.c1.sd)),
             lam,
         ],
@@ -839,6 +872,7 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
             dtm.clone(),
             f(r.dtm_alpha),
             f(r.dtm_alpha_stderr),
+            method(jk),
             String::new(),
             eta.clone(),
         ],
@@ -846,7 +880,8 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
             "C1".into(),
             dtm,
             f(r.dtm_c1),
-            String::new(),
+            f(r.dtm_c1_stderr),
+            if jk { method(true) } else { String::new() },
             String::new(),
             eta,
         ],
@@ -855,6 +890,7 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
             "spectrum, (beta - 1 + K(2))/2".into(),
             opt(r.h),
             opt(r.h_stderr),
+            h_method,
             opt(sur.map(|s| s.h.sd)),
             k.clone(),
         ],
@@ -863,6 +899,11 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
             "structure functions, xi(1)".into(),
             opt(r.h_sf),
             opt(r.h_sf_stderr),
+            if r.h_sf_stderr.is_some() {
+                method(jk)
+            } else {
+                String::new()
+            },
             String::new(),
             lag,
         ],
@@ -871,6 +912,7 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
             "spectrum, angle-integrated".into(),
             opt(r.beta),
             opt(r.beta_stderr),
+            beta_method,
             String::new(),
             k,
         ],

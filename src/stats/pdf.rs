@@ -506,7 +506,8 @@ pub enum DensityBins {
     /// empty bins, a large ensemble keeps the fine ones. The four sector
     /// densities share one width, that of the smallest sector's count; the
     /// joint density of `(T1, T2)` merges `ln M` and argument bins by
-    /// Scott's bivariate rule `3.5 σ n^(-1/4)`.
+    /// Scott's bivariate rule `3.5 σ n^(-1/4)`, and P(A) argument bins by
+    /// the Freedman-Diaconis width of A (in powers of two, 8 bins at least).
     Auto,
 }
 
@@ -562,7 +563,8 @@ pub struct ScalePdf {
     pub m: Vec<f64>,
     /// `P(M) = P(ln M) / M` on `m`.
     pub p_m: Vec<f64>,
-    /// Argument bin centres and the density of A.
+    /// Argument bin centres (the accumulator's `arg_bins`, merged in
+    /// groups under [`DensityBins::Auto`]) and the density of A.
     pub arg: Vec<f64>,
     /// `P(A)` (per radian) on `arg`.
     pub p_arg: Vec<f64>,
@@ -627,7 +629,7 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
         DensityBins::Auto => fd_factor(&hs.hist[j], nb, hs.config.dlnm, hs.hist[j].n),
     };
     let h = &coarsen(&hs.hist[j], nb, k);
-    let d = hs.config.dlnm * k as f64;
+    let d = width(hs.config.dlnm, k);
     let a = hs.scales[j];
     let a_min = hs.scales[0];
     let n = h.n.max(1) as f64;
@@ -640,15 +642,24 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
     let p_ln_m: Vec<f64> = count.iter().map(|&c| c as f64 / (n * d)).collect();
     let m: Vec<f64> = ln_m.iter().map(|u| u.exp()).collect();
     let p_m: Vec<f64> = p_ln_m.iter().zip(&m).map(|(p, mm)| p / mm).collect();
-    let da = 2.0 * PI / nb as f64;
-    let arg: Vec<f64> = (0..nb).map(|b| -PI + (b as f64 + 0.5) * da).collect();
-    let mut p_arg = vec![0.0; nb];
+    // P(A): the argument bins' counts, merged in groups of `ka` under Auto
+    let mut arg_counts = vec![0u64; nb];
     for row in h.counts.chunks_exact(nb) {
-        for (p, &c) in p_arg.iter_mut().zip(row) {
-            *p += c as f64;
+        for (p, &c) in arg_counts.iter_mut().zip(row) {
+            *p += c;
         }
     }
-    p_arg.iter_mut().for_each(|v| *v /= n * da);
+    let ka = match opts.bins {
+        DensityBins::Fixed => 1,
+        DensityBins::Auto => arg_factor(&arg_counts, h.n),
+    };
+    let nba = nb / ka;
+    let da = 2.0 * PI / nba as f64;
+    let arg: Vec<f64> = (0..nba).map(|b| -PI + (b as f64 + 0.5) * da).collect();
+    let p_arg: Vec<f64> = arg_counts
+        .chunks_exact(ka)
+        .map(|c| c.iter().sum::<u64>() as f64 / (n * da))
+        .collect();
     let fine = &hs.hist[j];
     let sector_rows = |h: &ScaleHist| sector_counts(h, nb);
     // a sector holds about a quarter of the scale's WTMMM: its own
@@ -666,7 +677,7 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
         }
     };
     let hsec = coarsen(fine, nb, ks);
-    let ds = hs.config.dlnm * ks as f64;
+    let ds = width(hs.config.dlnm, ks);
     let sector_ln_m = centres(&hsec, ds);
     let sector_m: Vec<f64> = sector_ln_m.iter().map(|u| u.exp()).collect();
     let sectors = sector_rows(&hsec)
@@ -688,12 +699,14 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
         .collect();
     // the joint density spreads the points over two variables: its own,
     // coarser bins (in both) when asked for
+    // the picture's extent from the fine bins, whatever the density's
+    let extent = quantile_extent(fine, nb, hs.config.dlnm, opts.joint_quantile);
     let joint = match opts.bins {
-        DensityBins::Fixed => joint_density(fine, nb, hs.config.dlnm, opts),
+        DensityBins::Fixed => joint_density(fine, nb, hs.config.dlnm, extent, opts),
         DensityBins::Auto => {
             let (kj, ka) = joint_factors(fine, nb, hs.config.dlnm);
             let hj = coarsen_args(&coarsen(fine, nb, kj), ka);
-            joint_density(&hj, nb / ka, hs.config.dlnm * kj as f64, opts)
+            joint_density(&hj, nb / ka, width(hs.config.dlnm, kj), extent, opts)
         }
     };
     // II eq 39 with a in units of a_min (the paper's σ_W units)
@@ -725,8 +738,9 @@ fn scale_pdf(hs: &WtmmmHistograms, j: usize, opts: &PdfOptions) -> ScalePdf {
 
 /// `p(T1, T2) = P(ln M, A) / M²` sampled at the cell centres of a square
 /// grid (polar histogram cell containing each point; 0 outside the data),
-/// from the histogram `h` of `ln M` bins of width `d` and `nb` argument bins.
-fn joint_density(h: &ScaleHist, nb: usize, d: f64, opts: &PdfOptions) -> JointDensity {
+/// from the histogram `h` of `ln M` bins of width `d` and `nb` argument
+/// bins, over `|T_i| <= extent` ([`quantile_extent`]).
+fn joint_density(h: &ScaleHist, nb: usize, d: f64, extent: f64, opts: &PdfOptions) -> JointDensity {
     let nc = opts.joint_cells;
     if h.n == 0 {
         return JointDensity {
@@ -736,18 +750,6 @@ fn joint_density(h: &ScaleHist, nb: usize, d: f64, opts: &PdfOptions) -> JointDe
             arg_bins: nb,
         };
     }
-    // extent: the quantile of M
-    let target = (opts.joint_quantile * h.n as f64).ceil() as u64;
-    let mut acc = 0u64;
-    let mut r_q = h.rows - 1;
-    for r in 0..h.rows {
-        acc += h.counts[r * nb..(r + 1) * nb].iter().sum::<u64>();
-        if acc >= target {
-            r_q = r;
-            break;
-        }
-    }
-    let extent = ((h.lo + r_q as i64 + 1) as f64 * d).exp();
     let t: Vec<f64> = (0..nc)
         .map(|i| -extent + (i as f64 + 0.5) * 2.0 * extent / nc as f64)
         .collect();
@@ -821,9 +823,10 @@ fn fd_factor(h: &ScaleHist, nb: usize, d: f64, n: u64) -> usize {
 /// (Scott 1992, *Multivariate density estimation*, eq 3.66: `3.5 σ_i
 /// n^(-1/4)` per variable, the n^(-1/4) of two dimensions), with the robust
 /// `σ = IQR / 1.349` for `ln M` and `2π/√12` for an `A` spread over the
-/// circle: `(k, ka)`, `k` accumulator bins of `ln M` and `ka` argument bins
-/// (a power of two dividing `nb`, at most `nb/8` so that at least eight
-/// directions remain).
+/// circle: `(k, ka)`, `k` accumulator bins of `ln M` (the nearest whole
+/// number) and `ka` argument bins (the largest power of two at or below the
+/// width that divides `nb`, at most `nb/8` so that at least eight
+/// directions remain: the sectors of A need whole bins).
 fn joint_factors(h: &ScaleHist, nb: usize, d: f64) -> (usize, usize) {
     if h.n < 2 {
         return (1, 1);
@@ -837,6 +840,37 @@ fn joint_factors(h: &ScaleHist, nb: usize, d: f64) -> (usize, usize) {
         ka *= 2;
     }
     (k, ka)
+}
+
+/// How many neighbouring argument bins (of the `counts.len()` over
+/// `[-π, π)`) one bin of P(A) merges: the Freedman-Diaconis width `2 IQR
+/// n^(-1/3)` of A (quartiles from the cumulative counts, linear within a
+/// bin), rounded down to a power of two that divides the bins and leaves at
+/// least 8 of them.
+fn arg_factor(counts: &[u64], n: u64) -> usize {
+    let nb = counts.len();
+    if n < 2 {
+        return 1;
+    }
+    let da = 2.0 * PI / nb as f64;
+    let quantile = |q: f64| -> f64 {
+        let target = q * n as f64;
+        let mut acc = 0.0;
+        for (b, &c) in counts.iter().enumerate() {
+            let next = acc + c as f64;
+            if next >= target && c > 0 {
+                return -PI + (b as f64 + (target - acc) / c as f64) * da;
+            }
+            acc = next;
+        }
+        PI
+    };
+    let w = 2.0 * (quantile(0.75) - quantile(0.25)) * (n as f64).powf(-1.0 / 3.0);
+    let mut ka = 1;
+    while 2 * ka <= nb / 8 && nb.is_multiple_of(2 * ka) && (2 * ka) as f64 * da <= w {
+        ka *= 2;
+    }
+    ka
 }
 
 /// The histogram with `ka` neighbouring argument bins merged into one
@@ -867,6 +901,32 @@ fn sector_counts(h: &ScaleHist, nb: usize) -> [Vec<u64>; 4] {
             .map(|row| (0..nb).filter(|&b| in_sector(b)).map(|b| row[b]).sum())
             .collect()
     })
+}
+
+/// The upper edge, as M, of the `ln M` bin (width `d`) where the
+/// cumulative count reaches the quantile `q` of the scale's WTMMM (1 for an
+/// empty histogram).
+fn quantile_extent(h: &ScaleHist, nb: usize, d: f64, q: f64) -> f64 {
+    if h.n == 0 {
+        return 1.0;
+    }
+    let target = (q * h.n as f64).ceil() as u64;
+    let mut acc = 0u64;
+    let mut r_q = h.rows - 1;
+    for (r, row) in h.counts.chunks_exact(nb).enumerate() {
+        acc += row.iter().sum::<u64>();
+        if acc >= target {
+            r_q = r;
+            break;
+        }
+    }
+    ((h.lo + r_q as i64 + 1) as f64 * d).exp()
+}
+
+/// `k` bins of `d` (the double the densities use, so that they integrate
+/// to 1 exactly; 3 x 0.05 prints as 0.15000000000000002).
+fn width(d: f64, k: usize) -> f64 {
+    d * k as f64
 }
 
 /// The `ln M` bin centres of a histogram of bins of width `d`.

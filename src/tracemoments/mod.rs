@@ -1180,6 +1180,7 @@ impl TraceMomentAccumulator {
             dtm_alpha: dtm.first().map_or(nan, |d| d.alpha),
             dtm_alpha_stderr: dtm.first().map_or(nan, |d| d.alpha_stderr),
             dtm_c1: dtm.first().map_or(nan, |d| d.c1),
+            dtm_c1_stderr: nan,
             dtm,
             sf_q: self.config.sf_q.clone(),
             xi,
@@ -1380,6 +1381,10 @@ pub struct TraceMomentResult {
     /// C1 from the DTM at the first DTM q (JSON `dtm_C1`).
     #[serde(rename = "dtm_C1")]
     pub dtm_c1: f64,
+    /// Jackknife standard error of `dtm_c1` (null without a jackknife; JSON
+    /// `dtm_C1_stderr`).
+    #[serde(rename = "dtm_C1_stderr", default = "nan_default")]
+    pub dtm_c1_stderr: f64,
     /// Per DTM q.
     pub dtm: Vec<DtmFit>,
     /// Structure-function orders q.
@@ -1430,6 +1435,11 @@ pub struct TraceMomentResult {
     /// Errors from surrogates ([`surrogate_errors`]), when asked for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub surrogates: Option<SurrogateErrors>,
+}
+
+/// Missing numbers in files of older versions read as NaN (written null).
+fn nan_default() -> f64 {
+    f64::NAN
 }
 
 /// Merges per-image (or per-group) accumulators into the annealed ensemble
@@ -1524,6 +1534,7 @@ pub fn finish_jackknife(
     res.alpha_stderr = jk(&|r| r.alpha);
     res.c1_stderr = jk(&|r| r.c1);
     res.dtm_alpha_stderr = jk(&|r| r.dtm_alpha);
+    res.dtm_c1_stderr = jk(&|r| r.dtm_c1);
     for (id, d) in res.dtm.iter_mut().enumerate() {
         d.alpha_stderr = jk(&|r| r.dtm[id].alpha);
     }
