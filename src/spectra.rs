@@ -1266,9 +1266,14 @@ pub fn unlike_images(per_image: &[ImageExponents]) -> Vec<String> {
             0..=3 => missing.join(", "),
             n => format!("{}, ... ({n} images)", missing[..2].join(", ")),
         };
+        let have = if missing.len() == 1 {
+            "no h(q=0) or tau(q=2) of its own"
+        } else {
+            "no h(q=0) or tau(q=2) of their own"
+        };
         out.push(format!(
-            "{list}: no h(q=0) or tau(q=2) of their own (no maxima line at the top of the fit \
-             in the image alone), left out of the unlike-image test{}",
+            "{list}: {have} (no maxima line at the top of the fit in the image alone), left out \
+             of the unlike-image test{}",
             if tested.is_empty() {
                 ", which then had too few images to run"
             } else {
