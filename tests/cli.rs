@@ -1240,6 +1240,72 @@ fn tm_names_a_quantised_dem() {
     assert!(!said(&["tm", &f, "--out", &o]));
 }
 
+/// `--pixel-size` (analyze, spectrum, tm): the fit ranges also as lengths
+/// (px times the pixel's side), recorded with the pixel in params; a
+/// non-square pixel is warned about; a bad size is refused before anything
+/// is written.
+#[test]
+fn pixel_size_gives_lengths() {
+    let dir = scratch("pixel_size");
+    let f = fbm(FbmParams { hurst: 0.5 }, 256, 256, 8, 0).unwrap();
+    let img = dir.join("f.npy");
+    write_npy(&img, &f).unwrap();
+    let img = img.display().to_string();
+    let o = |n: &str| dir.join(n).display().to_string();
+    let (code, err) = run_bin_stderr(&[
+        "analyze",
+        &img,
+        "--octaves",
+        "3",
+        "--pixel-size",
+        "2",
+        "--units",
+        "m",
+        "--out",
+        &o("a"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let a = json(&dir.join("a/spectra.json"));
+    assert_eq!(a["params"]["pixel_size"]["side"], 2.0);
+    assert_eq!(a["length_units"], "m");
+    for i in 0..2 {
+        let at = |k: &str| a[k][i].as_f64().unwrap();
+        assert_eq!(at("fit_lengths"), 2.0 * at("fit_scales"));
+    }
+    assert!(!a["warnings"].to_string().contains("not square"));
+    let (code, err) = run_bin_stderr(&["spectrum", &img, "--pixel-size", "2:3", "--out", &o("s")]);
+    assert_eq!(code, 0, "{err}");
+    let s = json(&dir.join("s/spectrum.json"));
+    let side = 6f64.sqrt();
+    for i in 0..2 {
+        let at = |k: &str| s[k][i].as_f64().unwrap();
+        assert!((at("k_range_physical") - at("k_range") / side).abs() < 1e-15);
+    }
+    assert_eq!(s["k_physical_units"], "rad/units");
+    assert!(
+        s["warnings"]
+            .to_string()
+            .contains("not square (2 x 3 units"),
+        "{}",
+        s["warnings"]
+    );
+    let (code, err) = run_bin_stderr(&["tm", &img, "--pixel-size", "0.5", "--out", &o("t")]);
+    assert_eq!(code, 0, "{err}");
+    let t = json(&dir.join("t/tm.json"));
+    // fit log2 lambda 1:7 of a 256 px image: boxes 2 .. 128 px
+    assert_eq!(
+        t["lengths"]["trace_moment_boxes"],
+        serde_json::json!([1.0, 64.0])
+    );
+    for bad in ["0", "1:2:3", "x"] {
+        let (code, err) =
+            run_bin_stderr(&["analyze", &img, "--pixel-size", bad, "--out", &o("bad")]);
+        assert_eq!(code, 2, "{bad}: {err}");
+        assert!(err.contains("pixel-size"), "{err}");
+        assert!(!dir.join("bad").exists());
+    }
+}
+
 /// analyze prints its answer (stdout, as tm does): the fit, the error
 /// method, h(0) and D(h(0)) and tau(2) with their errors, as spectra.json
 /// holds them, and the q its figures draw open.

@@ -9,7 +9,7 @@ use serde_json::json;
 
 use super::common::{f, header, make_out_dir, parse_q, parse_range, progress, write_csv};
 use super::model_args::{ModelName, ModelOpts};
-use super::{CwtOpts, OutDir, Outcome};
+use super::{CwtOpts, OutDir, Outcome, PixelOpts, PixelSize};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
@@ -193,6 +193,8 @@ pub struct AnalyzeArgs {
     #[command(flatten)]
     pub model_opts: ModelOpts,
     #[command(flatten)]
+    pub pixel: PixelOpts,
+    #[command(flatten)]
     pub out: OutDir,
 }
 
@@ -225,6 +227,7 @@ pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> Result<TheoryCurve
 pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     let q = args.opts.q()?;
     let fit = args.opts.fit()?;
+    let px = args.pixel.resolve()?;
     let resolved = args.model_opts.resolve_optional(args.theory)?;
     // the preset's wavelet unless --wavelet (paper-fisc: mexican), as in
     // pdf, kernel and correlate
@@ -256,7 +259,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         None => (None, None),
     };
     let sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
-    let spectra = sums.spectra(args.opts.rule(), fit).map_err(|e| match e {
+    let mut spectra = sums.spectra(args.opts.rule(), fit).map_err(|e| match e {
         // name the input: "nothing estimable" is about these images
         Error::Input(m) if args.images.len() == 1 => {
             Error::Input(format!("{}: {m}", args.images[0].display()))
@@ -268,10 +271,14 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         Rule::Plain => Rule::Sup,
     };
     let other = sums.spectra(other_rule, fit)?;
+    spectra
+        .warnings
+        .extend(px.as_ref().and_then(PixelSize::warning));
     make_out_dir(&args.out.out)?;
     let params = json!({
         "images": args.images, "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit,
         "rule": args.opts.rule(), "theory": theory_model,
+        "pixel_size": px.as_ref().map(PixelSize::json),
     });
     write_outputs(
         &args.out.out,
@@ -282,7 +289,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         &other,
         theory.as_ref(),
     )?;
-    show!("{}", summary(&spectra, &sums));
+    show!("{}", summary(&spectra, &sums, px.as_ref()));
     for w in &spectra.warnings {
         say!("warning: {w}");
     }
@@ -292,15 +299,22 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
 /// The answer in a few lines (stdout, as `tm`'s): what was fitted, the
 /// numbers a paper quotes (h(0), D(h(0)), tau(2) and the beta it implies,
 /// the range of h), with their errors, and which q the warnings flag.
-fn summary(s: &Spectra, sums: &PartitionSums) -> String {
+fn summary(s: &Spectra, sums: &PartitionSums, px: Option<&PixelSize>) -> String {
     let pm = |i: usize, v: &[f64], e: &[f64]| match e[i].is_finite() {
         true => format!("{:.3} +- {:.3}", v[i], e[i]),
         false => format!("{:.3}", v[i]),
     };
     let at = |q0: f64| s.q_index(q0).filter(|&i| (s.q[i] - q0).abs() < 1e-9);
     let flag = flagged_q(s, wavelet_order(sums));
+    let lengths = px.map_or(String::new(), |p| {
+        format!(
+            " ({} - {})",
+            p.length(s.fit_scales.0),
+            p.length(s.fit_scales.1)
+        )
+    });
     let mut out = format!(
-        "analyze: {}, fit a = {:.1}-{:.1} px; errors: {}\n",
+        "analyze: {}, fit a = {:.1}-{:.1} px{lengths}; errors: {}\n",
         describe(s, sums),
         s.fit_scales.0,
         s.fit_scales.1,
@@ -402,6 +416,10 @@ pub fn write_outputs(
     other: &Spectra,
     theory: Option<&TheoryCurves>,
 ) -> Result<()> {
+    // the pixel, when given (params.pixel_size): the fit's scales as lengths
+    let px = params["pixel_size"]["side"]
+        .as_f64()
+        .zip(params["pixel_size"]["units"].as_str().map(str::to_string));
     let mut body = header(command, params);
     if let (Some(obj), serde_json::Value::Object(sp)) = (body.as_object_mut(), spectra_json(s)) {
         for (k, v) in sp {
@@ -430,6 +448,10 @@ pub fn write_outputs(
         let th: Vec<f64> = s.q.iter().map(|&q| (t.tau)(q)).collect();
         let dev: Vec<f64> = s.tau.iter().zip(&th).map(|(a, b)| a - b).collect();
         body["theory"] = json!({"name": t.name, "tau": th, "tau_minus_theory": dev});
+    }
+    if let Some((side, units)) = px {
+        body["fit_lengths"] = json!([s.fit_scales.0 * side, s.fit_scales.1 * side]);
+        body["length_units"] = json!(units);
     }
     crate::cli::common::write_json(&dir.join("spectra.json"), &body)?;
     sums.write_json(dir.join("sums.json"))?;

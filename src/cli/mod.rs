@@ -553,9 +553,143 @@ pub struct OutDir {
     pub out: PathBuf,
 }
 
+/// The physical size of a pixel (analyze, spectrum, tm): the exponents do
+/// not depend on it, but the scales a paper quotes do.
+#[derive(Args, Debug, Clone, Default)]
+pub struct PixelOpts {
+    /// Size of a pixel in physical units, S or SX:SY (SX along the columns, SY
+    /// along the rows): the fit's scales and the wavenumbers are also given in
+    /// these units. Non-square pixels are warned about.
+    #[arg(long)]
+    pub pixel_size: Option<String>,
+    /// Name of the unit of --pixel-size (e.g. m, km) [default: units].
+    #[arg(long, requires = "pixel_size")]
+    pub units: Option<String>,
+}
+
+/// A resolved [`PixelOpts`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct PixelSize {
+    /// Along the columns (x).
+    pub x: f64,
+    /// Along the rows (y).
+    pub y: f64,
+    /// The unit's name.
+    pub units: String,
+}
+
+/// Pixels whose sides differ by more than this (relative) are warned about.
+const NON_SQUARE: f64 = 0.01;
+
+impl PixelOpts {
+    /// **Errors** naming `--pixel-size` unless it is one or two finite
+    /// positive numbers.
+    pub fn resolve(&self) -> Result<Option<PixelSize>> {
+        let Some(s) = &self.pixel_size else {
+            return Ok(None);
+        };
+        let bad = |why: &str| Error::param("pixel-size", format!("{why}, got `{s}`"));
+        let parts: Vec<&str> = s.split(':').collect();
+        if parts.len() > 2 {
+            return Err(bad("give S or SX:SY"));
+        }
+        let v: Vec<f64> = parts
+            .iter()
+            .map(|p| p.trim().parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|_| bad("give S or SX:SY, numbers"))?;
+        if v.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
+            return Err(bad("sizes must be finite and > 0"));
+        }
+        Ok(Some(PixelSize {
+            x: v[0],
+            y: *v.last().expect("one at least"),
+            units: self.units.clone().unwrap_or_else(|| "units".into()),
+        }))
+    }
+}
+
+impl PixelSize {
+    /// The side of a square pixel of the same area, `sqrt(x y)`: what a
+    /// scale in px is multiplied by (x itself for square pixels).
+    pub fn side(&self) -> f64 {
+        (self.x * self.y).sqrt()
+    }
+
+    /// `{x, y, units, side}` for the outputs' `params`.
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({"x": self.x, "y": self.y, "units": self.units, "side": self.side(),
+            "note": "lengths in these units are px times side = sqrt(x y); wavenumbers are rad/px divided by it"})
+    }
+
+    /// `a` px as a length: "190 m".
+    pub fn length(&self, px: f64) -> String {
+        format!("{} {}", short_num(px * self.side()), self.units)
+    }
+
+    /// A warning for non-square pixels, which the isotropic analyses
+    /// (wavelet, angle-averaged spectrum) see as a stretched surface.
+    pub fn warning(&self) -> Option<String> {
+        let r = self.x / self.y;
+        ((r - 1.0).abs() > NON_SQUARE).then(|| {
+            format!(
+                "the pixels are not square ({} x {} {}, x/y = {r:.3}): in pixels, ground \
+                 distances along y are scaled by {r:.3} relative to x, and the wavelet and the \
+                 angle-averaged spectrum, isotropic in pixels, mix directions at different \
+                 ground scales; resample to square pixels for an isotropic analysis (lengths \
+                 here use the side sqrt(x y))",
+                short_num(self.x),
+                short_num(self.y),
+                self.units
+            )
+        })
+    }
+}
+
+/// A length for a message: 4 significant digits, no trailing zeros.
+fn short_num(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let digits = (3 - v.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{v:.digits$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `--pixel-size`: one or two positive numbers; lengths and the
+    /// non-square warning.
+    #[test]
+    fn pixel_size_parses_and_speaks() {
+        let p = |s: &str, u: Option<&str>| PixelOpts {
+            pixel_size: Some(s.into()),
+            units: u.map(str::to_string),
+        };
+        let sq = p("90", Some("m")).resolve().unwrap().unwrap();
+        assert_eq!((sq.x, sq.y, sq.side()), (90.0, 90.0, 90.0));
+        assert_eq!(sq.length(2.125), "191.2 m");
+        assert!(sq.warning().is_none());
+        let r = p("77.5:92.6", None).resolve().unwrap().unwrap();
+        assert_eq!(r.units, "units");
+        assert!((r.side() - (77.5f64 * 92.6).sqrt()).abs() < 1e-12);
+        let w = r.warning().unwrap();
+        assert!(
+            w.contains("77.5 x 92.6 units") && w.contains("0.837"),
+            "{w}"
+        );
+        for bad in ["0", "-1", "nan", "1:2:3", "a", "1:"] {
+            let e = p(bad, None).resolve().unwrap_err().to_string();
+            assert!(e.contains("`pixel-size`"), "{bad}: {e}");
+        }
+        assert_eq!(PixelOpts::default().resolve().unwrap(), None);
+    }
 
     /// A panic during a command removes the (empty) output directories the
     /// command created; a normal drop leaves them to the explicit clean-up.

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::{f, header, make_out_dir, parse_range, read_all, write_csv, write_json};
-use super::{OutDir, Outcome};
+use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::fit::mean_std;
@@ -38,10 +38,13 @@ pub struct SpectrumArgs {
     #[arg(long)]
     pub theory_beta: Option<f64>,
     #[command(flatten)]
+    pub pixel: PixelOpts,
+    #[command(flatten)]
     pub out: OutDir,
 }
 
 pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
+    let px = args.pixel.resolve()?;
     if args.bins_per_octave == 0 {
         return Err(crate::Error::param("bins-per-octave", "must be >= 1"));
     }
@@ -147,7 +150,8 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     let pts = ens.points();
     let mut body = header(
         "spectrum",
-        json!({"images": args.images, "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave}),
+        json!({"images": args.images, "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave,
+            "pixel_size": px.as_ref().map(PixelSize::json)}),
     );
     body["images"] = json!(fields.len());
     body["image_shapes"] = json!(crate::spectra::ShapeCount::tally(fields.iter().map(|f| {
@@ -173,13 +177,27 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
     body["r2"] = json!(fit.line.r2);
     body["k_range"] = json!([k_lo, k_hi]);
     body["k_units"] = json!("rad/px");
+    if let Some(p) = &px {
+        // the fit range in the pixel's units: wavenumbers and wavelengths
+        let side = p.side();
+        body["k_range_physical"] = json!([k_lo / side, k_hi / side]);
+        body["k_physical_units"] = json!(format!("rad/{}", p.units));
+        body["wavelength_range"] = json!([
+            2.0 * std::f64::consts::PI / k_hi * side,
+            2.0 * std::f64::consts::PI / k_lo * side
+        ]);
+    }
     body["convention"] = json!(CONVENTION);
     // missing pixels were filled with the image mean before the FFT: say so
     let missing: Vec<usize> = fields
         .iter()
         .map(|f| f.dim().0 * f.dim().1 - f.valid_count())
         .collect();
-    let mut warnings = Vec::new();
+    let mut warnings: Vec<String> = px
+        .as_ref()
+        .and_then(PixelSize::warning)
+        .into_iter()
+        .collect();
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
             warnings.push(format!(

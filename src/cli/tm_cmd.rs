@@ -13,7 +13,7 @@ use super::common::{
     available_memory, f, header, make_out_dir, parse_list, parse_q, parse_range, plus_minus,
     progress, write_csv, write_json,
 };
-use super::{OutDir, Outcome};
+use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, save_chart};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
@@ -181,6 +181,8 @@ pub struct TmArgs {
     #[arg(long, default_value_t = 1, requires = "surrogates")]
     pub surrogate_seed: u64,
     #[command(flatten)]
+    pub pixel: PixelOpts,
+    #[command(flatten)]
     pub out: OutDir,
 }
 
@@ -204,6 +206,7 @@ pub fn fit_record(fc: &TraceMomentFitConfig, used: &str) -> serde_json::Value {
 
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_q("q", &args.q)?;
+    let px = args.pixel.resolve()?;
     // the fit settings first, so that a bad --q-fit-max is named as such
     let mut fc = args.tm.fit()?;
     // alpha and C1 come from a fit over the orders 0 < q <= 2 first, then
@@ -358,6 +361,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             res.universal_fit
         ));
     }
+    extra.extend(px.as_ref().and_then(PixelSize::warning));
     if let Some(why) = surrogate_failure {
         extra.push(format!("--surrogates: none drawn: {why}"));
     }
@@ -369,7 +373,8 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let shapes = crate::spectra::ShapeCount::tally(shapes);
     let what = super::common::data_label(&args.images, args.images.len(), &shapes);
     let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
-        "config": cfg, "fit": fit_record(&fc, &res.universal_fit)});
+        "config": cfg, "fit": fit_record(&fc, &res.universal_fit),
+        "pixel_size": px.as_ref().map(PixelSize::json)});
     write_outputs(
         &args.out.out,
         "tm",
@@ -380,6 +385,9 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         &what,
     )?;
     show!("{}", summary(&res));
+    if let Some(p) = &px {
+        show!("{}", lengths_line(&res, p));
+    }
     for w in res.warnings.iter().chain(&tm_warnings(&res)).chain(&extra) {
         say!("warning: {w}");
     }
@@ -660,10 +668,15 @@ pub fn write_outputs(
     extra_warnings: &[String],
     what: &str,
 ) -> Result<()> {
-    write_json(
-        &dir.join("tm.json"),
-        &result_json(command, params, res, extra_warnings)?,
-    )?;
+    // the pixel, when given (params.pixel_size): the fit ranges as lengths
+    let px = params["pixel_size"]["side"]
+        .as_f64()
+        .zip(params["pixel_size"]["units"].as_str().map(str::to_string));
+    let mut body = result_json(command, params, res, extra_warnings)?;
+    if let Some((side, units)) = px {
+        body["lengths"] = lengths_json(res, side, &units);
+    }
+    write_json(&dir.join("tm.json"), &body)?;
     if let Some(sg) = &res.surrogates {
         let rows: Vec<Vec<String>> = sg
             .runs
@@ -791,6 +804,51 @@ pub fn write_outputs(
         plot_spectrum(dir, res, ps, what)?;
     }
     Ok(())
+}
+
+/// The fit ranges as box sizes, lags and wavelengths in px: `(lo, hi)`.
+/// Boxes: `l = L / λ` with `log2 L` the largest `log2 λ` (the 1-px boxes).
+fn fit_px(r: &TraceMomentResult) -> [(&'static str, (f64, f64)); 4] {
+    let top = r.log2_lambda.iter().copied().fold(0.0, f64::max);
+    let (lo, hi) = r.fit_log2_lambda;
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let k = r.k_range.unwrap_or((f64::NAN, f64::NAN));
+    [
+        ("trace_moment_boxes", ((top - hi).exp2(), (top - lo).exp2())),
+        (
+            "structure_function_lags",
+            (r.fit_log2_lag.0.exp2(), r.fit_log2_lag.1.exp2()),
+        ),
+        ("spectrum_wavelengths", (two_pi / k.1, two_pi / k.0)),
+        ("outer_scale", (r.outer_scale_px, r.outer_scale_px)),
+    ]
+}
+
+/// tm.json `lengths`: the fit ranges of [`fit_px`] times the pixel's side.
+fn lengths_json(r: &TraceMomentResult, side: f64, units: &str) -> serde_json::Value {
+    let mut v = json!({"units": units});
+    for (name, (a, b)) in fit_px(r) {
+        v[name] = if name == "outer_scale" {
+            json!(a * side)
+        } else {
+            json!([a * side, b * side])
+        };
+    }
+    v
+}
+
+/// The stdout line of the fit ranges as lengths.
+fn lengths_line(r: &TraceMomentResult, p: &PixelSize) -> String {
+    let [boxes, lags, waves, outer] = fit_px(r);
+    let range = |(a, b): (f64, f64)| format!("{} - {}", p.length(a), p.length(b));
+    format!(
+        "  lengths: boxes {} (trace moments), lags {} (structure functions), wavelengths {} \
+         (spectrum), outer scale {}",
+        range(boxes.1),
+        range(lags.1),
+        range(waves.1),
+        p.length(outer.1.0)
+    )
 }
 
 /// The rows of `estimates.csv`: each exponent by each method, side by side
