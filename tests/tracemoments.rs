@@ -2495,11 +2495,20 @@ fn experiment_fif_other_alpha() {
 /// The structure-function lines drawn in `sf.png` are the fits that gave
 /// xi(q): over the lags fitted, the residuals about `xi log2 l +
 /// xi_intercept` sum to zero and are orthogonal to `log2 l` (the normal
-/// equations of least squares), to rounding.
+/// equations of least squares), to rounding. (And a lone image's beta
+/// error is named as the fit's.)
 #[test]
 fn sf_fit_lines_are_the_least_squares_lines() {
     let (f, cfg) = periodic_fbm(0.4, 128, 5);
     let r = lone(&f, &cfg);
+    // the tiles of one image share its spectrum: beta keeps the fit's
+    // error, and says so (estimates.csv reads it)
+    assert!(
+        r.stderr_method.starts_with("jackknife over"),
+        "{}",
+        r.stderr_method
+    );
+    assert_eq!(r.beta_stderr_method, "regression (the spectrum's fit)");
     let (lo, hi) = r.fit_log2_lag;
     assert_eq!(r.xi_intercept.len(), r.sf_q.len());
     for (i, q) in r.sf_q.iter().enumerate() {

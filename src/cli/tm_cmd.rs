@@ -893,18 +893,16 @@ fn estimate_rows(r: &TraceMomentResult) -> Vec<Vec<String>> {
             "regression".to_string()
         }
     };
-    let tiles = r.stderr_method.contains("tiles");
-    let beta_method = match (jk, tiles) {
-        (true, false) => r.stderr_method.clone(),
-        _ => "regression (the spectrum's fit)".to_string(),
-    };
-    let h_method = match (jk, tiles) {
-        (true, true) => format!(
+    let beta_method = r.beta_stderr_method.clone();
+    // H = (beta - 1 + K(2))/2: the jackknife's, plus half beta's fit error
+    // where the parts share one spectrum (beta then keeps its fit error)
+    let h_method = match (jk, beta_method == r.stderr_method) {
+        (true, false) => format!(
             "{}, with half the spectrum fit's error of beta",
             r.stderr_method
         ),
-        (true, false) => r.stderr_method.clone(),
-        _ => "regression".to_string(),
+        (true, true) => r.stderr_method.clone(),
+        (false, _) => "regression".to_string(),
     };
     vec![
         vec![

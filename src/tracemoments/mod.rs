@@ -1196,6 +1196,7 @@ impl TraceMomentAccumulator {
             beta,
             beta_averaged,
             beta_stderr: spec.map(|s| s.beta_stderr),
+            beta_stderr_method: "regression (the spectrum's fit)".into(),
             beta_convention: "angle-integrated (beta_averaged = beta + 1)".into(),
             k_range: spec.map(|s| s.k_range),
             warnings: Vec::new(),
@@ -1423,6 +1424,10 @@ pub struct TraceMomentResult {
     /// Standard error of β: the spectrum fit's regression error, or the
     /// jackknife over images ([`finish_ensemble`]).
     pub beta_stderr: Option<f64>,
+    /// Which error `beta_stderr` is: the regression's (one part, or parts
+    /// that share one spectrum, the tiles of one image) or the jackknife's.
+    #[serde(default)]
+    pub beta_stderr_method: String,
     /// Says that `beta` is angle-integrated (`beta_averaged = beta + 1`).
     pub beta_convention: String,
     /// Spectrum fit range (rad/px).
@@ -1560,6 +1565,9 @@ pub fn finish_jackknife(
     }
     res.h_sf_stderr = opt(&|r| r.h_sf);
     res.stderr_method = format!("jackknife over {n} {what} (leave one out)");
+    if !shared {
+        res.beta_stderr_method = res.stderr_method.clone();
+    }
     res.jackknife_groups = n;
     res.warnings = diagnostics(&res, Some((&loo, shared)));
     Ok(res)
