@@ -782,24 +782,43 @@ fn joint_density(h: &ScaleHist, nb: usize, d: f64, extent: f64, opts: &PdfOption
 /// The interquartile range of the scale's `ln M` from the cumulative
 /// counts of its bins of width `d` (linear within a bin); 0 below 2 points.
 fn iqr_ln_m(h: &ScaleHist, nb: usize, d: f64) -> f64 {
-    if h.n < 2 {
+    let rows: Vec<u64> = h.counts.chunks_exact(nb).map(|r| r.iter().sum()).collect();
+    binned_iqr(&rows) * d
+}
+
+/// The interquartile range of counts in unit-width bins, in bins: the
+/// quartiles read from the cumulative counts, linear within a bin (0 below
+/// 2 points).
+fn binned_iqr(counts: &[u64]) -> f64 {
+    let n: u64 = counts.iter().sum();
+    if n < 2 {
         return 0.0;
     }
-    let rows: Vec<u64> = h.counts.chunks_exact(nb).map(|r| r.iter().sum()).collect();
     let quantile = |q: f64| -> f64 {
-        let target = q * h.n as f64;
+        let target = q * n as f64;
         let mut acc = 0.0;
-        for (r, &c) in rows.iter().enumerate() {
+        for (b, &c) in counts.iter().enumerate() {
             let next = acc + c as f64;
             if next >= target && c > 0 {
-                let frac = (target - acc) / c as f64;
-                return (h.lo as f64 + r as f64 + frac) * d;
+                return b as f64 + (target - acc) / c as f64;
             }
             acc = next;
         }
-        (h.lo as f64 + rows.len() as f64) * d
+        counts.len() as f64
     };
     quantile(0.75) - quantile(0.25)
+}
+
+/// The largest power of two `ka` of argument bins (of `nb`, each `2π/nb`
+/// wide) whose merged width stays within `width`, that divides `nb` and
+/// leaves at least 8 bins (the sectors of A need whole bins).
+fn pow2_arg_merge(width: f64, nb: usize) -> usize {
+    let da = 2.0 * PI / nb as f64;
+    let mut ka = 1;
+    while 2 * ka <= nb / 8 && nb.is_multiple_of(2 * ka) && (2 * ka) as f64 * da <= width {
+        ka *= 2;
+    }
+    ka
 }
 
 /// A width as a whole number of bins `d`, at least 1 and at most `most`.
@@ -833,13 +852,7 @@ fn joint_factors(h: &ScaleHist, nb: usize, d: f64) -> (usize, usize) {
     }
     let shrink = 3.5 * (h.n as f64).powf(-0.25);
     let k = whole_bins(shrink * iqr_ln_m(h, nb, d) / 1.349, d, h.rows);
-    let da = 2.0 * PI / nb as f64;
-    let wa = shrink * 2.0 * PI / 12f64.sqrt();
-    let mut ka = 1;
-    while 2 * ka <= nb / 8 && nb.is_multiple_of(2 * ka) && (2 * ka) as f64 * da <= wa {
-        ka *= 2;
-    }
-    (k, ka)
+    (k, pow2_arg_merge(shrink * 2.0 * PI / 12f64.sqrt(), nb))
 }
 
 /// How many neighbouring argument bins (of the `counts.len()` over
@@ -848,29 +861,12 @@ fn joint_factors(h: &ScaleHist, nb: usize, d: f64) -> (usize, usize) {
 /// bin), rounded down to a power of two that divides the bins and leaves at
 /// least 8 of them.
 fn arg_factor(counts: &[u64], n: u64) -> usize {
-    let nb = counts.len();
     if n < 2 {
         return 1;
     }
-    let da = 2.0 * PI / nb as f64;
-    let quantile = |q: f64| -> f64 {
-        let target = q * n as f64;
-        let mut acc = 0.0;
-        for (b, &c) in counts.iter().enumerate() {
-            let next = acc + c as f64;
-            if next >= target && c > 0 {
-                return -PI + (b as f64 + (target - acc) / c as f64) * da;
-            }
-            acc = next;
-        }
-        PI
-    };
-    let w = 2.0 * (quantile(0.75) - quantile(0.25)) * (n as f64).powf(-1.0 / 3.0);
-    let mut ka = 1;
-    while 2 * ka <= nb / 8 && nb.is_multiple_of(2 * ka) && (2 * ka) as f64 * da <= w {
-        ka *= 2;
-    }
-    ka
+    let da = 2.0 * PI / counts.len() as f64;
+    let width = 2.0 * binned_iqr(counts) * da * (n as f64).powf(-1.0 / 3.0);
+    pow2_arg_merge(width, counts.len())
 }
 
 /// The histogram with `ka` neighbouring argument bins merged into one
