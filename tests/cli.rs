@@ -1240,10 +1240,10 @@ fn tm_names_a_quantised_dem() {
     assert!(!said(&["tm", &f, "--out", &o]));
 }
 
-/// `--pixel-size` (analyze, spectrum, tm): the fit ranges also as lengths
-/// (px times the pixel's side), recorded with the pixel in params; a
-/// non-square pixel is warned about; a bad size is refused before anything
-/// is written.
+/// `--pixel-size` (analyze, spectrum, tm, merge): the fit ranges also as
+/// lengths (px times the pixel's side), recorded with the pixel in params;
+/// a non-square pixel is warned about; a bad size is refused before
+/// anything is written. Without it, the spacing the files declare.
 #[test]
 fn pixel_size_gives_lengths() {
     let dir = scratch("pixel_size");
@@ -1297,6 +1297,75 @@ fn pixel_size_gives_lengths() {
         t["lengths"]["trace_moment_boxes"],
         serde_json::json!([1.0, 64.0])
     );
+    // merge: the sums are in pixels; --pixel-size gives the lengths again
+    let sums = dir.join("a/sums.json").display().to_string();
+    let (code, err) = run_bin_stderr(&[
+        "merge",
+        &sums,
+        "--pixel-size",
+        "3",
+        "--units",
+        "m",
+        "--out",
+        &o("m"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let m = json(&dir.join("m/spectra.json"));
+    assert_eq!(m["params"]["pixel_size"]["source"], "--pixel-size");
+    assert_eq!(
+        m["fit_lengths"][0].as_f64(),
+        Some(3.0 * m["fit_scales"][0].as_f64().unwrap())
+    );
+    // an ESRI grid with a .prj declares its pixel: used without --pixel-size
+    let write_asc = |name: &str, f: &ndarray::Array2<f64>| {
+        let p = dir.join(name);
+        let mut text =
+            String::from("ncols 256\nnrows 256\nxllcorner 0\nyllcorner 0\ncellsize 30\n");
+        for row in f.rows() {
+            let r: Vec<String> = row.iter().map(|v| format!("{v:e}")).collect();
+            text += &r.join(" ");
+            text += "\n";
+        }
+        std::fs::write(&p, text).unwrap();
+        std::fs::write(
+            p.with_extension("prj"),
+            r#"PROJCS["UTM",UNIT["Meter",1.0]]"#,
+        )
+        .unwrap();
+        p.display().to_string()
+    };
+    let asc = write_asc("f.asc", &f);
+    let (code, out, err) = run_bin_output(
+        &["analyze", &asc, "--octaves", "3", "--out", &o("g")],
+        false,
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("note: pixel 30 x 30 m, declared by"), "{err}");
+    assert!(out.contains(" m)"), "the fit range as lengths: {out}");
+    let g = json(&dir.join("g/spectra.json"));
+    assert_eq!(g["params"]["pixel_size"]["side"], 30.0);
+    assert_eq!(g["length_units"], "m");
+    assert!(
+        g["params"]["pixel_size"]["source"]
+            .as_str()
+            .unwrap()
+            .contains("ESRI grid cell 30 x 30")
+    );
+    // the same exponents as from the .npy ({:e} writes f64 exactly)
+    assert_eq!(g["tau"], a["tau"]);
+    assert_eq!(g["h_q0"], a["h_q0"]);
+    // an image that declares none among ones that do: no lengths, a warning
+    let asc2 = write_asc(
+        "f2.asc",
+        &fbm(FbmParams { hurst: 0.5 }, 256, 256, 8, 1).unwrap(),
+    );
+    let (code, err) = run_bin_stderr(&["tm", &asc, &img, &asc2, "--out", &o("mixed")]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("2 of 3 images declare a pixel spacing"),
+        "{err}"
+    );
+    assert!(json(&dir.join("mixed/tm.json"))["params"]["pixel_size"].is_null());
     for bad in ["0", "1:2:3", "x"] {
         let (code, err) =
             run_bin_stderr(&["analyze", &img, "--pixel-size", bad, "--out", &o("bad")]);

@@ -1058,3 +1058,245 @@ fn png_sidecar_rules() {
         "{err}"
     );
 }
+
+/// A value of a hand-written GeoTIFF tag.
+enum TagVal {
+    Short(Vec<u16>),
+    Double(Vec<f64>),
+}
+
+/// A 4 x `h` float32 TIFF with `extra` tags, by hand (values longer than
+/// the entry after the directory), in either byte order.
+fn geotiff_by_hand(le: bool, h: u32, extra: Vec<(u16, TagVal)>) -> Vec<u8> {
+    let w = 4u32;
+    let u16b = |v: u16| if le { v.to_le_bytes() } else { v.to_be_bytes() };
+    let u32b = |v: u32| if le { v.to_le_bytes() } else { v.to_be_bytes() };
+    let f32b = |v: f32| if le { v.to_le_bytes() } else { v.to_be_bytes() };
+    let f64b = |v: f64| if le { v.to_le_bytes() } else { v.to_be_bytes() };
+    let data: Vec<u8> = (0..w * h).flat_map(|i| f32b(i as f32)).collect();
+    // (tag, type, count, value bytes)
+    let mut entries: Vec<(u16, u16, u32, Vec<u8>)> = vec![
+        (256, 4, 1, u32b(w).to_vec()),
+        (257, 4, 1, u32b(h).to_vec()),
+        (258, 3, 1, u16b(32).to_vec()),
+        (259, 3, 1, u16b(1).to_vec()),
+        (262, 3, 1, u16b(1).to_vec()),
+        (273, 4, 1, vec![]), // strip offset, filled below
+        (277, 3, 1, u16b(1).to_vec()),
+        (278, 4, 1, u32b(h).to_vec()),
+        (279, 4, 1, u32b(data.len() as u32).to_vec()),
+        (339, 3, 1, u16b(3).to_vec()),
+    ];
+    for (tag, v) in extra {
+        entries.push(match v {
+            TagVal::Short(v) => (
+                tag,
+                3,
+                v.len() as u32,
+                v.iter().flat_map(|&x| u16b(x)).collect(),
+            ),
+            TagVal::Double(v) => (
+                tag,
+                12,
+                v.len() as u32,
+                v.iter().flat_map(|&x| f64b(x)).collect(),
+            ),
+        });
+    }
+    entries.sort_by_key(|e| e.0);
+    let mut after = 8 + 2 + 12 * entries.len() + 4;
+    let mut tail: Vec<u8> = Vec::new();
+    let mut ifd = u16b(entries.len() as u16).to_vec();
+    let data_at = after
+        + entries
+            .iter()
+            .filter(|e| e.3.len() > 4)
+            .map(|e| e.3.len())
+            .sum::<usize>();
+    for (tag, typ, count, bytes) in &entries {
+        ifd.extend(u16b(*tag));
+        ifd.extend(u16b(*typ));
+        ifd.extend(u32b(*count));
+        if *tag == 273 {
+            ifd.extend(u32b(data_at as u32));
+        } else if bytes.len() <= 4 {
+            let mut v = bytes.clone();
+            v.resize(4, 0);
+            ifd.extend(v);
+        } else {
+            ifd.extend(u32b(after as u32));
+            after += bytes.len();
+            tail.extend(bytes);
+        }
+    }
+    ifd.extend(u32b(0));
+    let mut out = if le { b"II".to_vec() } else { b"MM".to_vec() };
+    out.extend(u16b(42));
+    out.extend(u32b(8));
+    out.extend(ifd);
+    out.extend(tail);
+    out.extend(data);
+    out
+}
+
+/// GeoKeyDirectory words: version 1.1.0 and the keys, all inline.
+fn geo_keys(keys: &[(u16, u16)]) -> TagVal {
+    let mut w = vec![1, 1, 0, keys.len() as u16];
+    for &(k, v) in keys {
+        w.extend([k, 0, 1, v]);
+    }
+    TagVal::Short(w)
+}
+
+/// The pixel spacing GeoTIFFs and ESRI grids declare: projected units
+/// named, geographic degrees made metres at the middle latitude (3 arc
+/// seconds at 36 N: 75.136 x 92.466 m on WGS84), an affine transformation's
+/// column lengths, Web Mercator shrunk by cos(latitude); plain files and
+/// corrupt tags give none, and the image still reads.
+#[test]
+fn declared_pixel_spacing() {
+    use wtmm::io::read_pixel_spacing;
+    let dir = scratch("pixel_spacing");
+    let s3 = 3.0 / 3600.0;
+    for le in [true, false] {
+        let get = |name: &str, h: u32, extra: Vec<(u16, TagVal)>| {
+            let p = dir.join(format!("{name}-{le}.tif"));
+            std::fs::write(&p, geotiff_by_hand(le, h, extra)).unwrap();
+            let f = read_field(&p).unwrap();
+            assert_eq!(f.dim(), (h as usize, 4), "{name}");
+            assert_eq!(f.range(), Some((0.0, (4 * h - 1) as f64)), "{name}");
+            read_pixel_spacing(&p).unwrap()
+        };
+        let utm = get(
+            "utm",
+            4,
+            vec![
+                (33550, TagVal::Double(vec![30.0, 30.0, 0.0])),
+                (34735, geo_keys(&[(1024, 1), (3072, 32633)])),
+            ],
+        )
+        .unwrap();
+        assert_eq!(
+            (utm.x, utm.y, utm.units.as_deref()),
+            (30.0, 30.0, Some("m"))
+        );
+        let geo = get(
+            "geo",
+            40,
+            vec![
+                (33550, TagVal::Double(vec![s3, s3, 0.0])),
+                (
+                    33922,
+                    TagVal::Double(vec![0.0, 0.0, 0.0, -97.0, 36.0 + 20.0 * s3, 0.0]),
+                ),
+                (34735, geo_keys(&[(1024, 2), (2054, 9102)])),
+            ],
+        )
+        .unwrap();
+        assert!(
+            (geo.x - 75.136).abs() < 0.001 && (geo.y - 92.466).abs() < 0.001,
+            "{geo:?}"
+        );
+        assert_eq!(geo.units.as_deref(), Some("m"));
+        assert!(geo.source.contains("latitude 36.000"), "{}", geo.source);
+        // arc seconds as the angular unit
+        let arcsec = get(
+            "arcsec",
+            40,
+            vec![
+                (33550, TagVal::Double(vec![3.0, 3.0, 0.0])),
+                (
+                    33922,
+                    TagVal::Double(vec![0.0, 20.0, 0.0, 0.0, 36.0 * 3600.0, 0.0]),
+                ),
+                (34735, geo_keys(&[(1024, 2), (2054, 9104)])),
+            ],
+        )
+        .unwrap();
+        assert!((arcsec.x - geo.x).abs() < 1e-9 && (arcsec.y - geo.y).abs() < 1e-9);
+        // affine: 10 ft columns, rotated by 30 degrees
+        let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+        let mut m = vec![0.0; 16];
+        (m[0], m[1], m[4], m[5], m[15]) = (10.0 * c, 20.0 * s, 10.0 * s, -20.0 * c, 1.0);
+        let aff = get(
+            "affine",
+            4,
+            vec![
+                (34264, TagVal::Double(m)),
+                (34735, geo_keys(&[(1024, 1), (3076, 9002)])),
+            ],
+        )
+        .unwrap();
+        assert!((aff.x - 10.0).abs() < 1e-12 && (aff.y - 20.0).abs() < 1e-12);
+        assert_eq!(aff.units.as_deref(), Some("ft"));
+        // Web Mercator at 60 N: ground = map / 2
+        let y60 = 6_378_137.0 * (60f64.to_radians().tan()).asinh();
+        let merc = get(
+            "merc",
+            4,
+            vec![
+                (33550, TagVal::Double(vec![100.0, 100.0, 0.0])),
+                (33922, TagVal::Double(vec![0.0, 2.0, 0.0, 0.0, y60, 0.0])),
+                (34735, geo_keys(&[(1024, 1), (3072, 3857), (3076, 9001)])),
+            ],
+        )
+        .unwrap();
+        assert!(
+            (merc.x - 50.0).abs() < 1e-6 && (merc.y - 50.0).abs() < 1e-6,
+            "{merc:?}"
+        );
+        // no GeoKeys: the spacing, units unknown
+        let bare = get(
+            "bare",
+            4,
+            vec![(33550, TagVal::Double(vec![2.0, 3.0, 0.0]))],
+        )
+        .unwrap();
+        assert_eq!((bare.x, bare.y, bare.units), (2.0, 3.0, None));
+        assert_eq!(get("plain", 4, vec![]), None);
+        // a scale tag that says 3 doubles and holds garbage: none, no panic
+        let p = dir.join(format!("bad-{le}.tif"));
+        let mut b = geotiff_by_hand(le, 4, vec![(33550, TagVal::Double(vec![0.0, -1.0, 0.0]))]);
+        std::fs::write(&p, &b).unwrap();
+        assert_eq!(read_pixel_spacing(&p).unwrap(), None);
+        b.truncate(60);
+        std::fs::write(&p, &b).unwrap();
+        assert_eq!(read_pixel_spacing(&p).unwrap(), None);
+    }
+    // ESRI grids: cellsize, dx/dy, a .prj's units, geographic made metres
+    let grid = |name: &str, head: &str, prj: Option<&str>| {
+        let p = dir.join(format!("{name}.asc"));
+        std::fs::write(&p, format!("ncols 2\nnrows 2\n{head}\n1 2\n3 4\n")).unwrap();
+        if let Some(t) = prj {
+            std::fs::write(p.with_extension("prj"), t).unwrap();
+        }
+        read_pixel_spacing(&p).unwrap()
+    };
+    let g = grid("plain", "xllcorner 0\nyllcorner 0\ncellsize 25", None).unwrap();
+    assert_eq!((g.x, g.y, g.units.as_deref()), (25.0, 25.0, None));
+    assert!(g.source.contains("no .prj"), "{}", g.source);
+    let g = grid(
+        "dxdy",
+        "dx 10\ndy 20",
+        Some("PROJCS[\"x\",UNIT[\"Meter\",1.0]]"),
+    )
+    .unwrap();
+    assert_eq!((g.x, g.y, g.units.as_deref()), (10.0, 20.0, Some("m")));
+    let g = grid(
+        "geo",
+        &format!("xllcorner -97\nyllcorner {}\ncellsize {s3}", 36.0 - s3),
+        Some("GEOGCS[\"WGS 84\",UNIT[\"degree\",0.0174532925199433]]"),
+    )
+    .unwrap();
+    assert!(
+        (g.x - 75.136).abs() < 0.001 && (g.y - 92.466).abs() < 0.001,
+        "{g:?}"
+    );
+    assert_eq!(grid("none", "xllcorner 0", None), None);
+    for f in ["a.npy", "a.png", "a.pgm"] {
+        let p = dir.join(f);
+        std::fs::write(&p, b"x").unwrap();
+        assert_eq!(read_pixel_spacing(&p).unwrap(), None);
+    }
+    assert!(read_pixel_spacing(dir.join("missing.tif")).is_err());
+}

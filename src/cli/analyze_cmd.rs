@@ -227,7 +227,7 @@ pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> Result<TheoryCurve
 pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     let q = args.opts.q()?;
     let fit = args.opts.fit()?;
-    let px = args.pixel.resolve()?;
+    let (px, px_warnings) = args.pixel.resolve(&args.images)?;
     let resolved = args.model_opts.resolve_optional(args.theory)?;
     // the preset's wavelet unless --wavelet (paper-fisc: mexican), as in
     // pdf, kernel and correlate
@@ -274,6 +274,10 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     spectra
         .warnings
         .extend(px.as_ref().and_then(PixelSize::warning));
+    spectra.warnings.extend(px_warnings);
+    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
+        say!("{n}");
+    }
     make_out_dir(&args.out.out)?;
     let params = json!({
         "images": args.images, "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit,

@@ -12,7 +12,7 @@ use serde_json::json;
 use super::analyze_cmd::{check_fit, theory_curves, write_outputs};
 use super::common::{make_out_dir, parse_range};
 use super::model_args::{ModelName, ModelOpts};
-use super::{OutDir, Outcome};
+use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::error::{Error, Result};
 use crate::spectra::{ImagePartial, PartitionSums, Rule};
 
@@ -34,6 +34,10 @@ pub struct MergeArgs {
     pub theory: Option<ModelName>,
     #[command(flatten)]
     pub model_opts: ModelOpts,
+    /// The pixel of the images the sums came from (the sums record scales
+    /// in pixels only): the fit's scales are also given as lengths.
+    #[command(flatten)]
+    pub pixel: PixelOpts,
     #[command(flatten)]
     pub out: OutDir,
 }
@@ -59,6 +63,8 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
             ));
         }
     }
+    // --pixel-size alone: the sums do not name their images' files
+    let (px, _) = args.pixel.resolve(&[])?;
     let mut sums: Option<PartitionSums> = None;
     // the file of each image, in the order merged
     let mut owner: Vec<usize> = Vec::new();
@@ -129,6 +135,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
                 .to_string(),
         );
     }
+    warnings.extend(px.as_ref().and_then(PixelSize::warning));
     // recorded in spectra.json with the fit's warnings
     s.warnings.extend(warnings);
     make_out_dir(&args.out.out)?;
@@ -137,7 +144,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         .transpose()?;
     // the analysis the shards share (null when no shard records it)
     let params = json!({"sums": args.sums, "analysis": sums.analysis, "fit_octaves": fit,
-        "rule": rule, "theory": theory.map(|(m, _)| m)});
+        "rule": rule, "theory": theory.map(|(m, _)| m), "pixel_size": px.as_ref().map(PixelSize::json)});
     write_outputs(
         &args.out.out,
         "merge",

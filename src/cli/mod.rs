@@ -553,13 +553,15 @@ pub struct OutDir {
     pub out: PathBuf,
 }
 
-/// The physical size of a pixel (analyze, spectrum, tm): the exponents do
-/// not depend on it, but the scales a paper quotes do.
+/// The physical size of a pixel (analyze, spectrum, tm, merge): the
+/// exponents do not depend on it, but the scales a paper quotes do.
 #[derive(Args, Debug, Clone, Default)]
 pub struct PixelOpts {
     /// Size of a pixel in physical units, S or SX:SY (SX along the columns, SY
     /// along the rows): the fit's scales and the wavenumbers are also given in
-    /// these units. Non-square pixels are warned about.
+    /// these units. Non-square pixels are warned about. Default: the spacing
+    /// the images declare (GeoTIFF tags, an ESRI grid's cellsize and .prj),
+    /// when they all declare the same one.
     #[arg(long)]
     pub pixel_size: Option<String>,
     /// Name of the unit of --pixel-size (e.g. m, km) [default: units].
@@ -576,15 +578,129 @@ pub struct PixelSize {
     pub y: f64,
     /// The unit's name.
     pub units: String,
+    /// `--pixel-size`, or the file that declared it and how.
+    pub source: String,
 }
 
 /// Pixels whose sides differ by more than this (relative) are warned about.
 const NON_SQUARE: f64 = 0.01;
 
+/// Declared spacings closer than this (relative) are the same.
+const SAME_SPACING: f64 = 1e-3;
+
 impl PixelOpts {
+    /// The pixel: `--pixel-size`, else the spacing every one of `images`
+    /// declares ([`crate::io::read_pixel_spacing`]), with the warnings to
+    /// say: images that declare different spacings (an ensemble that
+    /// mixes ground scales), some that declare none, a `--pixel-size` that
+    /// contradicts a file, a geographic pixel whose width changes across
+    /// the image.
+    ///
     /// **Errors** naming `--pixel-size` unless it is one or two finite
     /// positive numbers.
-    pub fn resolve(&self) -> Result<Option<PixelSize>> {
+    pub fn resolve(&self, images: &[PathBuf]) -> Result<(Option<PixelSize>, Vec<String>)> {
+        // a file that cannot be read declares nothing here: its reader
+        // says why when the command reads it
+        let declared: Vec<Option<crate::io::PixelSpacing>> = images
+            .iter()
+            .map(|p| crate::io::read_pixel_spacing(p).ok().flatten())
+            .collect();
+        let mut warnings: Vec<String> = Vec::new();
+        for d in declared.iter().flatten() {
+            for w in &d.warnings {
+                if !warnings.contains(w) {
+                    warnings.push(w.clone());
+                }
+            }
+        }
+        let spacing = |x: f64, y: f64, u: &str| {
+            if x == y {
+                format!("{} {u}", short_num(x))
+            } else {
+                format!("{} x {} {u}", short_num(x), short_num(y))
+            }
+        };
+        let file_units = |d: &crate::io::PixelSpacing| d.units.clone().unwrap_or("units".into());
+        let differ = |a: (f64, f64), b: (f64, f64)| {
+            (a.0 / b.0 - 1.0).abs() > SAME_SPACING || (a.1 / b.1 - 1.0).abs() > SAME_SPACING
+        };
+        if let Some(given) = self.given()? {
+            for (d, p) in declared.iter().zip(images) {
+                let Some(d) = d else { continue };
+                // comparable when the units are the same or either is unnamed
+                let comparable = d.units.is_none()
+                    || self.units.is_none()
+                    || d.units.as_deref() == self.units.as_deref();
+                if comparable && differ((given.x, given.y), (d.x, d.y)) {
+                    warnings.push(format!(
+                        "--pixel-size {} differs from the {} {} declares ({}); the lengths use \
+                         --pixel-size",
+                        spacing(given.x, given.y, &given.units),
+                        spacing(d.x, d.y, &file_units(d)),
+                        p.display(),
+                        d.source
+                    ));
+                }
+            }
+            return Ok((Some(given), warnings));
+        }
+        let known: Vec<(&crate::io::PixelSpacing, &PathBuf)> = declared
+            .iter()
+            .zip(images)
+            .filter_map(|(d, p)| d.as_ref().map(|d| (d, p)))
+            .collect();
+        let Some(&(first, first_path)) = known.first() else {
+            return Ok((None, warnings));
+        };
+        if let Some((d, p)) = known
+            .iter()
+            .find(|(d, _)| d.units != first.units || differ((d.x, d.y), (first.x, first.y)))
+        {
+            warnings.push(format!(
+                "the images declare different pixel spacings ({} in {}, {} in {}): at one \
+                 wavelet scale in pixels the ensemble mixes different ground scales; no lengths \
+                 are given (resample to one spacing, or give --pixel-size)",
+                spacing(first.x, first.y, &file_units(first)),
+                first_path.display(),
+                spacing(d.x, d.y, &file_units(d)),
+                p.display()
+            ));
+            return Ok((None, warnings));
+        }
+        if known.len() < images.len() {
+            warnings.push(format!(
+                "{} of {} images declare a pixel spacing ({} in {}), the others none: no \
+                 lengths are given (give --pixel-size)",
+                known.len(),
+                images.len(),
+                spacing(first.x, first.y, &file_units(first)),
+                first_path.display()
+            ));
+            return Ok((None, warnings));
+        }
+        let what = if images.len() == 1 {
+            format!("{}: {}", first_path.display(), first.source)
+        } else {
+            format!(
+                "all {} images, e.g. {}: {}",
+                images.len(),
+                first_path.display(),
+                first.source
+            )
+        };
+        Ok((
+            Some(PixelSize {
+                x: first.x,
+                y: first.y,
+                units: file_units(first),
+                source: format!("declared by {what}"),
+            }),
+            warnings,
+        ))
+    }
+
+    /// `--pixel-size` (and `--units`) alone.
+    fn given(&self) -> Result<Option<PixelSize>> {
         let Some(s) = &self.pixel_size else {
             return Ok(None);
         };
@@ -605,6 +721,7 @@ impl PixelOpts {
             x: v[0],
             y: *v.last().expect("one at least"),
             units: self.units.clone().unwrap_or_else(|| "units".into()),
+            source: "--pixel-size".into(),
         }))
     }
 }
@@ -616,10 +733,25 @@ impl PixelSize {
         (self.x * self.y).sqrt()
     }
 
-    /// `{x, y, units, side}` for the outputs' `params`.
+    /// `{x, y, units, side, source}` for the outputs' `params`.
     pub fn json(&self) -> serde_json::Value {
         serde_json::json!({"x": self.x, "y": self.y, "units": self.units, "side": self.side(),
+            "source": self.source,
             "note": "lengths in these units are px times side = sqrt(x y); wavenumbers are rad/px divided by it"})
+    }
+
+    /// The line that says where a pixel size the files declared comes
+    /// from (nothing for `--pixel-size`).
+    pub fn note(&self) -> Option<String> {
+        (self.source != "--pixel-size").then(|| {
+            format!(
+                "note: pixel {} x {} {}, {}",
+                short_num(self.x),
+                short_num(self.y),
+                self.units,
+                self.source
+            )
+        })
     }
 
     /// `a` px as a length: "190 m".
@@ -672,11 +804,17 @@ mod tests {
             pixel_size: Some(s.into()),
             units: u.map(str::to_string),
         };
-        let sq = p("90", Some("m")).resolve().unwrap().unwrap();
+        let given = |o: PixelOpts| {
+            o.resolve(&[]).map(|(p, w)| {
+                assert!(w.is_empty());
+                p
+            })
+        };
+        let sq = given(p("90", Some("m"))).unwrap().unwrap();
         assert_eq!((sq.x, sq.y, sq.side()), (90.0, 90.0, 90.0));
         assert_eq!(sq.length(2.125), "191.2 m");
         assert!(sq.warning().is_none());
-        let r = p("77.5:92.6", None).resolve().unwrap().unwrap();
+        let r = given(p("77.5:92.6", None)).unwrap().unwrap();
         assert_eq!(r.units, "units");
         assert!((r.side() - (77.5f64 * 92.6).sqrt()).abs() < 1e-12);
         let w = r.warning().unwrap();
@@ -685,10 +823,76 @@ mod tests {
             "{w}"
         );
         for bad in ["0", "-1", "nan", "1:2:3", "a", "1:"] {
-            let e = p(bad, None).resolve().unwrap_err().to_string();
+            let e = given(p(bad, None)).unwrap_err().to_string();
             assert!(e.contains("`pixel-size`"), "{bad}: {e}");
         }
-        assert_eq!(PixelOpts::default().resolve().unwrap(), None);
+        assert_eq!(given(PixelOpts::default()).unwrap(), None);
+        assert_eq!(sq.note(), None);
+    }
+
+    /// Without `--pixel-size`, the spacing all the images declare; images
+    /// that disagree or declare none give no lengths and a warning, as does
+    /// a `--pixel-size` that contradicts a file.
+    #[test]
+    fn pixel_size_from_the_files() {
+        let dir = std::env::temp_dir().join(format!("wtmm-pixel-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let grid = |name: &str, cell: Option<f64>| {
+            let p = dir.join(format!("{name}.asc"));
+            let head = cell.map_or(String::new(), |c| format!("cellsize {c}\n"));
+            std::fs::write(&p, format!("ncols 2\nnrows 2\n{head}1 2\n3 4\n")).unwrap();
+            std::fs::write(p.with_extension("prj"), "PROJCS[\"u\",UNIT[\"Meter\",1.0]]").unwrap();
+            p
+        };
+        let (a, b, c, d) = (
+            grid("a", Some(30.0)),
+            grid("b", Some(30.0)),
+            grid("c", Some(10.0)),
+            grid("d", None),
+        );
+        let auto = PixelOpts::default();
+        let (px, w) = auto.resolve(&[a.clone(), b.clone()]).unwrap();
+        let px = px.unwrap();
+        assert_eq!((px.x, px.y, px.units.as_str()), (30.0, 30.0, "m"));
+        assert!(w.is_empty(), "{w:?}");
+        let n = px.note().unwrap();
+        assert!(n.contains("30 x 30 m") && n.contains("all 2 images"), "{n}");
+        assert_eq!(px.json()["source"], px.source.as_str());
+        let (px, w) = auto.resolve(&[a.clone(), c.clone()]).unwrap();
+        assert!(
+            px.is_none() && w[0].contains("different pixel spacings"),
+            "{w:?}"
+        );
+        assert!(
+            w[0].contains("30 m in") && w[0].contains("10 m in"),
+            "{w:?}"
+        );
+        let (px, w) = auto.resolve(&[a.clone(), d.clone()]).unwrap();
+        assert!(px.is_none() && w[0].starts_with("1 of 2 images"), "{w:?}");
+        assert_eq!(
+            auto.resolve(std::slice::from_ref(&d)).unwrap(),
+            (None, vec![])
+        );
+        // --pixel-size wins, and says so when a file disagrees
+        let opts = |s: &str, u: Option<&str>| PixelOpts {
+            pixel_size: Some(s.into()),
+            units: u.map(str::to_string),
+        };
+        let (px, w) = opts("90", Some("m"))
+            .resolve(std::slice::from_ref(&a))
+            .unwrap();
+        assert_eq!(px.unwrap().x, 90.0);
+        assert!(w[0].contains("differs from the 30 m"), "{w:?}");
+        assert!(
+            opts("30", None)
+                .resolve(std::slice::from_ref(&a))
+                .unwrap()
+                .1
+                .is_empty()
+        );
+        // other units cannot be compared: no warning
+        assert!(opts("0.09", Some("km")).resolve(&[a]).unwrap().1.is_empty());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     /// A panic during a command removes the (empty) output directories the

@@ -43,8 +43,8 @@ pub struct SpectrumArgs {
     pub out: OutDir,
 }
 
-pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
-    let px = args.pixel.resolve()?;
+pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
+    let (px, px_warnings) = args.pixel.resolve(&args.images)?;
     if args.bins_per_octave == 0 {
         return Err(crate::Error::param("bins-per-octave", "must be >= 1"));
     }
@@ -197,7 +197,11 @@ pub fn run(args: SpectrumArgs, _quiet: bool) -> Result<Outcome> {
         .as_ref()
         .and_then(PixelSize::warning)
         .into_iter()
+        .chain(px_warnings)
         .collect();
+    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
+        say!("{n}");
+    }
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
             warnings.push(format!(

@@ -206,7 +206,7 @@ pub fn fit_record(fc: &TraceMomentFitConfig, used: &str) -> serde_json::Value {
 
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_q("q", &args.q)?;
-    let px = args.pixel.resolve()?;
+    let (px, px_warnings) = args.pixel.resolve(&args.images)?;
     // the fit settings first, so that a bad --q-fit-max is named as such
     let mut fc = args.tm.fit()?;
     // alpha and C1 come from a fit over the orders 0 < q <= 2 first, then
@@ -362,6 +362,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         ));
     }
     extra.extend(px.as_ref().and_then(PixelSize::warning));
+    extra.extend(px_warnings);
+    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
+        say!("{n}");
+    }
     if let Some(why) = surrogate_failure {
         extra.push(format!("--surrogates: none drawn: {why}"));
     }

@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use super::georef::PixelSpacing;
 use super::{ImageFormat, ReadInfo, field_from, read_bytes, read_prefix, whole_lines};
 use crate::error::{Error, Result};
 use crate::field::Field;
@@ -26,6 +27,10 @@ struct Header {
     nx: usize,
     ny: usize,
     nodata: Option<f64>,
+    /// `cellsize`, or `dx` and `dy`.
+    cell: Option<(f64, f64)>,
+    /// The lower edge's y (`yllcorner`), or its centre's (`yllcenter`).
+    yll: Option<(f64, bool)>,
     body: usize,
     warnings: Vec<String>,
 }
@@ -33,6 +38,7 @@ struct Header {
 impl Header {
     fn parse(text: &str) -> std::result::Result<Header, String> {
         let (mut ncols, mut nrows, mut nodata) = (None, None, None);
+        let (mut cellsize, mut dx, mut dy, mut yll) = (None, None, None, None);
         let (mut body, mut warnings) = (0, Vec::new());
         for line in text.split_inclusive('\n') {
             let mut parts = line.split_whitespace();
@@ -60,6 +66,11 @@ impl Header {
                         }
                     }
                     "nodata_value" => nodata = Some(number()?),
+                    "cellsize" => cellsize = Some(number()?),
+                    "dx" => dx = Some(number()?),
+                    "dy" => dy = Some(number()?),
+                    "yllcorner" => yll = Some((number()?, false)),
+                    "yllcenter" => yll = Some((number()?, true)),
                     k if KNOWN.contains(&k) => {
                         number()?;
                     }
@@ -78,10 +89,16 @@ impl Header {
                 }
             ));
         };
+        let cell = cellsize
+            .map(|c| (c, c))
+            .or(dx.zip(dy))
+            .filter(|&(x, y)| x.is_finite() && y.is_finite() && x > 0.0 && y > 0.0);
         Ok(Header {
             nx,
             ny,
             nodata,
+            cell,
+            yll,
             body,
             warnings,
         })
@@ -109,6 +126,64 @@ pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
     Ok((h.ny, h.nx))
 }
 
+/// The pixel spacing of a grid (super::read_pixel_spacing): `cellsize`
+/// (or `dx`, `dy`), in the units of the `.prj` beside it: a projected
+/// system's linear unit, or degrees made metres at the grid's middle
+/// latitude; without a `.prj`, units unknown. `Ok(None)` for a header
+/// without a spacing; a header that cannot be read is left to the
+/// reader's error (also `Ok(None)`).
+pub(super) fn pixel(path: &Path) -> Result<Option<PixelSpacing>> {
+    use super::georef::{PrjUnits, geographic, linear_unit, prj_units, read_prj, sig};
+    let (prefix, whole) = read_prefix(path)?;
+    let h = match text(whole_lines(&prefix, whole)).and_then(Header::parse) {
+        Err(_) if !whole => text(&read_bytes(path)?).and_then(Header::parse),
+        h => h,
+    };
+    let Ok(Header {
+        ny,
+        cell: Some((dx, dy)),
+        yll,
+        ..
+    }) = h
+    else {
+        return Ok(None);
+    };
+    let what = format!("ESRI grid cell {} x {}", sig(dx), sig(dy));
+    let prj = read_prj(path);
+    Ok(match prj.as_deref().and_then(prj_units) {
+        Some(PrjUnits::Geographic) => yll.and_then(|(y, centre)| {
+            // the lower edge, then the middle
+            let bottom = if centre { y - dy / 2.0 } else { y };
+            let span = dy * ny as f64;
+            geographic(dx, dy, bottom + span / 2.0, span, "ESRI grid cell").map(|g| PixelSpacing {
+                source: format!("{} (.prj: geographic)", g.source),
+                ..g
+            })
+        }),
+        Some(PrjUnits::Linear(f)) => Some(PixelSpacing {
+            x: dx,
+            y: dy,
+            units: linear_unit(f).map(str::to_string),
+            source: format!("{what} (.prj: projected)"),
+            warnings: Vec::new(),
+        }),
+        None => Some(PixelSpacing {
+            x: dx,
+            y: dy,
+            units: None,
+            source: format!(
+                "{what}{}",
+                if prj.is_some() {
+                    " (a .prj whose units were not understood)"
+                } else {
+                    " (no .prj: units unknown)"
+                }
+            ),
+            warnings: Vec::new(),
+        }),
+    })
+}
+
 pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     let bytes = read_bytes(path)?;
     let bad = |reason: String| Error::format(path, format!("ESRI ASCII grid: {reason}"));
@@ -120,6 +195,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
         nodata,
         body,
         warnings,
+        ..
     } = Header::parse(text).map_err(bad)?;
     info.warnings = warnings;
     let lines = text[body..].lines();

@@ -5,10 +5,10 @@
 //! | extension | reads | writes |
 //! |---|---|---|
 //! | `.npy` | 2D, any integer or float dtype (`i1`..`u8`, `f2`, `f4`, `f8`), either byte order, C or Fortran order | float64 |
-//! | `.tif`, `.tiff` | one band; 8/16/32/64-bit integer, 16/32/64-bit float; uncompressed, LZW, deflate, PackBits, JPEG, CCITT fax or ZSTD; GeoTIFF read as plain TIFF; GDAL nodata tag (42113) honoured | float32, NaN kept (values beyond its range refused) |
+//! | `.tif`, `.tiff` | one band; 8/16/32/64-bit integer, 16/32/64-bit float; uncompressed, LZW, deflate, PackBits, JPEG, CCITT fax or ZSTD; GDAL nodata tag (42113) honoured; GeoTIFF pixel spacing read by [`read_pixel_spacing`] | float32, NaN kept (values beyond its range refused) |
 //! | `.png` | grey 1..16 bit (raw integer values), grey+alpha (alpha 0 = missing); RGB(A) and palette converted to luminance with a warning; a `<stem>.json` sidecar applies `value = png*scale + offset` and its nodata | 16-bit grey + sidecar JSON |
 //! | `.pgm` | P5 (binary, 8 or 16 bit) and P2 (ASCII), raw integer values | — |
-//! | `.asc` | ESRI ASCII grid; header keys case-insensitive; `NODATA_value` honoured; first row = north | — |
+//! | `.asc` | ESRI ASCII grid; header keys case-insensitive; `NODATA_value` honoured; first row = north; `cellsize` (units from the `.prj`) read by [`read_pixel_spacing`] | — |
 //!
 //! Every error names the file and the problem; truncated or corrupt input
 //! gives an error, never a panic. Every output goes through
@@ -16,6 +16,7 @@
 
 mod asc;
 mod atomic;
+mod georef;
 mod npy;
 mod pgm;
 mod png;
@@ -26,6 +27,7 @@ pub use atomic::{
     OutputBatch, Protected, file_identity, outputs_committed, protect, remove_temporaries,
     write_atomic, write_json, write_json_compact,
 };
+pub use georef::{PixelSpacing, degrees_to_metres};
 pub use png::{PNG16_NODATA, Png16Mapping};
 
 use std::path::{Path, PathBuf};
@@ -164,6 +166,24 @@ pub fn read_shape(path: impl AsRef<Path>) -> Result<[usize; 2]> {
         return Err(Error::format(path, format!("empty image ({ny} x {nx})")));
     }
     Ok([ny, nx])
+}
+
+/// The pixel spacing `path` declares: a GeoTIFF's ModelPixelScale (or
+/// affine ModelTransformation) with its GeoKeys' units, an ESRI grid's
+/// `cellsize` (or `dx`, `dy`) with its `.prj`'s units. Geographic
+/// spacings (degrees) are given in metres at the image's middle latitude
+/// on WGS84, and Web Mercator ones as ground metres. `None` for formats
+/// without georeferencing (npy, png, pgm) and files that declare none.
+///
+/// **Errors** only on a missing or unreadable file or an unknown format;
+/// a corrupt header gives `None` here and its error in [`read_field`].
+pub fn read_pixel_spacing(path: impl AsRef<Path>) -> Result<Option<PixelSpacing>> {
+    let path = path.as_ref();
+    match read_format(path)? {
+        ImageFormat::Tiff => tiff::pixel(path),
+        ImageFormat::Asc => asc::pixel(path),
+        ImageFormat::Npy | ImageFormat::Png | ImageFormat::Pgm => Ok(None),
+    }
 }
 
 /// The format a reader takes `path` in, from its extension.

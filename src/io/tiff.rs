@@ -1,5 +1,5 @@
-//! TIFF reader (one band; GeoTIFF tags other than GDAL nodata are ignored)
-//! and float32 writer.
+//! TIFF reader (one band; of the GeoTIFF tags, GDAL nodata is honoured
+//! and the pixel spacing read by [`pixel`]) and float32 writer.
 
 use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::Path;
@@ -437,6 +437,196 @@ impl Ifd {
     /// The entry of `tag`, if any.
     pub(super) fn entry(&self, tag: u16) -> Option<&Entry> {
         self.entries.iter().find(|e| e.tag == tag)
+    }
+}
+
+/// GeoTIFF 1.0 tags (OGC 19-008r4 §7): ModelPixelScale, ModelTiepoint,
+/// ModelTransformation, GeoKeyDirectory.
+const PIXEL_SCALE: u16 = 33550;
+const TIEPOINT: u16 = 33922;
+const TRANSFORMATION: u16 = 34264;
+const GEO_KEYS: u16 = 34735;
+
+/// The pixel spacing a GeoTIFF declares (super::read_pixel_spacing):
+/// ModelPixelScale, or the column lengths of an affine
+/// ModelTransformation. Projected systems give their linear unit
+/// (ProjLinearUnitsGeoKey, or metres for WGS84 UTM zones); geographic
+/// ones (degrees, or the GeogAngularUnitsGeoKey) become metres at the
+/// image's middle latitude, from the tiepoint. `Ok(None)` for a plain
+/// TIFF, or tags this walk cannot use; a file that is not a readable TIFF
+/// is left to the reader's error (also `Ok(None)`).
+pub(super) fn pixel(path: &Path) -> Result<Option<super::georef::PixelSpacing>> {
+    use super::georef::{PixelSpacing, cos_change, geographic, linear_unit, sig};
+    let file = std::fs::File::open(path).map_err(|source| Error::Read {
+        path: path.into(),
+        source,
+    })?;
+    let len = file.metadata().map(|m| m.len()).unwrap_or(0);
+    let mut r = std::io::BufReader::new(file);
+    let Ok(Some(ifd)) = Ifd::read(&mut r, len) else {
+        return Ok(None);
+    };
+    let mut doubles = |tag| ifd.doubles(&mut r, len, tag);
+    let scale = doubles(PIXEL_SCALE);
+    let tie = doubles(TIEPOINT);
+    let affine = doubles(TRANSFORMATION);
+    let keys = ifd.geo_keys(&mut r, len);
+    let key = |k: u16| keys.iter().find(|(id, _)| *id == k).map(|(_, v)| *v);
+    let first = |tag| {
+        ifd.entry(tag)
+            .and_then(|e| e.field.get(..type_size(e.typ)? as usize))
+            .map(|s| uint(s, ifd.le) as f64)
+    };
+    let (Some(nx), Some(ny)) = (first(256), first(257)) else {
+        return Ok(None);
+    };
+    // spacing, and the model y of the image's middle row and its span
+    let (dx, dy, what, y_mid) = match (&scale, &affine) {
+        (Some(s), _) if s.len() >= 2 => {
+            let y_mid = tie
+                .as_ref()
+                .filter(|t| t.len() >= 6)
+                .map(|t| t[4] - (ny / 2.0 - t[1]) * s[1]);
+            (s[0], s[1], "GeoTIFF ModelPixelScale", y_mid)
+        }
+        (_, Some(m)) if m.len() >= 16 => {
+            let y_mid = m[4] * nx / 2.0 + m[5] * ny / 2.0 + m[7];
+            (
+                m[0].hypot(m[4]),
+                m[1].hypot(m[5]),
+                "GeoTIFF ModelTransformation",
+                Some(y_mid),
+            )
+        }
+        _ => return Ok(None),
+    };
+    if !(dx.is_finite() && dy.is_finite() && dx > 0.0 && dy > 0.0) {
+        return Ok(None);
+    }
+    // GTModelTypeGeoKey: 1 projected, 2 geographic
+    Ok(match key(1024) {
+        Some(2) => {
+            // GeogAngularUnitsGeoKey: degree (9102, the default), radian
+            // (9101), arc-minute (9103), arc-second (9104), grad (9105)
+            let per_degree = match key(2054).unwrap_or(9102) {
+                9102 => 1.0,
+                9101 => std::f64::consts::PI / 180.0,
+                9103 => 60.0,
+                9104 => 3600.0,
+                9105 => 400.0 / 360.0,
+                _ => return Ok(None),
+            };
+            let deg = |v: f64| v / per_degree;
+            y_mid.and_then(|y| geographic(deg(dx), deg(dy), deg(y), deg(dy) * ny, what))
+        }
+        // Web Mercator (EPSG:3857 and its older codes): a pixel of the map
+        // is 1/cos(latitude) times its ground size
+        // (its sphere's radius is WGS84's semi-major axis)
+        Some(1) if key(3072).is_some_and(|c| [3857, 3785].contains(&c)) => y_mid.and_then(|y| {
+            let lat = |y: f64| (y / 6_378_137.0).sinh().atan().to_degrees();
+            let half = dy * ny / 2.0;
+            let (lo, mid, hi) = (lat(y - half), lat(y), lat(y + half));
+            (lo > -90.0 && hi < 90.0).then(|| {
+                let c = mid.to_radians().cos();
+                PixelSpacing {
+                    x: dx * c,
+                    y: dy * c,
+                    units: Some("m".into()),
+                    source: format!(
+                        "{what} {} x {} m of Web Mercator at latitude {mid:.3} (ground = map x \
+                         cos(latitude))",
+                        sig(dx),
+                        sig(dy)
+                    ),
+                    warnings: cos_change(lo, hi, "Web Mercator pixels: their ground size")
+                        .into_iter()
+                        .collect(),
+                }
+            })
+        }),
+        Some(1) => {
+            // ProjLinearUnitsGeoKey (EPSG unit codes), else the WGS84 UTM
+            // zones' metres (ProjectedCSTypeGeoKey 32601-32660, 32701-32760)
+            let factor = match key(3076) {
+                Some(9001) => Some(1.0),
+                Some(9002) => Some(0.3048),
+                Some(9003) => Some(1200.0 / 3937.0),
+                Some(9036) => Some(1000.0),
+                Some(_) => None,
+                None => key(3072)
+                    .filter(|c| (32601..=32660).contains(c) || (32701..=32760).contains(c))
+                    .map(|_| 1.0),
+            };
+            Some(PixelSpacing {
+                x: dx,
+                y: dy,
+                units: factor.and_then(linear_unit).map(str::to_string),
+                source: format!("{what} {} x {}", sig(dx), sig(dy)),
+                warnings: Vec::new(),
+            })
+        }
+        // no model type (or geocentric): the spacing, units unknown
+        _ => Some(PixelSpacing {
+            x: dx,
+            y: dy,
+            units: None,
+            source: format!(
+                "{what} {} x {} (no GeoKeys: units unknown)",
+                sig(dx),
+                sig(dy)
+            ),
+            warnings: Vec::new(),
+        }),
+    })
+}
+
+impl Ifd {
+    /// The DOUBLE values of `tag`, if it has at most 64 of them, all inside
+    /// the file.
+    fn doubles<R: Read + Seek>(&self, r: &mut R, len: u64, tag: u16) -> Option<Vec<f64>> {
+        let e = self.entry(tag).filter(|e| e.typ == 12 && e.count <= 64)?;
+        let b = self.values(r, len, e)?;
+        Some(
+            b.chunks_exact(8)
+                .map(|c| f64::from_bits(uint(c, self.le)))
+                .collect(),
+        )
+    }
+
+    /// The GeoKeyDirectory's keys whose value sits in the directory itself
+    /// (TIFFTagLocation 0), as `(KeyID, value)` (GeoTIFF §7.1.3).
+    fn geo_keys<R: Read + Seek>(&self, r: &mut R, len: u64) -> Vec<(u16, u16)> {
+        let Some(b) = self
+            .entry(GEO_KEYS)
+            .filter(|e| e.typ == 3 && e.count <= 4 * 1024)
+            .and_then(|e| self.values(r, len, e))
+        else {
+            return Vec::new();
+        };
+        let w: Vec<u16> = b.chunks_exact(2).map(|c| uint(c, self.le) as u16).collect();
+        let n = w.get(3).copied().unwrap_or(0) as usize;
+        w[4.min(w.len())..]
+            .chunks_exact(4)
+            .take(n)
+            .filter(|k| k[1] == 0)
+            .map(|k| (k[0], k[3]))
+            .collect()
+    }
+
+    /// The bytes of an entry's values: in the entry, or at its offset when
+    /// they lie inside the file.
+    fn values<R: Read + Seek>(&self, r: &mut R, len: u64, e: &Entry) -> Option<Vec<u8>> {
+        let n = e.count.checked_mul(type_size(e.typ)?)?;
+        if n <= e.field.len() as u64 {
+            return Some(e.field[..n as usize].to_vec());
+        }
+        let at = uint(&e.field, self.le);
+        if at.checked_add(n)? > len {
+            return None;
+        }
+        r.seek(SeekFrom::Start(at)).ok()?;
+        let mut b = vec![0u8; n as usize];
+        (read_upto(r, &mut b) == b.len()).then_some(b)
     }
 }
 
