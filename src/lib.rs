@@ -142,6 +142,7 @@ pub mod error;
 pub mod field;
 pub mod fourier;
 pub mod io;
+mod nan_null;
 #[cfg(feature = "plot")]
 pub mod plot;
 pub mod skeleton;

@@ -1169,8 +1169,10 @@ pub struct ImageExponents {
     pub label: String,
     /// h(q = 0) from its own partition functions (null where the q grid
     /// has no 0 or the image no estimate).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub h_q0: f64,
     /// tau(q = 2) likewise.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub tau_q2: f64,
 }
 
@@ -1554,37 +1556,44 @@ pub struct Spectra {
     pub q: Vec<f64>,
     /// Fit range in octaves above a_min as asked (`--fit`; HI equal to the
     /// octaves the grid spans means its top scale, one voice below).
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub fit_octaves: (f64, f64),
     /// The octaves above a_min of the first and last fitted scales.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::nan_null::pair")]
     pub fit_octaves_used: (f64, f64),
     /// The smallest and largest scales (px) inside the fit range.
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub fit_scales: (f64, f64),
     /// τ(q): slope of the annealed `log2 Z(q, a)` against `log2 a` over the
     /// fit range (SPEC §4); NaN where a fitted scale has no line.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub tau: Vec<f64>,
     /// Standard error of τ(q): delete-one jackknife over images (>= 3
     /// images), else over the tiles of the counting domains when the sums
     /// were split ([`image_sums_tiled`]), else the regression's; also the
     /// regression's at a q where a leave-one-out sample has no estimate
     /// (`stderr_method` lists them).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub tau_stderr: Vec<f64>,
     /// R^2 of the log2 Z fits.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub tau_r2: Vec<f64>,
     /// How much the local slope of `log2 Z(q, a)` changes across the fit
     /// range (`stats::slope_change`; 0 for a pure power law); NaN where tau
     /// is. Flagged beyond [`SLOPE_CHANGE_WARN`].
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::nan_null::vec")]
     pub tau_slope_change: Vec<f64>,
     /// Canonical h(q) and D(q) (slopes of h(q, a) and D(q, a)).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub h: Vec<f64>,
     /// Standard error of h(q), as `tau_stderr`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub h_stderr: Vec<f64>,
     /// Canonical D(q), slope of `D(q, a)` against `log2 a` (JSON `D`).
-    #[serde(rename = "D")]
+    #[serde(rename = "D", deserialize_with = "crate::nan_null::vec")]
     pub d: Vec<f64>,
     /// Standard error of D(q), as `tau_stderr` (JSON `D_stderr`).
-    #[serde(rename = "D_stderr")]
+    #[serde(rename = "D_stderr", deserialize_with = "crate::nan_null::vec")]
     pub d_stderr: Vec<f64>,
     /// "jackknife over images" (>= 3 images), "jackknife over N tiles (S
     /// px)" (fewer than 3 images with tiles),
@@ -1593,22 +1602,26 @@ pub struct Spectra {
     /// warning).
     pub stderr_method: String,
     /// h = dτ/dq, D = q h - τ.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub legendre_h: Vec<f64>,
     /// D(h) by the Legendre route, `q h - τ` (JSON `legendre_D`).
-    #[serde(rename = "legendre_D")]
+    #[serde(rename = "legendre_D", deserialize_with = "crate::nan_null::vec")]
     pub legendre_d: Vec<f64>,
     /// `log2 a` of every scale (a in pixels), not only the fitted ones.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub log2_scales: Vec<f64>,
     /// Per q, per scale.
-    #[serde(rename = "log2_Z")]
+    #[serde(rename = "log2_Z", deserialize_with = "crate::nan_null::vec2")]
     pub log2_z: Vec<Vec<f64>>,
     /// `h(q, a) = Σ_L W_L log2 M_L`, annealed, per q, per scale (NaN where
     /// no line).
+    #[serde(deserialize_with = "crate::nan_null::vec2")]
     pub h_qa: Vec<Vec<f64>>,
     /// `D(q, a) = q h(q, a) - log2 Z(q, a)`, per q, per scale (JSON `D_qa`).
-    #[serde(rename = "D_qa")]
+    #[serde(rename = "D_qa", deserialize_with = "crate::nan_null::vec2")]
     pub d_qa: Vec<Vec<f64>>,
     /// Effective number of lines `Z^2 / Σ M^2q` per q, per scale.
+    #[serde(deserialize_with = "crate::nan_null::vec2")]
     pub n_eff: Vec<Vec<f64>>,
     /// Maxima lines alive per scale (all images).
     pub lines: Vec<u64>,
@@ -2369,6 +2382,12 @@ mod tests {
         sums.merge(&image(0.3, 6.0, "short")).unwrap();
         let sp = sums.spectra(Rule::Plain, (0.5, 4.0)).unwrap();
         assert!(sp.per_image[5].h_q0.is_nan() && sp.per_image[5].tau_q2.is_nan());
+        // JSON holds the NaN as null, and reads it back as NaN
+        let text = serde_json::to_string(&sp).unwrap();
+        assert!(text.contains("\"h_q0\":null"), "{text}");
+        let back: Spectra = serde_json::from_str(&text).unwrap();
+        assert!(back.per_image[5].h_q0.is_nan());
+        assert_eq!(serde_json::to_string(&back).unwrap(), text);
         assert!(
             sp.warnings.iter().any(|w| w.starts_with("a4 looks unlike")),
             "{:?}",

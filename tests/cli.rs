@@ -1353,6 +1353,9 @@ fn pixel_size_gives_lengths() {
     );
     // the same exponents as from the .npy ({:e} writes f64 exactly)
     assert_eq!(g["tau"], a["tau"]);
+    // spectra.json reads back as the library's Spectra (its extras ignored)
+    let sp: wtmm::spectra::Spectra = serde_json::from_value(g.clone()).unwrap();
+    assert_eq!(serde_json::to_value(&sp.tau).unwrap(), g["tau"]);
     assert_eq!(g["h_q0"], a["h_q0"]);
     // an image that declares none among ones that do: no lengths, a warning
     let asc2 = write_asc(

@@ -24,6 +24,14 @@ use wtmm::theory::Model;
 // ---------------------------------------------------------------- kernel
 
 /// Scales `a_j = 2^(j/2)`, j = 0..10 (5 octaves, 2 voices).
+/// A result reads back from its JSON (NaN entries, null there, as NaN) and
+/// writes the same JSON again.
+fn json_round_trip<T: serde::Serialize + serde::de::DeserializeOwned>(x: &T) {
+    let text = serde_json::to_string(x).unwrap();
+    let back: T = serde_json::from_str(&text).unwrap();
+    assert_eq!(serde_json::to_string(&back).unwrap(), text);
+}
+
 fn half_octave_scales() -> Vec<f64> {
     (0..11).map(|j| 2f64.powf(j as f64 / 2.0)).collect()
 }
@@ -144,6 +152,7 @@ fn kernel_recovers_known_cumulants_lognormal_and_logpoisson() {
         let opts = opts_all_scales();
         let k = kernel_estimates(&s, &opts).unwrap();
         assert_eq!(k.stderr_method, "jackknife over images");
+        json_round_trip(&k);
         let loo: Vec<_> = (0..s.images.len())
             .map(|i| {
                 let mut images = s.images.clone();
@@ -683,6 +692,7 @@ fn pdfs_of_a_known_law() {
     .unwrap();
     let sp = &p[0];
     assert_eq!(sp.n as usize, big_n);
+    json_round_trip(sp);
     let nf = big_n as f64;
     let d = h.config.dlnm;
     let phi = StdNormal::new(0.0, 1.0).unwrap();
@@ -1940,6 +1950,7 @@ fn torus_plan_1_5_and_3(n: usize, wavelet: Wavelet) -> CorrelationPlan {
 /// eq 76, and at least 8 such bins.
 fn assert_on_eq_76(sums: &CorrelationSums, model: &Model, n: usize, what: &str) {
     let r = correlation_estimates(sums).unwrap();
+    json_round_trip(&r);
     let l = n as f64;
     let mut bins = 0;
     for p in &r.pairs {

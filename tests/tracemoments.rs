@@ -716,6 +716,14 @@ fn merge_is_annealed_and_serialisable() {
         assert!((x - y).abs() < 1e-10);
     }
     assert!((r1.alpha - r2.alpha).abs() < 1e-6);
+    // the result reads back from its JSON, NaN entries (null there) too
+    let text = serde_json::to_string(&r2).unwrap();
+    assert!(
+        text.contains("\"H\":null"),
+        "64^2 images: no spectrum fit, H is NaN"
+    );
+    let back: TraceMomentResult = serde_json::from_str(&text).unwrap();
+    assert_eq!(serde_json::to_string(&back).unwrap(), text);
     // different settings do not merge
     let other = TraceMomentAccumulator::new(TraceMomentConfig {
         flux: FluxKind::Wavelet,

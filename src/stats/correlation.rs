@@ -2014,31 +2014,41 @@ fn wtmmm_sums(
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PairCorrelation {
     /// First scale `a1`, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a1: f64,
     /// Second scale `a2`, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a2: f64,
     /// Pair-weighted mean of `log2 |Δx|` in each non-empty bin, and `2^` it.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub log2_dx: Vec<f64>,
     /// `2^log2_dx`, in pixels (lag 0 excluded; see `c0`).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub dx: Vec<f64>,
     /// `C(Δx; a1, a2)`, centred per image (SPEC §6), with jackknife errors.
-    #[serde(rename = "C")]
+    #[serde(rename = "C", deserialize_with = "crate::nan_null::vec")]
     pub c: Vec<f64>,
     /// Jackknife standard error of `c`: over images, or with fewer than 3
     /// over the tiles of their domains (NaN without either).
-    #[serde(rename = "C_stderr")]
+    #[serde(rename = "C_stderr", deserialize_with = "crate::nan_null::vec")]
     pub c_stderr: Vec<f64>,
     /// The same centred with the ensemble mean (II eq 68).
-    #[serde(rename = "C_ensemble")]
+    #[serde(rename = "C_ensemble", deserialize_with = "crate::nan_null::vec")]
     pub c_ensemble: Vec<f64>,
     /// Jackknife standard error of `c_ensemble` (as `c_stderr`).
-    #[serde(rename = "C_ensemble_stderr")]
+    #[serde(
+        rename = "C_ensemble_stderr",
+        deserialize_with = "crate::nan_null::vec"
+    )]
     pub c_ensemble_stderr: Vec<f64>,
     /// Number of pairs per bin (all images).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub pairs: Vec<f64>,
     /// Covariance at `Δx = 0`, per-image centring.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub c0: f64,
     /// Covariance at `Δx = 0`, ensemble centring.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub c0_ensemble: f64,
 }
 
@@ -2055,8 +2065,10 @@ pub struct CorrelationResult {
     /// Number of images.
     pub images: usize,
     /// The distinct scales, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub scales: Vec<f64>,
     /// Ensemble mean magnitude per scale.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub mean: Vec<f64>,
     /// One correlation function per pair of scales, in the order of the sums.
     pub pairs: Vec<PairCorrelation>,
@@ -2078,20 +2090,27 @@ pub const PAPER_UNIT: f64 = 13.0 / 1.5703;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PairCheck {
     /// The pair's scales, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a1: f64,
     /// See `a1`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a2: f64,
     /// The window: `factor sup(a1, a2) < Δx < L/4` px.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub dx_min: f64,
     /// See `dx_min`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub dx_max: f64,
     /// Lag bins in the window with a theoretical value.
     pub bins: usize,
     /// Largest `|C - theory|` there, per-image centring ([`PairCorrelation::c`]).
-    #[serde(rename = "max_abs_dev_C")]
+    #[serde(rename = "max_abs_dev_C", deserialize_with = "crate::nan_null::f64")]
     pub max_abs_dev: f64,
     /// The same with ensemble centring ([`PairCorrelation::c_ensemble`]).
-    #[serde(rename = "max_abs_dev_C_ensemble")]
+    #[serde(
+        rename = "max_abs_dev_C_ensemble",
+        deserialize_with = "crate::nan_null::f64"
+    )]
     pub max_abs_dev_ensemble: f64,
 }
 
@@ -2102,15 +2121,19 @@ pub struct TheoryCheck {
     /// The window starts at `factor sup(a1, a2)` px: 1 for eq 76 read
     /// literally in pixels, [`PAPER_UNIT`] for the paper's `σ_W` units
     /// (`wtmm validate` judges the latter).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub factor: f64,
     /// Lag bins compared, over all pairs; 0 means no value (the maxima
     /// below are then 0 and mean nothing).
     pub bins: usize,
     /// Largest deviation over the pairs, per-image centring.
-    #[serde(rename = "max_abs_dev_C")]
+    #[serde(rename = "max_abs_dev_C", deserialize_with = "crate::nan_null::f64")]
     pub max_abs_dev: f64,
     /// Largest deviation over the pairs, ensemble centring (II eq 68).
-    #[serde(rename = "max_abs_dev_C_ensemble")]
+    #[serde(
+        rename = "max_abs_dev_C_ensemble",
+        deserialize_with = "crate::nan_null::f64"
+    )]
     pub max_abs_dev_ensemble: f64,
     /// Per pair.
     pub pairs: Vec<PairCheck>,
@@ -2125,12 +2148,16 @@ pub struct TheoryCheck {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WorstBin {
     /// The pair's scales, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a1: f64,
     /// See `a1`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a2: f64,
     /// The bin's lag, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub dx: f64,
     /// `C - theory` there (signed).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub dev: f64,
     /// Jackknife standard error of `C` there (`None` with < 3 images).
     pub stderr: Option<f64>,

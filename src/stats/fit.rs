@@ -7,12 +7,16 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LineFit {
     /// Least-squares slope (the exponent, in the units of `y` per unit of `x`).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub slope: f64,
     /// Value of the fitted line at `x = 0`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub intercept: f64,
     /// Standard error of the slope from the residuals (NaN with < 3 points).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub slope_stderr: f64,
     /// Coefficient of determination (1 for a perfect line; NaN if y is constant).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub r2: f64,
     /// Number of points used.
     pub n: usize,

@@ -692,12 +692,15 @@ impl KernelOptions {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Estimate {
     /// The fitted `c_n` (natural-log convention of the module doc).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub value: f64,
     /// Its standard error: delete-one jackknife over images (>= 3 images),
     /// or over tiles (fewer images, split), else the regression's
     /// (`pooled`: jackknife only, NaN without one).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub stderr: f64,
     /// R² of the regression of `κ_n` on `ln a`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub r2: f64,
 }
 
@@ -723,10 +726,13 @@ impl FittedCumulants {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CnRow {
     /// Scale `a`, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a: f64,
     /// `log2(a / a_min)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub octave: f64,
     /// `ln(a'/a)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub ln_ratio: f64,
     /// `[C1, C2, C3]`.
     pub c: [f64; 3],
@@ -739,8 +745,10 @@ pub struct CnRow {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CnTable {
     /// Reference scale `a'`, in pixels (the grid scale nearest the asked octave).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a_ref: f64,
     /// `log2(a' / a_min)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub octave_ref: f64,
     /// One row per grid scale `a < a'` in the fit range, ascending.
     pub rows: Vec<CnRow>,
@@ -752,32 +760,46 @@ pub struct CnTable {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KernelCurve {
     /// Smaller scale `a`, in pixels (the grid scale nearest the asked octave).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a: f64,
     /// Larger scale `a'`, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a_ref: f64,
     /// `log2(a / a_min)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub octave: f64,
     /// `log2(a' / a_min)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub octave_ref: f64,
     /// `ln(a'/a)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub ln_ratio: f64,
     /// The p values, `-p_max ..= p_max` in steps of `dp`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub p: Vec<f64>,
     /// `Re, Im C(p, a)` and `Re, Im C(p, a')` (II eq 45).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub cf_re: Vec<f64>,
     /// `Im C(p, a)`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub cf_im: Vec<f64>,
     /// `Re C(p, a')`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub cf_ref_re: Vec<f64>,
     /// `Im C(p, a')`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub cf_ref_im: Vec<f64>,
     /// `ln |Ĝ_aa'(p)|` and the phase unwrapped from `Φ(0) = 0`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub ln_abs_g: Vec<f64>,
     /// Unwrapped phase `Φ(p)` of `Ĝ_aa'(p)` (radians; odd in p).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub phase: Vec<f64>,
     /// The collapse `ln Ĝ_aa'^(1/ln(a'/a))`: both divided by `ln(a'/a)`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub ln_abs_g_norm: Vec<f64>,
     /// `phase / ln(a'/a)`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub phase_norm: Vec<f64>,
 }
 
@@ -789,20 +811,27 @@ pub struct KernelResult {
     /// Number of images.
     pub images: usize,
     /// The scales, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub scales: Vec<f64>,
     /// `log2(a / a_min)`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub octaves: Vec<f64>,
     /// WTMMM per scale (all images).
     pub n_wtmmm: Vec<u64>,
     /// Ensemble cumulants of `ln M` per scale.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub kappa1: Vec<f64>,
     /// Plug-in variance `κ2` of `ln M` per scale (NaN where no WTMMM).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub kappa2: Vec<f64>,
     /// Plug-in third cumulant `κ3` of `ln M` per scale.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub kappa3: Vec<f64>,
     /// Fit range, in octaves above `a_min`.
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub fit_octaves: (f64, f64),
     /// The smallest and largest scales (px) inside the fit range.
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub fit_scales: (f64, f64),
     /// `c_n = -dκ_n/d ln a` over the fit range (SPEC §5; JSON `cumulants`).
     pub cumulants: FittedCumulants,
@@ -1324,20 +1353,28 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Reconstruction {
     /// Source scale `a' > a`, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a_from: f64,
     /// Target scale `a`, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a_to: f64,
     /// `ln(a'/a)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub ln_ratio: f64,
     /// Cumulants `c_1..c_n` of the kernel used.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub c: Vec<f64>,
     /// Centres of the `ln M` bins at the target scale.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub ln_m: Vec<f64>,
     /// Density of `ln M` at `a_to`: measured, and predicted from `a_from`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub measured: Vec<f64>,
     /// The predicted density (same bins).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub predicted: Vec<f64>,
     /// `∫ |predicted - measured| d ln M` (0 = perfect, 2 = disjoint).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub l1: f64,
 }
 

@@ -96,8 +96,10 @@ pub struct Point {
     /// Row of the pixel (0 at the top).
     pub y: u32,
     /// Modulus M (L1 normalisation, SPEC §1).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub m: f64,
     /// Argument A = atan2(T2, T1), radians in [-π, π].
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub arg: f64,
 }
 
@@ -515,12 +517,15 @@ pub enum DensityBins {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SectorPdf {
     /// Sector centre (radians, mod π): 0, π/4, π/2, 3π/4.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub centre: f64,
     /// Number of WTMMM in the sector.
     pub n: u64,
     /// `P(M | sector)` on the scale's `sector_m`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub p_m: Vec<f64>,
     /// `P(ln M | sector)` on the scale's `sector_ln_m`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub p_ln_m: Vec<f64>,
 }
 
@@ -529,10 +534,13 @@ pub struct SectorPdf {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JointDensity {
     /// Cell centres, the same on both axes (symmetric about 0).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub t: Vec<f64>,
     /// `p(T1, T2) = P(ln M, A) / M²`, row-major with T2 along the rows.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub density: Vec<f64>,
     /// Width of the `ln M` bins of the polar histogram sampled.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub lnm_bin_width: f64,
     /// Number of its argument bins over `[-π, π)`.
     pub arg_bins: usize,
@@ -544,43 +552,57 @@ pub struct ScalePdf {
     /// Scale index.
     pub j: usize,
     /// Scale, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub a: f64,
     /// `log2(a / a_min)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub octave: f64,
     /// Number of WTMMM at this scale (all images).
     pub n: u64,
     /// Width of the `ln M` bins of this scale's densities (the
     /// accumulator's `dlnm` times a whole number, [`DensityBins`]).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub bin_width: f64,
     /// WTMMM counted in each `ln M` bin (on `ln_m`): the densities are
     /// `count / (n bin_width)`, and the counts give their counting errors.
     pub count: Vec<u64>,
     /// Bin centres of `ln M` and the density of `ln M`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub ln_m: Vec<f64>,
     /// `P(ln M)` (natural log; integrates to 1 over `ln_m`).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub p_ln_m: Vec<f64>,
     /// `M = exp(ln_m)` and the density of M, `P(ln M) / M`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub m: Vec<f64>,
     /// `P(M) = P(ln M) / M` on `m`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub p_m: Vec<f64>,
     /// Argument bin centres (the accumulator's `arg_bins`, merged in
     /// groups under [`DensityBins::Auto`]) and the density of A.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub arg: Vec<f64>,
     /// `P(A)` (per radian) on `arg`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub p_arg: Vec<f64>,
     /// Width of the `ln M` bins of the sector densities: `bin_width`, or
     /// with [`DensityBins::Auto`] the width for the smallest sector's count.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub sector_bin_width: f64,
     /// Bin centres of `ln M` of the sector densities.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub sector_ln_m: Vec<f64>,
     /// `M = exp(sector_ln_m)`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub sector_m: Vec<f64>,
     /// `P(M | A mod π)` in the four sectors `kπ/4 ± π/8` (II Figs 12, 18),
     /// on `sector_m`.
     pub sectors: Vec<SectorPdf>,
     /// II eq 39: `M / (a/a_min)^h0` and its density `s P(M)`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub rescaled_m: Vec<f64>,
     /// Density of the rescaled modulus on `rescaled_m`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub p_rescaled: Vec<f64>,
     /// Joint density of `(T1, T2)` (II Figs 13, 19).
     pub joint: JointDensity,

@@ -96,8 +96,10 @@ pub struct PowerSpectrum {
     /// Log-spaced bins per octave of |k|, anchored at Nyquist (module doc).
     pub bins_per_octave: usize,
     /// Per bin: sum of |f̂|² (normalised per pixel and window energy).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub sum_s: Vec<f64>,
     /// Per bin: sum of ln|k| over the modes in it (for the bin's centre).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub sum_lnk: Vec<f64>,
     /// Per bin: number of Fourier modes.
     pub count: Vec<u64>,
@@ -231,10 +233,13 @@ pub fn jackknife_beta_se(parts: &[PowerSpectrum], k_lo: f64, k_hi: f64) -> Resul
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SpectrumFit {
     /// `S ~ |k|^-β`, angle-averaged.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub beta: f64,
     /// Standard error of β from the regression residuals (not a jackknife).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub beta_stderr: f64,
     /// Fit range in rad/px.
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub k_range: (f64, f64),
     /// The regression of log2 S on log2 |k|.
     pub line: LineFit,

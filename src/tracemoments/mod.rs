@@ -1246,19 +1246,23 @@ fn linear_onset(q: &[f64], k: &[f64], u: &UniversalFit) -> Option<f64> {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DtmFit {
     /// The moment order q.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub q: f64,
     /// α: slope of `ln |K(q, η)|` against `ln η` over the η range (NaN if no fit).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub alpha: f64,
     /// Its standard error: regression, or jackknife over the parts
     /// ([`finish_ensemble`]).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub alpha_stderr: f64,
     /// `C1 = e^intercept / |(q^α - q)/(α - 1)|` (JSON `C1`).
-    #[serde(rename = "C1")]
+    #[serde(rename = "C1", deserialize_with = "crate::nan_null::f64")]
     pub c1: f64,
     /// Number of η values in the fit.
     pub n: usize,
     /// Smallest and largest η the fit used (the η range cut further by
     /// `qη <= q_s/2`; NaN if no fit).
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub eta_used: (f64, f64),
 }
 
@@ -1275,52 +1279,61 @@ pub struct TraceMomentResult {
     pub diff: FluxDiff,
     /// Mean over images of the differentiation order applied (with
     /// [`FluxDiff::Auto`], the mean per-image `ξ(1)`).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub diff_order: f64,
     /// Its standard deviation over images.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub diff_order_sd: f64,
     /// Order of the fractional integration applied before the flux, if any.
     pub frac_int: Option<f64>,
     /// Trace-moment orders q.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub q: Vec<f64>,
     /// `K(q)`: slope of `log2 <φ_λ^q>` against `log2 λ` over
     /// `fit_log2_lambda` (TM eq 7; JSON `K`; NaN if no fit).
-    #[serde(rename = "K")]
+    #[serde(rename = "K", deserialize_with = "crate::nan_null::vec")]
     pub k: Vec<f64>,
     /// Standard error of K(q): regression, or jackknife over the parts
     /// ([`finish_ensemble`]; JSON `K_stderr`).
-    #[serde(rename = "K_stderr")]
+    #[serde(rename = "K_stderr", deserialize_with = "crate::nan_null::vec")]
     pub k_stderr: Vec<f64>,
     /// Intercepts `b(q)` of the fitted lines `log2 M = K log2 λ + b`.
-    #[serde(rename = "K_intercept")]
+    #[serde(rename = "K_intercept", deserialize_with = "crate::nan_null::vec")]
     pub k_intercept: Vec<f64>,
     /// `log2 λ` per level (λ = L/l; finest boxes first, so descending
     /// from `log2 L` to 0).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub log2_lambda: Vec<f64>,
     /// `log2 <φ_λ^q>` per q per level.
+    #[serde(deserialize_with = "crate::nan_null::vec2")]
     pub log2_moments: Vec<Vec<f64>>,
     /// Range of `log2 λ` over which K(q) and K(q, η) were fitted.
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub fit_log2_lambda: (f64, f64),
     /// α of the universal fit `K(q) = C1/(α-1) (q^α - q)` over
     /// `0 < q <= universal_q_max` (SPEC §8; NaN if no fit).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub alpha: f64,
     /// Standard error of α: jackknife over the parts, the images of an
     /// ensemble of 2 or more ([`finish_ensemble`]) or the tiles of one or
     /// two images ([`analyze_tiled`]), else the regression error
     /// (`stderr_method` says which).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub alpha_stderr: f64,
     /// The Gauss-Newton error of the universal fit alone (residuals of K(q)
     /// about the universal curve; blind to the sampling scatter of K). After
     /// a GLS refit it is the GLS fit's `(J' w J)⁻¹` error instead.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub alpha_stderr_fit: f64,
     /// C1 of the universal fit (JSON `C1`).
-    #[serde(rename = "C1")]
+    #[serde(rename = "C1", deserialize_with = "crate::nan_null::f64")]
     pub c1: f64,
     /// Standard error of C1, as `alpha_stderr` (JSON `C1_stderr`).
-    #[serde(rename = "C1_stderr")]
+    #[serde(rename = "C1_stderr", deserialize_with = "crate::nan_null::f64")]
     pub c1_stderr: f64,
     /// The universal fit's own error of C1, as `alpha_stderr_fit` (JSON
     /// `C1_stderr_fit`).
-    #[serde(rename = "C1_stderr_fit")]
+    #[serde(rename = "C1_stderr_fit", deserialize_with = "crate::nan_null::f64")]
     pub c1_stderr_fit: f64,
     /// How `*_stderr` were obtained.
     pub stderr_method: String,
@@ -1332,77 +1345,98 @@ pub struct TraceMomentResult {
     #[serde(default)]
     pub universal_shrinkage: Option<f64>,
     /// The unweighted (OLS) universal fit over the same q, for comparison.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::nan_null::f64")]
     pub alpha_ols: f64,
     /// C1 of that OLS fit (JSON `C1_ols`).
-    #[serde(default, rename = "C1_ols")]
+    #[serde(default, rename = "C1_ols", deserialize_with = "crate::nan_null::f64")]
     pub c1_ols: f64,
     /// Number of jackknife groups (0: none).
     pub jackknife_groups: usize,
     /// Number of q values in the universal fit.
     pub universal_n: usize,
     /// Largest q of the universal fit (`q_s/2`, or `q_fit_max`).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub universal_q_max: f64,
     /// Sampling phase-transition order `q_s = min(((2 + D_s)/C1)^(1/α), q_D)`,
     /// `D_s = ln N_images / ln L` (TM eq 15; module doc; `+∞`, JSON `null`,
     /// if the universal fit failed).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub q_s: f64,
     /// The rule used for `q_s`, in words.
     pub q_s_rule: String,
     /// Onset of the linear regime of the measured K(q), if seen.
     pub q_s_empirical: Option<f64>,
     /// Divergence order of the fitted universal K: `K(q_D) = 2(q_D - 1)`.
-    #[serde(rename = "q_D")]
+    #[serde(rename = "q_D", deserialize_with = "crate::nan_null::f64")]
     pub q_d: f64,
     /// Where the moment lines meet (`log2 λ_eff`); the effective outer scale
     /// is `L / λ_eff` px (`λ_eff < 1`: larger than the image).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub log2_lambda_eff: f64,
     /// `λ_eff = 2^log2_lambda_eff`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub lambda_eff: f64,
     /// Effective outer scale `L / λ_eff`, in pixels.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub outer_scale_px: f64,
     /// Double-trace-moment powers η.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub eta: Vec<f64>,
     /// Orders q of the double trace moments.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub dtm_q: Vec<f64>,
     /// `K(q, η)` per DTM q per η.
-    #[serde(rename = "K_eta")]
+    #[serde(rename = "K_eta", deserialize_with = "crate::nan_null::vec2")]
     pub k_eta: Vec<Vec<f64>>,
     /// Regression standard errors of `K(q, η)` (JSON `K_eta_stderr`).
-    #[serde(rename = "K_eta_stderr")]
+    #[serde(rename = "K_eta_stderr", deserialize_with = "crate::nan_null::vec2")]
     pub k_eta_stderr: Vec<Vec<f64>>,
     /// `log2 <(φ^(η))_λ^q>` per DTM q, per η, per level.
+    #[serde(deserialize_with = "crate::nan_null::vec3")]
     pub log2_moments_eta: Vec<Vec<Vec<f64>>>,
     /// η range of the DTM fits (further limited to `η <= q_s/2`, `qη <= q_s/2`).
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub dtm_eta_range: (f64, f64),
     /// α from the DTM at the first DTM q.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub dtm_alpha: f64,
     /// Standard error of `dtm_alpha`, as [`DtmFit::alpha_stderr`].
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub dtm_alpha_stderr: f64,
     /// C1 from the DTM at the first DTM q (JSON `dtm_C1`).
-    #[serde(rename = "dtm_C1")]
+    #[serde(rename = "dtm_C1", deserialize_with = "crate::nan_null::f64")]
     pub dtm_c1: f64,
     /// Jackknife standard error of `dtm_c1` (null without a jackknife; JSON
     /// `dtm_C1_stderr`).
-    #[serde(rename = "dtm_C1_stderr", default = "nan_default")]
+    #[serde(
+        rename = "dtm_C1_stderr",
+        default = "nan_default",
+        deserialize_with = "crate::nan_null::f64"
+    )]
     pub dtm_c1_stderr: f64,
     /// Per DTM q.
     pub dtm: Vec<DtmFit>,
     /// Structure-function orders q.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub sf_q: Vec<f64>,
     /// Structure-function exponents `ξ(q) = qH - K(q)`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub xi: Vec<f64>,
     /// Regression standard errors of ξ(q).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub xi_stderr: Vec<f64>,
     /// Intercepts of the ξ(q) fits (`log2 <|Δf(l)|^q> = ξ log2 l + b`),
     /// for drawing them.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::nan_null::vec")]
     pub xi_intercept: Vec<f64>,
     /// `log2 l` of the lags `l = 2^j` px, `j = 0, 1, ...`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub log2_lag: Vec<f64>,
     /// `log2 <|Δf(l)|^q>` per q per lag.
+    #[serde(deserialize_with = "crate::nan_null::vec2")]
     pub log2_sf: Vec<Vec<f64>>,
     /// Range of `log2 l` over which ξ(q) was fitted.
+    #[serde(deserialize_with = "crate::nan_null::pair")]
     pub fit_log2_lag: (f64, f64),
     /// H from the spectrum: `(β - 1 + K(2))/2` (TM §6.1.2).
     #[serde(rename = "H")]
