@@ -1156,6 +1156,7 @@ impl PartitionSums {
                     label: self.images[i].label.clone(),
                     h_q0: q0.map_or(f64::NAN, |k| e.h[k]),
                     tau_q2: q2.map_or(f64::NAN, |k| e.tau[k]),
+                    shape: self.images[i].shape,
                 }
             })
             .collect()
@@ -1174,6 +1175,10 @@ pub struct ImageExponents {
     /// tau(q = 2) likewise.
     #[serde(deserialize_with = "crate::nan_null::f64")]
     pub tau_q2: f64,
+    /// The image's size `[ny, nx]` (`None` when the sums do not record it):
+    /// images are compared with those of their size.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shape: Option<[usize; 2]>,
 }
 
 /// Fewest images for the unlike-image test: the t law of a deleted
@@ -1198,10 +1203,92 @@ pub const UNLIKE_ALPHA: f64 = 0.001;
 /// of its own; an exponent with fewer than [`UNLIKE_MIN_IMAGES`] estimates
 /// is not tested.
 pub fn unlike_images(per_image: &[ImageExponents]) -> Vec<String> {
-    use statrs::distribution::{ContinuousCDF, StudentsT};
     if per_image.len() < UNLIKE_MIN_IMAGES {
         return Vec::new();
     }
+    // images of different sizes scatter differently (a small image's own
+    // exponents have the larger error), so that a small one would pass for
+    // unlike large ones: each size is tested on its own, Bonferroni over
+    // the sizes tested too
+    let mut sizes: Vec<(Option<[usize; 2]>, Vec<ImageExponents>)> = Vec::new();
+    for e in per_image {
+        match sizes.iter_mut().find(|(s, _)| *s == e.shape) {
+            Some((_, v)) => v.push(e.clone()),
+            None => sizes.push((e.shape, vec![e.clone()])),
+        }
+    }
+    let testable = |v: &[ImageExponents]| {
+        [
+            v.iter().filter(|e| e.h_q0.is_finite()).count(),
+            v.iter().filter(|e| e.tau_q2.is_finite()).count(),
+        ]
+        .into_iter()
+        .any(|n| n >= UNLIKE_MIN_IMAGES)
+    };
+    let groups = sizes.iter().filter(|(_, v)| testable(v)).count().max(1);
+    let mut out: Vec<String> = Vec::new();
+    for (_, v) in &sizes {
+        out.extend(unlike_among(v, groups));
+    }
+    if sizes.len() > 1 {
+        let untested: Vec<String> = sizes
+            .iter()
+            .filter(|(_, v)| !testable(v))
+            .map(|(s, v)| match s {
+                Some([ny, nx]) => format!("{} of {ny}x{nx}", v.len()),
+                None => format!("{} of unrecorded size", v.len()),
+            })
+            .collect();
+        out.push(format!(
+            "images of {} sizes: the unlike-image test compares images of one size only (their \
+             own exponents scatter differently){}",
+            sizes.len(),
+            if untested.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; not tested, fewer than {UNLIKE_MIN_IMAGES} with estimates: {}",
+                    untested.join(", ")
+                )
+            }
+        ));
+    }
+    // NaN in an exponent some images have (a whole NaN series is a q the
+    // grid lacks, not a shortage of lines)
+    let some = |f: fn(&ImageExponents) -> f64| per_image.iter().any(|e| f(e).is_finite());
+    let (some_h, some_t) = (some(|e| e.h_q0), some(|e| e.tau_q2));
+    let missing: Vec<&str> = per_image
+        .iter()
+        .filter(|e| (!e.h_q0.is_finite() && some_h) || (!e.tau_q2.is_finite() && some_t))
+        .map(|e| e.label.as_str())
+        .collect();
+    if !missing.is_empty() {
+        let list = match missing.len() {
+            0..=3 => missing.join(", "),
+            n => format!("{}, ... ({n} images)", missing[..2].join(", ")),
+        };
+        let have = if missing.len() == 1 {
+            "no h(q=0) or tau(q=2) of its own"
+        } else {
+            "no h(q=0) or tau(q=2) of their own"
+        };
+        out.push(format!(
+            "{list}: {have} (no maxima line at the top of the fit in the image alone), left out \
+             of the unlike-image test{}",
+            if sizes.iter().any(|(_, v)| testable(v)) {
+                ""
+            } else {
+                ", which then had too few images to run"
+            }
+        ));
+    }
+    out
+}
+
+/// [`unlike_images`] among images of one size, at the family-wise level
+/// shared by `groups` such tests: the warnings naming images.
+fn unlike_among(per_image: &[ImageExponents], groups: usize) -> Vec<String> {
+    use statrs::distribution::{ContinuousCDF, StudentsT};
     let series: [(&str, Vec<f64>); 2] = [
         ("h(q=0)", per_image.iter().map(|e| e.h_q0).collect()),
         ("tau(q=2)", per_image.iter().map(|e| e.tau_q2).collect()),
@@ -1219,7 +1306,7 @@ pub fn unlike_images(per_image: &[ImageExponents]) -> Vec<String> {
     for (name, v, idx) in &tested {
         let k = idx.len();
         let t_law = StudentsT::new(0.0, 1.0, (k - 2) as f64).expect("k >= 4");
-        let level = UNLIKE_ALPHA / (2.0 * k as f64 * tested.len() as f64);
+        let level = UNLIKE_ALPHA / (2.0 * k as f64 * tested.len() as f64 * groups as f64);
         let limit = t_law.inverse_cdf(1.0 - level);
         for &i in idx {
             let rest: Vec<f64> = idx.iter().filter(|&&j| j != i).map(|&j| v[j]).collect();
@@ -1229,17 +1316,17 @@ pub fn unlike_images(per_image: &[ImageExponents]) -> Vec<String> {
             // identical others (sd 0) with a different value: t is infinite
             if t.abs() > limit {
                 said[i].push(format!(
-                    "{name} = {:.3} against {m:.3} +- {:.3} (mean and sd of the other {}), t = \
+                    "{name} = {:.3} against {m:.3} +- {:.3} (mean and sd of the other {}{}), t = \
                      {t:.1} beyond {limit:.1}",
                     v[i],
                     var.sqrt(),
-                    k - 1
+                    k - 1,
+                    if groups > 1 { " of its size" } else { "" }
                 ));
             }
         }
     }
-    let mut out: Vec<String> = said
-        .iter()
+    said.iter()
         .zip(per_image)
         .filter(|(s, _)| !s.is_empty())
         .map(|(s, e)| {
@@ -1252,38 +1339,7 @@ pub fn unlike_images(per_image: &[ImageExponents]) -> Vec<String> {
                 UNLIKE_ALPHA * 100.0
             )
         })
-        .collect();
-    // NaN in an exponent some images have (a whole NaN series is a q the
-    // grid lacks, not a shortage of lines)
-    let missing: Vec<&str> = (0..per_image.len())
-        .filter(|&i| {
-            series
-                .iter()
-                .any(|(_, v)| !v[i].is_finite() && v.iter().any(|x| x.is_finite()))
-        })
-        .map(|i| per_image[i].label.as_str())
-        .collect();
-    if !missing.is_empty() {
-        let list = match missing.len() {
-            0..=3 => missing.join(", "),
-            n => format!("{}, ... ({n} images)", missing[..2].join(", ")),
-        };
-        let have = if missing.len() == 1 {
-            "no h(q=0) or tau(q=2) of its own"
-        } else {
-            "no h(q=0) or tau(q=2) of their own"
-        };
-        out.push(format!(
-            "{list}: {have} (no maxima line at the top of the fit in the image alone), left out \
-             of the unlike-image test{}",
-            if tested.is_empty() {
-                ", which then had too few images to run"
-            } else {
-                ""
-            }
-        ));
-    }
-    out
+        .collect()
 }
 
 /// Change of the local slope of `log2 Z(q, a)` across the fit range above
@@ -2606,6 +2662,7 @@ mod tests {
                 label: format!("im{i}"),
                 h_q0,
                 tau_q2,
+                shape: None,
             })
             .collect()
     }
@@ -2654,6 +2711,68 @@ mod tests {
         t[3] = f64::NAN;
         let w = unlike_images(&exps(&h, &t));
         assert!(w.len() == 1 && w[0].contains("too few images"), "{w:?}");
+    }
+
+    /// Images of different sizes are compared with their own size. Eight
+    /// 512^2 images at h = 0.30 +- 0.006 and one 128^2 image at 0.45 (a
+    /// small image's own exponent has its own bias and scatter): as one
+    /// ensemble the small one is named; by size it is not tested, and that
+    /// is said. With four 128^2 images (0.40-0.50) both sizes are tested
+    /// and none named; an outlier among the large ones (0.80) is named
+    /// against the others of its size.
+    #[test]
+    fn unlike_images_by_size() {
+        let sized = |h: &[f64], shape: [usize; 2], from: usize| -> Vec<ImageExponents> {
+            let mut v = exps(h, &vec![f64::NAN; h.len()]);
+            for (i, e) in v.iter_mut().enumerate() {
+                e.shape = Some(shape);
+                e.label = format!("im{}", from + i);
+            }
+            v
+        };
+        let join = |a: &[ImageExponents], b: &[ImageExponents]| -> Vec<ImageExponents> {
+            a.iter().chain(b).cloned().collect()
+        };
+        let big = sized(
+            &[0.30, 0.31, 0.29, 0.30, 0.305, 0.295, 0.30, 0.302],
+            [512, 512],
+            0,
+        );
+        let one_small = sized(&[0.45], [128, 128], 8);
+        let mixed = join(&big, &one_small);
+        // as one ensemble (sizes unrecorded) the small one stands out
+        let one_size: Vec<ImageExponents> = mixed
+            .iter()
+            .cloned()
+            .map(|e| ImageExponents { shape: None, ..e })
+            .collect();
+        let w = unlike_images(&one_size);
+        assert!(
+            w.len() == 1 && w[0].starts_with("im8 looks unlike"),
+            "{w:?}"
+        );
+        let w = unlike_images(&mixed);
+        assert!(
+            w.len() == 1
+                && w[0].starts_with("images of 2 sizes")
+                && w[0].contains("not tested, fewer than 4 with estimates: 1 of 128x128"),
+            "{w:?}"
+        );
+        // four small ones: both sizes tested, none named
+        let small = sized(&[0.40, 0.45, 0.50, 0.45], [128, 128], 8);
+        let w = unlike_images(&join(&big, &small));
+        assert!(
+            w.len() == 1 && w[0].starts_with("images of 2 sizes") && !w[0].contains("not tested"),
+            "{w:?}"
+        );
+        // an outlier among the large ones is named, against its size
+        let mut odd = big.clone();
+        odd[4].h_q0 = 0.80;
+        let w = unlike_images(&join(&odd, &small));
+        assert!(
+            w.len() == 2 && w[0].starts_with("im4 looks unlike") && w[0].contains("of its size"),
+            "{w:?}"
+        );
     }
 
     /// Under the hypothesis it tests (16 images of one normal law per

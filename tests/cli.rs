@@ -1496,7 +1496,8 @@ fn kernel_refuses_scales_without_wtmmm() {
 /// (infinite h(q=0)) rescales the pdfs by the data's h0 instead of failing
 /// on a flag never given; a model named where a file goes is said to be
 /// one; missing pixels are recorded and said; a kernel reference scale above
-/// the fit range is warned about.
+/// the fit range is warned about; `--pixel-size` is recorded, and gives
+/// correlate's lags and pdf's scales as lengths.
 #[test]
 fn stats_commands_say_what_they_did() {
     let dir = scratch("stats_say");
@@ -1547,7 +1548,20 @@ fn stats_commands_say_what_they_did() {
     let h = holed.display().to_string();
     for cmd in ["pdf", "kernel", "correlate"] {
         let o = dir.join(cmd).display().to_string();
-        let mut a = vec![cmd, &h, "--octaves", "3", "--domain", "torus", "--out", &o];
+        let mut a = vec![
+            cmd,
+            &h,
+            "--octaves",
+            "3",
+            "--domain",
+            "torus",
+            "--pixel-size",
+            "2",
+            "--units",
+            "m",
+            "--out",
+            &o,
+        ];
         if cmd == "kernel" {
             a.extend(["--fit", "0.5:2", "--refs", "1,2.5"]);
         }
@@ -1579,6 +1593,32 @@ fn stats_commands_say_what_they_did() {
         }
         if cmd == "correlate" {
             assert_eq!(j["params"]["correlation_margin_px"], 0);
+        }
+        // the pixel: recorded; lags, L and the pdfs' scales also as lengths
+        assert_eq!(j["params"]["input"]["pixel_size"]["side"], 2.0, "{cmd}");
+        let twice = |a: &serde_json::Value, b: &serde_json::Value| {
+            let (a, b) = (a.as_array().unwrap(), b.as_array().unwrap());
+            assert!(!a.is_empty() && a.len() == b.len());
+            for (x, y) in a.iter().zip(b) {
+                assert_eq!(y.as_f64().unwrap(), 2.0 * x.as_f64().unwrap(), "{cmd}");
+            }
+        };
+        match cmd {
+            "correlate" => {
+                twice(&j["pairs"][0]["dx"], &j["pairs"][0]["dx_length"]);
+                assert_eq!(
+                    j["integral_scale_length"].as_f64(),
+                    Some(2.0 * j["integral_scale"].as_f64().unwrap())
+                );
+                assert_eq!(j["length_units"], "m");
+                let csv = std::fs::read_to_string(Path::new(&o).join("correlation.csv")).unwrap();
+                assert!(csv.lines().next().unwrap().ends_with(",dx_length"), "{csv}");
+            }
+            "pdf" => {
+                twice(&j["scales"], &j["scale_lengths"]);
+                assert_eq!(j["length_units"], "m");
+            }
+            _ => {}
         }
     }
 }

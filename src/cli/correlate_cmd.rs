@@ -179,6 +179,7 @@ impl Runner {
 
 pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve(args.opts.cwt.margin)?;
+    input.say_pixel(quiet);
     let cfg = input.analysis(&args.opts)?;
     let grid = cfg.scale_list();
     let pairs_oct = pairs_or_default("pairs", args.pairs.as_deref(), FIG30_PAIRS, &grid)?;
@@ -328,6 +329,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         cfg.a_min,
         wall,
         cost,
+        input.pixel.as_ref(),
     )?;
     // warnings go out even with --quiet, as analyze's do
     let mut warned = std::collections::BTreeSet::new();
@@ -480,6 +482,7 @@ fn result_json(
     model: Option<&Model>,
     l: f64,
     a_min: f64,
+    px: Option<&super::PixelSize>,
 ) -> serde_json::Value {
     let pairs: Vec<serde_json::Value> = r
         .pairs
@@ -493,7 +496,8 @@ fn result_json(
             json!({"a1": p.a1, "a2": p.a2, "octave1": (p.a1 / a_min).log2(), "octave2": (p.a2 / a_min).log2(),
                 "log2_dx": p.log2_dx, "dx": p.dx, "C": p.c, "C_stderr": p.c_stderr,
                 "C_ensemble": p.c_ensemble, "C_ensemble_stderr": p.c_ensemble_stderr,
-                "pairs": p.pairs, "C0": p.c0, "C0_ensemble": p.c0_ensemble, "theory": th})
+                "pairs": p.pairs, "C0": p.c0, "C0_ensemble": p.c0_ensemble, "theory": th,
+                "dx_length": px.map(|x| p.dx.iter().map(|d| d * x.side()).collect::<Vec<_>>())})
         })
         .collect();
     json!({"source": r.source, "magnitude": r.magnitude, "periodic": r.periodic, "images": r.images,
@@ -515,10 +519,14 @@ fn write_correlation_outputs(
     a_min: f64,
     wall: f64,
     cost: Option<(f64, f64, f64, Option<f64>)>,
+    px: Option<&super::PixelSize>,
 ) -> Result<serde_json::Value> {
     let mut body = header(command, params);
     super::common::note_caveats(&mut body, model);
     body["integral_scale"] = json!(l);
+    // the pixel, when known: lags and L as lengths (params.input.pixel_size)
+    body["length_units"] = json!(px.map(|p| &p.units));
+    body["integral_scale_length"] = json!(px.map(|p| l * p.side()));
     body["centring"] = json!({
         "C": "per image: w - mean of w over the image's valid points (II eq 68 with per-image means)",
         "C_ensemble": "ensemble mean of w per scale (II eq 68)"});
@@ -531,14 +539,14 @@ fn write_correlation_outputs(
     body["images"] = json!(main.images);
     body["periodic"] = json!(main.periodic);
     if let Some(r) = cwt {
-        body["pairs"] = result_json(r, model, l, a_min)["pairs"].clone();
-        body["cwt"] = result_json(r, model, l, a_min);
+        body["pairs"] = result_json(r, model, l, a_min, px)["pairs"].clone();
+        body["cwt"] = result_json(r, model, l, a_min, px);
     }
     if let Some(r) = sk {
         if cwt.is_none() {
-            body["pairs"] = result_json(r, model, l, a_min)["pairs"].clone();
+            body["pairs"] = result_json(r, model, l, a_min, px)["pairs"].clone();
         }
-        body["wtmmm"] = result_json(r, model, l, a_min);
+        body["wtmmm"] = result_json(r, model, l, a_min, px);
     }
     if let Some(m) = model
         && m.magnitude_correlation(l / 8.0, l).is_some()
@@ -580,6 +588,7 @@ fn write_correlation_outputs(
                     f(p.c_ensemble_stderr[i]),
                     f(p.pairs[i]),
                     f(th),
+                    f(px.map_or(f64::NAN, |x| p.dx[i] * x.side())),
                 ]);
             }
         }
@@ -598,6 +607,7 @@ fn write_correlation_outputs(
             "C_ensemble_stderr",
             "pairs",
             "theory_eq76",
+            "dx_length",
         ],
         &rows,
     )?;
@@ -787,6 +797,8 @@ impl ValidationExtras {
             periodic,
             wavelet: cfg.wavelet,
             holes: Default::default(),
+            pixel: None,
+            pixel_warnings: Vec::new(),
         };
         Ok(Some(ValidationExtras {
             model: *model,
@@ -1161,6 +1173,7 @@ impl ValidationExtras {
             l,
             a_min,
             wall,
+            None,
             None,
         )?;
         Ok((crit, has_corr.then_some(corr), warnings))

@@ -270,6 +270,7 @@ pub struct KernelOutputs {
 
 pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve(args.opts.cwt.margin)?;
+    input.say_pixel(quiet);
     let cfg = input.analysis(&args.opts)?;
     let fit = fit_range(
         args.fit.as_deref(),

@@ -553,13 +553,14 @@ pub struct OutDir {
     pub out: PathBuf,
 }
 
-/// The physical size of a pixel (analyze, spectrum, tm, merge): the
-/// exponents do not depend on it, but the scales a paper quotes do.
+/// The physical size of a pixel (analyze, spectrum, tm, merge, pdf,
+/// kernel, correlate): the exponents do not depend on it, but the scales
+/// a paper quotes do.
 #[derive(Args, Debug, Clone, Default)]
 pub struct PixelOpts {
     /// Size of a pixel in physical units, S or SX:SY (SX along the columns, SY
-    /// along the rows): the fit's scales and the wavenumbers are also given in
-    /// these units. Non-square pixels are warned about. Default: the spacing
+    /// along the rows): the fit's scales, the lags and the wavenumbers are also
+    /// given in these units. Non-square pixels are warned about. Default: the spacing
     /// the images declare (GeoTIFF tags, an ESRI grid's cellsize and .prj),
     /// when they all declare the same one.
     #[arg(long)]

@@ -80,6 +80,8 @@ pub struct StatsInput {
     /// where the wavelet reaches the border).
     #[arg(long, value_enum, default_value = "auto")]
     pub domain: DomainChoice,
+    #[command(flatten)]
+    pub pixel: super::PixelOpts,
 }
 
 /// A resolved input.
@@ -98,6 +100,12 @@ pub struct Input {
     /// Missing pixels met by [`Input::fold`], so that an ensemble-level
     /// shortage of maxima can name them as its likely cause.
     pub holes: HoleTally,
+    /// The pixel (`--pixel-size`, or what the files declare): scales also
+    /// as lengths.
+    pub pixel: Option<super::PixelSize>,
+    /// What [`super::PixelOpts::resolve`] had to say, and the non-square
+    /// warning.
+    pub pixel_warnings: Vec<String>,
 }
 
 /// Images with missing pixels (NaN, inf, nodata) and their pixel count,
@@ -218,6 +226,8 @@ impl StatsInput {
         if let Some(r) = resolved.as_ref().filter(|_| generated) {
             r.model.check_size(size)?;
         }
+        let (pixel, mut pixel_warnings) = self.pixel.resolve(&self.images)?;
+        pixel_warnings.extend(pixel.as_ref().and_then(super::PixelSize::warning));
         let periodic = match (self.domain, margin) {
             (DomainChoice::Torus, Some(m)) if m != 0 => {
                 return Err(Error::param(
@@ -255,6 +265,8 @@ impl StatsInput {
             seed,
             periodic,
             holes: HoleTally::default(),
+            pixel,
+            pixel_warnings,
         })
     }
 }
@@ -419,8 +431,39 @@ impl Input {
                 "size": self.size, "seed": self.seed}, "periodic": self.periodic})
         } else {
             json!({"images": self.images, "theory": self.model, "periodic": self.periodic,
-                "missing_pixels": self.holes.json()})
+                "missing_pixels": self.holes.json(),
+                "pixel_size": self.pixel.as_ref().map(super::PixelSize::json)})
         }
+    }
+
+    /// Says where the pixel size came from (unless `quiet`) and the pixel
+    /// warnings, on stderr.
+    pub fn say_pixel(&self, quiet: bool) {
+        if let Some(n) = self
+            .pixel
+            .as_ref()
+            .and_then(super::PixelSize::note)
+            .filter(|_| !quiet)
+        {
+            say!("{n}");
+        }
+        for w in &self.pixel_warnings {
+            say!("warning: {w}");
+        }
+    }
+
+    /// `values` px as lengths in the pixel's units (`null` without a
+    /// pixel), for the JSON beside the pixel values.
+    pub fn lengths(&self, values: &[f64]) -> serde_json::Value {
+        match &self.pixel {
+            Some(p) => json!(values.iter().map(|v| v * p.side()).collect::<Vec<_>>()),
+            None => serde_json::Value::Null,
+        }
+    }
+
+    /// The unit of [`Input::lengths`] (`null` without a pixel).
+    pub fn length_units(&self) -> serde_json::Value {
+        json!(self.pixel.as_ref().map(|p| &p.units))
     }
 }
 
@@ -632,6 +675,7 @@ pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64), set: WtmmmSet) -
 
 pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve(args.opts.cwt.margin)?;
+    input.say_pixel(quiet);
     let cfg = input.analysis(&args.opts)?;
     let fit = fit_range(
         args.fit.as_deref(),
@@ -722,6 +766,8 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         "convention": "M / (a/a_min)^h0, a/a_min = the paper's sigma_W units (II eq 39)"});
     body["n_wtmmm"] = json!(hist.hist.iter().map(|h| h.n).collect::<Vec<_>>());
     body["scales"] = json!(scales);
+    body["scale_lengths"] = input.lengths(&scales);
+    body["length_units"] = input.length_units();
     body["pdfs"] = json!(show.iter().map(|&j| get(j)).collect::<Vec<_>>());
     body["sectors"] = json!(
         sec.iter()
