@@ -261,8 +261,9 @@ pub fn file_label(p: &std::path::Path) -> String {
 
 /// The data behind a figure, for its title: the file (or first .. last
 /// files) when the images are files, their number and size
-/// ("levi_fell_dem.npy, 1 x 400^2"; "a.npy .. d.npy, 4 x 512^2";
-/// generated images have labels without an extension and are not named).
+/// ("levi_fell_dem.npy, 1 x 400^2"; "a.npy .. d.npy, 4 x 512^2"; "big/a.npy
+/// .. small/b.npy, 6 x mixed sizes" from two directories; generated images
+/// have labels without an extension and are not named).
 pub fn data_label(
     labels: &[impl AsRef<std::path::Path>],
     images: usize,
@@ -277,10 +278,25 @@ pub fn data_label(
         let p = l.as_ref();
         p.extension().map(|_| file_label(p))
     };
+    // files from more than one directory: each named with its directory,
+    // as "fbm_0000.npy .. fbm_0001.npy" would pass for one run of files
+    let dirs = labels
+        .iter()
+        .map(|l| l.as_ref().parent())
+        .collect::<std::collections::HashSet<_>>()
+        .len();
+    let with_dir = |l: &dyn AsRef<std::path::Path>| {
+        let p = l.as_ref();
+        let name = file(l)?;
+        Some(match p.parent().and_then(|d| d.file_name()) {
+            Some(d) if dirs > 1 => format!("{}/{name}", d.to_string_lossy()),
+            _ => name,
+        })
+    };
     let files = match labels {
         [one] => file(one).map(|f| format!("{f}, ")),
-        [first, .., last] => file(first)
-            .zip(file(last))
+        [first, .., last] => with_dir(first)
+            .zip(with_dir(last))
             .map(|(a, b)| format!("{a} .. {b}, ")),
         [] => None,
     }
@@ -606,6 +622,32 @@ pub fn count_of(n: usize, word: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Figure titles name the first and last files, with their directories
+    /// when there are several; generated labels are not named.
+    #[test]
+    fn data_labels() {
+        use crate::spectra::ShapeCount;
+        let sq = [ShapeCount {
+            ny: 512,
+            nx: 512,
+            images: 4,
+        }];
+        assert_eq!(
+            data_label(&["d/a.npy", "d/b.npy"], 2, &sq),
+            "a.npy .. b.npy, 2 x 512^2"
+        );
+        assert_eq!(
+            data_label(
+                &["big/a.npy", "x/small/b.npy"],
+                2,
+                &[sq[0], ShapeCount { ny: 256, ..sq[0] }]
+            ),
+            "big/a.npy .. small/b.npy, 2 x mixed sizes"
+        );
+        assert_eq!(data_label(&["a.npy"], 1, &sq), "a.npy, 1 x 512^2");
+        assert_eq!(data_label(&["image 1", "image 2"], 2, &sq), "2 x 512^2");
+    }
 
     /// A 16384^2 image needs about 14.5 GB on one thread (54 B/px, measured
     /// 52 on 4096^2; 18.8 GB with missing pixels, whose filled copy, mask
