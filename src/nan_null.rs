@@ -47,3 +47,11 @@ pub fn vec3<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<Vec<f64>>>, D::Er
             .collect()
     })
 }
+
+/// A fixed-size array of f64, `null` entries as NaN.
+pub fn arr<'de, D: Deserializer<'de>, const N: usize>(d: D) -> Result<[f64; N], D::Error> {
+    let v = Vec::<Option<f64>>::deserialize(d)?;
+    let n = v.len();
+    <[f64; N]>::try_from(v.into_iter().map(nan).collect::<Vec<_>>())
+        .map_err(|_| serde::de::Error::invalid_length(n, &"an array of N numbers"))
+}

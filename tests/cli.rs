@@ -1621,6 +1621,28 @@ fn stats_commands_say_what_they_did() {
             _ => {}
         }
     }
+    // a non-square pixel is warned about in the JSON too
+    let o = dir.join("pdf_ns").display().to_string();
+    let (code, err) = run_bin_stderr(&[
+        "pdf",
+        &h,
+        "--octaves",
+        "3",
+        "--domain",
+        "torus",
+        "--pixel-size",
+        "10:20",
+        "--out",
+        &o,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let j = json(&Path::new(&o).join("pdf.json"));
+    assert!(
+        j["warnings"].to_string().contains("not square"),
+        "{}",
+        j["warnings"]
+    );
+    assert!(err.contains("not square"), "{err}");
 }
 
 /// `pdf` and `kernel` name the input and the cause: a 10x10 image (just

@@ -1245,6 +1245,22 @@ fn declared_pixel_spacing() {
             (merc.x - 50.0).abs() < 1e-6 && (merc.y - 50.0).abs() < 1e-6,
             "{merc:?}"
         );
+        // EPSG 4326's angular unit 9122 is degrees; a negative scale
+        // (south-up writers) is a spacing too
+        let g9122 = get(
+            "g9122",
+            40,
+            vec![
+                (33550, TagVal::Double(vec![s3, -s3, 0.0])),
+                (
+                    33922,
+                    TagVal::Double(vec![0.0, 0.0, 0.0, -97.0, 36.0 - 20.0 * s3, 0.0]),
+                ),
+                (34735, geo_keys(&[(1024, 2), (2054, 9122)])),
+            ],
+        )
+        .unwrap();
+        assert!((g9122.x - geo.x).abs() < 1e-9, "{g9122:?}");
         // no GeoKeys: the spacing, units unknown
         let bare = get(
             "bare",
@@ -1293,6 +1309,56 @@ fn declared_pixel_spacing() {
         "{g:?}"
     );
     assert_eq!(grid("none", "xllcorner 0", None), None);
+    // Web Mercator grid at 60 N: 100 m of map are 50 m of ground, as in
+    // the GeoTIFF above
+    let y60 = 6_378_137.0 * (60f64.to_radians().tan()).asinh();
+    let g = grid(
+        "merc",
+        &format!("xllcorner 0\nyllcorner {}\ncellsize 100", y60 - 100.0),
+        Some("PROJCS[\"WGS_1984_Web_Mercator_Auxiliary_Sphere\",UNIT[\"Meter\",1.0]]"),
+    )
+    .unwrap();
+    assert!(
+        (g.x - 50.0).abs() < 1e-6 && (g.y - 50.0).abs() < 1e-6,
+        "{g:?}"
+    );
+    // a unit wtmm does not name: converted to metres by its factor
+    let g = grid(
+        "half",
+        "cellsize 10",
+        Some("PROJCS[\"x\",UNIT[\"half\",0.5]]"),
+    )
+    .unwrap();
+    assert_eq!((g.x, g.units.as_deref()), (5.0, Some("m")));
+    // world files beside a TIFF without GeoTIFF tags and a PNG
+    let p = dir.join("w.tif");
+    std::fs::write(&p, geotiff_by_hand(true, 4, vec![])).unwrap();
+    std::fs::write(dir.join("w.tfw"), "30\n0\n0\n-30\n500000\n4000000\n").unwrap();
+    std::fs::write(dir.join("w.prj"), "PROJCS[\"UTM\",UNIT[\"Meter\",1.0]]").unwrap();
+    let g = read_pixel_spacing(&p).unwrap().unwrap();
+    assert_eq!((g.x, g.y, g.units.as_deref()), (30.0, 30.0, Some("m")));
+    assert!(g.source.contains("world file w.tfw"), "{}", g.source);
+    let png = dir.join("wg.png");
+    write_png16(&png, &ndarray::Array2::from_elem((40, 4), 1.0)).unwrap();
+    // 3 arc seconds, first row's centre so that the middle row is at 36 N
+    std::fs::write(
+        dir.join("wg.pgw"),
+        format!("{s3}\n0\n0\n{}\n-97\n{}\n", -s3, 36.0 + 19.5 * s3),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("wg.prj"),
+        "GEOGCS[\"WGS 84\",UNIT[\"degree\",0.0174532925199433]]",
+    )
+    .unwrap();
+    let g = read_pixel_spacing(&png).unwrap().unwrap();
+    assert!(
+        (g.x - 75.136).abs() < 0.001 && (g.y - 92.466).abs() < 0.001,
+        "{g:?}"
+    );
+    // a world file that is not six numbers: none
+    std::fs::write(dir.join("w.tfw"), "30\n0\n0\n").unwrap();
+    assert_eq!(read_pixel_spacing(&p).unwrap(), None);
     for f in ["a.npy", "a.png", "a.pgm"] {
         let p = dir.join(f);
         std::fs::write(&p, b"x").unwrap();

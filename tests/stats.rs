@@ -153,6 +153,14 @@ fn kernel_recovers_known_cumulants_lognormal_and_logpoisson() {
         let k = kernel_estimates(&s, &opts).unwrap();
         assert_eq!(k.stderr_method, "jackknife over images");
         json_round_trip(&k);
+        // two images, no tiles: no jackknife, NaN errors (null in JSON)
+        let two = KernelSums {
+            images: s.images[..2].to_vec(),
+            ..s.clone()
+        };
+        let k2 = kernel_estimates(&two, &opts).unwrap();
+        assert!(k2.tables[0].rows[0].c_stderr[0].is_nan());
+        json_round_trip(&k2);
         let loo: Vec<_> = (0..s.images.len())
             .map(|i| {
                 let mut images = s.images.clone();

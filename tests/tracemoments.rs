@@ -1817,6 +1817,10 @@ fn surrogate_errors_are_the_scatter_of_fif_draws_analysed_alike() {
         (res.alpha.min(2.0), res.c1, res.h.unwrap())
     );
     assert_eq!((sg.count, sg.used, sg.runs.len()), (8, 8, 8));
+    // reads back from its JSON (NaN entries, null there, as NaN)
+    let text = serde_json::to_string(&sg).unwrap();
+    let back: SurrogateErrors = serde_json::from_str(&text).unwrap();
+    assert_eq!(serde_json::to_string(&back).unwrap(), text);
     // the draws, one by one
     let alphas: Vec<f64> = (0..8)
         .map(|r| {

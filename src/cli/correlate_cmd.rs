@@ -299,7 +299,8 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     };
     let mut cwt_res = sums.cwt.as_ref().map(correlation_estimates).transpose()?;
     let mut sk_res = sums.wtmmm.as_ref().map(correlation_estimates).transpose()?;
-    if let Some(w) = input.holes.warning(input.len(), "the correlations") {
+    let holes = input.holes.warning(input.len(), "the correlations");
+    for w in holes.iter().chain(&input.pixel_warnings) {
         for r in cwt_res.iter_mut().chain(sk_res.iter_mut()) {
             r.warnings.push(w.clone());
         }

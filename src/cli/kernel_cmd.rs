@@ -374,6 +374,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     let recon2 = reconstruct(&acc.hist, rj[0], &rj[1..], &c[..c.len().min(2)])
         .map_err(|e| input.blame(e))?;
     let recon3 = reconstruct(&acc.hist, rj[0], &rj[1..], &c).map_err(|e| input.blame(e))?;
+    main.warnings.extend(input.pixel_warnings.iter().cloned());
     let out = KernelOutputs {
         main,
         alt,

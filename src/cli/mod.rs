@@ -607,13 +607,6 @@ impl PixelOpts {
             .map(|p| crate::io::read_pixel_spacing(p).ok().flatten())
             .collect();
         let mut warnings: Vec<String> = Vec::new();
-        for d in declared.iter().flatten() {
-            for w in &d.warnings {
-                if !warnings.contains(w) {
-                    warnings.push(w.clone());
-                }
-            }
-        }
         let spacing = |x: f64, y: f64, u: &str| {
             if x == y {
                 format!("{} {u}", short_num(x))
@@ -628,11 +621,15 @@ impl PixelOpts {
         if let Some(given) = self.given()? {
             for (d, p) in declared.iter().zip(images) {
                 let Some(d) = d else { continue };
-                // comparable when the units are the same or either is unnamed
-                let comparable = d.units.is_none()
-                    || self.units.is_none()
-                    || d.units.as_deref() == self.units.as_deref();
-                if comparable && differ((given.x, given.y), (d.x, d.y)) {
+                // comparable when either unit is unnamed (numbers as they
+                // are) or both are lengths wtmm knows (in metres)
+                let scale = match (self.units.as_deref(), d.units.as_deref()) {
+                    (None, _) | (_, None) => Some(1.0),
+                    (Some(g), Some(f)) => unit_metres(g).zip(unit_metres(f)).map(|(g, f)| g / f),
+                };
+                if let Some(k) = scale
+                    && differ((k * given.x, k * given.y), (d.x, d.y))
+                {
                     warnings.push(format!(
                         "--pixel-size {} differs from the {} {} declares ({}); the lengths use \
                          --pixel-size",
@@ -657,10 +654,15 @@ impl PixelOpts {
             .iter()
             .find(|(d, _)| d.units != first.units || differ((d.x, d.y), (first.x, first.y)))
         {
+            let why = if differ((d.x, d.y), (first.x, first.y)) {
+                "at one wavelet scale in pixels the ensemble mixes different ground scales; no \
+                 lengths are given (resample to one spacing, or give --pixel-size)"
+            } else {
+                "the same numbers in different or unnamed units; no lengths are given (give \
+                 --pixel-size and --units)"
+            };
             warnings.push(format!(
-                "the images declare different pixel spacings ({} in {}, {} in {}): at one \
-                 wavelet scale in pixels the ensemble mixes different ground scales; no lengths \
-                 are given (resample to one spacing, or give --pixel-size)",
+                "the images declare different pixel spacings ({} in {}, {} in {}): {why}",
                 spacing(first.x, first.y, &file_units(first)),
                 first_path.display(),
                 spacing(d.x, d.y, &file_units(d)),
@@ -678,6 +680,15 @@ impl PixelOpts {
                 first_path.display()
             ));
             return Ok((None, warnings));
+        }
+        // the files' own warnings (a geographic pixel's width changing
+        // across the image) when their spacing is the one used
+        for d in declared.iter().flatten() {
+            for w in &d.warnings {
+                if !warnings.contains(w) {
+                    warnings.push(w.clone());
+                }
+            }
         }
         let what = if images.len() == 1 {
             format!("{}: {}", first_path.display(), first.source)
@@ -777,6 +788,22 @@ impl PixelSize {
             )
         })
     }
+}
+
+/// Metres in one `unit` (m, km, cm, mm, ft, US survey ft, mi and their
+/// spellings), `None` for a name not known as a length.
+fn unit_metres(unit: &str) -> Option<f64> {
+    let u = unit.trim().to_ascii_lowercase().replace(['_', '-'], " ");
+    Some(match u.as_str() {
+        "m" | "metre" | "metres" | "meter" | "meters" => 1.0,
+        "km" | "kilometre" | "kilometres" | "kilometer" | "kilometers" => 1000.0,
+        "cm" | "centimetre" | "centimetres" | "centimeter" | "centimeters" => 0.01,
+        "mm" | "millimetre" | "millimetres" | "millimeter" | "millimeters" => 0.001,
+        "ft" | "foot" | "feet" => 0.3048,
+        "us survey ft" | "us ft" | "ftus" | "foot us" | "us survey foot" => 1200.0 / 3937.0,
+        "mi" | "mile" | "miles" => 1609.344,
+        _ => return None,
+    })
 }
 
 /// A length for a message: 4 significant digits, no trailing zeros.
@@ -891,8 +918,40 @@ mod tests {
                 .1
                 .is_empty()
         );
-        // other units cannot be compared: no warning
-        assert!(opts("0.09", Some("km")).resolve(&[a]).unwrap().1.is_empty());
+        // units wtmm knows are compared in metres: 0.03 km is the file's
+        // 30 m, 0.09 km or 20 metres are not; unknown units are not compared
+        assert!(
+            opts("0.03", Some("km"))
+                .resolve(std::slice::from_ref(&a))
+                .unwrap()
+                .1
+                .is_empty()
+        );
+        for (v, u) in [("0.09", "km"), ("20", "metres")] {
+            let w = opts(v, Some(u))
+                .resolve(std::slice::from_ref(&a))
+                .unwrap()
+                .1;
+            assert!(
+                w.len() == 1 && w[0].contains("differs from the 30 m"),
+                "{u}: {w:?}"
+            );
+        }
+        assert!(
+            opts("7", Some("cubits"))
+                .resolve(std::slice::from_ref(&a))
+                .unwrap()
+                .1
+                .is_empty()
+        );
+        // the same number, one without units: said as such
+        let bare = dir.join("bare.asc");
+        std::fs::write(&bare, "ncols 2\nnrows 2\ncellsize 30\n1 2\n3 4\n").unwrap();
+        let (px, w) = auto.resolve(&[a.clone(), bare]).unwrap();
+        assert!(
+            px.is_none() && w[0].contains("different or unnamed units"),
+            "{w:?}"
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 

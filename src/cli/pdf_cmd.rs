@@ -428,7 +428,8 @@ impl Input {
     pub fn params_json(&self) -> serde_json::Value {
         if self.generated() {
             json!({"generated": {"model": self.model, "name": self.name, "count": self.count,
-                "size": self.size, "seed": self.seed}, "periodic": self.periodic})
+                "size": self.size, "seed": self.seed}, "periodic": self.periodic,
+                "pixel_size": self.pixel.as_ref().map(super::PixelSize::json)})
         } else {
             json!({"images": self.images, "theory": self.model, "periodic": self.periodic,
                 "missing_pixels": self.holes.json(),
@@ -436,8 +437,8 @@ impl Input {
         }
     }
 
-    /// Says where the pixel size came from (unless `quiet`) and the pixel
-    /// warnings, on stderr.
+    /// Says where the pixel size came from (unless `quiet`), on stderr;
+    /// the pixel warnings go with each command's own (JSON and stderr).
     pub fn say_pixel(&self, quiet: bool) {
         if let Some(n) = self
             .pixel
@@ -446,9 +447,6 @@ impl Input {
             .filter(|_| !quiet)
         {
             say!("{n}");
-        }
-        for w in &self.pixel_warnings {
-            say!("warning: {w}");
         }
     }
 
@@ -780,7 +778,14 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     );
     body["wall_seconds"] = json!(wall);
     let holes = input.holes.warning(input.len(), "the WTMMM counted");
-    body["warnings"] = json!(warning.iter().chain(&few).chain(&holes).collect::<Vec<_>>());
+    body["warnings"] = json!(
+        warning
+            .iter()
+            .chain(&few)
+            .chain(&holes)
+            .chain(&input.pixel_warnings)
+            .collect::<Vec<_>>()
+    );
     write_json(&dir.join("pdf.json"), &body)?;
     write_pdf_csvs(
         dir,
@@ -808,6 +813,9 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         say!("warning: {}: {w}", input.describe());
     }
     if let Some(w) = holes {
+        say!("warning: {w}");
+    }
+    for w in &input.pixel_warnings {
         say!("warning: {w}");
     }
     Ok(Outcome::Ok)

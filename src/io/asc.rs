@@ -133,7 +133,7 @@ pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
 /// without a spacing; a header that cannot be read is left to the
 /// reader's error (also `Ok(None)`).
 pub(super) fn pixel(path: &Path) -> Result<Option<PixelSpacing>> {
-    use super::georef::{PrjUnits, geographic, linear_unit, prj_units, read_prj, sig};
+    use super::georef::with_prj;
     let (prefix, whole) = read_prefix(path)?;
     let h = match text(whole_lines(&prefix, whole)).and_then(Header::parse) {
         Err(_) if !whole => text(&read_bytes(path)?).and_then(Header::parse),
@@ -148,40 +148,12 @@ pub(super) fn pixel(path: &Path) -> Result<Option<PixelSpacing>> {
     else {
         return Ok(None);
     };
-    let what = format!("ESRI grid cell {} x {}", sig(dx), sig(dy));
-    let prj = read_prj(path);
-    Ok(match prj.as_deref().and_then(prj_units) {
-        Some(PrjUnits::Geographic) => yll.and_then(|(y, centre)| {
-            // the lower edge, then the middle
-            let bottom = if centre { y - dy / 2.0 } else { y };
-            let span = dy * ny as f64;
-            geographic(dx, dy, bottom + span / 2.0, span, "ESRI grid cell").map(|g| PixelSpacing {
-                source: format!("{} (.prj: geographic)", g.source),
-                ..g
-            })
-        }),
-        Some(PrjUnits::Linear(f)) => Some(PixelSpacing {
-            x: dx,
-            y: dy,
-            units: linear_unit(f).map(str::to_string),
-            source: format!("{what} (.prj: projected)"),
-            warnings: Vec::new(),
-        }),
-        None => Some(PixelSpacing {
-            x: dx,
-            y: dy,
-            units: None,
-            source: format!(
-                "{what}{}",
-                if prj.is_some() {
-                    " (a .prj whose units were not understood)"
-                } else {
-                    " (no .prj: units unknown)"
-                }
-            ),
-            warnings: Vec::new(),
-        }),
-    })
+    // the middle row's y, from the lower edge (or its centre)
+    let y_mid = yll.map(|(y, centre)| {
+        let bottom = if centre { y - dy / 2.0 } else { y };
+        bottom + dy * ny as f64 / 2.0
+    });
+    Ok(with_prj(path, dx, dy, y_mid, ny as f64, "ESRI grid cell"))
 }
 
 pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {

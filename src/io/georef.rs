@@ -77,13 +77,54 @@ pub(super) fn geographic(
 /// between latitudes `lo` and `hi` (the image's bottom and top rows).
 pub(super) fn cos_change(lo: f64, hi: f64, what: &str) -> Option<String> {
     let (c_lo, c_hi) = (lo.to_radians().cos(), hi.to_radians().cos());
-    let change = (c_lo - c_hi).abs() / c_lo.max(c_hi);
+    // the widest row is the equator's when the image spans it
+    let widest = if lo < 0.0 && hi > 0.0 {
+        1.0
+    } else {
+        c_lo.max(c_hi)
+    };
+    let change = (widest - c_lo.min(c_hi)) / widest;
     (change > 0.01).then(|| {
         format!(
             "{what} changes by {:.1} % between the image's top and bottom rows (latitudes \
              {lo:.2} to {hi:.2}); lengths use the middle latitude",
             100.0 * change
         )
+    })
+}
+
+/// A Web Mercator spacing (map metres, `dx` x `dy`) as ground metres:
+/// times cos(latitude) at the middle row (map y `y_mid`, `ny` rows), the
+/// sphere's scale factor (on the WGS84 ellipsoid the true one differs by
+/// less than 0.2 %), with a warning when it changes by more than 1 %
+/// across the image. `None` when the image reaches a pole.
+pub(super) fn web_mercator(
+    dx: f64,
+    dy: f64,
+    y_mid: f64,
+    ny: f64,
+    what: &str,
+) -> Option<PixelSpacing> {
+    let lat = |y: f64| (y / WGS84_A).sinh().atan().to_degrees();
+    let half = dy * ny / 2.0;
+    let (lo, mid, hi) = (lat(y_mid - half), lat(y_mid), lat(y_mid + half));
+    if !(lo > -90.0 && hi < 90.0 && mid.is_finite()) {
+        return None;
+    }
+    let c = mid.to_radians().cos();
+    Some(PixelSpacing {
+        x: dx * c,
+        y: dy * c,
+        units: Some("m".into()),
+        source: format!(
+            "{what} {} x {} m of Web Mercator at latitude {mid:.3} (ground = map x \
+             cos(latitude))",
+            sig(dx),
+            sig(dy)
+        ),
+        warnings: cos_change(lo, hi, "Web Mercator pixels: their ground size")
+            .into_iter()
+            .collect(),
     })
 }
 
@@ -116,15 +157,67 @@ pub(super) fn linear_unit(to_metres: f64) -> Option<&'static str> {
 pub(super) enum PrjUnits {
     Geographic,
     Linear(f64),
+    /// Web Mercator (EPSG:3857, ESRI's Mercator_Auxiliary_Sphere): map
+    /// metres, ground = map x cos(latitude).
+    WebMercator,
 }
 
 pub(super) fn prj_units(text: &str) -> Option<PrjUnits> {
-    let t = text.trim_start().to_ascii_uppercase();
+    let t = text
+        .trim_start_matches('\u{feff}')
+        .trim_start()
+        .to_ascii_uppercase();
+    // old ArcInfo .prj: `Units METERS` / `FEET` / `DD` lines
+    if !t.starts_with(|c: char| c.is_ascii_alphabetic()) || !t.contains('[') && !t.contains('(') {
+        return t.lines().find_map(|l| {
+            let mut w = l.split_whitespace();
+            (w.next()? == "UNITS").then_some(())?;
+            match w.next()? {
+                "METERS" | "METRES" => Some(PrjUnits::Linear(1.0)),
+                "FEET" => Some(PrjUnits::Linear(0.3048)),
+                "DD" => Some(PrjUnits::Geographic),
+                _ => None,
+            }
+        });
+    }
+    // WKT: brackets or parentheses, blanks before them allowed
+    let mut t: String = t.split_whitespace().collect::<Vec<_>>().join(" ");
+    for (a, b) in [(" [", "["), (" (", "("), ("(", "["), (")", "]")] {
+        t = t.replace(a, b);
+    }
+    // a compound system (horizontal + vertical): the horizontal part
+    let t = if t.starts_with("COMPD_CS") || t.starts_with("COMPOUNDCRS") {
+        let start = ["PROJCS[", "PROJCRS[", "GEOGCS[", "GEOGCRS[", "GEODCRS["]
+            .iter()
+            .filter_map(|k| t.find(k))
+            .min()?;
+        let end = ["VERT_CS[", "VERTCRS["]
+            .iter()
+            .filter_map(|k| t.find(k))
+            .filter(|&e| e > start)
+            .min()
+            .unwrap_or(t.len());
+        t[start..end].to_string()
+    } else {
+        t
+    };
     if t.starts_with("GEOGCS") || t.starts_with("GEOGCRS") || t.starts_with("GEODCRS") {
         return Some(PrjUnits::Geographic);
     }
     if !(t.starts_with("PROJCS") || t.starts_with("PROJCRS")) {
         return None;
+    }
+    if [
+        "AUXILIARY_SPHERE",
+        "PSEUDO-MERCATOR",
+        "PSEUDO_MERCATOR",
+        "\"EPSG\",\"3857\"",
+        "\"EPSG\",3857",
+    ]
+    .iter()
+    .any(|k| t.contains(k))
+    {
+        return Some(PrjUnits::WebMercator);
     }
     // UNIT["Meter",1.0] or LENGTHUNIT["metre",1]
     let at = t.rfind("UNIT[")?;
@@ -135,7 +228,7 @@ pub(super) fn prj_units(text: &str) -> Option<PrjUnits> {
 }
 
 /// The `.prj` beside `path`, if there is one (case of the extension as the
-/// file's, then lower case).
+/// file's, then lower, then upper case).
 pub(super) fn read_prj(path: &Path) -> Option<String> {
     let upper = path
         .extension()
@@ -149,7 +242,126 @@ pub(super) fn read_prj(path: &Path) -> Option<String> {
             .filter(|m| m.len() < 1 << 20)
             .and_then(|_| std::fs::read_to_string(p).ok())
     };
-    read(&first).or_else(|| read(&path.with_extension("prj")))
+    read(&first)
+        .or_else(|| read(&path.with_extension("prj")))
+        .or_else(|| read(&path.with_extension("PRJ")))
+}
+
+/// The world file beside an image (`a.tfw`, `a.tifw` or `a.wld` for
+/// `a.tif`; `a.pgw`, `a.pngw`, `a.wld` for `a.png`; `a.wld` for `a.pgm`):
+/// six numbers A, D, B, E, C, F mapping pixel (col, row) to X = A col +
+/// B row + C, Y = D col + E row + F (the pixel's centre; ESRI's world
+/// file convention, also GDAL's). The spacing is |(A, D)| x |(B, E)|, in
+/// the units of the `.prj` beside the image (geographic: metres at the
+/// middle latitude, from F and E and the image's `ny` rows); without a
+/// `.prj`, units unknown. `None` without a world file or with one that is
+/// not six finite numbers, or a degenerate one.
+pub(super) fn world_file(path: &Path, ny: usize) -> Option<PixelSpacing> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    let stems: &[&str] = match ext.as_str() {
+        "tif" => &["tfw", "tifw", "wld"],
+        "tiff" => &["tfw", "tiffw", "wld"],
+        "png" => &["pgw", "pngw", "wld"],
+        "pgm" => &["wld"],
+        _ => return None,
+    };
+    let (wf, text) = stems.iter().find_map(|e| {
+        // the world file's extension in the image's case, then lower case
+        let upper = path
+            .extension()
+            .and_then(|x| x.to_str())
+            .is_some_and(|x| x.chars().all(|c| c.is_ascii_uppercase()));
+        let first = path.with_extension(if upper {
+            e.to_ascii_uppercase()
+        } else {
+            e.to_string()
+        });
+        [first, path.with_extension(e)].into_iter().find_map(|p| {
+            let t = std::fs::metadata(&p)
+                .ok()
+                .filter(|m| m.len() < 4096)
+                .and_then(|_| std::fs::read_to_string(&p).ok())?;
+            Some((p, t))
+        })
+    })?;
+    let v: Vec<f64> = text
+        .split_whitespace()
+        .map(|t| t.parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .ok()?;
+    let [a, d, b, e, _c, f] = <[f64; 6]>::try_from(v).ok()?;
+    if !(a.is_finite() && d.is_finite() && b.is_finite() && e.is_finite() && f.is_finite()) {
+        return None;
+    }
+    let (x, y) = (a.hypot(d), b.hypot(e));
+    if !(x > 0.0 && y > 0.0) {
+        return None;
+    }
+    let name = wf.file_name()?.to_string_lossy().into_owned();
+    // the middle row's y, from the first row's centre
+    let mid = f + e * (ny as f64 - 1.0) / 2.0;
+    with_prj(
+        path,
+        x,
+        y,
+        Some(mid),
+        ny as f64,
+        &format!("world file {name}"),
+    )
+}
+
+/// A spacing `x` x `y` in the units of the `.prj` beside `path`:
+/// projected, its linear unit (an unknown one converted to metres by its
+/// factor); geographic, metres at the middle row's latitude `y_mid` (in
+/// the system's units: degrees; `ny` rows); Web Mercator, ground metres;
+/// without a `.prj` (or one not understood), units unknown, said in the
+/// source. `None` when a geographic or Web Mercator spacing has no
+/// middle row, or reaches a pole.
+pub(super) fn with_prj(
+    path: &Path,
+    x: f64,
+    y: f64,
+    y_mid: Option<f64>,
+    ny: f64,
+    what: &str,
+) -> Option<PixelSpacing> {
+    let prj = read_prj(path);
+    let plain = |units: Option<String>, note: String| PixelSpacing {
+        x,
+        y,
+        units,
+        source: format!("{what} {} x {}{note}", sig(x), sig(y)),
+        warnings: Vec::new(),
+    };
+    match prj.as_deref().and_then(prj_units) {
+        Some(PrjUnits::Geographic) => {
+            let g = geographic(x, y, y_mid?, y * ny, what)?;
+            Some(PixelSpacing {
+                source: format!("{} (.prj: geographic)", g.source),
+                ..g
+            })
+        }
+        Some(PrjUnits::WebMercator) => web_mercator(x, y, y_mid?, ny, what),
+        Some(PrjUnits::Linear(f)) => Some(match linear_unit(f) {
+            Some(u) => plain(Some(u.into()), " (.prj: projected)".into()),
+            None => PixelSpacing {
+                x: x * f,
+                y: y * f,
+                ..plain(
+                    Some("m".into()),
+                    format!(" (.prj: projected, a unit of {} m)", sig(f)),
+                )
+            },
+        }),
+        None => Some(plain(
+            None,
+            if prj.is_some() {
+                " (a .prj whose units were not understood)".into()
+            } else {
+                " (no .prj: units unknown)".into()
+            },
+        )),
+    }
 }
 
 #[cfg(test)]
@@ -182,6 +394,10 @@ mod tests {
                 .is_empty()
         );
         assert!(geographic(s, s, 89.9, 1.0, "t").is_none());
+        // across the equator the widest row is the equator's: -10 .. +10
+        // changes the width by 1 - cos 10 = 1.5 %
+        let w = geographic(s, s, 0.0, 20.0, "t").unwrap().warnings;
+        assert!(w.len() == 1 && w[0].contains("1.5 %"), "{w:?}");
         assert!(geographic(s, s, f64::NAN, 1.0, "t").is_none());
     }
 
@@ -203,6 +419,30 @@ mod tests {
         let wkt2 = "PROJCRS[\"a\",BASEGEOGCRS[\"b\"],CS[Cartesian,2],LENGTHUNIT[\"metre\",1]]";
         assert_eq!(prj_units(wkt2), Some(PrjUnits::Linear(1.0)));
         assert_eq!(prj_units("nonsense"), None);
+        // a byte-order mark, blanks before brackets, parentheses
+        let bom = "\u{feff}PROJCS [\"a\", UNIT [\"Meter\", 1.0]]";
+        assert_eq!(prj_units(bom), Some(PrjUnits::Linear(1.0)));
+        assert_eq!(
+            prj_units("PROJCS(\"a\",UNIT(\"Foot\",0.3048))"),
+            Some(PrjUnits::Linear(0.3048))
+        );
+        // a compound system: the horizontal part's unit, not the vertical's
+        let compd = "COMPD_CS[\"c\",PROJCS[\"u\",UNIT[\"US survey foot\",0.3048006096012192]],VERT_CS[\"v\",UNIT[\"metre\",1]]]";
+        assert_eq!(prj_units(compd), Some(PrjUnits::Linear(0.3048006096012192)));
+        // Web Mercator, ESRI's and EPSG's
+        let aux = "PROJCS[\"WGS_1984_Web_Mercator_Auxiliary_Sphere\",PROJECTION[\"Mercator_Auxiliary_Sphere\"],UNIT[\"Meter\",1.0]]";
+        assert_eq!(prj_units(aux), Some(PrjUnits::WebMercator));
+        let epsg =
+            "PROJCS[\"WGS 84 / Pseudo-Mercator\",UNIT[\"metre\",1],AUTHORITY[\"EPSG\",\"3857\"]]";
+        assert_eq!(prj_units(epsg), Some(PrjUnits::WebMercator));
+        // old ArcInfo
+        let arc =
+            "Projection    UTM\nZone          33\nDatum         WGS84\nUnits         METERS\n";
+        assert_eq!(prj_units(arc), Some(PrjUnits::Linear(1.0)));
+        assert_eq!(
+            prj_units("Projection GEOGRAPHIC\nUnits DD\n"),
+            Some(PrjUnits::Geographic)
+        );
         assert_eq!(prj_units("PROJCS[\"a\",UNIT[\"m\",x]]"), None);
         assert_eq!(linear_unit(0.3048), Some("ft"));
         assert_eq!(linear_unit(0.5), None);

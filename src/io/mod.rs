@@ -170,20 +170,34 @@ pub fn read_shape(path: impl AsRef<Path>) -> Result<[usize; 2]> {
 
 /// The pixel spacing `path` declares: a GeoTIFF's ModelPixelScale (or
 /// affine ModelTransformation) with its GeoKeys' units, an ESRI grid's
-/// `cellsize` (or `dx`, `dy`) with its `.prj`'s units. Geographic
-/// spacings (degrees) are given in metres at the image's middle latitude
-/// on WGS84, and Web Mercator ones as ground metres. `None` for formats
-/// without georeferencing (npy, png, pgm) and files that declare none.
+/// `cellsize` (or `dx`, `dy`) with its `.prj`'s units, else a world file
+/// beside a TIFF, PNG or PGM (`.tfw`, `.pgw`, `.wld`, ...) with the
+/// `.prj`'s units. Geographic spacings (degrees) are given in metres at
+/// the image's middle latitude on WGS84, and Web Mercator ones as ground
+/// metres. `None` for npy and for files that declare none.
 ///
-/// **Errors** only on a missing or unreadable file or an unknown format;
-/// a corrupt header gives `None` here and its error in [`read_field`].
+/// **Errors** on a missing or unreadable file or an unknown format; a
+/// corrupt header gives `None` here and its error in [`read_field`].
 pub fn read_pixel_spacing(path: impl AsRef<Path>) -> Result<Option<PixelSpacing>> {
     let path = path.as_ref();
-    match read_format(path)? {
-        ImageFormat::Tiff => tiff::pixel(path),
-        ImageFormat::Asc => asc::pixel(path),
-        ImageFormat::Npy | ImageFormat::Png | ImageFormat::Pgm => Ok(None),
+    let format = read_format(path)?;
+    std::fs::metadata(path).map_err(|source| Error::Read {
+        path: path.into(),
+        source,
+    })?;
+    let own = match format {
+        ImageFormat::Tiff => tiff::pixel(path)?,
+        ImageFormat::Asc => asc::pixel(path)?,
+        ImageFormat::Npy | ImageFormat::Png | ImageFormat::Pgm => None,
+    };
+    if own.is_some() || matches!(format, ImageFormat::Npy | ImageFormat::Asc) {
+        return Ok(own);
     }
+    // a world file needs the rows only for a geographic latitude span; a
+    // header that cannot be read leaves the error to the reader
+    Ok(read_shape(path)
+        .ok()
+        .and_then(|[ny, _]| georef::world_file(path, ny)))
 }
 
 /// The format a reader takes `path` in, from its extension.

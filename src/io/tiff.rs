@@ -456,7 +456,7 @@ const GEO_KEYS: u16 = 34735;
 /// TIFF, or tags this walk cannot use; a file that is not a readable TIFF
 /// is left to the reader's error (also `Ok(None)`).
 pub(super) fn pixel(path: &Path) -> Result<Option<super::georef::PixelSpacing>> {
-    use super::georef::{PixelSpacing, cos_change, geographic, linear_unit, sig};
+    use super::georef::{PixelSpacing, geographic, linear_unit, sig, web_mercator};
     let file = std::fs::File::open(path).map_err(|source| Error::Read {
         path: path.into(),
         source,
@@ -487,7 +487,8 @@ pub(super) fn pixel(path: &Path) -> Result<Option<super::georef::PixelSpacing>> 
                 .as_ref()
                 .filter(|t| t.len() >= 6)
                 .map(|t| t[4] - (ny / 2.0 - t[1]) * s[1]);
-            (s[0], s[1], "GeoTIFF ModelPixelScale", y_mid)
+            // a negative scale (south-up writers) is a spacing all the same
+            (s[0].abs(), s[1].abs(), "GeoTIFF ModelPixelScale", y_mid)
         }
         (_, Some(m)) if m.len() >= 16 => {
             let y_mid = m[4] * nx / 2.0 + m[5] * ny / 2.0 + m[7];
@@ -506,44 +507,27 @@ pub(super) fn pixel(path: &Path) -> Result<Option<super::georef::PixelSpacing>> 
     // GTModelTypeGeoKey: 1 projected, 2 geographic
     Ok(match key(1024) {
         Some(2) => {
-            // GeogAngularUnitsGeoKey: degree (9102, the default), radian
-            // (9101), arc-minute (9103), arc-second (9104), grad (9105)
+            // GeogAngularUnitsGeoKey: degree (9102, the default; 9122, EPSG
+            // 4326's "supplier to define"), radian (9101), arc-minute (9103),
+            // arc-second (9104), grad and gon (9105, 9106)
             let per_degree = match key(2054).unwrap_or(9102) {
-                9102 => 1.0,
+                9102 | 9122 => 1.0,
                 9101 => std::f64::consts::PI / 180.0,
                 9103 => 60.0,
                 9104 => 3600.0,
-                9105 => 400.0 / 360.0,
+                9105 | 9106 => 400.0 / 360.0,
                 _ => return Ok(None),
             };
             let deg = |v: f64| v / per_degree;
             y_mid.and_then(|y| geographic(deg(dx), deg(dy), deg(y), deg(dy) * ny, what))
         }
         // Web Mercator (EPSG:3857 and its older codes): a pixel of the map
-        // is 1/cos(latitude) times its ground size
+        // is about 1/cos(latitude) times its ground size (the sphere's
+        // scale factor; on the WGS84 ellipsoid it differs by < 0.2 %)
         // (its sphere's radius is WGS84's semi-major axis)
-        Some(1) if key(3072).is_some_and(|c| [3857, 3785].contains(&c)) => y_mid.and_then(|y| {
-            let lat = |y: f64| (y / 6_378_137.0).sinh().atan().to_degrees();
-            let half = dy * ny / 2.0;
-            let (lo, mid, hi) = (lat(y - half), lat(y), lat(y + half));
-            (lo > -90.0 && hi < 90.0).then(|| {
-                let c = mid.to_radians().cos();
-                PixelSpacing {
-                    x: dx * c,
-                    y: dy * c,
-                    units: Some("m".into()),
-                    source: format!(
-                        "{what} {} x {} m of Web Mercator at latitude {mid:.3} (ground = map x \
-                         cos(latitude))",
-                        sig(dx),
-                        sig(dy)
-                    ),
-                    warnings: cos_change(lo, hi, "Web Mercator pixels: their ground size")
-                        .into_iter()
-                        .collect(),
-                }
-            })
-        }),
+        Some(1) if key(3072).is_some_and(|c| [3857, 3785].contains(&c)) => {
+            y_mid.and_then(|y| web_mercator(dx, dy, y, ny, what))
+        }
         Some(1) => {
             // ProjLinearUnitsGeoKey (EPSG unit codes), else the WGS84 UTM
             // zones' metres (ProjectedCSTypeGeoKey 32601-32660, 32701-32760)
@@ -557,21 +541,31 @@ pub(super) fn pixel(path: &Path) -> Result<Option<super::georef::PixelSpacing>> 
                     .filter(|c| (32601..=32660).contains(c) || (32701..=32760).contains(c))
                     .map(|_| 1.0),
             };
+            let units = factor.and_then(linear_unit).map(str::to_string);
             Some(PixelSpacing {
                 x: dx,
                 y: dy,
-                units: factor.and_then(linear_unit).map(str::to_string),
-                source: format!("{what} {} x {}", sig(dx), sig(dy)),
+                source: format!(
+                    "{what} {} x {}{}",
+                    sig(dx),
+                    sig(dy),
+                    if units.is_none() {
+                        " (projected, units not understood)"
+                    } else {
+                        ""
+                    }
+                ),
+                units,
                 warnings: Vec::new(),
             })
         }
-        // no model type (or geocentric): the spacing, units unknown
+        // no model type key (or geocentric): the spacing, units unknown
         _ => Some(PixelSpacing {
             x: dx,
             y: dy,
             units: None,
             source: format!(
-                "{what} {} x {} (no GeoKeys: units unknown)",
+                "{what} {} x {} (no model type in the GeoKeys: units unknown)",
                 sig(dx),
                 sig(dy)
             ),

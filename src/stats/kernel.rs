@@ -735,8 +735,10 @@ pub struct CnRow {
     #[serde(deserialize_with = "crate::nan_null::f64")]
     pub ln_ratio: f64,
     /// `[C1, C2, C3]`.
+    #[serde(deserialize_with = "crate::nan_null::arr")]
     pub c: [f64; 3],
     /// Jackknife standard errors (NaN with < 3 images).
+    #[serde(deserialize_with = "crate::nan_null::arr")]
     pub c_stderr: [f64; 3],
 }
 
@@ -753,6 +755,7 @@ pub struct CnTable {
     /// One row per grid scale `a < a'` in the fit range, ascending.
     pub rows: Vec<CnRow>,
     /// Least-squares slopes through the origin of `C_n` against `ln(a'/a)`.
+    #[serde(deserialize_with = "crate::nan_null::arr")]
     pub slope: [f64; 3],
 }
 
@@ -856,7 +859,7 @@ pub struct KernelResult {
     /// `c_n + plugin_tilt[n - 1]`; the jackknife errors do not include it
     /// (every replicate shares it). `c1`'s is 0 (the mean is unbiased); NaN
     /// where `c_n` is not estimable.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::nan_null::arr")]
     pub plugin_tilt: [f64; 3],
     /// Human-readable warnings (few WTMMM at the top of the fit, < 3 images).
     pub warnings: Vec<String>,

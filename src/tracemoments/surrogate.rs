@@ -61,16 +61,22 @@ pub struct SurrogateRun {
     /// Which draw (`0..count`); draws that failed are left out of the list.
     pub index: usize,
     /// α.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub alpha: f64,
     /// Reported error of α.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub alpha_stderr: f64,
     /// C1.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub c1: f64,
     /// Reported error of C1.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub c1_stderr: f64,
     /// Spectral H (NaN without it).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub h: f64,
     /// Reported error of H (NaN without it).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub h_stderr: f64,
 }
 
@@ -100,23 +106,30 @@ fn bias_warning(name: &str, st: &SurrogateStat) -> Option<String> {
 pub struct SurrogateStat {
     /// The value the surrogates were drawn with: the data's estimate (α
     /// capped at 2, the model's bound).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub input: f64,
     /// Mean of the surrogates' estimates.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub mean: f64,
     /// Standard deviation of the surrogates' estimates: the error of one
     /// analysis of data like these, if the model holds.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub sd: f64,
     /// The central 68 % and 95 % of the surrogates' estimates (linear
     /// interpolation between order statistics): `[q2.5, q16, q84, q97.5]`.
     /// Half of `q84 - q16` is a scale that a few draws far off do not move;
     /// when `sd` is much larger the estimator has heavy tails here.
+    #[serde(deserialize_with = "crate::nan_null::arr")]
     pub quantiles: [f64; 4],
     /// `mean - input`: the estimator's bias at these parameters.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub bias: f64,
     /// Standard error of the bias, `sd / sqrt(n)`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub bias_stderr: f64,
     /// The rms of the surrogates' own reported errors over `sd`: 1 when the
     /// errors printed for the data are right, below 1 when they understate.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub stderr_ratio: f64,
 }
 
