@@ -112,17 +112,25 @@ fn text(bytes: &[u8]) -> std::result::Result<&str, String> {
     Ok(text.strip_prefix('\u{feff}').unwrap_or(text))
 }
 
-/// The `(ny, nx)` of a grid from its header (super::read_shape).
-pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
+/// The header of a grid without its values: `Err` when the file cannot
+/// be read, `Ok(Err(why))` when the header is not a grid's.
+fn header(path: &Path) -> Result<std::result::Result<Header, String>> {
     let (prefix, whole) = read_prefix(path)?;
     // whole lines (a prefix never ends inside a character); a header the
     // prefix does not hold whole (a line longer than it) is read from the
     // whole file
-    let h = match text(whole_lines(&prefix, whole)).and_then(Header::parse) {
-        Err(_) if !whole => text(&read_bytes(path)?).and_then(Header::parse),
-        h => h,
-    }
-    .map_err(|reason| Error::format(path, format!("ESRI ASCII grid: {reason}")))?;
+    Ok(
+        match text(whole_lines(&prefix, whole)).and_then(Header::parse) {
+            Err(_) if !whole => text(&read_bytes(path)?).and_then(Header::parse),
+            h => h,
+        },
+    )
+}
+
+/// The `(ny, nx)` of a grid from its header (super::read_shape).
+pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
+    let h = header(path)?
+        .map_err(|reason| Error::format(path, format!("ESRI ASCII grid: {reason}")))?;
     Ok((h.ny, h.nx))
 }
 
@@ -134,17 +142,12 @@ pub(super) fn shape(path: &Path) -> Result<(usize, usize)> {
 /// reader's error (also `Ok(None)`).
 pub(super) fn pixel(path: &Path) -> Result<Option<PixelSpacing>> {
     use super::georef::with_prj;
-    let (prefix, whole) = read_prefix(path)?;
-    let h = match text(whole_lines(&prefix, whole)).and_then(Header::parse) {
-        Err(_) if !whole => text(&read_bytes(path)?).and_then(Header::parse),
-        h => h,
-    };
     let Ok(Header {
         ny,
         cell: Some((dx, dy)),
         yll,
         ..
-    }) = h
+    }) = header(path)?
     else {
         return Ok(None);
     };

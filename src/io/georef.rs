@@ -230,21 +230,33 @@ pub(super) fn prj_units(text: &str) -> Option<PrjUnits> {
 /// The `.prj` beside `path`, if there is one (case of the extension as the
 /// file's, then lower, then upper case).
 pub(super) fn read_prj(path: &Path) -> Option<String> {
+    // a .prj is a few hundred bytes; a large file there is not one
+    sidecar(path, "prj", 1 << 20).map(|(_, t)| t)
+}
+
+/// The text of the file beside `path` with extension `ext` (in the case
+/// of `path`'s extension, then lower, then upper case) and its path, if
+/// there is one of fewer than `max` bytes.
+fn sidecar(path: &Path, ext: &str, max: u64) -> Option<(std::path::PathBuf, String)> {
     let upper = path
         .extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| e.chars().all(|c| c.is_ascii_uppercase()));
-    let first = path.with_extension(if upper { "PRJ" } else { "prj" });
-    // a .prj is a few hundred bytes; a large file there is not one
-    let read = |p: &Path| {
-        std::fs::metadata(p)
-            .ok()
-            .filter(|m| m.len() < 1 << 20)
-            .and_then(|_| std::fs::read_to_string(p).ok())
+    let first = if upper {
+        ext.to_ascii_uppercase()
+    } else {
+        ext.to_ascii_lowercase()
     };
-    read(&first)
-        .or_else(|| read(&path.with_extension("prj")))
-        .or_else(|| read(&path.with_extension("PRJ")))
+    [first, ext.to_ascii_lowercase(), ext.to_ascii_uppercase()]
+        .into_iter()
+        .find_map(|e| {
+            let p = path.with_extension(e);
+            let t = std::fs::metadata(&p)
+                .ok()
+                .filter(|m| m.len() < max)
+                .and_then(|_| std::fs::read_to_string(&p).ok())?;
+            Some((p, t))
+        })
 }
 
 /// The world file beside an image (`a.tfw`, `a.tifw` or `a.wld` for
@@ -265,25 +277,7 @@ pub(super) fn world_file(path: &Path, ny: usize) -> Option<PixelSpacing> {
         "pgm" => &["wld"],
         _ => return None,
     };
-    let (wf, text) = stems.iter().find_map(|e| {
-        // the world file's extension in the image's case, then lower case
-        let upper = path
-            .extension()
-            .and_then(|x| x.to_str())
-            .is_some_and(|x| x.chars().all(|c| c.is_ascii_uppercase()));
-        let first = path.with_extension(if upper {
-            e.to_ascii_uppercase()
-        } else {
-            e.to_string()
-        });
-        [first, path.with_extension(e)].into_iter().find_map(|p| {
-            let t = std::fs::metadata(&p)
-                .ok()
-                .filter(|m| m.len() < 4096)
-                .and_then(|_| std::fs::read_to_string(&p).ok())?;
-            Some((p, t))
-        })
-    })?;
+    let (wf, text) = stems.iter().find_map(|e| sidecar(path, e, 4096))?;
     let v: Vec<f64> = text
         .split_whitespace()
         .map(|t| t.parse::<f64>())
