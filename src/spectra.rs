@@ -218,6 +218,35 @@ pub struct PartitionSums {
     pub scales: Vec<f64>,
     /// One partial per image, in the order added.
     pub images: Vec<ImagePartial>,
+    /// The pixel of the images, when the analysis knew it (`analyze` with
+    /// `--pixel-size` or a spacing the files declare), so that a later merge
+    /// still gives the fit's scales as lengths. Not part of the sums: a
+    /// merge of shards whose pixels differ has none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel: Option<PixelRecord>,
+}
+
+/// The pixel recorded with partition sums ([`PartitionSums::pixel`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PixelRecord {
+    /// Along the columns (x).
+    pub x: f64,
+    /// Along the rows (y).
+    pub y: f64,
+    /// The unit's name.
+    pub units: String,
+    /// Where it came from (`--pixel-size`, or the file that declared it).
+    pub source: String,
+}
+
+impl PixelRecord {
+    /// The same pixel (sides within 1e-3 relative, same unit), whatever
+    /// its source.
+    pub fn same(&self, other: &PixelRecord) -> bool {
+        self.units == other.units
+            && (self.x / other.x - 1.0).abs() <= 1e-3
+            && (self.y / other.y - 1.0).abs() <= 1e-3
+    }
 }
 
 impl PartitionSums {
@@ -311,6 +340,7 @@ impl PartitionSums {
             analysis: None,
             q: q.to_vec(),
             scales: sk.scales.clone(),
+            pixel: None,
             images: vec![ImagePartial {
                 label: label.into(),
                 shape: Some([sk.shape.0, sk.shape.1]),
@@ -368,6 +398,7 @@ impl PartitionSums {
             analysis: None,
             q: q.to_vec(),
             scales: scales.to_vec(),
+            pixel: None,
             images: vec![ImagePartial {
                 label: label.into(),
                 shape: None,
@@ -411,6 +442,10 @@ impl PartitionSums {
             // one shard of unknown provenance: so is the merge
             (Some(_), None) => self.analysis = None,
             _ => {}
+        }
+        // shards of different (or unknown) pixels: the merge's is unknown
+        if !matches!((&self.pixel, &other.pixel), (Some(a), Some(b)) if a.same(b)) {
+            self.pixel = None;
         }
         self.images.extend(other.images.iter().cloned());
         // tiles are the jackknife groups of fewer than 3 images only: from 3
@@ -482,6 +517,14 @@ impl PartitionSums {
         }
         if self.images.is_empty() {
             return Err("no images".into());
+        }
+        if let Some(p) = &self.pixel
+            && !(p.x.is_finite() && p.x > 0.0 && p.y.is_finite() && p.y > 0.0)
+        {
+            return Err(format!(
+                "`pixel` must have finite positive sides, got {} x {}",
+                p.x, p.y
+            ));
         }
         let (ns, nc) = (self.scales.len(), self.q.len() * self.scales.len());
         // tiles partition their image: at least 2, a side, and line counts
@@ -600,6 +643,7 @@ impl PartitionSums {
             q: self.q.clone(),
             scales: self.scales.clone(),
             images,
+            pixel: self.pixel.clone(),
         })
     }
 
@@ -2379,6 +2423,7 @@ mod tests {
                 q,
                 scales: vec![1.0, 2.0, 4.0, 8.0],
                 images,
+                pixel: None,
             };
             for rule in [Rule::Sup, Rule::Plain] {
                 for range in [0..n_img, 1..3] {

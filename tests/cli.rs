@@ -1297,8 +1297,25 @@ fn pixel_size_gives_lengths() {
         t["lengths"]["trace_moment_boxes"],
         serde_json::json!([1.0, 64.0])
     );
-    // merge: the sums are in pixels; --pixel-size gives the lengths again
+    // merge: sums.json records the pixel analyze used, and merge uses it
     let sums = dir.join("a/sums.json").display().to_string();
+    assert_eq!(json(&dir.join("a/sums.json"))["pixel"]["x"], 2.0);
+    let (code, out, err) = run_bin_output(&["merge", &sums, "--out", &o("m0")], false);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("note: pixel 2 x 2 m, recorded in "),
+        "{out}{err}"
+    );
+    let m = json(&dir.join("m0/spectra.json"));
+    assert_eq!(m["params"]["pixel_size"]["side"], 2.0);
+    assert_eq!(m["length_units"], "m");
+    assert_eq!(
+        m["fit_lengths"][0].as_f64(),
+        Some(2.0 * m["fit_scales"][0].as_f64().unwrap())
+    );
+    // and records it again, for the next merge
+    assert_eq!(json(&dir.join("m0/sums.json"))["pixel"]["units"], "m");
+    // --pixel-size wins, with a warning that it differs from the record
     let (code, err) = run_bin_stderr(&[
         "merge",
         &sums,
@@ -1315,6 +1332,34 @@ fn pixel_size_gives_lengths() {
     assert_eq!(
         m["fit_lengths"][0].as_f64(),
         Some(3.0 * m["fit_scales"][0].as_f64().unwrap())
+    );
+    assert!(
+        m["warnings"]
+            .to_string()
+            .contains("--pixel-size 3 m differs from the 2 m"),
+        "{}",
+        m["warnings"]
+    );
+    // a shard without a pixel: none, and said
+    let (code, err) = run_bin_stderr(&["analyze", &img, "--octaves", "3", "--out", &o("b")]);
+    assert_eq!(code, 0, "{err}");
+    let bare = dir.join("b/sums.json").display().to_string();
+    assert!(json(&dir.join("b/sums.json")).get("pixel").is_none());
+    // b is a's image: relabelled, or merge would refuse it as counted twice
+    let text = std::fs::read_to_string(&bare).unwrap();
+    let relabelled = dir.join("b/other.json");
+    std::fs::write(&relabelled, text.replace("f.npy", "g.npy")).unwrap();
+    let relabelled = relabelled.display().to_string();
+    let (code, err) = run_bin_stderr(&["merge", &sums, &relabelled, "--out", &o("m2")]);
+    assert_eq!(code, 0, "{err}");
+    let m = json(&dir.join("m2/spectra.json"));
+    assert!(m["params"]["pixel_size"].is_null());
+    assert!(
+        m["warnings"]
+            .to_string()
+            .contains("1 of 2 sums files record a pixel spacing"),
+        "{}",
+        m["warnings"]
     );
     // an ESRI grid with a .prj declares its pixel: used without --pixel-size
     let write_asc = |name: &str, f: &ndarray::Array2<f64>| {
@@ -1357,6 +1402,20 @@ fn pixel_size_gives_lengths() {
     let sp: wtmm::spectra::Spectra = serde_json::from_value(g.clone()).unwrap();
     assert_eq!(serde_json::to_value(&sp.tau).unwrap(), g["tau"]);
     assert_eq!(g["h_q0"], a["h_q0"]);
+    // skeleton: the drawn scales as lengths too
+    let (code, err) = run_bin_stderr(&["skeleton", &asc, "--octaves", "3", "--out", &o("k")]);
+    assert_eq!(code, 0, "{err}");
+    let k = json(&dir.join("k/skeleton.json"));
+    assert_eq!(k["params"]["pixel_size"]["side"], 30.0);
+    assert_eq!(k["length_units"], "m");
+    let pics = k["pictures"].as_array().unwrap();
+    assert!(!pics.is_empty());
+    for p in pics {
+        assert_eq!(
+            p["a_length"].as_f64(),
+            Some(30.0 * p["a"].as_f64().unwrap())
+        );
+    }
     // an image that declares none among ones that do: no lengths, a warning
     let asc2 = write_asc(
         "f2.asc",

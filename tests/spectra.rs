@@ -3,7 +3,7 @@
 use rayon::prelude::*;
 use wtmm::Field;
 use wtmm::skeleton::AnalysisConfig;
-use wtmm::spectra::{PartitionSums, Rule, image_sums, legendre};
+use wtmm::spectra::{PartitionSums, PixelRecord, Rule, image_sums, legendre};
 use wtmm::synth::fbm::{FbmParams, fbm};
 use wtmm::theory::Model;
 
@@ -109,6 +109,64 @@ fn merge_is_exact_and_order_independent() {
     // different q grids refuse to merge
     let other_q = fbm_sums(0.5, 128, 1, 77, &small_cfg(), &[0.0, 1.0]);
     assert!(forward.clone().merge(&other_q[0]).is_err());
+}
+
+/// The pixel recorded with the sums survives a merge of shards that agree
+/// on it (within 1e-3, whatever its source) and is dropped otherwise; a
+/// recorded pixel that is not positive is refused on reading.
+#[test]
+fn merge_keeps_the_pixel_shards_agree_on() {
+    let q = [0.0, 1.0];
+    let parts = fbm_sums(0.5, 128, 3, 5, &small_cfg(), &q);
+    let px = |x: f64, units: &str, source: &str| PixelRecord {
+        x,
+        y: x,
+        units: units.into(),
+        source: source.into(),
+    };
+    let with = |i: usize, p: Option<PixelRecord>| PartitionSums {
+        pixel: p,
+        ..parts[i].clone()
+    };
+    let merged = |a: Option<PixelRecord>, b: Option<PixelRecord>| {
+        let mut s = with(0, a);
+        s.merge(&with(1, b)).unwrap();
+        s.pixel
+    };
+    let m30 = px(30.0, "m", "a.tif");
+    assert_eq!(
+        merged(
+            Some(m30.clone()),
+            Some(px(30.0 * (1.0 + 5e-4), "m", "b.tif"))
+        ),
+        Some(m30.clone())
+    );
+    assert_eq!(
+        merged(Some(m30.clone()), Some(px(31.0, "m", "a.tif"))),
+        None
+    );
+    assert_eq!(
+        merged(Some(m30.clone()), Some(px(30.0, "ft", "a.tif"))),
+        None
+    );
+    assert_eq!(merged(Some(m30.clone()), None), None);
+    assert_eq!(merged(None, Some(m30.clone())), None);
+    // through JSON, and checked
+    let s = with(2, Some(m30.clone()));
+    let back: PartitionSums = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+    assert_eq!(back.pixel, Some(m30));
+    assert!(back.check().is_ok());
+    for bad in [0.0, -1.0, f64::NAN] {
+        let s = with(2, Some(px(bad, "m", "x")));
+        let e = s.check().unwrap_err();
+        assert!(e.contains("`pixel`"), "{e}");
+    }
+    // sums without the field (older files) read as no pixel
+    let mut v = serde_json::to_value(&parts[0]).unwrap();
+    assert!(v.get("pixel").is_none());
+    v.as_object_mut().unwrap().remove("pixel");
+    let back: PartitionSums = serde_json::from_value(v).unwrap();
+    assert_eq!(back.pixel, None);
 }
 
 /// The plain rule's bias on fBm ensembles of 512^2 (4 octaves, fit

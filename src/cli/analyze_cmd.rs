@@ -258,7 +258,9 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         }
         None => (None, None),
     };
-    let sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
+    let mut sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
+    // recorded in sums.json, for merge
+    sums.pixel = px.as_ref().map(PixelSize::record);
     let mut spectra = sums.spectra(args.opts.rule(), fit).map_err(|e| match e {
         // name the input: "nothing estimable" is about these images
         Error::Input(m) if args.images.len() == 1 => {

@@ -34,8 +34,9 @@ pub struct MergeArgs {
     pub theory: Option<ModelName>,
     #[command(flatten)]
     pub model_opts: ModelOpts,
-    /// The pixel of the images the sums came from (the sums record scales
-    /// in pixels only): the fit's scales are also given as lengths.
+    /// The pixel of the images the sums came from: the fit's scales are
+    /// also given as lengths. Without --pixel-size, the pixel the sums
+    /// record (analyze records the one it used), when all record the same.
     #[command(flatten)]
     pub pixel: PixelOpts,
     #[command(flatten)]
@@ -63,13 +64,14 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
             ));
         }
     }
-    // --pixel-size alone: the sums do not name their images' files
-    let (px, _) = args.pixel.resolve(&[])?;
     let mut sums: Option<PartitionSums> = None;
+    // the pixel each file records (the merge drops pixels that differ)
+    let mut recorded = Vec::new();
     // the file of each image, in the order merged
     let mut owner: Vec<usize> = Vec::new();
     for (f, p) in args.sums.iter().enumerate() {
         let s = read_sums(p)?;
+        recorded.push(s.pixel.clone());
         // a shard of unknown analysis cannot be checked against the others
         // (the merge keeps the analysis all shards share)
         if let Some(acc) = &sums
@@ -97,7 +99,9 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
             })?,
         }
     }
-    let sums = sums.expect("at least one file");
+    let mut sums = sums.expect("at least one file");
+    let (px, px_warnings) = args.pixel.resolve_recorded(&recorded, &args.sums)?;
+    sums.pixel = px.as_ref().map(PixelSize::record);
     check_duplicate_images(&args.sums, &owner, &sums)?;
     // the grid's octaves (its last scale is one voice short of them), as
     // `analyze --fit` is checked
@@ -136,8 +140,12 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         );
     }
     warnings.extend(px.as_ref().and_then(PixelSize::warning));
+    warnings.extend(px_warnings);
     // recorded in spectra.json with the fit's warnings
     s.warnings.extend(warnings);
+    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
+        say!("{n}");
+    }
     make_out_dir(&args.out.out)?;
     let curves = theory
         .map(|(m, name)| theory_curves(&m, name, &s.q))

@@ -589,6 +589,35 @@ const NON_SQUARE: f64 = 0.01;
 /// Declared spacings closer than this (relative) are the same.
 const SAME_SPACING: f64 = 1e-3;
 
+/// The unit's name when none is given.
+const UNNAMED: &str = "units";
+
+/// Who declares a pixel spacing, in [`PixelOpts::resolve_from`]'s messages.
+struct Declarers {
+    /// "images".
+    noun: &'static str,
+    /// "declare".
+    verb: &'static str,
+    /// "declares".
+    verbs: &'static str,
+    /// "declared by".
+    past: &'static str,
+}
+
+const IMAGES: Declarers = Declarers {
+    noun: "images",
+    verb: "declare",
+    verbs: "declares",
+    past: "declared by",
+};
+
+const SUMS: Declarers = Declarers {
+    noun: "sums files",
+    verb: "record",
+    verbs: "records",
+    past: "recorded in",
+};
+
 impl PixelOpts {
     /// The pixel: `--pixel-size`, else the spacing every one of `images`
     /// declares ([`crate::io::read_pixel_spacing`]), with the warnings to
@@ -606,6 +635,47 @@ impl PixelOpts {
             .iter()
             .map(|p| crate::io::read_pixel_spacing(p).ok().flatten())
             .collect();
+        self.resolve_from(&declared, images, &IMAGES)
+    }
+
+    /// [`resolve`](Self::resolve) for `merge`: the pixel each sums file
+    /// records ([`crate::spectra::PartitionSums::pixel`]) in place of the
+    /// images' declared spacings.
+    pub fn resolve_recorded(
+        &self,
+        recorded: &[Option<crate::spectra::PixelRecord>],
+        files: &[PathBuf],
+    ) -> Result<(Option<PixelSize>, Vec<String>)> {
+        let declared: Vec<Option<crate::io::PixelSpacing>> = recorded
+            .iter()
+            .map(|r| {
+                r.as_ref().map(|r| crate::io::PixelSpacing {
+                    x: r.x,
+                    y: r.y,
+                    // PixelSize's name for unnamed units
+                    units: (r.units != UNNAMED).then(|| r.units.clone()),
+                    source: r.source.clone(),
+                    warnings: Vec::new(),
+                })
+            })
+            .collect();
+        self.resolve_from(&declared, files, &SUMS)
+    }
+
+    /// [`resolve`](Self::resolve) from the spacings `declared` by `files`,
+    /// said in the words of `by`.
+    fn resolve_from(
+        &self,
+        declared: &[Option<crate::io::PixelSpacing>],
+        images: &[PathBuf],
+        by: &Declarers,
+    ) -> Result<(Option<PixelSize>, Vec<String>)> {
+        let Declarers {
+            noun,
+            verb,
+            verbs,
+            past,
+        } = by;
         let mut warnings: Vec<String> = Vec::new();
         let spacing = |x: f64, y: f64, u: &str| {
             if x == y {
@@ -614,7 +684,7 @@ impl PixelOpts {
                 format!("{} x {} {u}", short_num(x), short_num(y))
             }
         };
-        let file_units = |d: &crate::io::PixelSpacing| d.units.clone().unwrap_or("units".into());
+        let file_units = |d: &crate::io::PixelSpacing| d.units.clone().unwrap_or(UNNAMED.into());
         let differ = |a: (f64, f64), b: (f64, f64)| {
             (a.0 / b.0 - 1.0).abs() > SAME_SPACING || (a.1 / b.1 - 1.0).abs() > SAME_SPACING
         };
@@ -631,7 +701,7 @@ impl PixelOpts {
                     && differ((k * given.x, k * given.y), (d.x, d.y))
                 {
                     warnings.push(format!(
-                        "--pixel-size {} differs from the {} {} declares ({}); the lengths use \
+                        "--pixel-size {} differs from the {} {} {verbs} ({}); the lengths use \
                          --pixel-size",
                         spacing(given.x, given.y, &given.units),
                         spacing(d.x, d.y, &file_units(d)),
@@ -662,7 +732,7 @@ impl PixelOpts {
                  --pixel-size and --units)"
             };
             warnings.push(format!(
-                "the images declare different pixel spacings ({} in {}, {} in {}): {why}",
+                "the {noun} {verb} different pixel spacings ({} in {}, {} in {}): {why}",
                 spacing(first.x, first.y, &file_units(first)),
                 first_path.display(),
                 spacing(d.x, d.y, &file_units(d)),
@@ -672,7 +742,7 @@ impl PixelOpts {
         }
         if known.len() < images.len() {
             warnings.push(format!(
-                "{} of {} images declare a pixel spacing ({} in {}), the others none: no \
+                "{} of {} {noun} {verb} a pixel spacing ({} in {}), the others none: no \
                  lengths are given (give --pixel-size)",
                 known.len(),
                 images.len(),
@@ -694,7 +764,7 @@ impl PixelOpts {
             format!("{}: {}", first_path.display(), first.source)
         } else {
             format!(
-                "all {} images, e.g. {}: {}",
+                "all {} {noun}, e.g. {}: {}",
                 images.len(),
                 first_path.display(),
                 first.source
@@ -705,7 +775,7 @@ impl PixelOpts {
                 x: first.x,
                 y: first.y,
                 units: file_units(first),
-                source: format!("declared by {what}"),
+                source: format!("{past} {what}"),
             }),
             warnings,
         ))
@@ -732,7 +802,7 @@ impl PixelOpts {
         Ok(Some(PixelSize {
             x: v[0],
             y: *v.last().expect("one at least"),
-            units: self.units.clone().unwrap_or_else(|| "units".into()),
+            units: self.units.clone().unwrap_or_else(|| UNNAMED.into()),
             source: "--pixel-size".into(),
         }))
     }
@@ -743,6 +813,16 @@ impl PixelSize {
     /// scale in px is multiplied by (x itself for square pixels).
     pub fn side(&self) -> f64 {
         (self.x * self.y).sqrt()
+    }
+
+    /// As recorded with the partition sums (`sums.json`), for `merge`.
+    pub fn record(&self) -> crate::spectra::PixelRecord {
+        crate::spectra::PixelRecord {
+            x: self.x,
+            y: self.y,
+            units: self.units.clone(),
+            source: self.source.clone(),
+        }
     }
 
     /// `{x, y, units, side, source}` for the outputs' `params`.

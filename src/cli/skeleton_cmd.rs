@@ -9,7 +9,7 @@ use serde_json::json;
 
 use super::analyze_cmd::LineOpts;
 use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
-use super::{OutDir, Outcome};
+use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
 use crate::plot::{ColorBar, Raster, RasterChart, save_raster_chart};
@@ -24,12 +24,17 @@ pub struct SkeletonArgs {
     /// Scales (px) to draw, each within half a voice of a grid scale: `a,b,c` (default: 1, 2 and 3 octaves above a_min, those within --octaves).
     #[arg(long)]
     pub scales: Option<String>,
+    /// The pixel: the drawn scales are also given as lengths.
+    #[command(flatten)]
+    pub pixel: PixelOpts,
     #[command(flatten)]
     pub out: OutDir,
 }
 
-pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
+pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     let cfg = args.opts.analysis()?;
+    let (px, mut warnings) = args.pixel.resolve(std::slice::from_ref(&args.image))?;
+    warnings.extend(px.as_ref().and_then(PixelSize::warning));
     let field = super::common::read_image(&args.image)?;
     super::common::check_image_memory(&args.image, &field, true)?;
     let grid = cfg.scale_list();
@@ -83,6 +88,9 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
         .map_err(|e| super::common::in_file(&args.image, e))?;
     if sk.lines.is_empty() {
         return Err(Error::format(&args.image, cfg.why_no_maxima(&field)));
+    }
+    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
+        say!("{n}");
     }
     make_out_dir(&args.out.out)?;
     // line id of each (scale, x, y)
@@ -189,9 +197,11 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
             &r,
             &RasterChart {
                 title: format!(
-                    "{} smoothed at a = {:.2} px: chains and WTMMM, {} (II Figs 9, 15)",
+                    "{} smoothed at a = {:.2} px{}: chains and WTMMM, {} (II Figs 9, 15)",
                     super::common::file_label(&args.image),
                     sm.a,
+                    px.as_ref()
+                        .map_or(String::new(), |p| format!(" ({})", p.length(sm.a))),
                     cfg.wavelet.name()
                 ),
                 // the colour key in the picture, not only in skeleton.json
@@ -211,12 +221,13 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
             },
             &args.out.out.join(&name),
         )?;
-        pictures.push(json!({"j": j, "a": sm.a, "file": name}));
+        pictures.push(json!({"j": j, "a": sm.a, "file": name,
+            "a_length": px.as_ref().map(|p| sm.a * p.side())}));
     }
     let mut body = header(
         "skeleton",
         json!({"image": args.image, "analysis": super::common::analysis_json(&cfg),
-            "scales_requested": want}),
+            "scales_requested": want, "pixel_size": px.as_ref().map(PixelSize::json)}),
     );
     body["shape"] = json!([ny, nx]);
     body["missing_pixels"] = json!(field.missing_count());
@@ -227,6 +238,11 @@ pub fn run(args: SkeletonArgs, _quiet: bool) -> Result<Outcome> {
     body["legend"] = json!(
         "grey: smoothed image phi_a * f (dark = low); red: maxima chains; green dots: WTMMM; blue: arrow of length proportional to M in direction A; yellow: analysis domain; teal: missing pixels"
     );
+    body["length_units"] = json!(px.as_ref().map(|p| &p.units));
+    body["warnings"] = json!(warnings);
     write_json(&args.out.out.join("skeleton.json"), &body)?;
+    for w in &warnings {
+        say!("warning: {w}");
+    }
     Ok(Outcome::Ok)
 }
