@@ -1261,6 +1261,56 @@ fn declared_pixel_spacing() {
         )
         .unwrap();
         assert!((g9122.x - geo.x).abs() < 1e-9, "{g9122:?}");
+        // projected systems named by their EPSG code alone: metres for the
+        // well-known metre grids (NAD83 UTM, Lambert-93), unknown for a
+        // state plane in US feet (NAD83 / Texas Central ftUS, 2277)
+        let by_code = |code: u16| {
+            get(
+                &format!("code{code}"),
+                4,
+                vec![
+                    (33550, TagVal::Double(vec![10.0, 10.0, 0.0])),
+                    (34735, geo_keys(&[(1024, 1), (3072, code)])),
+                ],
+            )
+            .unwrap()
+        };
+        for code in [26915, 2154, 27700, 3067, 32760] {
+            assert_eq!(by_code(code).units.as_deref(), Some("m"), "{code}");
+        }
+        let ftus = by_code(2277);
+        assert_eq!((ftus.x, ftus.units), (10.0, None));
+        assert!(
+            ftus.source.contains("units not understood"),
+            "{}",
+            ftus.source
+        );
+        // a user-defined unit (32767) whose size sits in GeoDoubleParams:
+        // feet are named, fathoms (1.8288 m) become metres
+        let user = |name: &str, metres: f64| {
+            let mut w: Vec<u16> = vec![1, 1, 0, 3];
+            w.extend([1024, 0, 1, 1, 3076, 0, 1, 32767, 3077, 34736, 1, 1]);
+            get(
+                name,
+                4,
+                vec![
+                    (33550, TagVal::Double(vec![5.0, 5.0, 0.0])),
+                    (34735, TagVal::Short(w)),
+                    (34736, TagVal::Double(vec![7.0, metres])),
+                ],
+            )
+            .unwrap()
+        };
+        let ft = user("userft", 0.3048);
+        assert_eq!((ft.x, ft.units.as_deref()), (5.0, Some("ft")));
+        let fathom = user("userfathom", 1.8288);
+        assert!((fathom.x - 9.144).abs() < 1e-12, "{fathom:?}");
+        assert_eq!(fathom.units.as_deref(), Some("m"));
+        assert!(
+            fathom.source.contains("a unit of 1.8288 m"),
+            "{}",
+            fathom.source
+        );
         // no GeoKeys: the spacing, units unknown
         let bare = get(
             "bare",

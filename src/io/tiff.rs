@@ -446,6 +446,39 @@ const PIXEL_SCALE: u16 = 33550;
 const TIEPOINT: u16 = 33922;
 const TRANSFORMATION: u16 = 34264;
 const GEO_KEYS: u16 = 34735;
+const GEO_DOUBLES: u16 = 34736;
+
+/// Projected systems (EPSG ProjectedCSTypeGeoKey) whose unit is the metre,
+/// for GeoTIFFs that name the system but not ProjLinearUnitsGeoKey: the
+/// UTM zones of WGS 84, WGS 72, NAD83, NAD27, ETRS89, GDA94 and GDA2020
+/// (MGA), and national transverse Mercator and Lambert grids (Lambert-93,
+/// British National Grid, NZTM, ETRS-TM35FIN, SWEREF99 TM, Swiss LV03 and
+/// LV95, German Gauss-Krueger zones 2-5). Their map metres are ground
+/// metres within a few parts per thousand. Continental equal-area and
+/// polar projections, whose scale departs by percents, are left out, as
+/// are systems in feet (US state planes): their units stay unknown.
+fn metre_crs(code: u16) -> bool {
+    matches!(
+        code,
+        32601..=32660   // WGS 84 / UTM north
+            | 32701..=32760 // WGS 84 / UTM south
+            | 32201..=32260 // WGS 72 / UTM north
+            | 32301..=32360 // WGS 72 / UTM south
+            | 26901..=26923 // NAD83 / UTM 1N-23N
+            | 26703..=26722 // NAD27 / UTM 3N-22N
+            | 25828..=25838 // ETRS89 / UTM 28N-38N
+            | 28348..=28358 // GDA94 / MGA 48-58
+            | 7846..=7859 // GDA2020 / MGA 46-59
+            | 31466..=31469 // DHDN / 3-degree Gauss-Krueger 2-5
+            | 2154 // RGF93 / Lambert-93
+            | 27700 // OSGB36 / British National Grid
+            | 2193 // NZGD2000 / NZTM
+            | 3067 // ETRS89 / TM35FIN
+            | 3006 // SWEREF99 TM
+            | 21781 // CH1903 / LV03
+            | 2056 // CH1903+ / LV95
+    )
+}
 
 /// The pixel spacing a GeoTIFF declares (super::read_pixel_spacing):
 /// ModelPixelScale, or the column lengths of an affine
@@ -470,8 +503,15 @@ pub(super) fn pixel(path: &Path) -> Result<Option<super::georef::PixelSpacing>> 
     let scale = doubles(PIXEL_SCALE);
     let tie = doubles(TIEPOINT);
     let affine = doubles(TRANSFORMATION);
-    let keys = ifd.geo_keys(&mut r, len);
-    let key = |k: u16| keys.iter().find(|(id, _)| *id == k).map(|(_, v)| *v);
+    let geo_doubles = doubles(GEO_DOUBLES);
+    let dir = ifd.geo_key_directory(&mut r, len);
+    let key = |k: u16| dir.iter().find(|e| e.0 == k && e.1 == 0).map(|e| e.3);
+    // a key held in GeoDoubleParams (location 34736, one value at index v)
+    let double_key = |k: u16| {
+        dir.iter()
+            .find(|e| e.0 == k && e.1 == GEO_DOUBLES && e.2 == 1)
+            .and_then(|e| geo_doubles.as_ref()?.get(e.3 as usize).copied())
+    };
     let first = |tag| {
         ifd.entry(tag)
             .and_then(|e| e.field.get(..type_size(e.typ)? as usize))
@@ -529,34 +569,37 @@ pub(super) fn pixel(path: &Path) -> Result<Option<super::georef::PixelSpacing>> 
             y_mid.and_then(|y| web_mercator(dx, dy, y, ny, what))
         }
         Some(1) => {
-            // ProjLinearUnitsGeoKey (EPSG unit codes), else the WGS84 UTM
-            // zones' metres (ProjectedCSTypeGeoKey 32601-32660, 32701-32760)
+            // ProjLinearUnitsGeoKey (EPSG unit codes; 32767 user-defined,
+            // its metres in ProjLinearUnitSizeGeoKey 3077), else the
+            // metres of a well-known ProjectedCSTypeGeoKey
             let factor = match key(3076) {
                 Some(9001) => Some(1.0),
                 Some(9002) => Some(0.3048),
                 Some(9003) => Some(1200.0 / 3937.0),
                 Some(9036) => Some(1000.0),
+                Some(32767) => double_key(3077).filter(|f| f.is_finite() && *f > 0.0),
                 Some(_) => None,
-                None => key(3072)
-                    .filter(|c| (32601..=32660).contains(c) || (32701..=32760).contains(c))
-                    .map(|_| 1.0),
+                None => key(3072).filter(|&c| metre_crs(c)).map(|_| 1.0),
             };
-            let units = factor.and_then(linear_unit).map(str::to_string);
-            Some(PixelSpacing {
-                x: dx,
-                y: dy,
-                source: format!(
-                    "{what} {} x {}{}",
-                    sig(dx),
-                    sig(dy),
-                    if units.is_none() {
-                        " (projected, units not understood)"
-                    } else {
-                        ""
-                    }
-                ),
+            let plain = |x: f64, y: f64, units: Option<String>, note: String| PixelSpacing {
+                x,
+                y,
+                source: format!("{what} {} x {}{note}", sig(dx), sig(dy)),
                 units,
                 warnings: Vec::new(),
+            };
+            Some(match factor {
+                Some(f) => match linear_unit(f) {
+                    Some(u) => plain(dx, dy, Some(u.into()), String::new()),
+                    // a unit wtmm does not name: in metres, as from a .prj
+                    None => plain(
+                        dx * f,
+                        dy * f,
+                        Some("m".into()),
+                        format!(" (a unit of {} m)", sig(f)),
+                    ),
+                },
+                None => plain(dx, dy, None, " (projected, units not understood)".into()),
             })
         }
         // no model type key (or geocentric): the spacing, units unknown
@@ -587,9 +630,10 @@ impl Ifd {
         )
     }
 
-    /// The GeoKeyDirectory's keys whose value sits in the directory itself
-    /// (TIFFTagLocation 0), as `(KeyID, value)` (GeoTIFF §7.1.3).
-    fn geo_keys<R: Read + Seek>(&self, r: &mut R, len: u64) -> Vec<(u16, u16)> {
+    /// The GeoKeyDirectory's keys as `(KeyID, TIFFTagLocation, Count,
+    /// Value_Offset)` (GeoTIFF §7.1.3): the value itself for location 0,
+    /// else an index into the tag at that location.
+    fn geo_key_directory<R: Read + Seek>(&self, r: &mut R, len: u64) -> Vec<(u16, u16, u16, u16)> {
         let Some(b) = self
             .entry(GEO_KEYS)
             .filter(|e| e.typ == 3 && e.count <= 4 * 1024)
@@ -602,8 +646,7 @@ impl Ifd {
         w[4.min(w.len())..]
             .chunks_exact(4)
             .take(n)
-            .filter(|k| k[1] == 0)
-            .map(|k| (k[0], k[3]))
+            .map(|k| (k[0], k[1], k[2], k[3]))
             .collect()
     }
 
