@@ -4,12 +4,78 @@
 //! or bad input).
 
 /// `eprintln!` that never panics: a closed stderr (`wtmm ... 2>&1 | head`)
-/// must not abort a command whose results go to files.
+/// must not abort a command whose results go to files. Warnings, notes
+/// and errors are wrapped to a terminal's width ([`for_stderr`]).
 macro_rules! say {
     ($($t:tt)*) => {{
         use std::io::Write as _;
-        let _ = writeln!(std::io::stderr(), $($t)*);
+        let _ = writeln!(std::io::stderr(), "{}", $crate::cli::for_stderr(format!($($t)*)));
     }};
+}
+
+/// `text` as stderr shows it: on a terminal, each `warning: `, `note: `
+/// or `error: ` line wrapped to the terminal's width (at most 100
+/// columns), continued with an indent; elsewhere (scripts, logs, tests)
+/// one line per message, for grep.
+pub(crate) fn for_stderr(text: String) -> String {
+    use std::io::IsTerminal;
+    if !std::io::stderr().is_terminal() {
+        return text;
+    }
+    match console::Term::stderr().size_checked() {
+        Some((_, cols)) => wrap_messages(&text, usize::from(cols).min(100)),
+        None => text,
+    }
+}
+
+/// The message lines of `text` (`warning: `, `note: `, `error: `) wrapped
+/// at spaces to `width` columns, continuation lines indented by 2; words
+/// longer than a line (paths) are not broken; other lines as they are.
+fn wrap_messages(text: &str, width: usize) -> String {
+    const INDENT: &str = "  ";
+    let width = width.max(40);
+    let mut out: Vec<String> = Vec::new();
+    for line in text.split('\n') {
+        let message = ["warning: ", "note: ", "error: "]
+            .iter()
+            .any(|p| line.starts_with(p));
+        if !message || line.chars().count() <= width {
+            out.push(line.to_string());
+            continue;
+        }
+        // "q = -4", "0.36 +- 0.06", "-4 .. 6", "344 x 403" stay on one line
+        const GLUE: [&str; 5] = ["=", "+-", "..", "x", "±"];
+        let mut units: Vec<String> = Vec::new();
+        let mut glued = false;
+        for word in line.split(' ') {
+            let glue = GLUE.contains(&word);
+            match units.last_mut() {
+                Some(last) if glue || glued => {
+                    last.push(' ');
+                    last.push_str(word);
+                }
+                _ => units.push(word.to_string()),
+            }
+            glued = glue;
+        }
+        let mut cur = String::new();
+        let mut cur_len = 0;
+        for word in &units {
+            let n = word.chars().count();
+            if cur_len > INDENT.len() && cur_len + 1 + n > width {
+                out.push(std::mem::take(&mut cur));
+                cur.push_str(INDENT);
+                cur_len = INDENT.len();
+            } else if !cur.is_empty() {
+                cur.push(' ');
+                cur_len += 1;
+            }
+            cur.push_str(word);
+            cur_len += n;
+        }
+        out.push(cur);
+    }
+    out.join("\n")
 }
 
 /// `print!` of a summary that never panics (a closed stdout loses only the
@@ -902,6 +968,49 @@ fn short_num(v: f64) -> String {
 
 #[cfg(test)]
 mod tests {
+    /// Messages wrap at spaces to the width with a 2-space indent, words
+    /// stay whole, other lines and short messages are untouched, and the
+    /// words come back in order.
+    #[test]
+    fn messages_wrap_to_the_terminal() {
+        let long = format!(
+            "warning: {} /a/very/long/path/{}.npy end",
+            "word ".repeat(30).trim_end(),
+            "x".repeat(60)
+        );
+        let text = format!("{long}\ntable  row {}\nnote: short", "y ".repeat(40));
+        let w = super::wrap_messages(&text, 50);
+        let lines: Vec<&str> = w.lines().collect();
+        assert!(lines[0].starts_with("warning: word"));
+        // no line starts or ends inside "q = -4"
+        for pad in 0..50 {
+            let text = format!(
+                "warning: {}q = -4 end",
+                "a".repeat(pad) + " b c d e f g h i j k"
+            );
+            let q = super::wrap_messages(&text, 40);
+            assert!(q.lines().any(|l| l.contains("q = -4")), "{q}");
+        }
+        let path = lines.iter().position(|l| l.contains("/a/very")).unwrap();
+        for (i, l) in lines.iter().enumerate() {
+            // only the unbreakable path exceeds the width
+            if i != path && !l.starts_with("table") {
+                assert!(l.chars().count() <= 50, "{l:?}");
+            }
+        }
+        assert!(
+            lines[1..=path]
+                .iter()
+                .all(|l| l.starts_with("  ") && !l.starts_with("   "))
+        );
+        // the table line (no message prefix) stays whole, the note too
+        assert!(lines.contains(&format!("table  row {}", "y ".repeat(40)).as_str()));
+        assert_eq!(lines.last(), Some(&"note: short"));
+        // the same words in the same order
+        let words = |t: &str| t.split_whitespace().map(String::from).collect::<Vec<_>>();
+        assert_eq!(words(&w), words(&text));
+    }
+
     use super::*;
 
     /// `--pixel-size`: one or two positive numbers; lengths and the
