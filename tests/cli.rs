@@ -1240,6 +1240,77 @@ fn tm_names_a_quantised_dem() {
     assert!(!said(&["tm", &f, "--out", &o]));
 }
 
+/// `info`: shape, values and missing pixels of each file, its declared
+/// pixel, and the counting domain of each number of octaves (the default
+/// margin ceil(3.2 a_max) on every side; --margin 0 the whole image), as
+/// text or JSON; nothing written; an a_min the wavelet cannot resolve is
+/// refused.
+#[test]
+fn info_describes_images_and_their_domains() {
+    let dir = scratch("info");
+    let mut f = fbm(FbmParams { hurst: 0.5 }, 200, 256, 8, 0).unwrap();
+    f[[3, 4]] = f64::NAN;
+    let img = dir.join("f.npy");
+    write_npy(&img, &f).unwrap();
+    let img = img.display().to_string();
+    let asc = dir.join("g.asc");
+    std::fs::write(&asc, "ncols 2\nnrows 3\ncellsize 30\n1 2\n3 4\n5 7\n").unwrap();
+    std::fs::write(
+        asc.with_extension("prj"),
+        r#"PROJCS["u",UNIT["Meter",1.0]]"#,
+    )
+    .unwrap();
+    let asc = asc.display().to_string();
+    let (code, out, err) = run_bin_output(&["info", &img, &asc, "--octaves", "4", "--json"], true);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["command"], "info");
+    let a = &v["images"][0];
+    assert_eq!(a["shape"], serde_json::json!([200, 256]));
+    assert_eq!(a["missing"], 1);
+    assert!(a["pixel_size"].is_null());
+    let d = a["domains"].as_array().unwrap();
+    assert_eq!(d.len(), 4);
+    for row in d {
+        let a_max = row["a_max"].as_f64().unwrap();
+        let m = row["margin"].as_u64().unwrap() as usize;
+        // gauss: ceil(3.2 a_max) (SPEC §1)
+        assert_eq!(m, (3.2 * a_max).ceil() as usize, "{row}");
+        assert_eq!(row["domain"], serde_json::json!([200 - 2 * m, 256 - 2 * m]));
+        // the missing pixel sits in the margin up to 2 octaves, then its
+        // clearance (the support at a_max) cuts into the domain
+        let whole = (200 - 2 * m) * (256 - 2 * m);
+        let counted = row["counted_pixels"].as_u64().unwrap() as usize;
+        assert!(counted <= whole && counted > whole / 2, "{row}");
+    }
+    let g = &v["images"][1];
+    assert_eq!(g["shape"], serde_json::json!([3, 2]));
+    assert_eq!(g["pixel_size"]["x"], 30.0);
+    assert_eq!(g["pixel_size"]["units"], "m");
+    assert!(g["domains"][0]["domain"].is_null());
+    // text; --margin 0 counts the whole image (but for the hole's clearance)
+    let (code, out, err) = run_bin_output(&["info", &img, "--margin", "0", "--octaves", "2"], true);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("200 x 256 px (rows x columns), npy <f8"),
+        "{out}"
+    );
+    assert!(out.contains("1 missing"), "{out}");
+    assert!(out.contains("2 *"), "{out}");
+    assert!(out.contains("200 x 256     "), "{out}");
+    assert!(
+        std::fs::read_dir(&dir).unwrap().count() == 3,
+        "info writes nothing"
+    );
+    // refused: a_min below what the wavelet resolves; a missing file
+    let (code, _, err) = run_bin_output(&["info", &img, "--a-min", "0.3"], true);
+    assert_eq!(code, 2);
+    assert!(err.contains("a-min"), "{err}");
+    let (code, _, err) = run_bin_output(&["info", "nope.npy"], true);
+    assert_eq!(code, 2);
+    assert!(err.contains("nope.npy"), "{err}");
+}
+
 /// `--pixel-size` (analyze, spectrum, tm, merge): the fit ranges also as
 /// lengths (px times the pixel's side), recorded with the pixel in params;
 /// a non-square pixel is warned about; a bad size is refused before

@@ -94,6 +94,7 @@ mod correlate_cmd;
 mod cwt_cmd;
 mod demo_cmd;
 mod ensemble;
+mod info_cmd;
 mod kernel_cmd;
 mod merge_cmd;
 mod model_args;
@@ -161,6 +162,8 @@ pub enum Command {
     Kernel(kernel_cmd::KernelArgs),
     /// Space-scale correlation of the magnitudes ln M (II Fig 30).
     Correlate(correlate_cmd::CorrelateArgs),
+    /// What wtmm reads from images, and the counting domain each number of octaves leaves.
+    Info(info_cmd::InfoArgs),
 }
 
 /// Wavelet and scale-grid options shared by the analysis commands.
@@ -239,6 +242,7 @@ fn io_of(cmd: &Command) -> (Vec<&Path>, bool, Option<&Path>) {
         Command::Pdf(a) => (v(&a.input.images), true, Some(&a.out.out)),
         Command::Kernel(a) => (v(&a.input.images), true, Some(&a.out.out)),
         Command::Correlate(a) => (v(&a.input.images), true, Some(&a.out.out)),
+        Command::Info(a) => (v(&a.images), true, None),
     }
 }
 
@@ -486,6 +490,7 @@ fn run_command(cli: Cli) -> Result<Outcome> {
         Command::Pdf(a) => pdf_cmd::run(a, quiet),
         Command::Kernel(a) => kernel_cmd::run(a, quiet),
         Command::Correlate(a) => correlate_cmd::run(a, quiet),
+        Command::Info(a) => info_cmd::run(a, quiet),
     }
 }
 
