@@ -906,7 +906,8 @@ impl PartitionSums {
             let margin = self.analysis.as_ref().map_or(0, |a| a.margin_px());
             let cure = if margin > 0 || missing > 0 {
                 "; the counting domain is too small for these scales (use fewer octaves, a \
-                 smaller margin, or a lower fit range: --octaves, --margin, --fit)"
+                 smaller margin, or a lower fit range: --octaves, --margin, --fit; `wtmm info \
+                 IMAGE` lists the domain each number of octaves leaves)"
                     .to_string()
             } else {
                 "; the whole image is counted, so the scales reach too far for its size (use \
