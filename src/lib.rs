@@ -14,7 +14,7 @@
 //! `cli` (default) builds the `wtmm` command line (clap, progress bars,
 //! Ctrl-C cleanup) and enables `plot`, the PNG/SVG figures (plotters with an
 //! embedded font). A program that only computes spectra can do without
-//! both: `wtmm = { version = "0.2", default-features = false }` builds the
+//! both: `wtmm = { version = "0.3", default-features = false }` builds the
 //! analysis, the generators, the theory and the readers alone.
 //!
 //! # Quick start

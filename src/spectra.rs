@@ -240,12 +240,13 @@ pub struct PixelRecord {
 }
 
 impl PixelRecord {
-    /// The same pixel (sides within 1e-3 relative, same unit), whatever
-    /// its source.
+    /// The same pixel (sides within 1e-3 relative, in the same unit or in
+    /// lengths [`crate::io::unit_metres`] converts: 30 m and 0.03 km),
+    /// whatever its source.
     pub fn same(&self, other: &PixelRecord) -> bool {
-        self.units == other.units
-            && (self.x / other.x - 1.0).abs() <= 1e-3
-            && (self.y / other.y - 1.0).abs() <= 1e-3
+        crate::io::unit_ratio(Some(&self.units), Some(&other.units)).is_some_and(|k| {
+            (k * self.x / other.x - 1.0).abs() <= 1e-3 && (k * self.y / other.y - 1.0).abs() <= 1e-3
+        })
     }
 }
 
@@ -517,14 +518,6 @@ impl PartitionSums {
         }
         if self.images.is_empty() {
             return Err("no images".into());
-        }
-        if let Some(p) = &self.pixel
-            && !(p.x.is_finite() && p.x > 0.0 && p.y.is_finite() && p.y > 0.0)
-        {
-            return Err(format!(
-                "`pixel` must have finite positive sides, got {} x {}",
-                p.x, p.y
-            ));
         }
         let (ns, nc) = (self.scales.len(), self.q.len() * self.scales.len());
         // tiles partition their image: at least 2, a side, and line counts

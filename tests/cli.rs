@@ -1432,6 +1432,69 @@ fn pixel_size_gives_lengths() {
         "{}",
         m["warnings"]
     );
+    // a merge of a merge names the pixel's first origin, not the merges
+    let (code, err) = run_bin_stderr(&["merge", &o("m0/sums.json"), "--out", &o("m00")]);
+    assert_eq!(code, 0, "{err}");
+    let source = json(&dir.join("m00/spectra.json"))["params"]["pixel_size"]["source"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(source.ends_with("m0/sums.json: --pixel-size"), "{source}");
+    assert_eq!(source.matches("recorded in").count(), 1, "{source}");
+    // the same pixel in km is the same pixel (the first shard's unit kept)
+    let (code, err) = run_bin_stderr(&[
+        "analyze",
+        &img,
+        "--octaves",
+        "3",
+        "--pixel-size",
+        "0.002",
+        "--units",
+        "km",
+        "--out",
+        &o("km"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let km = dir.join("km/other.json");
+    let text = std::fs::read_to_string(dir.join("km/sums.json")).unwrap();
+    std::fs::write(&km, text.replace("f.npy", "h.npy")).unwrap();
+    let km = km.display().to_string();
+    let (code, err) = run_bin_stderr(&["merge", &sums, &km, "--out", &o("mkm")]);
+    assert_eq!(code, 0, "{err}");
+    let m = json(&dir.join("mkm/spectra.json"));
+    assert_eq!(m["params"]["pixel_size"]["side"], 2.0, "{err}");
+    assert_eq!(m["length_units"], "m");
+    // --pixel-size in a unit wtmm cannot compare, or with no unit: said
+    for (extra, said) in [
+        (
+            &["--units", "furlong"][..],
+            "cannot be compared with the 2 m",
+        ),
+        (&[][..], "has no --units; the 2 m"),
+    ] {
+        let mu = o("mu");
+        let mut args = vec!["merge", &sums, "--pixel-size", "2", "--out", &mu];
+        args.extend_from_slice(extra);
+        let (code, err) = run_bin_stderr(&args);
+        assert_eq!(code, 0, "{err}");
+        let w = json(&dir.join("mu/spectra.json"))["warnings"].to_string();
+        assert!(w.contains(said), "{w}");
+    }
+    // a recorded pixel that is not one (an edited file): not used, said
+    let zero = dir.join("a/zero.json");
+    let mut v = json(&dir.join("a/sums.json"));
+    v["pixel"]["x"] = serde_json::json!(0.0);
+    std::fs::write(&zero, v.to_string()).unwrap();
+    let zero = zero.display().to_string();
+    let (code, err) = run_bin_stderr(&["merge", &zero, "--out", &o("mz")]);
+    assert_eq!(code, 0, "{err}");
+    let m = json(&dir.join("mz/spectra.json"));
+    assert!(m["params"]["pixel_size"].is_null());
+    assert!(
+        m["warnings"].to_string().contains("not a pixel size"),
+        "{}",
+        m["warnings"]
+    );
     // an ESRI grid with a .prj declares its pixel: used without --pixel-size
     let write_asc = |name: &str, f: &ndarray::Array2<f64>| {
         let p = dir.join(name);

@@ -1311,6 +1311,20 @@ fn declared_pixel_spacing() {
             "{}",
             fathom.source
         );
+        // the size missing (no GeoDoubleParams), or not positive: unknown
+        let mut w: Vec<u16> = vec![1, 1, 0, 3];
+        w.extend([1024, 0, 1, 1, 3076, 0, 1, 32767, 3077, 34736, 1, 1]);
+        let nosize = get(
+            "usernosize",
+            4,
+            vec![
+                (33550, TagVal::Double(vec![5.0, 5.0, 0.0])),
+                (34735, TagVal::Short(w)),
+            ],
+        )
+        .unwrap();
+        assert_eq!(nosize.units, None);
+        assert_eq!(user("userzero", 0.0).units, None);
         // no GeoKeys: the spacing, units unknown
         let bare = get(
             "bare",

@@ -248,7 +248,23 @@ pub fn progress(len: u64, msg: &str, quiet: bool) -> ProgressBar {
             .progress_chars("=> "),
     );
     pb.set_message(msg.to_string());
+    *ACTIVE_BAR.lock().unwrap_or_else(|e| e.into_inner()) = Some(pb.downgrade());
     pb
+}
+
+/// The progress bar drawn last ([`progress`]), while it lives: messages
+/// are written above it ([`super::emit`]).
+static ACTIVE_BAR: std::sync::Mutex<Option<indicatif::WeakProgressBar>> =
+    std::sync::Mutex::new(None);
+
+/// [`ACTIVE_BAR`] if it is still drawn.
+pub(crate) fn active_bar() -> Option<ProgressBar> {
+    let bar = ACTIVE_BAR
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .as_ref()?
+        .upgrade()?;
+    (!bar.is_finished()).then_some(bar)
 }
 
 /// The object every JSON output starts from: `version`, `command`, `params`.

@@ -34,9 +34,8 @@ pub struct MergeArgs {
     pub theory: Option<ModelName>,
     #[command(flatten)]
     pub model_opts: ModelOpts,
-    /// The pixel of the images the sums came from: the fit's scales are
-    /// also given as lengths. Without --pixel-size, the pixel the sums
-    /// record (analyze records the one it used), when all record the same.
+    // the pixel of the images the sums came from (PixelOpts' help says
+    // merge's default: the pixel the sums record, analyze's)
     #[command(flatten)]
     pub pixel: PixelOpts,
     #[command(flatten)]

@@ -8,9 +8,24 @@
 /// and errors are wrapped to a terminal's width ([`for_stderr`]).
 macro_rules! say {
     ($($t:tt)*) => {{
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stderr(), "{}", $crate::cli::for_stderr(format!($($t)*)));
+        $crate::cli::emit(format!($($t)*));
     }};
+}
+
+/// Writes `text` and a newline on stderr ([`say!`]): wrapped on a
+/// terminal ([`for_stderr`]), above the progress bar when one is drawn
+/// (the bar is cleared, the text written, the bar redrawn), never
+/// panicking.
+pub(crate) fn emit(text: String) {
+    use std::io::Write as _;
+    let text = for_stderr(text);
+    let write = || {
+        let _ = writeln!(std::io::stderr(), "{text}");
+    };
+    match common::active_bar() {
+        Some(bar) => bar.suspend(write),
+        None => write(),
+    }
 }
 
 /// `text` as stderr shows it: on a terminal, each `warning: `, `note: `
@@ -23,45 +38,55 @@ pub(crate) fn for_stderr(text: String) -> String {
         return text;
     }
     match console::Term::stderr().size_checked() {
-        Some((_, cols)) => wrap_messages(&text, usize::from(cols).min(100)),
-        None => text,
+        // narrower than 40 columns the terminal's own wrapping reads better
+        Some((_, cols)) if cols >= 40 => wrap_messages(&text, usize::from(cols).min(100)),
+        _ => text,
     }
 }
 
 /// The message lines of `text` (`warning: `, `note: `, `error: `) wrapped
-/// at spaces to `width` columns, continuation lines indented by 2; words
-/// longer than a line (paths) are not broken; other lines as they are.
+/// at spaces to `width` display columns, continuation lines indented by 2;
+/// words longer than a line (paths) are not broken; other lines as they
+/// are.
 fn wrap_messages(text: &str, width: usize) -> String {
     const INDENT: &str = "  ";
-    let width = width.max(40);
+    // "q = -4", "0.36 +- 0.06", "-4 .. 6", "344 x 403" stay on one line
+    const GLUE: [&str; 5] = ["=", "+-", "..", "x", "±"];
+    // and a unit with its number
+    const AFTER: [&str; 2] = ["px", "%"];
+    let columns = console::measure_text_width;
     let mut out: Vec<String> = Vec::new();
     for line in text.split('\n') {
         let message = ["warning: ", "note: ", "error: "]
             .iter()
             .any(|p| line.starts_with(p));
-        if !message || line.chars().count() <= width {
+        if !message || columns(line) <= width {
             out.push(line.to_string());
             continue;
         }
-        // "q = -4", "0.36 +- 0.06", "-4 .. 6", "344 x 403" stay on one line
-        const GLUE: [&str; 5] = ["=", "+-", "..", "x", "±"];
         let mut units: Vec<String> = Vec::new();
         let mut glued = false;
-        for word in line.split(' ') {
+        for word in line.split(' ').filter(|w| !w.is_empty()) {
             let glue = GLUE.contains(&word);
             match units.last_mut() {
-                Some(last) if glue || glued => {
+                Some(last)
+                    if glue
+                        || glued
+                        || AFTER
+                            .contains(&word.trim_end_matches([',', '.', ';', ':', ')', ']'])) =>
+                {
                     last.push(' ');
                     last.push_str(word);
                 }
                 _ => units.push(word.to_string()),
             }
-            glued = glue;
+            // the prefix ("warning:") holds on to the next word
+            glued = glue || (units.len() == 1 && word.ends_with(':'));
         }
         let mut cur = String::new();
         let mut cur_len = 0;
         for word in &units {
-            let n = word.chars().count();
+            let n = columns(word);
             if cur_len > INDENT.len() && cur_len + 1 + n > width {
                 out.push(std::mem::take(&mut cur));
                 cur.push_str(INDENT);
@@ -630,10 +655,11 @@ pub struct OutDir {
 #[derive(Args, Debug, Clone, Default)]
 pub struct PixelOpts {
     /// Size of a pixel in physical units, S or SX:SY (SX along the columns, SY
-    /// along the rows): the fit's scales, the lags and the wavenumbers are also
-    /// given in these units. Non-square pixels are warned about. Default: the spacing
-    /// the images declare (GeoTIFF tags, an ESRI grid's cellsize and .prj),
-    /// when they all declare the same one.
+    /// along the rows): scales, lags and wavenumbers are also given in these
+    /// units. Non-square pixels are warned about. Default: the spacing the
+    /// inputs declare when they all declare the same one (images: GeoTIFF tags,
+    /// an ESRI grid's cellsize and .prj, a world file; merge: the pixel the
+    /// sums.json record).
     #[arg(long)]
     pub pixel_size: Option<String>,
     /// Name of the unit of --pixel-size (e.g. m, km) [default: units].
@@ -673,6 +699,22 @@ struct Declarers {
     verbs: &'static str,
     /// "declared by".
     past: &'static str,
+    /// Why some may declare none (said after "the others none").
+    none: &'static str,
+}
+
+/// The first origin of a recorded pixel's `source`: "recorded in F: recorded
+/// in G: declared by H: ..." becomes "declared by H: ...", so that merges of
+/// merges do not nest it.
+fn first_origin(source: &str) -> &str {
+    if !source.starts_with("recorded in ") {
+        return source;
+    }
+    ["declared by ", "--pixel-size"]
+        .iter()
+        .filter_map(|k| source.find(k))
+        .min()
+        .map_or(source, |i| &source[i..])
 }
 
 const IMAGES: Declarers = Declarers {
@@ -680,6 +722,7 @@ const IMAGES: Declarers = Declarers {
     verb: "declare",
     verbs: "declares",
     past: "declared by",
+    none: "",
 };
 
 const SUMS: Declarers = Declarers {
@@ -687,6 +730,7 @@ const SUMS: Declarers = Declarers {
     verb: "record",
     verbs: "records",
     past: "recorded in",
+    none: " (validate, demo and compare, and analyze before 0.3, record none)",
 };
 
 impl PixelOpts {
@@ -711,26 +755,44 @@ impl PixelOpts {
 
     /// [`resolve`](Self::resolve) for `merge`: the pixel each sums file
     /// records ([`crate::spectra::PartitionSums::pixel`]) in place of the
-    /// images' declared spacings.
+    /// images' declared spacings, with its first origin (`--pixel-size`,
+    /// or the image that declared it), not the merges it went through.
+    /// A record that is not a pixel (a side not finite and positive, in
+    /// an edited file) counts as none, with a warning.
     pub fn resolve_recorded(
         &self,
         recorded: &[Option<crate::spectra::PixelRecord>],
         files: &[PathBuf],
     ) -> Result<(Option<PixelSize>, Vec<String>)> {
+        let mut bad = Vec::new();
         let declared: Vec<Option<crate::io::PixelSpacing>> = recorded
             .iter()
-            .map(|r| {
-                r.as_ref().map(|r| crate::io::PixelSpacing {
+            .zip(files)
+            .map(|(r, p)| {
+                let r = r.as_ref()?;
+                if !(r.x.is_finite() && r.x > 0.0 && r.y.is_finite() && r.y > 0.0) {
+                    bad.push(format!(
+                        "{} records a pixel of {} x {} {}, not a pixel size: not used",
+                        p.display(),
+                        r.x,
+                        r.y,
+                        r.units
+                    ));
+                    return None;
+                }
+                Some(crate::io::PixelSpacing {
                     x: r.x,
                     y: r.y,
                     // PixelSize's name for unnamed units
                     units: (r.units != UNNAMED).then(|| r.units.clone()),
-                    source: r.source.clone(),
+                    source: first_origin(&r.source).to_string(),
                     warnings: Vec::new(),
                 })
             })
             .collect();
-        self.resolve_from(&declared, files, &SUMS)
+        let (px, mut warnings) = self.resolve_from(&declared, files, &SUMS)?;
+        bad.append(&mut warnings);
+        Ok((px, bad))
     }
 
     /// [`resolve`](Self::resolve) from the spacings `declared` by `files`,
@@ -746,6 +808,7 @@ impl PixelOpts {
             verb,
             verbs,
             past,
+            none,
         } = by;
         let mut warnings: Vec<String> = Vec::new();
         let spacing = |x: f64, y: f64, u: &str| {
@@ -762,23 +825,30 @@ impl PixelOpts {
         if let Some(given) = self.given()? {
             for (d, p) in declared.iter().zip(images) {
                 let Some(d) = d else { continue };
-                // comparable when either unit is unnamed (numbers as they
-                // are) or both are lengths wtmm knows (in metres)
-                let scale = match (self.units.as_deref(), d.units.as_deref()) {
-                    (None, _) | (_, None) => Some(1.0),
-                    (Some(g), Some(f)) => unit_metres(g).zip(unit_metres(f)).map(|(g, f)| g / f),
-                };
-                if let Some(k) = scale
-                    && differ((k * given.x, k * given.y), (d.x, d.y))
-                {
-                    warnings.push(format!(
-                        "--pixel-size {} differs from the {} {} {verbs} ({}); the lengths use \
-                         --pixel-size",
-                        spacing(given.x, given.y, &given.units),
-                        spacing(d.x, d.y, &file_units(d)),
-                        p.display(),
-                        d.source
-                    ));
+                let theirs = spacing(d.x, d.y, &file_units(d));
+                let ours = spacing(given.x, given.y, &given.units);
+                let at = format!("{} {verbs} ({})", p.display(), d.source);
+                // numbers as they are when either unit is unnamed, else in
+                // metres when both are lengths wtmm knows
+                match crate::io::unit_ratio(self.units.as_deref(), d.units.as_deref()) {
+                    Some(k) if differ((k * given.x, k * given.y), (d.x, d.y)) => {
+                        warnings.push(format!(
+                            "--pixel-size {ours} differs from the {theirs} {at}; the lengths \
+                             use --pixel-size"
+                        ));
+                    }
+                    Some(_) => {
+                        if let (None, Some(u)) = (&self.units, &d.units) {
+                            warnings.push(format!(
+                                "--pixel-size {ours} has no --units; the {theirs} {at}: the \
+                                 lengths are in unnamed units (give --units {u})"
+                            ));
+                        }
+                    }
+                    None => warnings.push(format!(
+                        "--pixel-size {ours} cannot be compared with the {theirs} {at} (units \
+                         wtmm does not know as lengths); the lengths use --pixel-size"
+                    )),
                 }
             }
             return Ok((Some(given), warnings));
@@ -791,16 +861,22 @@ impl PixelOpts {
         let Some(&(first, first_path)) = known.first() else {
             return Ok((None, warnings));
         };
-        if let Some((d, p)) = known
-            .iter()
-            .find(|(d, _)| d.units != first.units || differ((d.x, d.y), (first.x, first.y)))
-        {
-            let why = if differ((d.x, d.y), (first.x, first.y)) {
+        // the same pixel: the same numbers in unnamed units on both, or
+        // in units wtmm can convert (30 m and 0.03 km); `None` when the
+        // units cannot be compared (one unnamed, or unknown names)
+        let same = |d: &crate::io::PixelSpacing| match (&d.units, &first.units) {
+            (None, None) => Some(!differ((d.x, d.y), (first.x, first.y))),
+            (Some(a), Some(b)) => crate::io::unit_ratio(Some(a), Some(b))
+                .map(|k| !differ((k * d.x, k * d.y), (first.x, first.y))),
+            _ => None,
+        };
+        if let Some((d, p)) = known.iter().find(|(d, _)| same(d) != Some(true)) {
+            let why = if same(d).is_some() {
                 "at one wavelet scale in pixels the ensemble mixes different ground scales; no \
                  lengths are given (resample to one spacing, or give --pixel-size)"
             } else {
-                "the same numbers in different or unnamed units; no lengths are given (give \
-                 --pixel-size and --units)"
+                "in units that cannot be compared (one unnamed, or not lengths wtmm knows); no \
+                 lengths are given (give --pixel-size and --units)"
             };
             warnings.push(format!(
                 "the {noun} {verb} different pixel spacings ({} in {}, {} in {}): {why}",
@@ -813,7 +889,7 @@ impl PixelOpts {
         }
         if known.len() < images.len() {
             warnings.push(format!(
-                "{} of {} {noun} {verb} a pixel spacing ({} in {}), the others none: no \
+                "{} of {} {noun} {verb} a pixel spacing ({} in {}), the others none{none}: no \
                  lengths are given (give --pixel-size)",
                 known.len(),
                 images.len(),
@@ -941,22 +1017,6 @@ impl PixelSize {
     }
 }
 
-/// Metres in one `unit` (m, km, cm, mm, ft, US survey ft, mi and their
-/// spellings), `None` for a name not known as a length.
-fn unit_metres(unit: &str) -> Option<f64> {
-    let u = unit.trim().to_ascii_lowercase().replace(['_', '-'], " ");
-    Some(match u.as_str() {
-        "m" | "metre" | "metres" | "meter" | "meters" => 1.0,
-        "km" | "kilometre" | "kilometres" | "kilometer" | "kilometers" => 1000.0,
-        "cm" | "centimetre" | "centimetres" | "centimeter" | "centimeters" => 0.01,
-        "mm" | "millimetre" | "millimetres" | "millimeter" | "millimeters" => 0.001,
-        "ft" | "foot" | "feet" => 0.3048,
-        "us survey ft" | "us ft" | "ftus" | "foot us" | "us survey foot" => 1200.0 / 3937.0,
-        "mi" | "mile" | "miles" => 1609.344,
-        _ => return None,
-    })
-}
-
 /// A length for a message: 4 significant digits, no trailing zeros.
 fn short_num(v: f64) -> String {
     if v == 0.0 || !v.is_finite() {
@@ -1014,6 +1074,18 @@ mod tests {
         // the same words in the same order
         let words = |t: &str| t.split_whitespace().map(String::from).collect::<Vec<_>>();
         assert_eq!(words(&w), words(&text));
+        // the prefix never stands alone; a length stays with its unit
+        let e = super::wrap_messages(&format!("error: /{}/x.npy: bad", "p".repeat(60)), 40);
+        assert!(e.starts_with("error: /ppp"), "{e}");
+        for pad in 0..30 {
+            let t = format!("warning: {} at a = 11.20 px (< 10 %) end", "w".repeat(pad));
+            let q = super::wrap_messages(&t, 40);
+            assert!(q.contains("11.20 px") && q.contains("10 %"), "{q}");
+        }
+        // wide characters count two columns each
+        let cjk = format!("warning: {} {}", "字".repeat(15), "字".repeat(15));
+        let w = super::wrap_messages(&cjk, 40);
+        assert_eq!(w.lines().count(), 2, "{w}");
     }
 
     use super::*;

@@ -24,7 +24,7 @@ pub struct SkeletonArgs {
     /// Scales (px) to draw, each within half a voice of a grid scale: `a,b,c` (default: 1, 2 and 3 octaves above a_min, those within --octaves).
     #[arg(long)]
     pub scales: Option<String>,
-    /// The pixel: the drawn scales are also given as lengths.
+    // the pixel: the drawn scales are also given as lengths
     #[command(flatten)]
     pub pixel: PixelOpts,
     #[command(flatten)]

@@ -22,6 +22,33 @@ pub struct PixelSpacing {
     pub warnings: Vec<String>,
 }
 
+/// Metres in one `unit` (m, km, cm, mm, ft, US survey ft, mi and their
+/// spellings), `None` for a name not known as a length.
+pub fn unit_metres(unit: &str) -> Option<f64> {
+    let u = unit.trim().to_ascii_lowercase().replace(['_', '-'], " ");
+    Some(match u.as_str() {
+        "m" | "metre" | "metres" | "meter" | "meters" => 1.0,
+        "km" | "kilometre" | "kilometres" | "kilometer" | "kilometers" => 1000.0,
+        "cm" | "centimetre" | "centimetres" | "centimeter" | "centimeters" => 0.01,
+        "mm" | "millimetre" | "millimetres" | "millimeter" | "millimeters" => 0.001,
+        "ft" | "foot" | "feet" => 0.3048,
+        "us survey ft" | "us ft" | "ftus" | "foot us" | "us survey foot" => 1200.0 / 3937.0,
+        "mi" | "mile" | "miles" => 1609.344,
+        _ => return None,
+    })
+}
+
+/// The ratio of two pixel sides' units, `a` in `b` (1 for the same name,
+/// or either unnamed: numbers as they are), `None` when they cannot be
+/// compared (different names, one not a length [`unit_metres`] knows).
+pub fn unit_ratio(a: Option<&str>, b: Option<&str>) -> Option<f64> {
+    match (a, b) {
+        (None, _) | (_, None) => Some(1.0),
+        (Some(a), Some(b)) if a.trim() == b.trim() => Some(1.0),
+        (Some(a), Some(b)) => unit_metres(a).zip(unit_metres(b)).map(|(a, b)| a / b),
+    }
+}
+
 /// WGS84 semi-major axis (m) and flattening (EPSG:7030).
 const WGS84_A: f64 = 6_378_137.0;
 const WGS84_F: f64 = 1.0 / 298.257_223_563;

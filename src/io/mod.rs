@@ -27,7 +27,7 @@ pub use atomic::{
     OutputBatch, Protected, file_identity, outputs_committed, protect, remove_temporaries,
     write_atomic, write_json, write_json_compact,
 };
-pub use georef::{PixelSpacing, degrees_to_metres};
+pub use georef::{PixelSpacing, degrees_to_metres, unit_metres, unit_ratio};
 pub use png::{PNG16_NODATA, Png16Mapping};
 
 use std::path::{Path, PathBuf};

@@ -483,7 +483,8 @@ fn metre_crs(code: u16) -> bool {
 /// The pixel spacing a GeoTIFF declares (super::read_pixel_spacing):
 /// ModelPixelScale, or the column lengths of an affine
 /// ModelTransformation. Projected systems give their linear unit
-/// (ProjLinearUnitsGeoKey, or metres for WGS84 UTM zones); geographic
+/// (ProjLinearUnitsGeoKey, a user-defined unit's size in GeoDoubleParams,
+/// or metres for the projected systems of [`metre_crs`]); geographic
 /// ones (degrees, or the GeogAngularUnitsGeoKey) become metres at the
 /// image's middle latitude, from the tiepoint. `Ok(None)` for a plain
 /// TIFF, or tags this walk cannot use; a file that is not a readable TIFF
