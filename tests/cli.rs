@@ -40,6 +40,13 @@ fn analyze(image: &str, octaves: &str, extra: &[&str], out: &str) -> i32 {
     run(&args)
 }
 
+/// Asserts that the `warnings` of an output JSON hold `text`, showing them
+/// when not.
+fn assert_warns(v: &Value, text: &str) {
+    let w = v["warnings"].to_string();
+    assert!(w.contains(text), "no {text:?} in {w}");
+}
+
 fn json(path: &Path) -> Value {
     let s = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     serde_json::from_str(&s).unwrap()
@@ -1231,11 +1238,7 @@ fn tm_names_a_quantised_dem() {
     let (q, f) = (pq.display().to_string(), pf.display().to_string());
     assert!(said(&["tm", &q, "--out", &o]));
     let tm = json(&dir.join("o/tm.json"));
-    assert!(
-        tm["warnings"].to_string().contains("--frac-int"),
-        "{}",
-        tm["warnings"]
-    );
+    assert_warns(&tm, "--frac-int");
     assert!(!said(&["tm", &q, "--frac-int", "--out", &o]));
     assert!(!said(&["tm", &f, "--out", &o]));
 }
@@ -1353,13 +1356,7 @@ fn pixel_size_gives_lengths() {
         assert!((at("k_range_physical") - at("k_range") / side).abs() < 1e-15);
     }
     assert_eq!(s["k_physical_units"], "rad/units");
-    assert!(
-        s["warnings"]
-            .to_string()
-            .contains("not square (2 x 3 units"),
-        "{}",
-        s["warnings"]
-    );
+    assert_warns(&s, "not square (2 x 3 units");
     let (code, err) = run_bin_stderr(&["tm", &img, "--pixel-size", "0.5", "--out", &o("t")]);
     assert_eq!(code, 0, "{err}");
     let t = json(&dir.join("t/tm.json"));
@@ -1404,13 +1401,7 @@ fn pixel_size_gives_lengths() {
         m["fit_lengths"][0].as_f64(),
         Some(3.0 * m["fit_scales"][0].as_f64().unwrap())
     );
-    assert!(
-        m["warnings"]
-            .to_string()
-            .contains("--pixel-size 3 m differs from the 2 m"),
-        "{}",
-        m["warnings"]
-    );
+    assert_warns(&m, "--pixel-size 3 m differs from the 2 m");
     // a shard without a pixel: none, and said
     let (code, err) = run_bin_stderr(&["analyze", &img, "--octaves", "3", "--out", &o("b")]);
     assert_eq!(code, 0, "{err}");
@@ -1425,13 +1416,7 @@ fn pixel_size_gives_lengths() {
     assert_eq!(code, 0, "{err}");
     let m = json(&dir.join("m2/spectra.json"));
     assert!(m["params"]["pixel_size"].is_null());
-    assert!(
-        m["warnings"]
-            .to_string()
-            .contains("1 of 2 sums files record a pixel spacing"),
-        "{}",
-        m["warnings"]
-    );
+    assert_warns(&m, "1 of 2 sums files record a pixel spacing");
     // a merge of a merge names the pixel's first origin, not the merges
     let (code, err) = run_bin_stderr(&["merge", &o("m0/sums.json"), "--out", &o("m00")]);
     assert_eq!(code, 0, "{err}");
@@ -1490,11 +1475,7 @@ fn pixel_size_gives_lengths() {
     assert_eq!(code, 0, "{err}");
     let m = json(&dir.join("mz/spectra.json"));
     assert!(m["params"]["pixel_size"].is_null());
-    assert!(
-        m["warnings"].to_string().contains("not a pixel size"),
-        "{}",
-        m["warnings"]
-    );
+    assert_warns(&m, "not a pixel size");
     // an ESRI grid with a .prj declares its pixel: used without --pixel-size
     let write_asc = |name: &str, f: &ndarray::Array2<f64>| {
         let p = dir.join(name);
@@ -1830,11 +1811,7 @@ fn stats_commands_say_what_they_did() {
     ]);
     assert_eq!(code, 0, "{err}");
     let j = json(&Path::new(&o).join("pdf.json"));
-    assert!(
-        j["warnings"].to_string().contains("not square"),
-        "{}",
-        j["warnings"]
-    );
+    assert_warns(&j, "not square");
     assert!(err.contains("not square"), "{err}");
 }
 
