@@ -320,6 +320,27 @@ pub struct CwtPlan {
     scratch_len: usize,
 }
 
+/// An image of `ny x nx` can be transformed from the scale `smallest`:
+/// at least 8x8, and as wide as the wavelet's support there.
+///
+/// **Errors** saying which it is not.
+pub fn check_size(ny: usize, nx: usize, wavelet: Wavelet, smallest: f64) -> Result<()> {
+    if ny < 8 || nx < 8 {
+        return Err(Error::Input(format!(
+            "image {ny}x{nx} is too small (need at least 8x8)"
+        )));
+    }
+    if 2.0 * wavelet.support_radius() * smallest > ny.min(nx) as f64 {
+        return Err(Error::Input(format!(
+            "image {ny}x{nx} is smaller than the {wavelet} wavelet at its smallest scale {} px \
+             (support diameter {} px)",
+            crate::error::short(smallest),
+            crate::error::short((2.0 * wavelet.support_radius() * smallest).round())
+        )));
+    }
+    Ok(())
+}
+
 impl CwtPlan {
     /// Plans the transform of `ny x nx` images at the given scales.
     ///
@@ -355,14 +376,7 @@ impl CwtPlan {
             ));
         }
         let smallest = scales.iter().cloned().fold(f64::INFINITY, f64::min);
-        if 2.0 * wavelet.support_radius() * smallest > ny.min(nx) as f64 {
-            return Err(Error::Input(format!(
-                "image {ny}x{nx} is smaller than the {wavelet} wavelet at its smallest scale \
-                 {} px (support diameter {} px)",
-                crate::error::short(smallest),
-                crate::error::short((2.0 * wavelet.support_radius() * smallest).round())
-            )));
-        }
+        check_size(ny, nx, wavelet, smallest)?;
         let mut rp = RealFftPlanner::<f64>::new();
         let r2c = rp.plan_fft_forward(nx);
         let mut cp = FftPlanner::<f64>::new();

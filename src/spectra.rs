@@ -229,9 +229,12 @@ pub struct PartitionSums {
 /// The pixel recorded with partition sums ([`PartitionSums::pixel`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PixelRecord {
-    /// Along the columns (x).
+    /// Along the columns (x). (JSON null, an edited file's NaN, reads
+    /// back as NaN, a record merge does not use.)
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub x: f64,
     /// Along the rows (y).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub y: f64,
     /// The unit's name.
     pub units: String,
@@ -897,11 +900,34 @@ impl PartitionSums {
             // ratio window too narrow for the scale step (it bounds the
             // local exponents a line can follow, LinkParams::ratio)
             let margin = self.analysis.as_ref().map_or(0, |a| a.margin_px());
+            // `wtmm info` with this analysis's options (its table is
+            // that of the wavelet, a_min, voices and margin used here)
+            let info = self.analysis.as_ref().map_or(String::new(), |a| {
+                let d = crate::skeleton::AnalysisConfig::default();
+                let mut o = String::new();
+                if a.wavelet != d.wavelet {
+                    o += &format!(" --wavelet {}", a.wavelet);
+                }
+                if a.a_min != d.a_min {
+                    o += &format!(" --a-min {}", a.a_min);
+                }
+                if a.voices != d.voices {
+                    o += &format!(" --voices {}", a.voices);
+                }
+                if let Some(m) = a.margin {
+                    o += &format!(" --margin {m}");
+                }
+                format!(
+                    "; `wtmm info IMAGE{o} --octaves {}` lists the domain each number of \
+                     octaves leaves",
+                    a.octaves
+                )
+            });
             let cure = if margin > 0 || missing > 0 {
-                "; the counting domain is too small for these scales (use fewer octaves, a \
-                 smaller margin, or a lower fit range: --octaves, --margin, --fit; `wtmm info \
-                 IMAGE` lists the domain each number of octaves leaves)"
-                    .to_string()
+                format!(
+                    "; the counting domain is too small for these scales (use fewer octaves, a \
+                     smaller margin, or a lower fit range: --octaves, --margin, --fit{info})"
+                )
             } else {
                 "; the whole image is counted, so the scales reach too far for its size (use \
                  fewer octaves or a lower fit range: --octaves, --fit)"

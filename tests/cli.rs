@@ -1264,8 +1264,9 @@ fn info_describes_images_and_their_domains() {
     )
     .unwrap();
     let asc = asc.display().to_string();
+    // the 3 x 2 grid cannot be analysed: exit 1, said
     let (code, out, err) = run_bin_output(&["info", &img, &asc, "--octaves", "4", "--json"], true);
-    assert_eq!(code, 0, "{err}");
+    assert_eq!(code, 1, "{err}");
     let v: Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["command"], "info");
     let a = &v["images"][0];
@@ -1291,6 +1292,17 @@ fn info_describes_images_and_their_domains() {
     assert_eq!(g["pixel_size"]["x"], 30.0);
     assert_eq!(g["pixel_size"]["units"], "m");
     assert!(g["domains"][0]["domain"].is_null());
+    assert_eq!(g["usable"], false);
+    assert!(
+        g["problems"]
+            .to_string()
+            .contains("too small (need at least 8x8)"),
+        "{g}"
+    );
+    assert_eq!(a["usable"], true);
+    // the default fit's scales are the grid's (4 octaves: up to 22.4 px)
+    let top = v["params"]["default_fit_scales"][1].as_f64().unwrap();
+    assert_eq!(top, d[3]["a_max"].as_f64().unwrap());
     // text; --margin 0 counts the whole image (but for the hole's clearance)
     let (code, out, err) = run_bin_output(&["info", &img, "--margin", "0", "--octaves", "2"], true);
     assert_eq!(code, 0, "{err}");
@@ -1298,13 +1310,20 @@ fn info_describes_images_and_their_domains() {
         out.contains("200 x 256 px (rows x columns), npy <f8"),
         "{out}"
     );
-    assert!(out.contains("1 missing"), "{out}");
+    assert!(out.contains("1 missing pixels"), "{out}");
     assert!(out.contains("2 *"), "{out}");
     assert!(out.contains("200 x 256     "), "{out}");
     assert!(
         std::fs::read_dir(&dir).unwrap().count() == 3,
         "info writes nothing"
     );
+    // a constant image: exit 1, "not usable: constant"
+    let flat = dir.join("flat.npy");
+    write_npy(&flat, &ndarray::Array2::<f64>::from_elem((64, 64), 3.0)).unwrap();
+    let (code, out, _) = run_bin_output(&["info", &flat.display().to_string()], true);
+    assert_eq!(code, 1);
+    assert!(out.contains("not usable: constant"), "{out}");
+    std::fs::remove_file(&flat).unwrap();
     // refused: a_min below what the wavelet resolves; a missing file
     let (code, _, err) = run_bin_output(&["info", &img, "--a-min", "0.3"], true);
     assert_eq!(code, 2);
@@ -1476,6 +1495,15 @@ fn pixel_size_gives_lengths() {
     let m = json(&dir.join("mz/spectra.json"));
     assert!(m["params"]["pixel_size"].is_null());
     assert_warns(&m, "not a pixel size");
+    // null (an edited NaN) too; with a good shard beside it, no lengths
+    v["pixel"]["x"] = serde_json::Value::Null;
+    std::fs::write(&zero, v.to_string()).unwrap();
+    let (code, err) = run_bin_stderr(&["merge", &zero, &km, "--out", &o("mz")]);
+    assert_eq!(code, 0, "{err}");
+    let m = json(&dir.join("mz/spectra.json"));
+    assert!(m["params"]["pixel_size"].is_null());
+    assert_warns(&m, "records a pixel of NaN x 2 m, not a pixel size");
+    assert_warns(&m, "or one that is not a pixel size (said above)");
     // an ESRI grid with a .prj declares its pixel: used without --pixel-size
     let write_asc = |name: &str, f: &ndarray::Array2<f64>| {
         let p = dir.join(name);

@@ -2,6 +2,7 @@
 //! type, shape, values, missing pixels, the pixel spacing it declares) and
 //! how much of it each number of octaves leaves to count maxima in (the
 //! margin of SPEC §1 grows with the largest scale), before an analysis.
+//! Exits 1 when an image cannot be analysed (a script's pre-check).
 
 use std::path::{Path, PathBuf};
 
@@ -34,25 +35,31 @@ pub fn run(args: InfoArgs, _quiet: bool) -> Result<Outcome> {
         .wavelet
         .unwrap_or(AnalysisConfig::default().wavelet);
     // the planned analysis must be one analyze accepts (a_min above the
-    // wavelet's smallest scale, the grid's limits)
-    AnalysisConfig {
+    // wavelet's smallest scale, the grid's limits, a default fit of at
+    // least 3 scales)
+    let plan = AnalysisConfig {
         wavelet,
         a_min: args.cwt.a_min,
         octaves: args.cwt.octaves,
         voices: args.cwt.voices,
         margin: args.cwt.margin,
         ..Default::default()
-    }
-    .validate()?;
+    };
+    plan.validate()?;
+    let fit = super::analyze_cmd::fit_range(None, args.cwt.octaves, args.cwt.voices)?;
+    let grid = plan.scale_list();
+    let idx = crate::spectra::fit_indices(&grid, fit)?;
+    let fit_scales = (grid[idx[0]], grid[idx[idx.len() - 1]]);
     let mut out = Vec::new();
     for p in &args.images {
-        out.push(describe(p, &args.cwt, wavelet)?);
+        out.push(describe(p, &plan, fit, fit_scales)?);
     }
     if args.json {
         let mut body = header(
             "info",
             json!({"images": args.images, "wavelet": wavelet, "a_min": args.cwt.a_min,
-                "octaves": args.cwt.octaves, "voices": args.cwt.voices, "margin": args.cwt.margin}),
+                "octaves": args.cwt.octaves, "voices": args.cwt.voices, "margin": args.cwt.margin,
+                "default_fit_octaves": fit, "default_fit_scales": fit_scales}),
         );
         body["images"] = json!(out.iter().map(|d| &d.json).collect::<Vec<_>>());
         show!(
@@ -64,28 +71,35 @@ pub fn run(args: InfoArgs, _quiet: bool) -> Result<Outcome> {
             show!("{}", d.text);
         }
     }
-    Ok(Outcome::Ok)
+    // a script's pre-check: exit 1 when an image cannot be analysed
+    Ok(if out.iter().all(|d| d.usable) {
+        Outcome::Ok
+    } else {
+        Outcome::CheckFailed
+    })
 }
 
-/// One file, as text and as JSON.
+/// One file, as text and as JSON, and whether analyze can use it.
 struct Described {
     text: String,
     json: serde_json::Value,
+    usable: bool,
 }
 
-fn describe(path: &Path, cwt: &CwtOpts, wavelet: crate::cwt::Wavelet) -> Result<Described> {
+fn describe(
+    path: &Path,
+    plan: &AnalysisConfig,
+    fit: (f64, f64),
+    fit_scales: (f64, f64),
+) -> Result<Described> {
     let (field, info) = crate::io::read_field_with_info(path)?;
     let (ny, nx) = field.dim();
     let missing = field.missing_count();
-    let valid: Vec<f64> = field
-        .data
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    let n = valid.len() as f64;
-    let mean = valid.iter().sum::<f64>() / n;
-    let sd = (valid.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    // mean and sd of the valid pixels, in two passes (no copy)
+    let valid = || field.data.iter().filter(|v| v.is_finite());
+    let n = field.valid_count() as f64;
+    let mean = valid().sum::<f64>() / n;
+    let sd = (valid().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
     let range = field.range();
     let mut text = format!(
         "{}: {ny} x {nx} px (rows x columns), {} {}\n",
@@ -93,94 +107,125 @@ fn describe(path: &Path, cwt: &CwtOpts, wavelet: crate::cwt::Wavelet) -> Result<
         info.format,
         info.dtype
     );
-    let mut notes: Vec<String> = info.warnings.clone();
-    match range {
-        Some((lo, hi)) => {
-            text += &format!(
-                "  values {} .. {}, mean {}, sd {}; {missing} missing ({:.2} %)\n",
-                f(lo),
-                f(hi),
-                f(mean),
-                f(if sd.is_finite() { sd } else { 0.0 }),
-                100.0 * missing as f64 / (ny * nx) as f64
-            );
-            if lo == hi {
-                notes.push("constant: no analysis can use it".into());
-            }
-        }
-        None => notes.push("every pixel is missing (NaN or nodata)".into()),
+    text += &format!(
+        "  {missing} missing pixels ({:.2} %)",
+        100.0 * missing as f64 / (ny * nx) as f64
+    );
+    if let Some((lo, hi)) = range {
+        text += &format!(
+            "; values {} .. {}, mean {}, sd {}",
+            f(lo),
+            f(hi),
+            f(mean),
+            f(if sd.is_finite() { sd } else { 0.0 })
+        );
     }
-    notes.extend(field.amplitude_problem());
+    text += "\n";
+    let mut notes: Vec<String> = info.warnings.clone();
+    // what analyze refuses, the reason it would give
+    let mut problems: Vec<String> = Vec::new();
+    match range {
+        Some((lo, hi)) if lo == hi => problems.push("constant: no maxima to analyse".into()),
+        Some(_) => {}
+        None => problems.push("every pixel is missing (NaN or nodata)".into()),
+    }
+    problems.extend(field.amplitude_problem());
+    if let Err(e) = crate::cwt::check_size(ny, nx, plan.wavelet, plan.a_min) {
+        problems.push(e.to_string());
+    }
     // the spacing the file declares (a file wtmm cannot read for it: none)
     let px = crate::io::read_pixel_spacing(path).ok().flatten();
     match &px {
         Some(p) => {
+            let u = p.units.as_deref().unwrap_or("units unknown");
             text += &format!(
-                "  pixel {} x {} {} ({})\n",
+                "  pixel {} {u} along x (columns), {} {u} along y (rows): {}\n",
                 f(p.x),
                 f(p.y),
-                p.units.as_deref().unwrap_or("units unknown"),
                 p.source
             );
+            if (p.x / p.y - 1.0).abs() > 0.01 {
+                notes.push(format!(
+                    "the pixels are not square (x/y = {:.3}): the wavelet, isotropic in \
+                     pixels, mixes directions at different ground scales",
+                    p.x / p.y
+                ));
+            }
             notes.extend(p.warnings.iter().cloned());
         }
         None => text += "  pixel: none declared (give --pixel-size for lengths)\n",
     }
     // the counting domain per number of octaves: the default margin grows
-    // with the largest scale (SPEC §1), and only that interior is counted
+    // with the largest scale (SPEC §1), and only that interior, away from
+    // missing pixels, is counted
     text += &format!(
-        "  counting domain, {wavelet} wavelet from a_min = {} px, {} margin:\n",
-        f(cwt.a_min),
-        cwt.margin
+        "  counting domain, {} wavelet from a_min = {} px, {} margin:\n",
+        plan.wavelet,
+        f(plan.a_min),
+        plan.margin
             .map_or("the default".to_string(), |m| format!("a {m} px"))
     );
     text += "    octaves   a_max (px)   margin (px)   domain (px)   counted\n";
+    let dist = field.mask.as_ref().map(crate::skeleton::distance_to_mask);
     let mut domains = Vec::new();
-    for k in 1..=cwt.octaves.max(1) {
+    let mut counted_at_plan = None;
+    for k in 1..=plan.octaves.max(1) {
         let cfg = AnalysisConfig {
-            wavelet,
-            a_min: cwt.a_min,
             octaves: k,
-            voices: cwt.voices,
-            margin: cwt.margin,
-            ..Default::default()
+            ..plan.clone()
         };
-        let a_max = cfg.scale_list().last().copied().unwrap_or(cwt.a_min);
+        let a_max = cfg.scale_list().last().copied().unwrap_or(plan.a_min);
         let margin = cfg.margin_px();
-        let counted = cfg.counting_pixels(&field).ok();
+        let counted = cfg.counting_pixels_with(&field, dist.as_ref()).ok();
         let shape = counted.map(|_| [ny - 2 * margin, nx - 2 * margin]);
         let fraction = counted.map(|(c, _)| c as f64 / (ny * nx) as f64);
-        let mark = if k == cwt.octaves { " *" } else { "" };
+        if k == plan.octaves {
+            counted_at_plan = counted.map(|c| c.0);
+        }
+        let mark = if k == plan.octaves { " *" } else { "" };
         text += &format!(
             "    {:<9} {:<12} {:<13} {:<13} {}\n",
             format!("{k}{mark}"),
             format!("{a_max:.1}"),
             margin,
             shape.map_or("none".to_string(), |s| format!("{} x {}", s[0], s[1])),
-            fraction.map_or("image too small".to_string(), |fr| format!(
-                "{:.1} %",
-                100.0 * fr
-            ))
+            match (counted, fraction) {
+                (Some((c, _)), Some(fr)) => format!("{c} px ({:.1} %)", 100.0 * fr),
+                _ => "image too small".to_string(),
+            }
         );
         domains.push(
             json!({"octaves": k, "a_max": a_max, "margin": margin, "domain": shape,
             "counted_pixels": counted.map(|c| c.0), "fraction": fraction}),
         );
     }
+    if counted_at_plan.unwrap_or(0) == 0 {
+        problems.push(format!(
+            "no pixel to count maxima in at --octaves {} (a smaller margin or fewer octaves)",
+            plan.octaves
+        ));
+    }
     // analyze's default fit (spectra::default_fit): its top must be
     // reached by maxima lines inside the domain
-    let (lo, hi) = crate::spectra::default_fit(cwt.octaves, cwt.voices);
     text += &format!(
-        "    (* --octaves {}: analyze fits {}:{} octaves by default, a = {} .. {} px; a periodic \
-         field, such as wtmm's synthetic cascades, is counted whole with --margin 0)\n",
-        cwt.octaves,
-        f(lo),
-        f(hi),
-        f(cwt.a_min * lo.exp2()),
-        f(cwt.a_min * hi.exp2())
+        "    (* --octaves {}: analyze fits {}:{} octaves by default, a = {} .. {} px{})\n",
+        plan.octaves,
+        f(fit.0),
+        f(fit.1),
+        f(fit_scales.0),
+        f(fit_scales.1),
+        if plan.margin.is_none() {
+            "; a periodic field, such as wtmm's synthetic cascades, is counted whole with \
+             --margin 0"
+        } else {
+            ""
+        }
     );
     for n in &notes {
         text += &format!("  note: {n}\n");
+    }
+    for p in &problems {
+        text += &format!("  not usable: {p}\n");
     }
     let json = json!({
         "file": path, "format": info.format.name(), "dtype": info.dtype, "shape": [ny, nx],
@@ -188,7 +233,11 @@ fn describe(path: &Path, cwt: &CwtOpts, wavelet: crate::cwt::Wavelet) -> Result<
         "mean": (n > 0.0).then_some(mean), "sd": (n > 1.0).then_some(sd),
         "pixel_size": px.as_ref().map(|p| json!({"x": p.x, "y": p.y, "units": p.units,
             "source": p.source})),
-        "domains": domains, "notes": notes,
+        "domains": domains, "notes": notes, "usable": problems.is_empty(), "problems": problems,
     });
-    Ok(Described { text, json })
+    Ok(Described {
+        text,
+        json,
+        usable: problems.is_empty(),
+    })
 }

@@ -188,6 +188,9 @@ pub enum Command {
     /// Space-scale correlation of the magnitudes ln M (II Fig 30).
     Correlate(correlate_cmd::CorrelateArgs),
     /// What wtmm reads from images, and the counting domain each number of octaves leaves.
+    ///
+    /// Exits 1 when an image cannot be analysed (constant, every pixel missing, too small for
+    /// the wavelet, or no counting domain at --octaves), each said under "not usable".
     Info(info_cmd::InfoArgs),
 }
 
@@ -565,6 +568,11 @@ pub fn run() -> i32 {
     // the handler can be installed once per process; failing to install it
     // only loses the clean-up, so the command runs anyway
     let _ = ctrlc::set_handler(|| {
+        // the bar goes, so that the message is the last line (emit would
+        // redraw it)
+        if let Some(bar) = common::active_bar() {
+            bar.finish_and_clear();
+        }
         crate::io::remove_temporaries();
         if !crate::io::outputs_committed() {
             release_created(None, true);
@@ -733,6 +741,12 @@ const SUMS: Declarers = Declarers {
     none: " (validate, demo and compare, and analyze before 0.3, record none)",
 };
 
+/// [`SUMS`] when some record a pixel that is not one.
+const SUMS_BAD: Declarers = Declarers {
+    none: " or one that is not a pixel size (said above)",
+    ..SUMS
+};
+
 impl PixelOpts {
     /// The pixel: `--pixel-size`, else the spacing every one of `images`
     /// declares ([`crate::io::read_pixel_spacing`]), with the warnings to
@@ -790,7 +804,8 @@ impl PixelOpts {
                 })
             })
             .collect();
-        let (px, mut warnings) = self.resolve_from(&declared, files, &SUMS)?;
+        let by = if bad.is_empty() { &SUMS } else { &SUMS_BAD };
+        let (px, mut warnings) = self.resolve_from(&declared, files, by)?;
         bad.append(&mut warnings);
         Ok((px, bad))
     }
@@ -1177,15 +1192,16 @@ mod tests {
             .unwrap();
         assert_eq!(px.unwrap().x, 90.0);
         assert!(w[0].contains("differs from the 30 m"), "{w:?}");
+        // the same number without --units: used, and the file's unit named
+        let (px, w) = opts("30", None).resolve(std::slice::from_ref(&a)).unwrap();
+        assert_eq!(px.unwrap().units, "units");
         assert!(
-            opts("30", None)
-                .resolve(std::slice::from_ref(&a))
-                .unwrap()
-                .1
-                .is_empty()
+            w.len() == 1 && w[0].contains("has no --units") && w[0].contains("--units m"),
+            "{w:?}"
         );
         // units wtmm knows are compared in metres: 0.03 km is the file's
-        // 30 m, 0.09 km or 20 metres are not; unknown units are not compared
+        // 30 m, 0.09 km or 20 metres are not; unknown units cannot be
+        // compared, and that is said
         assert!(
             opts("0.03", Some("km"))
                 .resolve(std::slice::from_ref(&a))
@@ -1203,19 +1219,20 @@ mod tests {
                 "{u}: {w:?}"
             );
         }
+        let w = opts("7", Some("cubits"))
+            .resolve(std::slice::from_ref(&a))
+            .unwrap()
+            .1;
         assert!(
-            opts("7", Some("cubits"))
-                .resolve(std::slice::from_ref(&a))
-                .unwrap()
-                .1
-                .is_empty()
+            w.len() == 1 && w[0].contains("cannot be compared with the 30 m"),
+            "{w:?}"
         );
         // the same number, one without units: said as such
         let bare = dir.join("bare.asc");
         std::fs::write(&bare, "ncols 2\nnrows 2\ncellsize 30\n1 2\n3 4\n").unwrap();
         let (px, w) = auto.resolve(&[a.clone(), bare]).unwrap();
         assert!(
-            px.is_none() && w[0].contains("different or unnamed units"),
+            px.is_none() && w[0].contains("in units that cannot be compared (one unnamed"),
             "{w:?}"
         );
         let _ = std::fs::remove_dir_all(&dir);

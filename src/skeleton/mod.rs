@@ -219,11 +219,7 @@ impl AnalysisConfig {
         let margin = self.margin_px();
         let mut d = Domain::interior(ny, nx, margin);
         if d.is_empty() {
-            let a_max = self.scale_list().last().copied().unwrap_or(0.0);
-            return Err(Error::Input(format!(
-                "image {ny}x{nx} is smaller than the wavelet: the interior margin is {margin} px \
-                 on each side at the largest scale {a_max:.1} px (use fewer octaves or a smaller margin: --octaves, --margin; a periodic image, such as the W-cascades, FISC and FIF fields of `wtmm synth`, is analysed whole as a torus with --margin 0)"
-            )));
+            return Err(self.no_interior(ny, nx));
         }
         d.support = self.wavelet.support_radius();
         d.guard = self.guard;
@@ -231,6 +227,16 @@ impl AnalysisConfig {
             d.mask_distance = Some(distance_to_mask(mask));
         }
         Ok(d)
+    }
+
+    /// The error of an image with no interior inside the margin.
+    fn no_interior(&self, ny: usize, nx: usize) -> Error {
+        let margin = self.margin_px();
+        let a_max = self.scale_list().last().copied().unwrap_or(0.0);
+        Error::Input(format!(
+            "image {ny}x{nx} is smaller than the wavelet: the interior margin is {margin} px \
+             on each side at the largest scale {a_max:.1} px (use fewer octaves or a smaller margin: --octaves, --margin; a periodic image, such as the W-cascades, FISC and FIF fields of `wtmm synth`, is analysed whole as a torus with --margin 0)"
+        ))
     }
 
     /// How far from every missing pixel a maximum must lie to count: the
@@ -247,10 +253,32 @@ impl AnalysisConfig {
     ///
     /// **Errors** as [`Self::domain`].
     pub fn counting_pixels(&self, field: &Field) -> Result<(usize, usize)> {
-        let d = self.domain(field)?;
+        let (ny, nx) = field.dim();
+        if Domain::interior(ny, nx, self.margin_px()).is_empty() {
+            return Err(self.no_interior(ny, nx));
+        }
+        let dist = field.mask.as_ref().map(distance_to_mask);
+        self.counting_pixels_with(field, dist.as_ref())
+    }
+
+    /// [`Self::counting_pixels`] with the distance of every pixel to the
+    /// missing ones ([`distance_to_mask`] of the field's mask) computed
+    /// once for several analyses of one field.
+    ///
+    /// **Errors** as [`Self::domain`].
+    pub fn counting_pixels_with(
+        &self,
+        field: &Field,
+        dist: Option<&Array2<f32>>,
+    ) -> Result<(usize, usize)> {
+        let (ny, nx) = field.dim();
+        let d = Domain::interior(ny, nx, self.margin_px());
+        if d.is_empty() {
+            return Err(self.no_interior(ny, nx));
+        }
         let interior = (d.y1 - d.y0) * (d.x1 - d.x0);
         let clearance = self.hole_clearance() as f32;
-        let counted = match &d.mask_distance {
+        let counted = match dist {
             None => interior,
             Some(dist) => dist
                 .slice(ndarray::s![d.y0..d.y1, d.x0..d.x1])
