@@ -277,9 +277,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         .warnings
         .extend(px.as_ref().and_then(PixelSize::warning));
     spectra.warnings.extend(px_warnings);
-    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
-        say!("{n}");
-    }
+    PixelSize::say_note(px.as_ref(), quiet);
     make_out_dir(&args.out.out)?;
     let params = json!({
         "images": args.images, "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit,

@@ -144,13 +144,14 @@ fn describe(
                 f(p.y),
                 p.source
             );
-            if (p.x / p.y - 1.0).abs() > 0.01 {
-                notes.push(format!(
-                    "the pixels are not square (x/y = {:.3}): the wavelet, isotropic in \
-                     pixels, mixes directions at different ground scales",
-                    p.x / p.y
-                ));
-            }
+            // the warning the analysing commands give for this pixel
+            let as_used = super::PixelSize {
+                x: p.x,
+                y: p.y,
+                units: u.to_string(),
+                source: p.source.clone(),
+            };
+            notes.extend(as_used.warning());
             notes.extend(p.warnings.iter().cloned());
         }
         None => text += "  pixel: none declared (give --pixel-size for lengths)\n",

@@ -142,9 +142,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
     warnings.extend(px_warnings);
     // recorded in spectra.json with the fit's warnings
     s.warnings.extend(warnings);
-    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
-        say!("{n}");
-    }
+    PixelSize::say_note(px.as_ref(), quiet);
     make_out_dir(&args.out.out)?;
     let curves = theory
         .map(|(m, name)| theory_curves(&m, name, &s.q))

@@ -994,6 +994,13 @@ impl PixelSize {
             "note": "lengths in these units are px times side = sqrt(x y); wavenumbers are rad/px divided by it"})
     }
 
+    /// Says [`note`](Self::note) of `px` on stderr, unless `quiet`.
+    pub fn say_note(px: Option<&PixelSize>, quiet: bool) {
+        if let Some(n) = px.and_then(PixelSize::note).filter(|_| !quiet) {
+            say!("{n}");
+        }
+    }
+
     /// The line that says where a pixel size the files declared comes
     /// from (nothing for `--pixel-size`).
     pub fn note(&self) -> Option<String> {
@@ -1202,27 +1209,21 @@ mod tests {
         // units wtmm knows are compared in metres: 0.03 km is the file's
         // 30 m, 0.09 km or 20 metres are not; unknown units cannot be
         // compared, and that is said
-        assert!(
-            opts("0.03", Some("km"))
+        let warnings = |v: &str, u: &str| {
+            opts(v, Some(u))
                 .resolve(std::slice::from_ref(&a))
                 .unwrap()
                 .1
-                .is_empty()
-        );
+        };
+        assert!(warnings("0.03", "km").is_empty());
         for (v, u) in [("0.09", "km"), ("20", "metres")] {
-            let w = opts(v, Some(u))
-                .resolve(std::slice::from_ref(&a))
-                .unwrap()
-                .1;
+            let w = warnings(v, u);
             assert!(
                 w.len() == 1 && w[0].contains("differs from the 30 m"),
                 "{u}: {w:?}"
             );
         }
-        let w = opts("7", Some("cubits"))
-            .resolve(std::slice::from_ref(&a))
-            .unwrap()
-            .1;
+        let w = warnings("7", "cubits");
         assert!(
             w.len() == 1 && w[0].contains("cannot be compared with the 30 m"),
             "{w:?}"

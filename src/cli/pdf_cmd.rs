@@ -440,14 +440,7 @@ impl Input {
     /// Says where the pixel size came from (unless `quiet`), on stderr;
     /// the pixel warnings go with each command's own (JSON and stderr).
     pub fn say_pixel(&self, quiet: bool) {
-        if let Some(n) = self
-            .pixel
-            .as_ref()
-            .and_then(super::PixelSize::note)
-            .filter(|_| !quiet)
-        {
-            say!("{n}");
-        }
+        super::PixelSize::say_note(self.pixel.as_ref(), quiet);
     }
 
     /// `values` px as lengths in the pixel's units (`null` without a

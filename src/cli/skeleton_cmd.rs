@@ -89,9 +89,7 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     if sk.lines.is_empty() {
         return Err(Error::format(&args.image, cfg.why_no_maxima(&field)));
     }
-    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
-        say!("{n}");
-    }
+    PixelSize::say_note(px.as_ref(), quiet);
     make_out_dir(&args.out.out)?;
     // line id of each (scale, x, y)
     let mut on_line: HashMap<(usize, u32, u32), usize> = HashMap::new();

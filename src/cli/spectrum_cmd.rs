@@ -199,9 +199,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         .into_iter()
         .chain(px_warnings)
         .collect();
-    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
-        say!("{n}");
-    }
+    PixelSize::say_note(px.as_ref(), quiet);
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
             warnings.push(format!(

@@ -363,9 +363,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     }
     extra.extend(px.as_ref().and_then(PixelSize::warning));
     extra.extend(px_warnings);
-    if let Some(n) = px.as_ref().and_then(PixelSize::note).filter(|_| !quiet) {
-        say!("{n}");
-    }
+    PixelSize::say_note(px.as_ref(), quiet);
     if let Some(why) = surrogate_failure {
         extra.push(format!("--surrogates: none drawn: {why}"));
     }
