@@ -254,6 +254,34 @@ impl PixelRecord {
 }
 
 impl PartitionSums {
+    /// "; `wtmm info IMAGE --octaves 5` lists the domain each number of
+    /// octaves leaves", with this analysis's options (its table is that
+    /// of the wavelet, a_min, voices and margin used here); empty when
+    /// the sums record no analysis.
+    fn info_hint(&self) -> String {
+        self.analysis.as_ref().map_or(String::new(), |a| {
+            let d = crate::skeleton::AnalysisConfig::default();
+            let mut o = String::new();
+            if a.wavelet != d.wavelet {
+                o += &format!(" --wavelet {}", a.wavelet);
+            }
+            if a.a_min != d.a_min {
+                o += &format!(" --a-min {}", a.a_min);
+            }
+            if a.voices != d.voices {
+                o += &format!(" --voices {}", a.voices);
+            }
+            if let Some(m) = a.margin {
+                o += &format!(" --margin {m}");
+            }
+            format!(
+                "; `wtmm info IMAGE{o} --octaves {}` lists the domain each number of \
+                 octaves leaves",
+                a.octaves
+            )
+        })
+    }
+
     /// The partition sums of one image's skeleton, for the q grid `q`.
     /// The skeleton does not say which analysis made it nor how many
     /// pixels were missing: `analysis` is `None` and `missing` 0 (so merges
@@ -900,29 +928,7 @@ impl PartitionSums {
             // ratio window too narrow for the scale step (it bounds the
             // local exponents a line can follow, LinkParams::ratio)
             let margin = self.analysis.as_ref().map_or(0, |a| a.margin_px());
-            // `wtmm info` with this analysis's options (its table is
-            // that of the wavelet, a_min, voices and margin used here)
-            let info = self.analysis.as_ref().map_or(String::new(), |a| {
-                let d = crate::skeleton::AnalysisConfig::default();
-                let mut o = String::new();
-                if a.wavelet != d.wavelet {
-                    o += &format!(" --wavelet {}", a.wavelet);
-                }
-                if a.a_min != d.a_min {
-                    o += &format!(" --a-min {}", a.a_min);
-                }
-                if a.voices != d.voices {
-                    o += &format!(" --voices {}", a.voices);
-                }
-                if let Some(m) = a.margin {
-                    o += &format!(" --margin {m}");
-                }
-                format!(
-                    "; `wtmm info IMAGE{o} --octaves {}` lists the domain each number of \
-                     octaves leaves",
-                    a.octaves
-                )
-            });
+            let info = self.info_hint();
             let cure = if margin > 0 || missing > 0 {
                 format!(
                     "; the counting domain is too small for these scales (use fewer octaves, a \
@@ -1118,7 +1124,8 @@ impl PartitionSums {
                         Some(_) => "as given (--margin)".to_string(),
                         None => format!(
                             "set by the largest analysed scale {a_max:.1} px; fewer --octaves \
-                             or a smaller --margin keep more of it"
+                             or a smaller --margin keep more of it{}",
+                            self.info_hint()
                         ),
                     };
                     (a.margin_px(), why)
@@ -1138,8 +1145,14 @@ impl PartitionSums {
                 })
                 .unwrap_or_default();
             warnings.push(format!(
-                "only {} maxima lines alive at the largest fitted scale a = {:.2}{margin_note}",
-                ens.lines[last_fit], self.scales[last_fit]
+                "only {} maxima {} alive at the largest fitted scale a = {:.2}{margin_note}",
+                ens.lines[last_fit],
+                if ens.lines[last_fit] == 1 {
+                    "line"
+                } else {
+                    "lines"
+                },
+                self.scales[last_fit]
             ));
         }
         // where a leave-one-out sample has no estimate (an image carries

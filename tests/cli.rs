@@ -1376,6 +1376,12 @@ fn pixel_size_gives_lengths() {
     }
     assert_eq!(s["k_physical_units"], "rad/units");
     assert_warns(&s, "not square (2 x 3 units");
+    // each command names what it analyses isotropically in pixels
+    assert_warns(
+        &s,
+        "and the angle-averaged spectrum, isotropic in pixels, mixes",
+    );
+    assert!(!s["warnings"].to_string().contains("wavelet"));
     let (code, err) = run_bin_stderr(&["tm", &img, "--pixel-size", "0.5", "--out", &o("t")]);
     assert_eq!(code, 0, "{err}");
     let t = json(&dir.join("t/tm.json"));
@@ -1840,6 +1846,7 @@ fn stats_commands_say_what_they_did() {
     assert_eq!(code, 0, "{err}");
     let j = json(&Path::new(&o).join("pdf.json"));
     assert_warns(&j, "not square");
+    assert_warns(&j, "and the wavelet, isotropic in pixels, mixes");
     assert!(err.contains("not square"), "{err}");
 }
 

@@ -1052,7 +1052,7 @@ fn few_lines_warning_names_the_counting_domain() {
     let w = sp
         .warnings
         .iter()
-        .find(|w| w.contains("maxima lines alive"))
+        .find(|w| w.contains("alive at the largest fitted scale"))
         .expect("a 160x200 image has few lines at 12 px");
     let want = format!(
         "counting domain of a 160x200 image is {}x{} px: a margin of {m} px",
@@ -1060,6 +1060,11 @@ fn few_lines_warning_names_the_counting_domain() {
         200 - 2 * m
     );
     assert!(w.contains(&want), "{w}");
+    // and where to see the domain each number of octaves leaves
+    assert!(
+        w.contains("`wtmm info IMAGE --octaves 3` lists the domain"),
+        "{w}"
+    );
     // the whole torus has no margin to blame
     let img = fbm(FbmParams { hurst: 0.4 }, 64, 64, 1, 0).unwrap();
     let torus = AnalysisConfig {

@@ -273,9 +273,10 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         Rule::Plain => Rule::Sup,
     };
     let other = sums.spectra(other_rule, fit)?;
-    spectra
-        .warnings
-        .extend(px.as_ref().and_then(PixelSize::warning));
+    spectra.warnings.extend(
+        px.as_ref()
+            .and_then(|p| p.warning(super::Isotropic::Wavelet)),
+    );
     spectra.warnings.extend(px_warnings);
     PixelSize::say_note(px.as_ref(), quiet);
     make_out_dir(&args.out.out)?;

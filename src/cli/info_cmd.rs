@@ -151,7 +151,7 @@ fn describe(
                 units: u.to_string(),
                 source: p.source.clone(),
             };
-            notes.extend(as_used.warning());
+            notes.extend(as_used.warning(super::Isotropic::Wavelet));
             notes.extend(p.warnings.iter().cloned());
         }
         None => text += "  pixel: none declared (give --pixel-size for lengths)\n",

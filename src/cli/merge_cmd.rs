@@ -138,7 +138,10 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
                 .to_string(),
         );
     }
-    warnings.extend(px.as_ref().and_then(PixelSize::warning));
+    warnings.extend(
+        px.as_ref()
+            .and_then(|p| p.warning(super::Isotropic::Wavelet)),
+    );
     warnings.extend(px_warnings);
     // recorded in spectra.json with the fit's warnings
     s.warnings.extend(warnings);

@@ -1020,22 +1020,55 @@ impl PixelSize {
         format!("{} {}", short_num(px * self.side()), self.units)
     }
 
-    /// A warning for non-square pixels, which the isotropic analyses
-    /// (wavelet, angle-averaged spectrum) see as a stretched surface.
-    pub fn warning(&self) -> Option<String> {
+    /// A warning for non-square pixels, which the analyses isotropic in
+    /// pixels (`tools`: the wavelet, the angle-averaged spectrum, the
+    /// trace moments' square boxes) see as a stretched surface.
+    pub fn warning(&self, tools: Isotropic) -> Option<String> {
         let r = self.x / self.y;
         ((r - 1.0).abs() > NON_SQUARE).then(|| {
             format!(
                 "the pixels are not square ({} x {} {}, x/y = {r:.3}): in pixels, ground \
-                 distances along y are scaled by {r:.3} relative to x, and the wavelet and the \
-                 angle-averaged spectrum, isotropic in pixels, mix directions at different \
-                 ground scales; resample to square pixels for an isotropic analysis (lengths \
-                 here use the side sqrt(x y))",
+                 distances along y are scaled by {r:.3} relative to x, and {}, isotropic in \
+                 pixels, {} directions at different ground scales; resample to square pixels \
+                 for an isotropic analysis (lengths here use the side sqrt(x y))",
                 short_num(self.x),
                 short_num(self.y),
-                self.units
+                self.units,
+                tools.what(),
+                tools.verb()
             )
         })
+    }
+}
+
+/// What a command analyses isotropically in pixels, for
+/// [`PixelSize::warning`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Isotropic {
+    /// The 2D wavelet (analyze, merge, skeleton, pdf, kernel, correlate).
+    Wavelet,
+    /// The angle-averaged power spectrum (spectrum).
+    Spectrum,
+    /// The trace moments' square boxes and the spectrum (tm).
+    BoxesAndSpectrum,
+}
+
+impl Isotropic {
+    fn what(self) -> &'static str {
+        match self {
+            Isotropic::Wavelet => "the wavelet",
+            Isotropic::Spectrum => "the angle-averaged spectrum",
+            Isotropic::BoxesAndSpectrum => {
+                "the trace moments' square boxes and the angle-averaged spectrum"
+            }
+        }
+    }
+
+    fn verb(self) -> &'static str {
+        match self {
+            Isotropic::BoxesAndSpectrum => "mix",
+            _ => "mixes",
+        }
     }
 }
 
@@ -1129,11 +1162,22 @@ mod tests {
         let sq = given(p("90", Some("m"))).unwrap().unwrap();
         assert_eq!((sq.x, sq.y, sq.side()), (90.0, 90.0, 90.0));
         assert_eq!(sq.length(2.125), "191.2 m");
-        assert!(sq.warning().is_none());
+        assert!(sq.warning(Isotropic::Wavelet).is_none());
         let r = given(p("77.5:92.6", None)).unwrap().unwrap();
         assert_eq!(r.units, "units");
         assert!((r.side() - (77.5f64 * 92.6).sqrt()).abs() < 1e-12);
-        let w = r.warning().unwrap();
+        let w = r.warning(Isotropic::Wavelet).unwrap();
+        assert!(
+            w.contains("and the wavelet, isotropic in pixels, mixes"),
+            "{w}"
+        );
+        let t = r.warning(Isotropic::BoxesAndSpectrum).unwrap();
+        assert!(
+            t.contains(
+                "square boxes and the angle-averaged spectrum, isotropic in pixels, mix directions"
+            ),
+            "{t}"
+        );
         assert!(
             w.contains("77.5 x 92.6 units") && w.contains("0.837"),
             "{w}"

@@ -227,7 +227,11 @@ impl StatsInput {
             r.model.check_size(size)?;
         }
         let (pixel, mut pixel_warnings) = self.pixel.resolve(&self.images)?;
-        pixel_warnings.extend(pixel.as_ref().and_then(super::PixelSize::warning));
+        pixel_warnings.extend(
+            pixel
+                .as_ref()
+                .and_then(|p| p.warning(super::Isotropic::Wavelet)),
+        );
         let periodic = match (self.domain, margin) {
             (DomainChoice::Torus, Some(m)) if m != 0 => {
                 return Err(Error::param(

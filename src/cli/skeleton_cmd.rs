@@ -34,7 +34,10 @@ pub struct SkeletonArgs {
 pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     let cfg = args.opts.analysis()?;
     let (px, mut warnings) = args.pixel.resolve(std::slice::from_ref(&args.image))?;
-    warnings.extend(px.as_ref().and_then(PixelSize::warning));
+    warnings.extend(
+        px.as_ref()
+            .and_then(|p| p.warning(super::Isotropic::Wavelet)),
+    );
     let field = super::common::read_image(&args.image)?;
     super::common::check_image_memory(&args.image, &field, true)?;
     let grid = cfg.scale_list();

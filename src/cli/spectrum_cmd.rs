@@ -195,7 +195,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         .collect();
     let mut warnings: Vec<String> = px
         .as_ref()
-        .and_then(PixelSize::warning)
+        .and_then(|p| p.warning(super::Isotropic::Spectrum))
         .into_iter()
         .chain(px_warnings)
         .collect();

@@ -361,7 +361,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             res.universal_fit
         ));
     }
-    extra.extend(px.as_ref().and_then(PixelSize::warning));
+    extra.extend(
+        px.as_ref()
+            .and_then(|p| p.warning(super::Isotropic::BoxesAndSpectrum)),
+    );
     extra.extend(px_warnings);
     PixelSize::say_note(px.as_ref(), quiet);
     if let Some(why) = surrogate_failure {
