@@ -1623,6 +1623,54 @@ fn analyze_prints_its_answer() {
     assert!(stdout.contains("tau(2) = "), "{stdout}");
 }
 
+/// `--svg` writes every plot also as SVG beside its PNG (charts and the
+/// skeleton's raster pictures), tagged with the version; without it, none.
+#[test]
+fn svg_beside_every_png() {
+    let dir = scratch("svg");
+    let img = fbm_npy(&dir, "f.npy", 96, 7);
+    let files = |d: &Path, ext: &str| {
+        let mut v: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == ext))
+            .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+    for cmd in ["analyze", "skeleton"] {
+        let with = dir.join(format!("{cmd}_svg"));
+        let without = dir.join(cmd);
+        for (out, svg) in [(&with, true), (&without, false)] {
+            let o = out.display().to_string();
+            let mut args = vec![cmd, &img, "--octaves", "2", "--margin", "0", "--out", &o];
+            if svg {
+                args.insert(0, "--svg");
+            }
+            assert_eq!(run(&args), 0, "{cmd} {svg}");
+        }
+        let pngs = files(&with, "png");
+        assert!(!pngs.is_empty(), "{cmd}");
+        assert_eq!(files(&with, "svg"), pngs, "{cmd}");
+        assert_eq!(files(&without, "png"), pngs, "{cmd}");
+        assert!(files(&without, "svg").is_empty(), "{cmd}");
+        for stem in &pngs {
+            let s = std::fs::read_to_string(with.join(format!("{stem}.svg"))).unwrap();
+            assert!(
+                s.contains("<svg") && s.trim_end().ends_with("</svg>"),
+                "{stem}"
+            );
+            assert!(s.contains(&format!("wtmm {}", wtmm::VERSION)), "{stem}");
+        }
+    }
+    // the raster pictures embed their pixels
+    let sk = files(&dir.join("skeleton_svg"), "svg");
+    let s =
+        std::fs::read_to_string(dir.join("skeleton_svg").join(format!("{}.svg", sk[0]))).unwrap();
+    assert!(s.contains("data:image/png;base64,"));
+}
+
 /// A negative number given to an option is refused by that option's
 /// parser, named, not taken for an unknown flag (clap's tip `-- -1` would
 /// not help); a negative value where one is valid still parses.

@@ -7,12 +7,13 @@ use clap::Args;
 use rayon::prelude::*;
 use serde_json::json;
 
+use super::common::save_chart;
 use super::common::{f, header, make_out_dir, parse_q, parse_range, progress, write_csv};
 use super::model_args::{ModelName, ModelOpts};
 use super::{CwtOpts, OutDir, Outcome, PixelOpts, PixelSize};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
-use crate::plot::{Chart, Series, Style, save_chart};
+use crate::plot::{Chart, Series, Style};
 use crate::skeleton::{AnalysisConfig, LinkParams, Parallelism, SearchRadius};
 use crate::spectra::{
     PartitionSums, Rule, Spectra, at_wavelet_order, default_tile_side, image_sums_tiled, is_curved,

@@ -344,6 +344,57 @@ impl Drop for CommandLineGuard {
     }
 }
 
+thread_local! {
+    /// `--svg`: every plot also as SVG beside its PNG (per thread, as the
+    /// command line: the plots are drawn on the thread that runs the
+    /// command).
+    static ALSO_SVG: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Makes this thread's plots also SVG (`--svg`) until the guard drops.
+pub(super) fn also_svg(on: bool) -> AlsoSvgGuard {
+    ALSO_SVG.with(|c| c.set(on));
+    AlsoSvgGuard
+}
+
+/// Turns `--svg` off again when dropped.
+pub(super) struct AlsoSvgGuard;
+
+impl Drop for AlsoSvgGuard {
+    fn drop(&mut self) {
+        ALSO_SVG.with(|c| c.set(false));
+    }
+}
+
+/// Whether `--svg` is on for this thread's plots.
+pub fn svg_too() -> bool {
+    ALSO_SVG.with(|c| c.get())
+}
+
+/// [`crate::plot::save_chart`] to `path` (a `.png`), and with `--svg` the
+/// same chart as vector graphics beside it (`.svg`), for a paper's figures.
+pub fn save_chart(chart: &crate::plot::Chart, path: &Path) -> Result<()> {
+    crate::plot::save_chart(chart, path)?;
+    if svg_too() {
+        crate::plot::save_chart(chart, &path.with_extension("svg"))?;
+    }
+    Ok(())
+}
+
+/// [`crate::plot::save_raster_chart`] as [`save_chart`]: with `--svg`
+/// also an SVG (axes and text as vectors, the raster embedded).
+pub fn save_raster_chart(
+    raster: &crate::plot::Raster,
+    spec: &crate::plot::RasterChart,
+    path: &Path,
+) -> Result<()> {
+    crate::plot::save_raster_chart(raster, spec, path)?;
+    if svg_too() {
+        crate::plot::save_raster_chart(raster, spec, &path.with_extension("svg"))?;
+    }
+    Ok(())
+}
+
 /// The provenance every JSON output starts with: version, build, the
 /// command and its parameters, and the command line as typed (`demo` runs
 /// `validate`, whose parameters it records; the command line says so).

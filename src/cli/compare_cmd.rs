@@ -46,6 +46,7 @@ use serde_json::json;
 
 use super::analyze_cmd::{SpectraOpts, theory_curves};
 use super::common::reason;
+use super::common::save_chart;
 use super::common::{f, header, make_out_dir, parse_range, progress, write_csv, write_json};
 use super::model_args::{ModelName, ModelOpts};
 use super::tm_cmd::{TmOpts, plot_k, tau_from_tm};
@@ -54,7 +55,7 @@ use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::field::Field;
 use crate::io::write_atomic;
-use crate::plot::{Chart, Series, Style, save_chart};
+use crate::plot::{Chart, Series, Style};
 use crate::skeleton::Parallelism;
 use crate::spectra::{PartitionSums, Rule, Spectra, default_tile_side, image_sums_tiled};
 use crate::stats::fit::mean_std;

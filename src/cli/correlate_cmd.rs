@@ -23,6 +23,7 @@ use clap::{Args, ValueEnum};
 use serde_json::json;
 
 use super::analyze_cmd::LineOpts;
+use super::common::save_chart;
 use super::common::{f, header, make_out_dir, write_csv, write_json};
 use super::kernel_cmd::{
     KernelOutputs, default_pairs, default_refs, pairs_or_default, write_kernel_outputs,
@@ -33,7 +34,7 @@ use super::{OutDir, Outcome};
 use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
 use crate::field::Field;
-use crate::plot::{Chart, Series, Style, save_chart};
+use crate::plot::{Chart, Series, Style};
 use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::correlation::{
     CorrelationConfig, CorrelationPlan, CorrelationResult, CorrelationSums, FIG30_PAIR_OCTAVES,

@@ -5,12 +5,13 @@ use std::path::PathBuf;
 use clap::Args;
 use serde_json::json;
 
+use super::common::save_raster_chart;
 use super::common::{file_label, header, make_out_dir, parse_list, progress, write_json};
 use super::{OutDir, Outcome};
 use crate::cwt::{CwtPlan, Wavelet, default_margin, modulus_argument};
 use crate::error::{Error, Result};
 use crate::io::write_npy;
-use crate::plot::{ColorBar, Raster, RasterChart, save_raster_chart};
+use crate::plot::{ColorBar, Raster, RasterChart};
 
 /// Most scales one `cwt` run writes (the analysis grid has 50).
 const MAX_SCALES: usize = 1000;

@@ -75,7 +75,7 @@ pub fn run(args: DemoArgs, quiet: bool) -> Result<Outcome> {
          correlation below II eq 76 (the README's \"Validation results\" says why).\n\
          Report: {}\n\
          Plots:  {} {} {} {} {} {}\n\
-         \x20       {} (II Figs 25-28) {} (II Fig 30)\n",
+         \x20       {} (II Figs 25-28) {} (II Fig 30){}\n",
         p("validation.txt"),
         p("logZ.png"),
         p("hqa.png"),
@@ -85,6 +85,11 @@ pub fn run(args: DemoArgs, quiet: bool) -> Result<Outcome> {
         p("spectrum.png"),
         p("kernel/*.png"),
         p("correlation/*.png"),
+        if super::common::svg_too() {
+            "\n        (and each as .svg beside its .png)"
+        } else {
+            ""
+        },
         n = args.count
     );
     Ok(r)

@@ -17,13 +17,14 @@ use num_complex::Complex64;
 use serde_json::json;
 
 use super::analyze_cmd::{LineOpts, fit_range};
+use super::common::save_chart;
 use super::common::{f, header, make_out_dir, write_csv, write_json};
 use super::pdf_cmd::{
     StatsInput, check_octaves, grid_top, no_maxima, octaves_or_default, scales_at,
 };
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
-use crate::plot::{Chart, Series, Style, save_chart};
+use crate::plot::{Chart, Series, Style};
 use crate::skeleton::AnalysisConfig;
 use crate::stats::kernel::{
     KernelConfig, KernelOptions, KernelResult, KernelSums, Reconstruction, check_wtmmm_counts,

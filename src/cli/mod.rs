@@ -145,6 +145,10 @@ pub struct Cli {
     /// No progress bars (they are also hidden when stderr is not a terminal).
     #[arg(long, global = true)]
     pub quiet: bool,
+    /// Also write every plot as SVG beside its PNG (vector graphics for a
+    /// paper's figures; rasters such as skeleton pictures are embedded).
+    #[arg(long, global = true)]
+    pub svg: bool,
     /// The subcommand to run.
     #[command(subcommand)]
     pub command: Command,
@@ -377,6 +381,7 @@ fn prepare_out(dir: &Path) -> Result<()> {
 }
 
 fn dispatch(cli: Cli) -> Result<Outcome> {
+    let _svg = common::also_svg(cli.svg);
     let (inputs, images, out) = io_of(&cli.command);
     if let Command::Pdf(pdf_cmd::PdfArgs { input, .. })
     | Command::Kernel(kernel_cmd::KernelArgs { input, .. })

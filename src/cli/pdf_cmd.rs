@@ -23,14 +23,13 @@ use serde_json::json;
 
 use super::analyze_cmd::{LineOpts, fit_range};
 use super::common::{f, header, make_out_dir, parse_list, progress, write_csv, write_json};
+use super::common::{save_chart, save_raster_chart};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
 use crate::field::Field;
-use crate::plot::{
-    Chart, ColorBar, Raster, RasterChart, Series, Style, save_chart, save_raster_chart, viridis,
-};
+use crate::plot::{Chart, ColorBar, Raster, RasterChart, Series, Style, viridis};
 use crate::skeleton::{AnalysisConfig, Parallelism};
 use crate::stats::fit::line_fit;
 use crate::stats::kernel::{nearest_scale, octave_on_grid};

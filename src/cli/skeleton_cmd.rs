@@ -8,11 +8,12 @@ use clap::Args;
 use serde_json::json;
 
 use super::analyze_cmd::LineOpts;
+use super::common::save_raster_chart;
 use super::common::{f, header, make_out_dir, parse_list, write_csv, write_json};
 use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::cwt::CwtPlan;
 use crate::error::{Error, Result};
-use crate::plot::{ColorBar, Raster, RasterChart, save_raster_chart};
+use crate::plot::{ColorBar, Raster, RasterChart};
 use crate::skeleton::{Parallelism, skeleton_with};
 
 #[derive(Args, Debug)]

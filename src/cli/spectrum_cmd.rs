@@ -7,10 +7,11 @@ use clap::Args;
 use rayon::prelude::*;
 use serde_json::json;
 
+use super::common::save_chart;
 use super::common::{f, header, make_out_dir, parse_range, read_all, write_csv, write_json};
 use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::error::{Error, Result};
-use crate::plot::{Chart, Series, Style, save_chart};
+use crate::plot::{Chart, Series, Style};
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
     CONVENTION, Detrend, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,

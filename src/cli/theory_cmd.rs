@@ -7,10 +7,11 @@ use clap::Args;
 use serde_json::json;
 
 use super::Outcome;
+use super::common::save_chart;
 use super::common::{header, make_out_dir, parse_q, write_json};
 use super::model_args::{ModelName, ModelOpts};
 use crate::error::{Error, Result};
-use crate::plot::{Chart, Series, Style, save_chart};
+use crate::plot::{Chart, Series, Style};
 use crate::theory::{Model, TheoryTable};
 
 #[derive(Args, Debug)]

@@ -9,13 +9,14 @@ use clap::Args;
 use rayon::prelude::*;
 use serde_json::json;
 
+use super::common::save_chart;
 use super::common::{
     available_memory, f, header, make_out_dir, parse_list, parse_q, parse_range, plus_minus,
     progress, write_csv, write_json,
 };
 use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::error::{Error, Result};
-use crate::plot::{Chart, Series, Style, save_chart};
+use crate::plot::{Chart, Series, Style};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
     FluxDiff, FluxKind, SurrogateErrors, TraceMomentAccumulator, TraceMomentConfig,

@@ -9,13 +9,14 @@ use serde::Serialize;
 use serde_json::json;
 
 use super::analyze_cmd::{SpectraOpts, theory_curves, write_outputs};
+use super::common::save_chart;
 use super::common::{make_out_dir, progress, write_json};
 use super::ensemble::analyse_generated;
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
 use crate::io::write_atomic;
-use crate::plot::{Chart, Series, Style, save_chart};
+use crate::plot::{Chart, Series, Style};
 use crate::stats::correlation::CorrelationSums;
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
