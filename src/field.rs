@@ -163,6 +163,117 @@ impl Field {
         Ok(std::borrow::Cow::Owned(out))
     }
 
+    /// The least-squares plane `c0 + cx x + cy y` through the valid pixels
+    /// (`x` the column, `y` the row index), or `None` when they do not fix
+    /// one (fewer than 3, or all on one line).
+    pub fn fit_plane(&self) -> Option<Plane> {
+        // centred on the valid pixels' centroid and mean, the constant
+        // decouples and the slopes solve a 2x2 system; the sums run over
+        // f - mean, so a DEM's large offset costs no precision
+        let (ny, nx) = self.dim();
+        let valid = |y: usize, x: usize| !self.is_masked(y, x);
+        let (mut n, mut sx, mut sy, mut sf) = (0.0, 0.0, 0.0, 0.0);
+        for y in 0..ny {
+            for x in 0..nx {
+                if valid(y, x) {
+                    n += 1.0;
+                    sx += x as f64;
+                    sy += y as f64;
+                    sf += self.data[[y, x]];
+                }
+            }
+        }
+        if n < 3.0 {
+            return None;
+        }
+        let (xm, ym, fm) = (sx / n, sy / n, sf / n);
+        let (mut xx, mut xy, mut yy, mut fx, mut fy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for y in 0..ny {
+            let dy = y as f64 - ym;
+            for x in 0..nx {
+                if valid(y, x) {
+                    let (dx, df) = (x as f64 - xm, self.data[[y, x]] - fm);
+                    xx += dx * dx;
+                    xy += dx * dy;
+                    yy += dy * dy;
+                    fx += df * dx;
+                    fy += df * dy;
+                }
+            }
+        }
+        let det = xx * yy - xy * xy;
+        if !(det > 1e-9 * xx * yy) {
+            return None;
+        }
+        let cx = (fx * yy - fy * xy) / det;
+        let cy = (fy * xx - fx * xy) / det;
+        Some(Plane {
+            c0: fm - cx * xm - cy * ym,
+            cx,
+            cy,
+        })
+    }
+
+    /// The fraction of the valid pixels' variance that
+    /// [`fit_plane`](Self::fit_plane)'s plane explains (its R², in
+    /// [0, 1]); `None` without a plane or for a constant field.
+    pub fn plane_share(&self) -> Option<f64> {
+        let p = self.fit_plane()?;
+        let (ny, nx) = self.dim();
+        let (mut n, mut sf, mut sp) = (0.0, 0.0, 0.0);
+        for y in 0..ny {
+            for x in 0..nx {
+                if !self.is_masked(y, x) {
+                    n += 1.0;
+                    sf += self.data[[y, x]];
+                    sp += p.at(y, x);
+                }
+            }
+        }
+        let (fm, pm) = (sf / n, sp / n);
+        let (mut vf, mut vp) = (0.0, 0.0);
+        for y in 0..ny {
+            for x in 0..nx {
+                if !self.is_masked(y, x) {
+                    vf += (self.data[[y, x]] - fm).powi(2);
+                    vp += (p.at(y, x) - pm).powi(2);
+                }
+            }
+        }
+        (vf > 0.0).then(|| (vp / vf).min(1.0))
+    }
+
+    /// Subtracts [`fit_plane`](Self::fit_plane)'s plane from the valid
+    /// pixels and returns it (`None`, nothing changed, when there is none).
+    pub fn remove_plane(&mut self) -> Option<Plane> {
+        let p = self.fit_plane()?;
+        p.subtract(&mut self.data);
+        Some(p)
+    }
+
+    /// What a wavelet transform is computed on: the values with missing
+    /// pixels filled ([`filled`](Self::filled)) and, with
+    /// [`Trend::Plane`], less the least-squares plane of the valid pixels
+    /// (removed before the fill: a mean fill of the tilted image would be
+    /// a step at the holes' rims).
+    ///
+    /// **Errors** if no pixel is valid.
+    pub fn transform_input(&self, trend: Trend) -> Result<std::borrow::Cow<'_, Array2<f64>>> {
+        let plane = match trend {
+            Trend::None => None,
+            Trend::Plane => self.fit_plane(),
+        };
+        let Some(p) = plane else {
+            return self.filled();
+        };
+        let mut f = self.clone();
+        p.subtract(&mut f.data);
+        if f.mask.is_none() {
+            return Ok(std::borrow::Cow::Owned(f.data));
+        }
+        Ok(std::borrow::Cow::Owned(f.filled()?.into_owned()))
+    }
+
     /// [`amplitude_problem`] of the valid pixels.
     pub fn amplitude_problem(&self) -> Option<String> {
         amplitude_problem(self.data.iter())
@@ -171,6 +282,66 @@ impl Field {
     /// Min and max over valid pixels, `None` if every pixel is masked.
     pub fn range(&self) -> Option<(f64, f64)> {
         finite_range(self.data.iter())
+    }
+}
+
+/// A plane `c0 + cx x + cy y` over the pixel grid (`x` the column, `y` the
+/// row index, in pixels): an image's least-squares trend
+/// ([`Field::fit_plane`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Plane {
+    /// Value at pixel (0, 0).
+    pub c0: f64,
+    /// Change per pixel along x (the columns).
+    pub cx: f64,
+    /// Change per pixel along y (the rows).
+    pub cy: f64,
+}
+
+impl Plane {
+    /// The gradient's magnitude, per pixel: what the gauss wavelet reads
+    /// as `T = a (cx, cy)` at every point and scale (`cwt` module docs).
+    pub fn slope(&self) -> f64 {
+        (self.cx * self.cx + self.cy * self.cy).sqrt()
+    }
+
+    /// The plane's value at pixel `(y, x)`.
+    pub fn at(&self, y: usize, x: usize) -> f64 {
+        self.c0 + self.cx * x as f64 + self.cy * y as f64
+    }
+
+    /// Subtracts the plane from `img` (NaN stays NaN).
+    pub fn subtract(&self, img: &mut Array2<f64>) {
+        for ((y, x), v) in img.indexed_iter_mut() {
+            *v -= self.at(y, x);
+        }
+    }
+}
+
+/// What is removed from an image before the wavelet transform
+/// ([`crate::skeleton::AnalysisConfig::detrend`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum Trend {
+    /// Nothing (a constant is invisible to every wavelet).
+    #[default]
+    None,
+    /// The least-squares plane through the valid pixels: the gauss
+    /// wavelet (one vanishing moment) reads a plane of slope `c` as a
+    /// modulus `a c` added at every point, which grows faster with the
+    /// scale than any rough surface's and flattens the spectrum; the
+    /// mexican wavelet (three) is blind to it.
+    Plane,
+}
+
+impl Trend {
+    /// Lowercase name as used on the command line and in outputs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Trend::None => "none",
+            Trend::Plane => "plane",
+        }
     }
 }
 

@@ -108,6 +108,12 @@ pub struct ImagePartial {
     /// Side of the tiles in px (0 without tiles).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub tile_side: usize,
+    /// The fraction of the image's variance its least-squares plane
+    /// explains ([`crate::Field::plane_share`]), before any detrending:
+    /// a large one biases the gauss wavelet, which reads a plane as a
+    /// modulus growing like the scale (said by [`PartitionSums::spectra`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane_share: Option<f64>,
 }
 
 pub(crate) fn is_zero(n: &usize) -> bool {
@@ -254,6 +260,44 @@ impl PixelRecord {
 }
 
 impl PartitionSums {
+    /// The warning for images that are mostly a tilted plane (median
+    /// [`ImagePartial::plane_share`] above [`PLANE_SHARE_WARN`]) analysed
+    /// by the gauss wavelet without `--detrend plane`: it reads a plane of
+    /// slope `c` as a modulus `a c` at every point (`cwt` module docs),
+    /// which grows with the scale faster than a rough surface's.
+    fn plane_warning(&self) -> Option<String> {
+        let a = self.analysis.as_ref()?;
+        if a.wavelet != crate::cwt::Wavelet::Gauss || a.detrend != crate::field::Trend::None {
+            return None;
+        }
+        let mut shares: Vec<f64> = self.images.iter().filter_map(|im| im.plane_share).collect();
+        if shares.is_empty() {
+            return None;
+        }
+        shares.sort_by(f64::total_cmp);
+        let n = shares.len();
+        let median = (shares[(n - 1) / 2] + shares[n / 2]) / 2.0;
+        if !(median > PLANE_SHARE_WARN) {
+            return None;
+        }
+        let whose = if n == 1 {
+            format!("{:.0} % of the image's variance", 100.0 * median)
+        } else {
+            format!(
+                "a median {:.0} % of the images' variance (more than half in {} of {n})",
+                100.0 * median,
+                shares.iter().filter(|&&s| s > PLANE_SHARE_WARN).count()
+            )
+        };
+        Some(format!(
+            "the least-squares plane explains {whose}: the gauss wavelet (one vanishing \
+             moment) reads a plane of slope c as a modulus a c added at every point, which \
+             grows with the scale faster than a rough surface's and biases h(q) and D(q) \
+             (see the README); compare with --detrend plane, or the mexican wavelet, blind \
+             to planes"
+        ))
+    }
+
     /// "; `wtmm info IMAGE --octaves 5` lists the domain each number of
     /// octaves leaves", with this analysis's options (its table is that
     /// of the wavelet, a_min, voices and margin used here); empty when
@@ -382,6 +426,7 @@ impl PartitionSums {
                 plain,
                 tile_side: if n_tiles > 0 { tile_side } else { 0 },
                 tiles,
+                plane_share: None,
             }],
         }
     }
@@ -440,6 +485,7 @@ impl PartitionSums {
                 plain: cells,
                 tiles: Vec::new(),
                 tile_side: 0,
+                plane_share: None,
             }],
         })
     }
@@ -658,6 +704,7 @@ impl PartitionSums {
                     plain: t.plain.clone(),
                     tiles: Vec::new(),
                     tile_side: 0,
+                    plane_share: None,
                 })
             })
             .collect();
@@ -1112,6 +1159,7 @@ impl PartitionSums {
             Vec::new()
         };
         warnings.extend(unlike_images(&per_image));
+        warnings.extend(self.plane_warning());
         if ens.lines[last_fit] < 100 {
             // the border margin is often why: say how much of the image it
             // leaves (a 400^2 DEM keeps 112^2 px at the default 5 octaves)
@@ -1469,6 +1517,12 @@ pub fn is_curved(slope_change: f64) -> bool {
 pub fn at_wavelet_order(h: f64, order: f64) -> bool {
     h >= order - 0.01
 }
+
+/// Median share of the images' variance explained by their least-squares
+/// plane above which the gauss wavelet's analysis is warned about
+/// ([`ImagePartial::plane_share`]): more than half, the images are mostly
+/// a tilted plane.
+pub const PLANE_SHARE_WARN: f64 = 0.5;
 
 /// Effective number of lines below which a cell is flagged as dominated.
 pub const N_EFF_WARN: f64 = 10.0;
@@ -2202,6 +2256,7 @@ pub fn skeleton_sums_tiled(
     s.analysis = Some(cfg.clone());
     let (ny, nx) = field.dim();
     s.images[0].missing = (ny * nx - field.valid_count()) as u64;
+    s.images[0].plane_share = field.plane_share();
     s
 }
 
@@ -2448,6 +2503,7 @@ mod tests {
                     plain: (0..nc).map(|_| cell()).collect(),
                     tiles: vec![],
                     tile_side: 0,
+                    plane_share: None,
                 })
                 .collect();
             let s = PartitionSums {

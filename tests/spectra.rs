@@ -1303,3 +1303,109 @@ fn a_lone_image_reports_believable_errors() {
         assert!(reg < 0.5, "q = {qv}: regression {reg:.2}");
     }
 }
+
+/// `--detrend plane`: the least-squares plane is exact (holes included),
+/// removing it makes a tilted ensemble's spectra those of the untilted
+/// one (the plane of `f + P` is that of `f` plus `P`), the gauss analysis
+/// of mostly-plane images is warned about and the detrended one is not,
+/// a torus refuses it, and merge tells the two analyses apart.
+#[test]
+fn planar_trends_are_removed_and_warned_about() {
+    use wtmm::field::{Plane, Trend};
+    // an exact plane through scattered valid pixels
+    let p = Plane {
+        c0: 3.0,
+        cx: 0.25,
+        cy: -1.5,
+    };
+    let mut img = ndarray::Array2::from_shape_fn((20, 30), |(y, x)| p.at(y, x));
+    img[[4, 7]] = f64::NAN;
+    img.slice_mut(ndarray::s![10..14, 3..9]).fill(f64::NAN);
+    let f = Field::new(img);
+    let q = f.fit_plane().unwrap();
+    for (a, b) in [(q.c0, p.c0), (q.cx, p.cx), (q.cy, p.cy)] {
+        assert!((a - b).abs() < 1e-12, "{q:?}");
+    }
+    assert!((f.plane_share().unwrap() - 1.0).abs() < 1e-12);
+    // the transform's input: the residual (zero) with the holes filled
+    let input = f.transform_input(Trend::Plane).unwrap();
+    assert!(input.iter().all(|v| v.abs() < 1e-12));
+    // a line of pixels fixes no plane
+    let line = Field::new(ndarray::Array2::from_shape_fn((1, 9), |(_, x)| x as f64));
+    assert!(line.fit_plane().is_none());
+
+    let n = 128;
+    let q = [-2.0, 0.0, 2.0];
+    let tilt = |i: u64| {
+        let g = fbm(FbmParams { hurst: 0.4 }, n, n, 60 + i, 0).unwrap();
+        let sd = g.std(0.0);
+        // 10 standard deviations across the image, a hillside
+        let t = Field::new(ndarray::Array2::from_shape_fn((n, n), |(y, x)| {
+            g[[y, x]] + 10.0 * sd * (x as f64 + 0.5 * y as f64) / n as f64
+        }));
+        (Field::new(g), t)
+    };
+    let cfg = |detrend| AnalysisConfig {
+        octaves: 3,
+        detrend,
+        ..Default::default()
+    };
+    let sums = |fields: &[Field], c: &AnalysisConfig| {
+        let parts: Vec<PartitionSums> = fields
+            .iter()
+            .enumerate()
+            .map(|(i, f)| image_sums(f, c, &q, format!("{i}")).unwrap())
+            .collect();
+        PartitionSums::merge_all(parts).unwrap().unwrap()
+    };
+    let (flat, tilted): (Vec<Field>, Vec<Field>) = (0..4).map(tilt).unzip();
+    let fit = (0.5, 2.5);
+    let raw = sums(&tilted, &cfg(Trend::None));
+    let s_raw = raw.spectra(Rule::Plain, fit).unwrap();
+    assert!(
+        s_raw
+            .warnings
+            .iter()
+            .any(|w| w.contains("least-squares plane explains") && w.contains("--detrend plane")),
+        "{:?}",
+        s_raw.warnings
+    );
+    let det = sums(&tilted, &cfg(Trend::Plane))
+        .spectra(Rule::Plain, fit)
+        .unwrap();
+    assert!(!det.warnings.iter().any(|w| w.contains("plane explains")));
+    let flat_det = sums(&flat, &cfg(Trend::Plane))
+        .spectra(Rule::Plain, fit)
+        .unwrap();
+    for i in 0..q.len() {
+        assert!((det.tau[i] - flat_det.tau[i]).abs() < 1e-9, "{i}");
+    }
+    // the tilt biased the gauss analysis: h(0) above the detrended one by
+    // more than 3 of either's standard errors (the images are the same, so
+    // their difference scatters less still)
+    let i0 = 1;
+    assert!(
+        s_raw.h[i0] - det.h[i0] > 3.0 * det.h_stderr[i0].max(s_raw.h_stderr[i0]),
+        "{} +- {} vs {} +- {}",
+        s_raw.h[i0],
+        s_raw.h_stderr[i0],
+        det.h[i0],
+        det.h_stderr[i0]
+    );
+    // no plane is removed on a torus
+    let torus = AnalysisConfig {
+        margin: Some(0),
+        ..cfg(Trend::Plane)
+    };
+    let e = image_sums(&flat[0], &torus, &q, "t")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("`detrend`") && e.contains("torus"), "{e}");
+    // detrended and raw shards are different analyses
+    let mut a = sums(&flat[..1], &cfg(Trend::None));
+    let e = a
+        .merge(&sums(&flat[1..2], &cfg(Trend::Plane)))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("detrend"), "{e}");
+}

@@ -41,6 +41,12 @@ pub struct LineOpts {
     /// does, instead of tracing them in the guard band outside it.
     #[arg(long)]
     pub no_guard: bool,
+    /// Trend removed from each image before the transform: `plane`, the
+    /// least-squares plane (a DEM's regional slope), which the gauss
+    /// wavelet reads as a modulus growing like the scale and which biases
+    /// h upwards; the mexican wavelet is blind to it. Not with --margin 0.
+    #[arg(long, value_enum, default_value_t = crate::field::Trend::None)]
+    pub detrend: crate::field::Trend,
 }
 
 impl LineOpts {
@@ -63,6 +69,7 @@ impl LineOpts {
                 climb: self.link_climb,
             },
             guard: !self.no_guard,
+            detrend: self.detrend,
         };
         cfg.validate()?;
         Ok(cfg)

@@ -203,6 +203,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         max_dx: args.max_dx,
         magnitude: args.magnitude,
         eps: cfg.eps,
+        detrend: cfg.detrend,
     };
     ccfg.validate()?;
     // options the chosen source would not use are refused, not recorded

@@ -26,6 +26,10 @@ pub struct CwtArgs {
     /// Analysing wavelet (gauss: 1 vanishing moment; mexican: 3).
     #[arg(long, value_enum, default_value_t = Wavelet::Gauss)]
     pub wavelet: Wavelet,
+    /// Trend removed before the transform (`plane`: the least-squares plane,
+    /// as analyze --detrend).
+    #[arg(long, value_enum, default_value_t = crate::field::Trend::None)]
+    pub detrend: crate::field::Trend,
     #[command(flatten)]
     pub out: OutDir,
 }
@@ -70,7 +74,7 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
                 .join(", ")
         ));
     }
-    let img = field.filled()?;
+    let img = field.transform_input(args.detrend)?;
     // the transform is not trusted where the wavelet's support (radius R a)
     // reaches a missing pixel: NaN there, as the analysis drops such maxima
     let mask_distance = field.mask.as_ref().map(crate::skeleton::distance_to_mask);
@@ -116,7 +120,7 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     }
     let mut body = header(
         "cwt",
-        json!({"image": args.image, "wavelet": args.wavelet, "scales": scales}),
+        json!({"image": args.image, "wavelet": args.wavelet, "scales": scales, "detrend": args.detrend}),
     );
     body["margin"] = json!(margin);
     body["margin_rule"] = json!(format!(

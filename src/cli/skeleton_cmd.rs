@@ -153,7 +153,7 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     // pictures
     let (ny, nx) = field.dim();
     let plan = CwtPlan::new(ny, nx, cfg.wavelet, &grid)?;
-    let fi = plan.forward(field.filled()?.view())?;
+    let fi = plan.forward(cfg.input(&field)?.view())?;
     let mut pictures = Vec::new();
     for &j in &draw {
         let sm = &sk.kept[j];

@@ -76,6 +76,12 @@ pub struct AnalysisConfig {
     /// grows like a / L and steepens τ(0) at large scales.
     #[serde(default = "yes")]
     pub guard: bool,
+    /// Trend removed from the image before the transform (default none;
+    /// sums of older versions read as none). Not on a torus (`margin`
+    /// 0): a periodic field has no planar trend, and the removed plane
+    /// would be a jump across its edges.
+    #[serde(default)]
+    pub detrend: crate::field::Trend,
 }
 
 fn yes() -> bool {
@@ -95,6 +101,7 @@ impl Default for AnalysisConfig {
             eps: 1e-7,
             link: LinkParams::default(),
             guard: true,
+            detrend: crate::field::Trend::None,
         }
     }
 }
@@ -112,6 +119,16 @@ impl AnalysisConfig {
             margin: periodic.then_some(0),
             ..Default::default()
         }
+    }
+
+    /// What the transform is computed on: the image with its missing
+    /// pixels filled ([`Field::filled`]) and, with
+    /// [`Trend::Plane`](crate::field::Trend::Plane), less the
+    /// least-squares plane of its valid pixels (removed before the fill).
+    ///
+    /// **Errors** if no pixel is valid.
+    pub fn input<'a>(&self, field: &'a Field) -> Result<std::borrow::Cow<'a, Array2<f64>>> {
+        field.transform_input(self.detrend)
     }
 
     /// **Errors** naming the parameter that is out of range.
@@ -150,6 +167,14 @@ impl AnalysisConfig {
                     self.wavelet.min_scale(),
                     self.wavelet
                 ),
+            ));
+        }
+        if self.detrend != crate::field::Trend::None && self.margin == Some(0) {
+            return Err(Error::param(
+                "detrend",
+                "a plane is not removed from a field analysed whole as a torus (margin 0): a \
+                 periodic field has no planar trend, and the removed plane would be a jump \
+                 across its edges, which the torus counts",
             ));
         }
         if !(self.eps >= 0.0 && self.eps < 1.0) {
@@ -440,7 +465,7 @@ fn build(
 ) -> Result<(Skeleton, Vec<Vec<Wtmmm>>)> {
     cfg.validate()?;
     let domain = cfg.domain(field)?;
-    let img = field.filled()?;
+    let img = cfg.input(field)?;
     let scales = cfg.scale_list();
     let (ny, nx) = field.dim();
     let plan = CwtPlan::new(ny, nx, cfg.wavelet, &scales)?;

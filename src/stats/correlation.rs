@@ -147,6 +147,10 @@ pub struct CorrelationConfig {
     pub magnitude: Magnitude,
     /// Points with `M < eps max M` (at that scale) are left out.
     pub eps: f64,
+    /// Trend removed from the image before the transform
+    /// ([`crate::skeleton::AnalysisConfig::detrend`]; not with `periodic`).
+    #[serde(default)]
+    pub detrend: crate::field::Trend,
 }
 
 impl Default for CorrelationConfig {
@@ -161,6 +165,7 @@ impl Default for CorrelationConfig {
             max_dx: None,
             magnitude: Magnitude::Lnm,
             eps: 1e-7,
+            detrend: crate::field::Trend::None,
         }
     }
 }
@@ -212,6 +217,13 @@ impl CorrelationConfig {
         }
         if self.pairs.is_empty() {
             return Err(Error::param("pairs", "no pair of scales given"));
+        }
+        if self.periodic && self.detrend != crate::field::Trend::None {
+            return Err(Error::param(
+                "detrend",
+                "a plane is not removed from a periodic field: it has no planar trend, and \
+                 the removed plane would be a jump across its edges",
+            ));
         }
         if let Some(&(i, j)) = self
             .pairs
@@ -1518,7 +1530,7 @@ pub fn cwt_correlation_tiled(
             plan.ny, plan.nx
         )));
     }
-    let img = field.filled()?;
+    let img = field.transform_input(plan.cfg.detrend)?;
     let fi = plan.cwt.forward(img.view())?;
     let mut ws = plan.take();
     let out = cwt_correlation_in(field, &fi, plan, &mut ws, label.into(), tile_side);

@@ -597,7 +597,7 @@ pub fn cwt_grid_sums(
     }
     cfg.validate()?;
     let domain = cfg.domain(field)?;
-    let img = field.filled()?;
+    let img = cfg.input(field)?;
     let scales = cfg.scale_list();
     let (ny, nx) = field.dim();
     let plan = crate::cwt::CwtPlan::new(ny, nx, cfg.wavelet, &scales)?;
