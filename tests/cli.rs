@@ -1291,6 +1291,23 @@ fn info_describes_images_and_their_domains() {
     assert_eq!(g["shape"], serde_json::json!([3, 2]));
     assert_eq!(g["pixel_size"]["x"], 30.0);
     assert_eq!(g["pixel_size"]["units"], "m");
+    // its least-squares plane, by hand: slopes 4/3 along x, 9/4 along y,
+    // residual sum of squares 5/12 of a total 70/3, so R^2 = 55/56
+    let pl = &g["plane"];
+    let close = |k: &str, want: f64| {
+        let v = pl[k].as_f64().unwrap();
+        assert!((v - want).abs() < 1e-12, "{k}: {v} vs {want}");
+    };
+    close("cx", 4.0 / 3.0);
+    close("cy", 2.25);
+    close("c0", 0.75);
+    close("variance_share", 55.0 / 56.0);
+    assert!(
+        g["notes"]
+            .to_string()
+            .contains("plane explains 98 % of the variance"),
+        "{g}"
+    );
     assert!(g["domains"][0]["domain"].is_null());
     assert_eq!(g["usable"], false);
     assert!(
@@ -1311,6 +1328,10 @@ fn info_describes_images_and_their_domains() {
         "{out}"
     );
     assert!(out.contains("1 missing pixels"), "{out}");
+    assert!(
+        out.contains("  trend: least-squares plane of slope "),
+        "{out}"
+    );
     assert!(out.contains("2 *"), "{out}");
     assert!(out.contains("200 x 256     "), "{out}");
     assert!(

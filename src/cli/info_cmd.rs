@@ -1,5 +1,6 @@
 //! `wtmm info IMAGE...`: what wtmm reads from each file (format, sample
-//! type, shape, values, missing pixels, the pixel spacing it declares) and
+//! type, shape, values, missing pixels, the least-squares plane, the pixel
+//! spacing it declares) and
 //! how much of it each number of octaves leaves to count maxima in (the
 //! margin of SPEC §1 grows with the largest scale), before an analysis.
 //! Exits 1 when an image cannot be analysed (a script's pre-check).
@@ -122,6 +123,28 @@ fn describe(
     }
     text += "\n";
     let mut notes: Vec<String> = info.warnings.clone();
+    // the least-squares plane: a regional slope the gauss wavelet reads
+    // as a modulus growing like the scale (analyze warns above half)
+    let plane = field.fit_plane();
+    let share = field.plane_share();
+    if let (Some(p), Some(r)) = (plane, share) {
+        text += &format!(
+            "  trend: least-squares plane of slope {} per px ({} along x, {} along y), {:.1} % of \
+             the variance\n",
+            f(p.slope()),
+            f(p.cx),
+            f(p.cy),
+            100.0 * r
+        );
+        if r > crate::spectra::PLANE_SHARE_WARN {
+            notes.push(format!(
+                "the least-squares plane explains {:.0} % of the variance: the gauss wavelet \
+                 reads a plane as a modulus growing like the scale, which biases h and D \
+                 (analyze warns); give --detrend plane, or use --wavelet mexican",
+                100.0 * r
+            ));
+        }
+    }
     // what analyze refuses, the reason it would give
     let mut problems: Vec<String> = Vec::new();
     match range {
@@ -234,6 +257,8 @@ fn describe(
         "mean": (n > 0.0).then_some(mean), "sd": (n > 1.0).then_some(sd),
         "pixel_size": px.as_ref().map(|p| json!({"x": p.x, "y": p.y, "units": p.units,
             "source": p.source})),
+        "plane": plane.map(|p| json!({"c0": p.c0, "cx": p.cx, "cy": p.cy, "slope": p.slope(),
+            "variance_share": share})),
         "domains": domains, "notes": notes, "usable": problems.is_empty(), "problems": problems,
     });
     Ok(Described {
