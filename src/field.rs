@@ -240,7 +240,10 @@ impl Field {
                 }
             }
         }
-        (vf > 0.0).then(|| (vp / vf).min(1.0))
+        // (NaN, from values too large to square, is no share: checked
+        // before `min`, which would take 1 over a NaN)
+        let r = vp / vf;
+        (vf > 0.0 && r.is_finite()).then(|| r.min(1.0))
     }
 
     /// Subtracts [`fit_plane`](Self::fit_plane)'s plane from the valid
@@ -328,10 +331,10 @@ pub enum Trend {
     #[default]
     None,
     /// The least-squares plane through the valid pixels: the gauss
-    /// wavelet (one vanishing moment) reads a plane of slope `c` as a
-    /// modulus `a c` added at every point, which grows faster with the
-    /// scale than any rough surface's and flattens the spectrum; the
-    /// mexican wavelet (three) is blind to it.
+    /// wavelet (one vanishing moment) adds a plane of slope `c = (cx,
+    /// cy)` to the transform as the vector `a c` at every point, which
+    /// grows faster with the scale than any rough surface's modulus and
+    /// biases the exponents; the mexican wavelet (three) is blind to it.
     Plane,
 }
 

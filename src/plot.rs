@@ -1376,10 +1376,12 @@ pub fn save_raster_chart(raster: &Raster, spec: &RasterChart, path: &Path) -> Re
     )
     .map_err(fail)?;
     let png = encode_png_rgb8(&raster.rgb, raster.width as u32, raster.height as u32);
+    // SVG 1.1's xlink:href: read by older converters as by SVG 2 viewers
+    // (SVG 2's plain href is not; both would hold the raster twice)
     let image = format!(
         "<image x=\"{x}\" y=\"{y}\" width=\"{pw}\" height=\"{ph}\" \
          preserveAspectRatio=\"none\" style=\"image-rendering:pixelated\" \
-         href=\"data:image/png;base64,{}\"/>",
+         xlink:href=\"data:image/png;base64,{}\"/>",
         base64(&png)
     );
     let fill = format!(
@@ -1395,6 +1397,9 @@ pub fn save_raster_chart(raster: &Raster, spec: &RasterChart, path: &Path) -> Re
         })
         .ok_or_else(|| fail("no place for the raster in the SVG".into()))?;
     s.replace_range(at, &image);
+    if let Some(i) = s.find("xmlns=\"http://www.w3.org/2000/svg\"") {
+        s.insert_str(i, "xmlns:xlink=\"http://www.w3.org/1999/xlink\" ");
+    }
     tag_svg(&mut s);
     write_atomic(path, s.as_bytes())
 }

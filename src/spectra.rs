@@ -110,8 +110,9 @@ pub struct ImagePartial {
     pub tile_side: usize,
     /// The fraction of the image's variance its least-squares plane
     /// explains ([`crate::Field::plane_share`]), before any detrending:
-    /// a large one biases the gauss wavelet, which reads a plane as a
-    /// modulus growing like the scale (said by [`PartitionSums::spectra`]).
+    /// a large one biases the gauss wavelet, to whose transform a plane
+    /// adds a vector growing like the scale (said by
+    /// [`PartitionSums::spectra`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub plane_share: Option<f64>,
 }
@@ -260,42 +261,13 @@ impl PixelRecord {
 }
 
 impl PartitionSums {
-    /// The warning for images that are mostly a tilted plane (median
-    /// [`ImagePartial::plane_share`] above [`PLANE_SHARE_WARN`]) analysed
-    /// by the gauss wavelet without `--detrend plane`: it reads a plane of
-    /// slope `c` as a modulus `a c` at every point (`cwt` module docs),
-    /// which grows with the scale faster than a rough surface's.
+    /// [`AnalysisConfig::plane_warning`](crate::skeleton::AnalysisConfig::plane_warning)
+    /// of the images' recorded plane shares ([`ImagePartial::plane_share`]).
     fn plane_warning(&self) -> Option<String> {
-        let a = self.analysis.as_ref()?;
-        if a.wavelet != crate::cwt::Wavelet::Gauss || a.detrend != crate::field::Trend::None {
-            return None;
-        }
-        let mut shares: Vec<f64> = self.images.iter().filter_map(|im| im.plane_share).collect();
-        if shares.is_empty() {
-            return None;
-        }
-        shares.sort_by(f64::total_cmp);
-        let n = shares.len();
-        let median = (shares[(n - 1) / 2] + shares[n / 2]) / 2.0;
-        if !(median > PLANE_SHARE_WARN) {
-            return None;
-        }
-        let whose = if n == 1 {
-            format!("{:.0} % of the image's variance", 100.0 * median)
-        } else {
-            format!(
-                "a median {:.0} % of the images' variance (more than half in {} of {n})",
-                100.0 * median,
-                shares.iter().filter(|&&s| s > PLANE_SHARE_WARN).count()
-            )
-        };
-        Some(format!(
-            "the least-squares plane explains {whose}: the gauss wavelet (one vanishing \
-             moment) reads a plane of slope c as a modulus a c added at every point, which \
-             grows with the scale faster than a rough surface's and biases h(q) and D(q) \
-             (see the README); compare with --detrend plane, or the mexican wavelet, blind \
-             to planes"
-        ))
+        let shares: Vec<f64> = self.images.iter().filter_map(|im| im.plane_share).collect();
+        self.analysis
+            .as_ref()?
+            .plane_warning(&shares, self.images.len())
     }
 
     /// "; `wtmm info IMAGE --octaves 5` lists the domain each number of
@@ -595,6 +567,18 @@ impl PartitionSums {
         }
         if self.images.is_empty() {
             return Err("no images".into());
+        }
+        if let Some((i, im)) = self
+            .images
+            .iter()
+            .enumerate()
+            .find(|(_, im)| im.plane_share.is_some_and(|r| !(0.0..=1.0).contains(&r)))
+        {
+            return Err(format!(
+                "image {i} ({:?}): plane_share {} is no share of a variance (0 to 1)",
+                im.label,
+                im.plane_share.unwrap_or(f64::NAN)
+            ));
         }
         let (ns, nc) = (self.scales.len(), self.q.len() * self.scales.len());
         // tiles partition their image: at least 2, a side, and line counts

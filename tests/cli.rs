@@ -1692,6 +1692,102 @@ fn svg_beside_every_png() {
     assert!(s.contains("data:image/png;base64,"));
 }
 
+/// `--detrend plane` reaches every part of `validate` that transforms an
+/// image (spectra, kernel and the correlation on an interior), is refused
+/// on the torus its periodic models use by default and by `compare`, and
+/// the stats commands warn of a tilted image as the spectra do.
+#[test]
+fn detrend_reaches_every_part() {
+    let dir = scratch("detrend");
+    let o = |n: &str| dir.join(n).display().to_string();
+    let base = [
+        "validate",
+        "--preset",
+        "paper-lognormal",
+        "--count",
+        "2",
+        "--size",
+        "128",
+        "--octaves",
+        "3",
+        "--margin",
+        "30",
+    ];
+    for d in ["none", "plane"] {
+        let out = o(d);
+        let mut args = base.to_vec();
+        args.extend_from_slice(&["--detrend", d, "--out", &out]);
+        let (code, err) = run_bin_stderr(&args);
+        assert!(code == 0 || code == 1, "{err}");
+        let c = json(&dir.join(d).join("correlation/correlation.json"));
+        assert_eq!(c["params"]["correlation"]["detrend"], d);
+        assert_eq!(c["periodic"], false);
+        let k = json(&dir.join(d).join("kernel/kernel.json"));
+        assert!(
+            k.to_string().contains(&format!("\"detrend\":\"{d}\"")),
+            "{d}"
+        );
+    }
+    // the torus (no --margin) and compare refuse it, naming the flag
+    let (code, err) = run_bin_stderr(&[
+        "validate",
+        "--preset",
+        "paper-lognormal",
+        "--count",
+        "2",
+        "--size",
+        "128",
+        "--detrend",
+        "plane",
+        "--out",
+        &o("t"),
+    ]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("`detrend`") && err.contains("--margin N"),
+        "{err}"
+    );
+    let (code, err) = run_bin_stderr(&[
+        "compare",
+        "--preset",
+        "topo-fif",
+        "--count",
+        "2",
+        "--size",
+        "128",
+        "--margin",
+        "30",
+        "--detrend",
+        "plane",
+        "--out",
+        &o("c"),
+    ]);
+    assert_eq!(code, 2);
+    assert!(err.contains("`detrend`"), "{err}");
+    // a tilted image: pdf warns (gauss, no detrending), not with it
+    let mut f = fbm(FbmParams { hurst: 0.4 }, 256, 256, 3, 0).unwrap();
+    let sd = f.std(0.0);
+    for ((y, x), v) in f.indexed_iter_mut() {
+        *v += 10.0 * sd * (x + y) as f64 / 256.0;
+    }
+    let img = dir.join("tilt.npy");
+    write_npy(&img, &f).unwrap();
+    let img = img.display().to_string();
+    for (d, warned) in [("none", true), ("plane", false)] {
+        let out = o(&format!("pdf_{d}"));
+        let (code, err) =
+            run_bin_stderr(&["pdf", &img, "--octaves", "3", "--detrend", d, "--out", &out]);
+        assert_eq!(code, 0, "{err}");
+        let j = json(&Path::new(&out).join("pdf.json"));
+        assert_eq!(
+            j["warnings"].to_string().contains("plane explains"),
+            warned,
+            "{d}"
+        );
+        assert_eq!(err.contains("plane explains"), warned, "{err}");
+    }
+}
+
 /// A negative number given to an option is refused by that option's
 /// parser, named, not taken for an unknown flag (clap's tip `-- -1` would
 /// not help); a negative value where one is valid still parses.

@@ -236,7 +236,8 @@ fn raster_chart_png_and_svg_of_the_requested_size() {
         ("500".into(), "420".into())
     );
     assert_eq!(s.matches("<image ").count(), 1, "the raster, embedded once");
-    assert!(s.contains("href=\"data:image/png;base64,iVBORw0KGgo"));
+    assert!(s.contains("xlink:href=\"data:image/png;base64,iVBORw0KGgo"));
+    assert!(s.contains("xmlns:xlink=\"http://www.w3.org/1999/xlink\""));
     assert!(s.trim_end().ends_with("</svg>"));
     // the version that drew them: a PNG text chunk, an SVG comment
     // with the commit built from (12 hex digits, "-dirty" when the sources

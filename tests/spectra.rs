@@ -1392,6 +1392,33 @@ fn planar_trends_are_removed_and_warned_about() {
         det.h[i0],
         det.h_stderr[i0]
     );
+    // on a torus the FFT sees no plane but an edge jump: no plane warning
+    let raw_torus = AnalysisConfig {
+        margin: Some(0),
+        ..cfg(Trend::None)
+    };
+    let s_torus = sums(&tilted, &raw_torus).spectra(Rule::Plain, fit).unwrap();
+    assert!(
+        !s_torus
+            .warnings
+            .iter()
+            .any(|w| w.contains("plane explains"))
+    );
+    // the wording: one image, all images, or those that record a share
+    let c = cfg(Trend::None);
+    let one = c.plane_warning(&[0.8], 1).unwrap();
+    assert!(one.contains("80 % of the image's variance"), "{one}");
+    let some = c.plane_warning(&[0.8, 0.9], 3).unwrap();
+    assert!(
+        some.contains("of the 2 of 3 images that record it"),
+        "{some}"
+    );
+    assert!(c.plane_warning(&[0.8, 0.2, 0.3], 3).is_none());
+    assert!(c.plane_warning(&[f64::NAN], 1).is_none());
+    // a share outside [0, 1] in a file is refused
+    let mut bad = sums(&flat[..1], &c);
+    bad.images[0].plane_share = Some(7.0);
+    assert!(bad.check().unwrap_err().contains("plane_share"));
     // no plane is removed on a torus
     let torus = AnalysisConfig {
         margin: Some(0),

@@ -43,8 +43,10 @@ pub struct LineOpts {
     pub no_guard: bool,
     /// Trend removed from each image before the transform: `plane`, the
     /// least-squares plane (a DEM's regional slope), which the gauss
-    /// wavelet reads as a modulus growing like the scale and which biases
-    /// h upwards; the mexican wavelet is blind to it. Not with --margin 0.
+    /// wavelet's transform gains as a vector growing like the scale and
+    /// which biases h upwards; the mexican wavelet is blind to it. Not on a torus
+    /// (--margin 0, --domain torus, the generated periodic models by
+    /// default): give --margin N there.
     #[arg(long, value_enum, default_value_t = crate::field::Trend::None)]
     pub detrend: crate::field::Trend,
 }

@@ -246,6 +246,14 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     }
     opts.line.cwt.torus_for(&model);
     let cfg = opts.analysis()?;
+    if cfg.detrend != crate::field::Trend::None {
+        // the trace moments would see the raw fields: no comparison
+        return Err(Error::param(
+            "detrend",
+            "compare analyses generated fields, which carry no regional trend, and its trace \
+             moments are not detrended: drop --detrend",
+        ));
+    }
     let fit = opts.fit()?;
     // H = tau(1) + 2 and beta = tau(2) + 4 need q = 1 and 2 on the grid
     let mut q = opts.q()?;

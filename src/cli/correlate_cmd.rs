@@ -302,7 +302,8 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let mut cwt_res = sums.cwt.as_ref().map(correlation_estimates).transpose()?;
     let mut sk_res = sums.wtmmm.as_ref().map(correlation_estimates).transpose()?;
     let holes = input.holes.warning(input.len(), "the correlations");
-    for w in holes.iter().chain(&input.pixel_warnings) {
+    let planes = input.planes.warning(&cfg, input.len());
+    for w in holes.iter().chain(&planes).chain(&input.pixel_warnings) {
         for r in cwt_res.iter_mut().chain(sk_res.iter_mut()) {
             r.warnings.push(w.clone());
         }
@@ -758,7 +759,9 @@ impl ValidationExtras {
         if th_c.is_none() && !has_corr {
             return Ok(None);
         }
-        let periodic = model.is_periodic();
+        // a periodic model on the torus unless --margin asks for an
+        // interior, as `correlate` takes it
+        let periodic = model.is_periodic() && cfg.margin.is_none_or(|m| m == 0);
         let mut kcfg_a = cfg.clone();
         if periodic && kcfg_a.margin.is_none() {
             kcfg_a.margin = Some(0);
@@ -787,6 +790,7 @@ impl ValidationExtras {
             // default margin follows the correlated scales)
             margin: cfg.margin,
             eps: cfg.eps,
+            detrend: cfg.detrend,
             ..Default::default()
         };
         let plan = CorrelationPlan::new(size, size, &ccfg)?;
@@ -800,6 +804,7 @@ impl ValidationExtras {
             periodic,
             wavelet: cfg.wavelet,
             holes: Default::default(),
+            planes: Default::default(),
             pixel: None,
             pixel_warnings: Vec::new(),
         };

@@ -62,6 +62,13 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
         .copied()
         .filter(|&a| 2 * default_margin(args.wavelet, a) >= ny.min(nx))
         .collect();
+    if args.detrend == crate::field::Trend::Plane && field.fit_plane().is_none() {
+        warnings.push(
+            "--detrend plane: the valid pixels fix no plane (fewer than 3, or all on one \
+             line): nothing removed"
+                .to_string(),
+        );
+    }
     if !untrusted.is_empty() {
         warnings.push(format!(
             "at a = {} px the wavelet's support reaches the border from every pixel of the \
@@ -109,7 +116,13 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
             )
         })();
         match r {
-            Ok(()) => files.push(json!({"index": j, "a": a, "modulus": format!("modulus_{stem}.npy"), "argument": format!("argument_{stem}.npy"), "png": format!("modulus_{stem}.png")})),
+            Ok(()) => {
+                let mut f = json!({"index": j, "a": a, "modulus": format!("modulus_{stem}.npy"), "argument": format!("argument_{stem}.npy"), "png": format!("modulus_{stem}.png")});
+                if super::common::svg_too() {
+                    f["svg"] = json!(format!("modulus_{stem}.svg"));
+                }
+                files.push(f)
+            }
             Err(e) => err = Some(e),
         }
         pb.inc(1);

@@ -123,8 +123,9 @@ fn describe(
     }
     text += "\n";
     let mut notes: Vec<String> = info.warnings.clone();
-    // the least-squares plane: a regional slope the gauss wavelet reads
-    // as a modulus growing like the scale (analyze warns above half)
+    // the least-squares plane: a regional slope adds to the gauss
+    // wavelet's transform a vector growing like the scale (analyze warns
+    // above half)
     let plane = field.fit_plane();
     let share = field.plane_share();
     if let (Some(p), Some(r)) = (plane, share) {
@@ -139,8 +140,9 @@ fn describe(
         if r > crate::spectra::PLANE_SHARE_WARN {
             notes.push(format!(
                 "the least-squares plane explains {:.0} % of the variance: the gauss wavelet \
-                 reads a plane as a modulus growing like the scale, which biases h and D \
-                 (analyze warns); give --detrend plane, or use --wavelet mexican",
+                 adds a plane to its transform as a vector growing like the scale, which \
+                 biases h and D (analyze warns when half an ensemble's images are so); give \
+                 --detrend plane, or use --wavelet mexican",
                 100.0 * r
             ));
         }

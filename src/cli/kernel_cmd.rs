@@ -360,6 +360,8 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     if let Some(w) = input.holes.warning(input.len(), "the WTMMM counted") {
         main.warnings.push(w);
     }
+    main.warnings
+        .extend(input.planes.warning(&cfg, input.len()));
     let mut c = main.cumulants.values().to_vec();
     if c[1] < 0.0 {
         // a kernel with c2 < 0 is no density (reconstruct refuses it); the

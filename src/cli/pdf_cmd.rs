@@ -99,6 +99,9 @@ pub struct Input {
     /// Missing pixels met by [`Input::fold`], so that an ensemble-level
     /// shortage of maxima can name them as its likely cause.
     pub holes: HoleTally,
+    /// The images' least-squares plane shares met by [`Input::fold`]
+    /// ([`Field::plane_share`]), for the planar-trend warning.
+    pub planes: PlaneTally,
     /// The pixel (`--pixel-size`, or what the files declare): scales also
     /// as lengths.
     pub pixel: Option<super::PixelSize>,
@@ -160,6 +163,25 @@ impl HoleTally {
                  gaps before the analysis or crop to a gap-free region"
             )
         })
+    }
+}
+
+/// The share of each image's variance its least-squares plane explains,
+/// collected while folding (shared across the rayon workers).
+#[derive(Debug, Default)]
+pub struct PlaneTally(Mutex<Vec<f64>>);
+
+impl PlaneTally {
+    fn add(&self, field: &Field) {
+        if let Some(r) = field.plane_share() {
+            self.0.lock().unwrap_or_else(|e| e.into_inner()).push(r);
+        }
+    }
+
+    /// [`AnalysisConfig::plane_warning`] of the shares met, for `images`.
+    pub fn warning(&self, cfg: &AnalysisConfig, images: usize) -> Option<String> {
+        let shares = self.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        cfg.plane_warning(&shares, images)
     }
 }
 
@@ -268,6 +290,7 @@ impl StatsInput {
             seed,
             periodic,
             holes: HoleTally::default(),
+            planes: PlaneTally::default(),
             pixel,
             pixel_warnings,
         })
@@ -354,6 +377,7 @@ impl Input {
             .try_fold(&init, |mut acc, i| -> Result<A> {
                 let (field, label) = self.load(i)?;
                 self.holes.add(&field);
+                self.planes.add(&field);
                 step(&mut acc, &field, &label, par).map_err(|e| {
                     if self.generated() {
                         e
@@ -774,11 +798,13 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     );
     body["wall_seconds"] = json!(wall);
     let holes = input.holes.warning(input.len(), "the WTMMM counted");
+    let planes = input.planes.warning(&cfg, input.len());
     body["warnings"] = json!(
         warning
             .iter()
             .chain(&few)
             .chain(&holes)
+            .chain(&planes)
             .chain(&input.pixel_warnings)
             .collect::<Vec<_>>()
     );
@@ -808,10 +834,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     if let Some(w) = few {
         say!("warning: {}: {w}", input.describe());
     }
-    if let Some(w) = holes {
-        say!("warning: {w}");
-    }
-    for w in &input.pixel_warnings {
+    for w in holes.iter().chain(&planes).chain(&input.pixel_warnings) {
         say!("warning: {w}");
     }
     Ok(Outcome::Ok)

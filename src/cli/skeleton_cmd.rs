@@ -41,6 +41,8 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     );
     let field = super::common::read_image(&args.image)?;
     super::common::check_image_memory(&args.image, &field, true)?;
+    let share: Vec<f64> = field.plane_share().into_iter().collect();
+    warnings.extend(cfg.plane_warning(&share, 1));
     let grid = cfg.scale_list();
     let want: Vec<f64> = match &args.scales {
         Some(s) => parse_list("scales", s)?,
@@ -223,8 +225,12 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
             },
             &args.out.out.join(&name),
         )?;
-        pictures.push(json!({"j": j, "a": sm.a, "file": name,
-            "a_length": px.as_ref().map(|p| sm.a * p.side())}));
+        let mut pic = json!({"j": j, "a": sm.a, "file": name,
+            "a_length": px.as_ref().map(|p| sm.a * p.side())});
+        if super::common::svg_too() {
+            pic["svg"] = json!(name.replace(".png", ".svg"));
+        }
+        pictures.push(pic);
     }
     let mut body = header(
         "skeleton",

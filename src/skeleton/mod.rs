@@ -131,6 +131,57 @@ impl AnalysisConfig {
         field.transform_input(self.detrend)
     }
 
+    /// The warning for an ensemble of `images` whose least-squares planes
+    /// explain a median share of their variance above
+    /// [`crate::spectra::PLANE_SHARE_WARN`] (`shares`: those known, from
+    /// [`Field::plane_share`]), when this analysis is biased by them: the
+    /// gauss wavelet, no [`detrend`](Self::detrend), not on a torus (where
+    /// the FFT sees no plane but a jump at the edges, which the margin
+    /// would have left out). The wavelet adds a plane of slope `c = (cx,
+    /// cy)` to the transform as the vector `a c` at every point (`cwt`
+    /// module docs), which grows with the scale faster than a rough
+    /// surface's modulus.
+    pub fn plane_warning(&self, shares: &[f64], images: usize) -> Option<String> {
+        if self.wavelet != Wavelet::Gauss
+            || self.detrend != crate::field::Trend::None
+            || self.margin_px() == 0
+        {
+            return None;
+        }
+        let mut shares: Vec<f64> = shares.iter().copied().filter(|s| s.is_finite()).collect();
+        if shares.is_empty() {
+            return None;
+        }
+        shares.sort_by(f64::total_cmp);
+        let n = shares.len();
+        let median = (shares[(n - 1) / 2] + shares[n / 2]) / 2.0;
+        if !(median > crate::spectra::PLANE_SHARE_WARN) {
+            return None;
+        }
+        let over = shares
+            .iter()
+            .filter(|&&s| s > crate::spectra::PLANE_SHARE_WARN)
+            .count();
+        let pc = 100.0 * median;
+        let whose = if images == 1 {
+            format!("{pc:.0} % of the image's variance")
+        } else if n == images {
+            format!("a median {pc:.0} % of the images' variance (more than half in {over} of {n})")
+        } else {
+            format!(
+                "a median {pc:.0} % of the variance of the {n} of {images} images that record \
+                 it (sums of older versions do not; more than half in {over})"
+            )
+        };
+        Some(format!(
+            "the least-squares plane explains {whose}: the gauss wavelet (one vanishing \
+             moment) adds a plane of slope c to the transform as the vector a c at every point, \
+             which grows with the scale faster than a rough surface's modulus and biases the \
+             exponents (README, Conventions); compare with --detrend plane, or the mexican \
+             wavelet, blind to planes"
+        ))
+    }
+
     /// **Errors** naming the parameter that is out of range.
     pub fn validate(&self) -> Result<()> {
         if let Some(s) = &self.scales {
@@ -172,9 +223,12 @@ impl AnalysisConfig {
         if self.detrend != crate::field::Trend::None && self.margin == Some(0) {
             return Err(Error::param(
                 "detrend",
-                "a plane is not removed from a field analysed whole as a torus (margin 0): a \
-                 periodic field has no planar trend, and the removed plane would be a jump \
-                 across its edges, which the torus counts",
+                "plane: the image is analysed whole as a torus (margin 0: --margin 0, --domain \
+                 torus, or a generated periodic model, which validate, compare, demo and \
+                 pdf/kernel/correlate with a preset analyse so by default), and a periodic \
+                 field has no planar trend: the removed plane would be a jump across its edges, \
+                 which the torus counts. Give --margin N to analyse the interior, or drop \
+                 --detrend",
             ));
         }
         if !(self.eps >= 0.0 && self.eps < 1.0) {

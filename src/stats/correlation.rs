@@ -221,8 +221,10 @@ impl CorrelationConfig {
         if self.periodic && self.detrend != crate::field::Trend::None {
             return Err(Error::param(
                 "detrend",
-                "a plane is not removed from a periodic field: it has no planar trend, and \
-                 the removed plane would be a jump across its edges",
+                "plane: the field is correlated whole as a torus (periodic), and a periodic \
+                 field has no planar trend: the removed plane would be a jump across its \
+                 edges. Give --margin N (--domain interior) to correlate the interior, or drop \
+                 --detrend",
             ));
         }
         if let Some(&(i, j)) = self
