@@ -167,6 +167,19 @@ impl Field {
     /// (`x` the column, `y` the row index), or `None` when they do not fix
     /// one (fewer than 3, or all on one line).
     pub fn fit_plane(&self) -> Option<Plane> {
+        self.plane_fit().map(|(p, _)| p)
+    }
+
+    /// The fraction of the valid pixels' variance that
+    /// [`fit_plane`](Self::fit_plane)'s plane explains (its R², in
+    /// [0, 1]); `None` without a plane or for a constant field.
+    pub fn plane_share(&self) -> Option<f64> {
+        self.plane_fit().and_then(|(_, r)| r)
+    }
+
+    /// The plane and its R² (`None` for a constant field, or a NaN from
+    /// values too large to square).
+    fn plane_fit(&self) -> Option<(Plane, Option<f64>)> {
         // centred on the valid pixels' centroid and mean, the constant
         // decouples and the slopes solve a 2x2 system; the sums run over
         // f - mean, so a DEM's large offset costs no precision
@@ -187,7 +200,7 @@ impl Field {
             return None;
         }
         let (xm, ym, fm) = (sx / n, sy / n, sf / n);
-        let (mut xx, mut xy, mut yy, mut fx, mut fy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        let (mut xx, mut xy, mut yy, mut fx, mut fy, mut ff) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         for y in 0..ny {
             let dy = y as f64 - ym;
             for x in 0..nx {
@@ -198,6 +211,7 @@ impl Field {
                     yy += dy * dy;
                     fx += df * dx;
                     fy += df * dy;
+                    ff += df * df;
                 }
             }
         }
@@ -207,51 +221,18 @@ impl Field {
         }
         let cx = (fx * yy - fy * xy) / det;
         let cy = (fy * xx - fx * xy) / det;
-        Some(Plane {
-            c0: fm - cx * xm - cy * ym,
-            cx,
-            cy,
-        })
-    }
-
-    /// The fraction of the valid pixels' variance that
-    /// [`fit_plane`](Self::fit_plane)'s plane explains (its R², in
-    /// [0, 1]); `None` without a plane or for a constant field.
-    pub fn plane_share(&self) -> Option<f64> {
-        let p = self.fit_plane()?;
-        let (ny, nx) = self.dim();
-        let (mut n, mut sf, mut sp) = (0.0, 0.0, 0.0);
-        for y in 0..ny {
-            for x in 0..nx {
-                if !self.is_masked(y, x) {
-                    n += 1.0;
-                    sf += self.data[[y, x]];
-                    sp += p.at(y, x);
-                }
-            }
-        }
-        let (fm, pm) = (sf / n, sp / n);
-        let (mut vf, mut vp) = (0.0, 0.0);
-        for y in 0..ny {
-            for x in 0..nx {
-                if !self.is_masked(y, x) {
-                    vf += (self.data[[y, x]] - fm).powi(2);
-                    vp += (p.at(y, x) - pm).powi(2);
-                }
-            }
-        }
-        // (NaN, from values too large to square, is no share: checked
-        // before `min`, which would take 1 over a NaN)
-        let r = vp / vf;
-        (vf > 0.0 && r.is_finite()).then(|| r.min(1.0))
-    }
-
-    /// Subtracts [`fit_plane`](Self::fit_plane)'s plane from the valid
-    /// pixels and returns it (`None`, nothing changed, when there is none).
-    pub fn remove_plane(&mut self) -> Option<Plane> {
-        let p = self.fit_plane()?;
-        p.subtract(&mut self.data);
-        Some(p)
+        // the explained sum of squares of a least-squares fit is b'X'y
+        // (checked before `min`, which would take 1 over a NaN)
+        let r = (cx * fx + cy * fy) / ff;
+        let share = (ff > 0.0 && r.is_finite()).then(|| r.clamp(0.0, 1.0));
+        Some((
+            Plane {
+                c0: fm - cx * xm - cy * ym,
+                cx,
+                cy,
+            },
+            share,
+        ))
     }
 
     /// What a wavelet transform is computed on: the values with missing
@@ -336,16 +317,6 @@ pub enum Trend {
     /// grows faster with the scale than any rough surface's modulus and
     /// biases the exponents; the mexican wavelet (three) is blind to it.
     Plane,
-}
-
-impl Trend {
-    /// Lowercase name as used on the command line and in outputs.
-    pub fn name(self) -> &'static str {
-        match self {
-            Trend::None => "none",
-            Trend::Plane => "plane",
-        }
-    }
 }
 
 /// Largest magnitude of a value, and smallest non-zero spread (max - min),
