@@ -222,7 +222,8 @@ impl Field {
         let cx = (fx * yy - fy * xy) / det;
         let cy = (fy * xx - fx * xy) / det;
         // the explained sum of squares of a least-squares fit is b'X'y
-        // (checked before `min`, which would take 1 over a NaN)
+        // (checked before `clamp`, which would pass a NaN on; the clamp
+        // trims rounding only: b'X'y / y'y lies in [0, 1])
         let r = (cx * fx + cy * fy) / ff;
         let share = (ff > 0.0 && r.is_finite()).then(|| r.clamp(0.0, 1.0));
         Some((

@@ -994,9 +994,14 @@ impl PartitionSums {
                 }
                 _ => String::new(),
             };
+            // a plane can swamp the surface at large scales: said as the
+            // likely cause where it is one
+            let plane = self
+                .plane_warning()
+                .map_or(String::new(), |w| format!("; {w}"));
             return Err(Error::Input(format!(
                 "no q has a partition function over the fit range: {} maxima lines reach \
-                 a = {:.2} px, the top of the fit range, in {} image(s){domain}{reach}{cure}{window}",
+                 a = {:.2} px, the top of the fit range, in {} image(s){domain}{reach}{cure}{window}{plane}",
                 ens.lines[last_fit], self.scales[last_fit], n_img
             )));
         }

@@ -244,16 +244,17 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     if opts.line.cwt.wavelet.is_none() {
         opts.line.cwt.wavelet = Some(r.wavelet);
     }
-    opts.line.cwt.torus_for(&model);
-    let cfg = opts.analysis()?;
-    if cfg.detrend != crate::field::Trend::None {
-        // the trace moments would see the raw fields: no comparison
+    if opts.line.detrend != crate::field::Trend::None {
+        // the trace moments would see the raw fields: no comparison (said
+        // before the torus's refusal, whose way out would lead here)
         return Err(Error::param(
             "detrend",
             "compare analyses generated fields, which carry no regional trend, and its trace \
              moments are not detrended: drop --detrend",
         ));
     }
+    opts.line.cwt.torus_for(&model);
+    let cfg = opts.analysis()?;
     let fit = opts.fit()?;
     // H = tau(1) + 2 and beta = tau(2) + 4 need q = 1 and 2 on the grid
     let mut q = opts.q()?;

@@ -178,6 +178,29 @@ impl PlaneTally {
         }
     }
 
+    /// What to add to a "too few maxima" message when the median image is
+    /// mostly a plane (which, under the gauss wavelet undetrended, swamps
+    /// the surface at large scales).
+    pub fn note(&self) -> Option<String> {
+        let mut s = self.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        if s.is_empty() {
+            return None;
+        }
+        s.sort_by(f64::total_cmp);
+        let median = (s[(s.len() - 1) / 2] + s[s.len() / 2]) / 2.0;
+        let whose = if s.len() == 1 {
+            format!("{:.0} % of the image's variance", 100.0 * median)
+        } else {
+            format!("a median {:.0} % of the images' variance", 100.0 * median)
+        };
+        (median > crate::spectra::PLANE_SHARE_WARN).then(|| {
+            format!(
+                "; the least-squares plane explains {whose}: under the gauss wavelet without \
+                 --detrend plane it swamps the surface at large scales (see wtmm info)"
+            )
+        })
+    }
+
     /// [`AnalysisConfig::plane_warning`] of the shares met, for `images`.
     pub fn warning(&self, cfg: &AnalysisConfig, images: usize) -> Option<String> {
         let shares = self.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
@@ -424,6 +447,9 @@ impl Input {
     pub fn blame(&self, e: Error) -> Error {
         let Error::Input(mut msg) = e else { return e };
         if let Some(note) = self.holes.note(self.len()) {
+            msg.push_str(&note);
+        }
+        if let Some(note) = self.planes.note() {
             msg.push_str(&note);
         }
         match self.images.as_slice() {

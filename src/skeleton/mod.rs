@@ -135,17 +135,15 @@ impl AnalysisConfig {
     /// explain a median share of their variance above
     /// [`crate::spectra::PLANE_SHARE_WARN`] (`shares`: those known, from
     /// [`Field::plane_share`]), when this analysis is biased by them: the
-    /// gauss wavelet, no [`detrend`](Self::detrend), not on a torus (where
-    /// the FFT sees no plane but a jump at the edges, which the margin
-    /// would have left out). The wavelet adds a plane of slope `c = (cx,
-    /// cy)` to the transform as the vector `a c` at every point (`cwt`
-    /// module docs), which grows with the scale faster than a rough
-    /// surface's modulus.
+    /// gauss wavelet and no [`detrend`](Self::detrend). The wavelet adds
+    /// a plane of slope `c = (cx, cy)` to the transform as the vector `a c`
+    /// at every point (`cwt` module docs), which grows with the scale
+    /// faster than a rough surface's modulus. On a torus (margin 0) the
+    /// plane is a jump across the image's edges instead, which no
+    /// detrending mends there (it is refused): the interior is the
+    /// remedy. (A periodic field's plane explains next to nothing.)
     pub fn plane_warning(&self, shares: &[f64], images: usize) -> Option<String> {
-        if self.wavelet != Wavelet::Gauss
-            || self.detrend != crate::field::Trend::None
-            || self.margin_px() == 0
-        {
+        if self.wavelet != Wavelet::Gauss || self.detrend != crate::field::Trend::None {
             return None;
         }
         let mut shares: Vec<f64> = shares.iter().copied().filter(|s| s.is_finite()).collect();
@@ -173,12 +171,20 @@ impl AnalysisConfig {
                  it (sums of older versions do not; more than half in {over})"
             )
         };
+        if self.margin_px() == 0 {
+            return Some(format!(
+                "the least-squares plane explains {whose}: analysed whole as a torus (margin \
+                 0, which is for periodic fields), the image's plane is a jump across its \
+                 edges, which biases every estimate; analyse the interior (the default margin) \
+                 with --detrend plane (README, Conventions)"
+            ));
+        }
         Some(format!(
             "the least-squares plane explains {whose}: the gauss wavelet (one vanishing \
              moment) adds a plane of slope c to the transform as the vector a c at every point, \
              which grows with the scale faster than a rough surface's modulus and biases the \
-             exponents (README, Conventions); compare with --detrend plane, or the mexican \
-             wavelet, blind to planes"
+             estimates (README, Conventions); rerun with --detrend plane, or with the mexican \
+             wavelet, blind to planes, and compare"
         ))
     }
 
@@ -225,10 +231,11 @@ impl AnalysisConfig {
                 "detrend",
                 "plane: the image is analysed whole as a torus (margin 0: --margin 0, --domain \
                  torus, or a generated periodic model, which validate, compare, demo and \
-                 pdf/kernel/correlate with a preset analyse so by default), and a periodic \
-                 field has no planar trend: the removed plane would be a jump across its edges, \
-                 which the torus counts. Give --margin N to analyse the interior, or drop \
-                 --detrend",
+                 pdf/kernel/correlate with a preset analyse so by default), which is for \
+                 periodic fields, and a periodic field has no planar trend: the removed plane \
+                 would be a jump across its edges, which the torus counts. Drop --detrend, or \
+                 analyse the interior (no --margin 0, or --margin N), where a non-periodic \
+                 image's plane is removed",
             ));
         }
         if !(self.eps >= 0.0 && self.eps < 1.0) {
