@@ -1027,6 +1027,18 @@ fn warned_once(
     assert!(!stdout.contains("\nwarnings:\n"), "{what}: {stdout}");
 }
 
+/// A small generated ensemble for `validate` (2 log-normal W-cascades of
+/// 128^2).
+const SMALL_LOGNORMAL: [&str; 7] = [
+    "validate",
+    "--preset",
+    "paper-lognormal",
+    "--count",
+    "2",
+    "--size",
+    "128",
+];
+
 /// `validate`, `demo` and `compare` say their analysis warnings (those of
 /// validation.json / compare.json) on stderr, each once and prefixed as
 /// analyze's, with --quiet too (it hides progress bars and the report of
@@ -1040,15 +1052,7 @@ fn validate_demo_and_compare_print_their_warnings() {
     for quiet in [false, true] {
         let out = dir.join(format!("val{quiet}"));
         let o = out.display().to_string();
-        let args = [
-            "validate",
-            "--preset",
-            "paper-lognormal",
-            "--count",
-            "2",
-            "--size",
-            "128",
-        ];
+        let args = SMALL_LOGNORMAL;
         let (code, stdout, err) = run_bin_output(&[&args[..], &["--out", &o]].concat(), quiet);
         assert_eq!(code, 0, "{err}");
         let w = strings(&json(&out.join("validation.json"))["warnings"]);
@@ -1700,19 +1704,7 @@ fn svg_beside_every_png() {
 fn detrend_reaches_every_part() {
     let dir = scratch("detrend");
     let o = |n: &str| dir.join(n).display().to_string();
-    let base = [
-        "validate",
-        "--preset",
-        "paper-lognormal",
-        "--count",
-        "2",
-        "--size",
-        "128",
-        "--octaves",
-        "3",
-        "--margin",
-        "30",
-    ];
+    let base = [&SMALL_LOGNORMAL[..], &["--octaves", "3", "--margin", "30"]].concat();
     for d in ["none", "plane"] {
         let out = o(d);
         let mut args = base.to_vec();
@@ -1729,19 +1721,9 @@ fn detrend_reaches_every_part() {
         );
     }
     // the torus (no --margin) and compare refuse it, naming the flag
-    let (code, err) = run_bin_stderr(&[
-        "validate",
-        "--preset",
-        "paper-lognormal",
-        "--count",
-        "2",
-        "--size",
-        "128",
-        "--detrend",
-        "plane",
-        "--out",
-        &o("t"),
-    ]);
+    let t = o("t");
+    let (code, err) =
+        run_bin_stderr(&[&SMALL_LOGNORMAL[..], &["--detrend", "plane", "--out", &t]].concat());
     assert_eq!(code, 2);
     assert!(
         err.contains("`detrend`") && err.contains("--margin N"),

@@ -182,12 +182,8 @@ impl PlaneTally {
     /// mostly a plane (which, under the gauss wavelet undetrended, swamps
     /// the surface at large scales).
     pub fn note(&self) -> Option<String> {
-        let mut s = self.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
-        if s.is_empty() {
-            return None;
-        }
-        s.sort_by(f64::total_cmp);
-        let median = (s[(s.len() - 1) / 2] + s[s.len() / 2]) / 2.0;
+        let s = self.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let median = crate::skeleton::median_share(&s)?;
         let whose = if s.len() == 1 {
             format!("{:.0} % of the image's variance", 100.0 * median)
         } else {

@@ -106,6 +106,14 @@ impl Default for AnalysisConfig {
     }
 }
 
+/// The median of plane shares ([`Field::plane_share`]); `None` for none.
+pub(crate) fn median_share(shares: &[f64]) -> Option<f64> {
+    let mut s = shares.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    (n > 0).then(|| (s[(n - 1) / 2] + s[n / 2]) / 2.0)
+}
+
 impl AnalysisConfig {
     /// The defaults for a field of the given kind: a periodic field (the
     /// generators' W-cascades, FISC, FIF) is analysed on the whole torus
@@ -146,13 +154,9 @@ impl AnalysisConfig {
         if self.wavelet != Wavelet::Gauss || self.detrend != crate::field::Trend::None {
             return None;
         }
-        let mut shares: Vec<f64> = shares.iter().copied().filter(|s| s.is_finite()).collect();
-        if shares.is_empty() {
-            return None;
-        }
-        shares.sort_by(f64::total_cmp);
+        let shares: Vec<f64> = shares.iter().copied().filter(|s| s.is_finite()).collect();
+        let median = median_share(&shares)?;
         let n = shares.len();
-        let median = (shares[(n - 1) / 2] + shares[n / 2]) / 2.0;
         if !(median > crate::spectra::PLANE_SHARE_WARN) {
             return None;
         }
