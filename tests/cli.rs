@@ -1370,19 +1370,23 @@ fn pixel_size_gives_lengths() {
     write_npy(&img, &f).unwrap();
     let img = img.display().to_string();
     let o = |n: &str| dir.join(n).display().to_string();
-    let (code, err) = run_bin_stderr(&[
-        "analyze",
-        &img,
-        "--octaves",
-        "3",
-        "--pixel-size",
-        "2",
-        "--units",
-        "m",
-        "--out",
-        &o("a"),
-    ]);
-    assert_eq!(code, 0, "{err}");
+    // analyze with a pixel of `size` `units`, into `out`
+    let analyze_px = |size: &str, units: &str, out: &str| {
+        let (code, err) = run_bin_stderr(&[
+            "analyze",
+            &img,
+            "--octaves",
+            "3",
+            "--pixel-size",
+            size,
+            "--units",
+            units,
+            "--out",
+            &o(out),
+        ]);
+        assert_eq!(code, 0, "{err}");
+    };
+    analyze_px("2", "m", "a");
     let a = json(&dir.join("a/spectra.json"));
     assert_eq!(a["params"]["pixel_size"]["side"], 2.0);
     assert_eq!(a["length_units"], "m");
@@ -1477,19 +1481,7 @@ fn pixel_size_gives_lengths() {
     assert!(source.ends_with("m0/sums.json: --pixel-size"), "{source}");
     assert_eq!(source.matches("recorded in").count(), 1, "{source}");
     // the same pixel in km is the same pixel (the first shard's unit kept)
-    let (code, err) = run_bin_stderr(&[
-        "analyze",
-        &img,
-        "--octaves",
-        "3",
-        "--pixel-size",
-        "0.002",
-        "--units",
-        "km",
-        "--out",
-        &o("km"),
-    ]);
-    assert_eq!(code, 0, "{err}");
+    analyze_px("0.002", "km", "km");
     let km = dir.join("km/other.json");
     let text = std::fs::read_to_string(dir.join("km/sums.json")).unwrap();
     std::fs::write(&km, text.replace("f.npy", "h.npy")).unwrap();
