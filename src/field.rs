@@ -244,19 +244,28 @@ impl Field {
     ///
     /// **Errors** if no pixel is valid.
     pub fn transform_input(&self, trend: Trend) -> Result<std::borrow::Cow<'_, Array2<f64>>> {
+        match self.detrended(trend) {
+            std::borrow::Cow::Borrowed(f) => f.filled(),
+            std::borrow::Cow::Owned(f) if f.mask.is_none() => Ok(std::borrow::Cow::Owned(f.data)),
+            std::borrow::Cow::Owned(f) => Ok(std::borrow::Cow::Owned(f.filled()?.into_owned())),
+        }
+    }
+
+    /// The field less its `trend` (the least-squares plane of the valid
+    /// pixels with [`Trend::Plane`]; missing pixels stay missing), or the
+    /// field itself when nothing is removed ([`Trend::None`], or no plane
+    /// fits).
+    pub fn detrended(&self, trend: Trend) -> std::borrow::Cow<'_, Field> {
         let plane = match trend {
             Trend::None => None,
             Trend::Plane => self.fit_plane(),
         };
         let Some(p) = plane else {
-            return self.filled();
+            return std::borrow::Cow::Borrowed(self);
         };
         let mut f = self.clone();
         p.subtract(&mut f.data);
-        if f.mask.is_none() {
-            return Ok(std::borrow::Cow::Owned(f.data));
-        }
-        Ok(std::borrow::Cow::Owned(f.filled()?.into_owned()))
+        std::borrow::Cow::Owned(f)
     }
 
     /// [`amplitude_problem`] of the valid pixels.

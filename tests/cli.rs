@@ -152,6 +152,7 @@ fn synth_fif_then_tm() {
         dtm_q: vec![1.5],
         sf_q: vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0],
         spectrum: PowerSpectrumConfig::for_field(false),
+        detrend: wtmm::field::Trend::None,
     };
     let accumulate = |cfg: &TraceMomentConfig, fs: &[wtmm::Field]| -> Vec<TraceMomentAccumulator> {
         fs.iter()
@@ -1691,7 +1692,7 @@ fn svg_beside_every_png() {
 /// `--detrend plane` reaches every part of `validate` that transforms an
 /// image (spectra, kernel and the correlation on an interior), is refused
 /// on the torus its periodic models use by default and by `compare`, and
-/// the stats commands warn of a tilted image as the spectra do.
+/// the stats commands and `tm` warn of a tilted image as the spectra do.
 #[test]
 fn detrend_reaches_every_part() {
     let dir = scratch("detrend");
@@ -1737,7 +1738,7 @@ fn detrend_reaches_every_part() {
         &o("c"),
     ]);
     assert_eq!(code, 2);
-    assert!(err.contains("its trace moments are not detrended"), "{err}");
+    assert!(err.contains("carry no regional trend"), "{err}");
     // a tilted image: pdf warns (gauss, no detrending), not with it
     let mut f = fbm(FbmParams { hurst: 0.4 }, 256, 256, 3, 0).unwrap();
     let sd = f.std(0.0);
@@ -1759,6 +1760,17 @@ fn detrend_reaches_every_part() {
             "{d}"
         );
         assert_eq!(err.contains("plane explains"), warned, "{err}");
+        // tm too (its structure functions see the plane), and records it
+        let out = o(&format!("tm_{d}"));
+        let (code, err) = run_bin_stderr(&["tm", &img, "--detrend", d, "--out", &out]);
+        assert_eq!(code, 0, "{err}");
+        let j = json(&Path::new(&out).join("tm.json"));
+        assert_eq!(err.contains("plane explains"), warned, "{err}");
+        assert_eq!(j["params"]["config"]["detrend"], d);
+        assert!(
+            j["params"]["plane_shares"][0].as_f64().unwrap() > 0.5,
+            "{j}"
+        );
     }
 }
 

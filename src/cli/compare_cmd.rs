@@ -249,8 +249,9 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         // before the torus's refusal, whose way out would lead here)
         return Err(Error::param(
             "detrend",
-            "compare analyses generated fields, which carry no regional trend, and its trace \
-             moments are not detrended: drop --detrend",
+            "compare analyses generated fields, which carry no regional trend (and its \
+             periodic models' spectra would see the removed plane as a jump across their \
+             edges): drop --detrend; analyze and tm take it for real images",
         ));
     }
     opts.line.cwt.torus_for(&model);

@@ -125,6 +125,7 @@ impl TmOpts {
                     ..s
                 }
             },
+            detrend: crate::field::Trend::None,
         };
         if let Some(h) = cfg.frac_int
             && !(h.is_finite() && h > -1.0 && h < 1.0)
@@ -170,6 +171,13 @@ pub struct TmArgs {
     pub q: String,
     #[command(flatten)]
     pub tm: TmOpts,
+    /// Trend removed from each image before everything else: `plane`, the
+    /// least-squares plane (a DEM's regional slope), which adds `c l` to
+    /// every increment at lag l and pulls the structure functions (H_sf,
+    /// the automatic --diff-order) toward 1; the spectrum removes a plane of
+    /// its own in any case.
+    #[arg(long, value_enum, default_value_t = crate::field::Trend::None)]
+    pub detrend: crate::field::Trend,
     /// For one or two images: also draw this many surrogates (universal
     /// multifractal FIF fields with the estimated alpha, C1 and H, the
     /// images' shapes and missing pixels), analyse them the same way, and
@@ -233,7 +241,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             ),
         ));
     }
-    let cfg = args.tm.config(q, false)?;
+    let cfg = TraceMomentConfig {
+        detrend: args.detrend,
+        ..args.tm.config(q, false)?
+    };
     // fewer than 3 images: a jackknife over the images has 1 degree of
     // freedom at most, so it runs over the tiles of every image, as in
     // `analyze` (tracemoments::pool_tiles)
@@ -343,6 +354,18 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             }
         }
     }
+    // a tilted image's increments carry its slope (TraceMomentConfig::detrend)
+    if cfg.detrend == crate::field::Trend::None {
+        let shares: Vec<f64> = acc.plane_shares.iter().flatten().copied().collect();
+        if let Some(whose) = crate::skeleton::plane_dominance(&shares, args.images.len()) {
+            extra.push(format!(
+                "the least-squares plane explains {whose}: a plane of slope c adds c l to \
+                 every increment at lag l, which pulls the structure functions (H_sf, and the \
+                 automatic --diff-order with it) toward 1; the spectrum removes a plane of its \
+                 own; rerun with --detrend plane (README, Conventions)"
+            ));
+        }
+    }
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
             extra.push(format!(
@@ -380,6 +403,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let what = super::common::data_label(&args.images, args.images.len(), &shapes);
     let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit),
+        "plane_shares": acc.plane_shares,
         "pixel_size": px.as_ref().map(PixelSize::json)});
     write_outputs(
         &args.out.out,

@@ -114,6 +114,35 @@ pub(crate) fn median_share(shares: &[f64]) -> Option<f64> {
     (n > 0).then(|| (s[(n - 1) / 2] + s[n / 2]) / 2.0)
 }
 
+/// How much of the images' variance their planes explain, worded for
+/// "the least-squares plane explains ...", when the median of the finite
+/// `shares` exceeds [`crate::spectra::PLANE_SHARE_WARN`]; `None` below it.
+/// `images` is the ensemble's size: fewer shares than images means some
+/// sums come from versions that did not record them.
+pub(crate) fn plane_dominance(shares: &[f64], images: usize) -> Option<String> {
+    let shares: Vec<f64> = shares.iter().copied().filter(|s| s.is_finite()).collect();
+    let median = median_share(&shares)?;
+    let n = shares.len();
+    if !(median > crate::spectra::PLANE_SHARE_WARN) {
+        return None;
+    }
+    let over = shares
+        .iter()
+        .filter(|&&s| s > crate::spectra::PLANE_SHARE_WARN)
+        .count();
+    let pc = 100.0 * median;
+    Some(if images == 1 {
+        format!("{pc:.0} % of the image's variance")
+    } else if n == images {
+        format!("a median {pc:.0} % of the images' variance (more than half in {over} of {n})")
+    } else {
+        format!(
+            "a median {pc:.0} % of the variance of the {n} of {images} images that record it \
+             (sums of older versions do not; more than half in {over})"
+        )
+    })
+}
+
 impl AnalysisConfig {
     /// The defaults for a field of the given kind: a periodic field (the
     /// generators' W-cascades, FISC, FIF) is analysed on the whole torus
@@ -154,27 +183,7 @@ impl AnalysisConfig {
         if self.wavelet != Wavelet::Gauss || self.detrend != crate::field::Trend::None {
             return None;
         }
-        let shares: Vec<f64> = shares.iter().copied().filter(|s| s.is_finite()).collect();
-        let median = median_share(&shares)?;
-        let n = shares.len();
-        if !(median > crate::spectra::PLANE_SHARE_WARN) {
-            return None;
-        }
-        let over = shares
-            .iter()
-            .filter(|&&s| s > crate::spectra::PLANE_SHARE_WARN)
-            .count();
-        let pc = 100.0 * median;
-        let whose = if images == 1 {
-            format!("{pc:.0} % of the image's variance")
-        } else if n == images {
-            format!("a median {pc:.0} % of the images' variance (more than half in {over} of {n})")
-        } else {
-            format!(
-                "a median {pc:.0} % of the variance of the {n} of {images} images that record \
-                 it (sums of older versions do not; more than half in {over})"
-            )
-        };
+        let whose = plane_dominance(shares, images)?;
         if self.margin_px() == 0 {
             return Some(format!(
                 "the least-squares plane explains {whose}: analysed whole as a torus (margin \
