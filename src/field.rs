@@ -244,7 +244,7 @@ impl Field {
     ///
     /// **Errors** if no pixel is valid.
     pub fn transform_input(&self, trend: Trend) -> Result<std::borrow::Cow<'_, Array2<f64>>> {
-        match self.detrended(trend) {
+        match self.detrended(trend)? {
             std::borrow::Cow::Borrowed(f) => f.filled(),
             std::borrow::Cow::Owned(f) if f.mask.is_none() => Ok(std::borrow::Cow::Owned(f.data)),
             std::borrow::Cow::Owned(f) => Ok(std::borrow::Cow::Owned(f.filled()?.into_owned())),
@@ -255,17 +255,29 @@ impl Field {
     /// pixels with [`Trend::Plane`]; missing pixels stay missing), or the
     /// field itself when nothing is removed ([`Trend::None`], or no plane
     /// fits).
-    pub fn detrended(&self, trend: Trend) -> std::borrow::Cow<'_, Field> {
-        let plane = match trend {
+    ///
+    /// **Errors** when the plane explains all but [`PLANE_ONLY`] of the
+    /// variance: what is left is the rounding of the values, which the
+    /// analyses would read as a surface.
+    pub fn detrended(&self, trend: Trend) -> Result<std::borrow::Cow<'_, Field>> {
+        let fit = match trend {
             Trend::None => None,
-            Trend::Plane => self.fit_plane(),
+            Trend::Plane => self.plane_fit(),
         };
-        let Some(p) = plane else {
-            return std::borrow::Cow::Borrowed(self);
+        let Some((p, share)) = fit else {
+            return Ok(std::borrow::Cow::Borrowed(self));
         };
+        if let Some(r) = share.filter(|&r| r >= 1.0 - PLANE_ONLY) {
+            return Err(Error::Input(format!(
+                "the image is a plane: its least-squares plane explains all but {:.1e} of its \
+                 variance, so nothing but rounding is left once it is removed (--detrend \
+                 plane)",
+                1.0 - r
+            )));
+        }
         let mut f = self.clone();
         p.subtract(&mut f.data);
-        std::borrow::Cow::Owned(f)
+        Ok(std::borrow::Cow::Owned(f))
     }
 
     /// [`amplitude_problem`] of the valid pixels.
@@ -312,20 +324,33 @@ impl Plane {
     }
 }
 
-/// What is removed from an image before the wavelet transform
-/// ([`crate::skeleton::AnalysisConfig::detrend`]).
+/// Unexplained share of the variance below which an image is taken for a
+/// plane ([`Field::detrended`]): far above the 1e-15 to which the share is
+/// computed (an exact plane read 1 - 3.4e-15), and above the residue of a
+/// plane stored in float32, which is refused too (rounding of 6e-8 of the
+/// values: 2e-13 of the variance of a plane spanning a quarter of their
+/// magnitude).
+pub const PLANE_ONLY: f64 = 1e-12;
+
+/// What is removed from an image before the analysis
+/// ([`crate::skeleton::AnalysisConfig::detrend`],
+/// [`crate::tracemoments::TraceMomentConfig::detrend`]). A plane of slope
+/// `c = (cx, cy)` is added by the gauss wavelet (one vanishing moment) to
+/// the transform as the vector `a c` at every point, which grows faster
+/// with the scale than any rough surface's modulus and biases the
+/// exponents (the mexican wavelet, three, is blind to it); it adds `c l`
+/// to the increments at lag `l` of the trace moments' structure functions.
+/// (The variants' docs are the command line's help: they say what is
+/// removed, each command's option says why.)
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Trend {
-    /// Nothing (a constant is invisible to every wavelet).
+    /// Nothing (the methods as published).
     #[default]
     None,
-    /// The least-squares plane through the valid pixels: the gauss
-    /// wavelet (one vanishing moment) adds a plane of slope `c = (cx,
-    /// cy)` to the transform as the vector `a c` at every point, which
-    /// grows faster with the scale than any rough surface's modulus and
-    /// biases the exponents; the mexican wavelet (three) is blind to it.
+    /// The least-squares plane through the valid pixels (a regional
+    /// slope); missing pixels stay missing.
     Plane,
 }
 

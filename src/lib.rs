@@ -104,6 +104,7 @@
 //! |---|---|
 //! | `--wavelet`, `--octaves`, `--voices`, `--margin` | [`AnalysisConfig`] `wavelet`, `octaves`, `voices`, `margin` (and the same fields of [`stats::correlation::CorrelationConfig`]) |
 //! | `--ratio` | [`skeleton::LinkParams`] `ratio` (`AnalysisConfig::link`) |
+//! | `--detrend` | [`AnalysisConfig`] `detrend`, [`stats::correlation::CorrelationConfig`] `detrend`, [`tracemoments::TraceMomentConfig`] `detrend` ([`field::Trend`]) |
 //! | `--fit` | the `fit` argument of [`PartitionSums::spectra`]; [`stats::kernel::KernelOptions`] `fit` |
 //! | `--refs`, `--pairs` (kernel) | [`stats::kernel::KernelOptions`] `refs`, `pairs` |
 //! | `--pairs`, `--max-dx` (correlate) | [`stats::correlation::CorrelationConfig`] `pairs`, `max_dx` |

@@ -1604,9 +1604,11 @@ fn pixel_size_gives_lengths() {
     }
 }
 
-/// analyze prints its answer (stdout, as tm does): the fit, the error
-/// method, h(0) and D(h(0)) and tau(2) with their errors, as spectra.json
-/// holds them, and the q its figures draw open.
+/// analyze prints its answer (stdout, as tm does, with --quiet too): the
+/// fit, the error method, h(0) and D(h(0)) and tau(2) with their errors,
+/// as spectra.json holds them, and the q its figures draw open; merge of
+/// its sums the same; spectrum its beta and kernel its cumulants, as
+/// their JSON holds them.
 #[test]
 fn analyze_prints_its_answer() {
     let dir = scratch("analyze_summary");
@@ -1614,6 +1616,7 @@ fn analyze_prints_its_answer() {
         .map(|i| fbm_npy(&dir, &format!("f{i}.npy"), 192, 40 + i))
         .collect();
     let o = dir.join("o").display().to_string();
+    let o2 = |n: &str| dir.join(n).display().to_string();
     let mut args: Vec<&str> = vec!["analyze"];
     args.extend(imgs.iter().map(String::as_str));
     args.extend_from_slice(&["--octaves", "3", "--margin", "20", "--out", &o]);
@@ -1639,6 +1642,42 @@ fn analyze_prints_its_answer() {
     );
     assert!(stdout.contains(&want), "{want}\n{stdout}");
     assert!(stdout.contains("tau(2) = "), "{stdout}");
+    // merge of its sums gives the same reading, headed by its name
+    let sums = dir.join("o/sums.json").display().to_string();
+    let (code, merged, err) = run_bin_output(&["merge", &sums, "--out", &o2("m")], true);
+    assert_eq!(code, 0, "{err}");
+    assert!(merged.starts_with("merge: "), "{merged}");
+    assert!(merged.contains(&want), "{want}\n{merged}");
+    // spectrum, kernel and pdf print theirs too, as their JSON holds them
+    let mut a = vec!["spectrum"];
+    a.extend(imgs.iter().map(String::as_str));
+    let sp = o2("s");
+    let (code, out, err) = run_bin_output(&[&a[..], &["--out", &sp]].concat(), true);
+    assert_eq!(code, 0, "{err}");
+    let j = json(&Path::new(&sp).join("spectrum.json"));
+    let want = format!(
+        "beta = {:.3} +- {:.3} (jackknife over images",
+        j["beta"].as_f64().unwrap(),
+        j["beta_stderr"].as_f64().unwrap()
+    );
+    assert!(out.contains(&want), "{want}\n{out}");
+    let mut a = vec!["kernel"];
+    a.extend(imgs.iter().map(String::as_str));
+    let k = o2("k");
+    let (code, out, err) = run_bin_output(
+        &[&a[..], &["--octaves", "3", "--margin", "20", "--out", &k]].concat(),
+        true,
+    );
+    assert_eq!(code, 0, "{err}");
+    let j = json(&Path::new(&k).join("kernel.json"));
+    let c1 = &j["cumulants"]["c1"];
+    let want = format!(
+        "c1 = {:.4} +- {:.4}",
+        c1["value"].as_f64().unwrap(),
+        c1["stderr"].as_f64().unwrap()
+    );
+    assert!(out.starts_with("kernel ("), "{out}");
+    assert!(out.contains(&want), "{want}\n{out}");
 }
 
 /// `--svg` writes every plot also as SVG beside its PNG (charts and the
@@ -1738,7 +1777,7 @@ fn detrend_reaches_every_part() {
         &o("c"),
     ]);
     assert_eq!(code, 2);
-    assert!(err.contains("carry no regional trend"), "{err}");
+    assert!(err.contains("are not tilted"), "{err}");
     // a tilted image: pdf warns (gauss, no detrending), not with it
     let mut f = fbm(FbmParams { hurst: 0.4 }, 256, 256, 3, 0).unwrap();
     let sd = f.std(0.0);

@@ -1327,9 +1327,19 @@ fn planar_trends_are_removed_and_warned_about() {
         assert!((a - b).abs() < 1e-12, "{q:?}");
     }
     assert!((f.plane_share().unwrap() - 1.0).abs() < 1e-12);
-    // the transform's input: the residual (zero) with the holes filled
-    let input = f.transform_input(Trend::Plane).unwrap();
-    assert!(input.iter().all(|v| v.abs() < 1e-12));
+    // nothing but rounding would be left: refused
+    let e = f.transform_input(Trend::Plane).unwrap_err().to_string();
+    assert!(e.contains("the image is a plane"), "{e}");
+    // the transform's input: the residual with the holes filled (with its
+    // mean, near 0: a fill before the removal would put the tilted
+    // image's mean, 4 to 8 off the plane there, into the holes)
+    let bump = |y: usize, x: usize| 0.01 * ((x * 7 + y * 3) % 5) as f64;
+    let mut img = ndarray::Array2::from_shape_fn((20, 30), |(y, x)| p.at(y, x) + bump(y, x));
+    img[[4, 7]] = f64::NAN;
+    img.slice_mut(ndarray::s![10..14, 3..9]).fill(f64::NAN);
+    let bumpy = Field::new(img);
+    let input = bumpy.transform_input(Trend::Plane).unwrap();
+    assert!(input.iter().all(|v| v.abs() < 0.05), "{input:?}");
     // a line of pixels fixes no plane
     let line = Field::new(ndarray::Array2::from_shape_fn((1, 9), |(_, x)| x as f64));
     assert!(line.fit_plane().is_none());

@@ -45,8 +45,8 @@ pub struct LineOpts {
     /// least-squares plane (a DEM's regional slope), which the gauss
     /// wavelet's transform gains as a vector growing like the scale and
     /// which biases h upwards; the mexican wavelet is blind to it. Not on a torus
-    /// (--margin 0, --domain torus, the generated periodic models by
-    /// default): give --margin N there.
+    /// (--margin 0; --domain torus of pdf, kernel and correlate; the
+    /// generated periodic models by default): give --margin N there.
     #[arg(long, value_enum, default_value_t = crate::field::Trend::None)]
     pub detrend: crate::field::Trend,
 }
@@ -304,7 +304,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         &other,
         theory.as_ref(),
     )?;
-    show!("{}", summary(&spectra, &sums, px.as_ref()));
+    show!("{}", summary("analyze", &spectra, &sums, px.as_ref()));
     for w in &spectra.warnings {
         say!("warning: {w}");
     }
@@ -314,7 +314,14 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
 /// The answer in a few lines (stdout, as `tm`'s): what was fitted, the
 /// numbers a paper quotes (h(0), D(h(0)), tau(2) and the beta it implies,
 /// the range of h), with their errors, and which q the warnings flag.
-fn summary(s: &Spectra, sums: &PartitionSums, px: Option<&PixelSize>) -> String {
+/// The reading of a spectra result on stdout, headed by the command that
+/// made it (`analyze`, `merge`).
+pub(super) fn summary(
+    cmd: &str,
+    s: &Spectra,
+    sums: &PartitionSums,
+    px: Option<&PixelSize>,
+) -> String {
     let pm = |i: usize, v: &[f64], e: &[f64]| match e[i].is_finite() {
         true => format!("{:.3} +- {:.3}", v[i], e[i]),
         false => format!("{:.3}", v[i]),
@@ -329,7 +336,7 @@ fn summary(s: &Spectra, sums: &PartitionSums, px: Option<&PixelSize>) -> String 
         )
     });
     let mut out = format!(
-        "analyze: {}, fit a = {:.1}-{:.1} px{lengths}; errors: {}\n",
+        "{cmd}: {}, fit a = {:.1}-{:.1} px{lengths}; errors: {}\n",
         describe(s, sums),
         s.fit_scales.0,
         s.fit_scales.1,

@@ -249,9 +249,10 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
         // before the torus's refusal, whose way out would lead here)
         return Err(Error::param(
             "detrend",
-            "compare analyses generated fields, which carry no regional trend (and its \
-             periodic models' spectra would see the removed plane as a jump across their \
-             edges): drop --detrend; analyze and tm take it for real images",
+            "compare analyses generated fields, which are not tilted (the planes an fBm \
+             shows are its own large scales, and a plane removed from a periodic model is \
+             a jump across its edges): drop --detrend; analyze and tm take it for tilted \
+             images",
         ));
     }
     opts.line.cwt.torus_for(&model);

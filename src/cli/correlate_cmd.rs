@@ -335,7 +335,24 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         cost,
         input.pixel.as_ref(),
     )?;
-    // warnings go out even with --quiet, as analyze's do
+    // the reading on stdout, even with --quiet (as analyze and tm give theirs)
+    show!(
+        "correlate: {}, {wall:.1} s\n",
+        super::common::count_of(input.len(), "image")
+    );
+    if let Some(c) = body.get("checks").and_then(|c| c.as_object()) {
+        for (src, v) in c {
+            let dev = |w: &str, k: &str| v[w][k].as_f64().unwrap_or(f64::NAN);
+            show!(
+                "  {src}: max |C - theory| (II eq 76; 0 for fBm) for {PAPER_UNIT:.1} max(a1, a2) < dx < L/4: \
+                 {:.4} (ensemble centring), {:.4} (per image); for dx > max(a1, a2): {:.4}\n",
+                dev("paper", "max_abs_dev_C_ensemble"),
+                dev("paper", "max_abs_dev_C"),
+                dev("literal", "max_abs_dev_C_ensemble"),
+            );
+        }
+    }
+    // warnings go out even with --quiet, after the reading, as analyze's do
     let mut warned = std::collections::BTreeSet::new();
     for r in cwt_res.iter().chain(sk_res.iter()) {
         for w in &r.warnings {
@@ -344,36 +361,18 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
             }
         }
     }
-    if !quiet {
+    if !quiet && let Some(c) = cost {
         say!(
-            "correlate: {}, {wall:.1} s",
-            super::common::count_of(input.len(), "image")
+            "cost: correlation {:.2} ms = {:.1} CWT scales ({:.2} ms each){}",
+            c.0 * 1e3,
+            c.2,
+            c.1 * 1e3,
+            c.3.map_or(String::new(), |t| format!(
+                "; with its jackknife tiles {:.2} ms = {:.1} CWT scales",
+                t * 1e3,
+                t / c.1
+            ))
         );
-        if let Some(c) = body.get("checks").and_then(|c| c.as_object()) {
-            for (src, v) in c {
-                let dev = |w: &str, k: &str| v[w][k].as_f64().unwrap_or(f64::NAN);
-                say!(
-                    "  {src}: max |C - theory| (II eq 76; 0 for fBm) for {PAPER_UNIT:.1} max(a1, a2) < dx < L/4: \
-                     {:.4} (ensemble centring), {:.4} (per image); for dx > max(a1, a2): {:.4}",
-                    dev("paper", "max_abs_dev_C_ensemble"),
-                    dev("paper", "max_abs_dev_C"),
-                    dev("literal", "max_abs_dev_C_ensemble"),
-                );
-            }
-        }
-        if let Some(c) = cost {
-            say!(
-                "cost: correlation {:.2} ms = {:.1} CWT scales ({:.2} ms each){}",
-                c.0 * 1e3,
-                c.2,
-                c.1 * 1e3,
-                c.3.map_or(String::new(), |t| format!(
-                    "; with its jackknife tiles {:.2} ms = {:.1} CWT scales",
-                    t * 1e3,
-                    t / c.1
-                ))
-            );
-        }
     }
     Ok(Outcome::Ok)
 }

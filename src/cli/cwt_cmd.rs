@@ -81,7 +81,9 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
                 .join(", ")
         ));
     }
-    let img = field.transform_input(args.detrend)?;
+    let img = field
+        .transform_input(args.detrend)
+        .map_err(|e| super::common::in_file(&args.image, e))?;
     // the transform is not trusted where the wavelet's support (radius R a)
     // reaches a missing pixel: NaN there, as the analysis drops such maxima
     let mask_distance = field.mask.as_ref().map(crate::skeleton::distance_to_mask);

@@ -407,10 +407,11 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
             format!("{:.4} (no error: fewer than 3 images)", e.value)
         }
     };
-    if !quiet {
+    // the reading on stdout, even with --quiet (as analyze and tm give theirs)
+    {
         let cu = &out.main.cumulants;
-        say!(
-            "kernel ({} set, {}, fit {}:{} octaves, {wall:.1} s): c1 = {}, c2 = {}, c3 = {}",
+        show!(
+            "kernel ({} set, {}, fit {}:{} octaves, {wall:.1} s): c1 = {}, c2 = {}, c3 = {}\n",
             args.set.name(),
             super::common::count_of(out.main.images, "image"),
             fit.0,
@@ -420,8 +421,8 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
             pm(&cu.c3)
         );
         let pc = &out.main.pooled;
-        say!(
-            "pooled C_n(a, a') tables (II Figs 26, 28): c1 = {}, c2 = {}, c3 = {}",
+        show!(
+            "pooled C_n(a, a') tables (II Figs 26, 28): c1 = {}, c2 = {}, c3 = {}\n",
             pm(&pc.c1),
             pm(&pc.c2),
             pm(&pc.c3)

@@ -162,6 +162,10 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         &o,
         curves.as_ref(),
     )?;
+    show!(
+        "{}",
+        super::analyze_cmd::summary("merge", &s, &sums, px.as_ref())
+    );
     // the fit's warnings too (poor fits, too few lines), as analyze prints them
     for w in &s.warnings {
         say!("warning: {w}");

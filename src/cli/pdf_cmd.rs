@@ -843,13 +843,12 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         &sec.iter().map(|&j| get(j)).collect::<Vec<_>>(),
         h0,
     )?;
-    if !quiet {
-        say!(
-            "pdf: {}, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s",
-            super::common::count_of(hist.images, "image"),
-            args.set.name(),
-        );
-    }
+    // the reading on stdout, even with --quiet (as analyze and tm give theirs)
+    show!(
+        "pdf: {}, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s\n",
+        super::common::count_of(hist.images, "image"),
+        args.set.name(),
+    );
     if let Some(w) = warning {
         say!("warning: h0 not estimated from the data (estimate_from_data is null): {w}");
     }

@@ -248,9 +248,6 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     body["k"] = json!(pts.iter().map(|p| p.0).collect::<Vec<_>>());
     body["S"] = json!(pts.iter().map(|p| p.1).collect::<Vec<_>>());
     write_json(&args.out.out.join("spectrum.json"), &body)?;
-    for w in &warnings {
-        say!("warning: {w}");
-    }
     let rows: Vec<Vec<String>> = pts.iter().map(|p| vec![f(p.0), f(p.1)]).collect();
     write_csv(
         &args.out.out.join("spectrum.csv"),
@@ -314,5 +311,31 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         ));
     }
     save_chart(&chart, &args.out.out.join("spectrum.png"))?;
+    // the reading on stdout, as analyze and tm give theirs; warnings after it
+    let mut line = format!(
+        "spectrum: {}, beta = {:.3} +- {:.3} ({se_method}; angle-averaged), k = {k_lo:.3}-{k_hi:.3} \
+         rad/px",
+        super::common::count_of(fields.len(), "image"),
+        fit.beta,
+        beta_se
+    );
+    if let Some(p) = &px {
+        let tau = 2.0 * std::f64::consts::PI;
+        line += &format!(
+            " (wavelengths {} - {})",
+            p.length(tau / k_hi),
+            p.length(tau / k_lo)
+        );
+    }
+    if fields.len() > 1 {
+        line += &format!("; per image {m:.3} +- {sd:.3} (mean +- sd)");
+    }
+    if let Some(b) = args.theory_beta {
+        line += &format!("; theory {b:.3}");
+    }
+    show!("{line}\n");
+    for w in &warnings {
+        say!("warning: {w}");
+    }
     Ok(Outcome::Ok)
 }

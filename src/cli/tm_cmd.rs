@@ -175,7 +175,8 @@ pub struct TmArgs {
     /// least-squares plane (a DEM's regional slope), which adds `c l` to
     /// every increment at lag l and pulls the structure functions (H_sf,
     /// the automatic --diff-order) toward 1; the spectrum removes a plane of
-    /// its own in any case.
+    /// its own in any case. For tilted surfaces: an untilted rough one
+    /// loses part of its own large scales with it (H_sf a little lower).
     #[arg(long, value_enum, default_value_t = crate::field::Trend::None)]
     pub detrend: crate::field::Trend,
     /// For one or two images: also draw this many surrogates (universal
@@ -183,7 +184,8 @@ pub struct TmArgs {
     /// images' shapes and missing pixels), analyse them the same way, and
     /// report the scatter of their estimates (the error under that model),
     /// the estimator's bias there, and how the tile errors compare
-    /// (tm.json `surrogates`, surrogates.csv). About K analyses' time.
+    /// (tm.json `surrogates`, surrogates.csv). K >= 8; 100 or more at low
+    /// C1, whose estimates have heavy tails. About K analyses' time.
     #[arg(long, value_name = "K")]
     pub surrogates: Option<usize>,
     /// Seed of the surrogates.
@@ -354,18 +356,6 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             }
         }
     }
-    // a tilted image's increments carry its slope (TraceMomentConfig::detrend)
-    if cfg.detrend == crate::field::Trend::None {
-        let shares: Vec<f64> = acc.plane_shares.iter().flatten().copied().collect();
-        if let Some(whose) = crate::skeleton::plane_dominance(&shares, args.images.len()) {
-            extra.push(format!(
-                "the least-squares plane explains {whose}: a plane of slope c adds c l to \
-                 every increment at lag l, which pulls the structure functions (H_sf, and the \
-                 automatic --diff-order with it) toward 1; the spectrum removes a plane of its \
-                 own; rerun with --detrend plane (README, Conventions)"
-            ));
-        }
-    }
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
             extra.push(format!(
@@ -403,7 +393,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let what = super::common::data_label(&args.images, args.images.len(), &shapes);
     let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit),
-        "plane_shares": acc.plane_shares,
+        "plane_shares": acc.planes.iter().map(|p| p.share).collect::<Vec<_>>(),
         "pixel_size": px.as_ref().map(PixelSize::json)});
     write_outputs(
         &args.out.out,

@@ -114,6 +114,17 @@ pub(crate) fn median_share(shares: &[f64]) -> Option<f64> {
     (n > 0).then(|| (s[(n - 1) / 2] + s[n / 2]) / 2.0)
 }
 
+/// A share in [0, 1] as a whole percentage, never rounded up to a plane
+/// that explains everything ("over 99" for 99-100 %).
+pub(crate) fn share_percent(share: f64) -> String {
+    let pc = 100.0 * share;
+    if pc > 99.0 && pc < 100.0 {
+        "over 99".into()
+    } else {
+        format!("{pc:.0}")
+    }
+}
+
 /// How much of the images' variance their planes explain, worded for
 /// "the least-squares plane explains ...", when the median of the finite
 /// `shares` exceeds [`crate::spectra::PLANE_SHARE_WARN`]; `None` below it.
@@ -130,14 +141,14 @@ pub(crate) fn plane_dominance(shares: &[f64], images: usize) -> Option<String> {
         .iter()
         .filter(|&&s| s > crate::spectra::PLANE_SHARE_WARN)
         .count();
-    let pc = 100.0 * median;
+    let pc = share_percent(median);
     Some(if images == 1 {
-        format!("{pc:.0} % of the image's variance")
+        format!("{pc} % of the image's variance")
     } else if n == images {
-        format!("a median {pc:.0} % of the images' variance (more than half in {over} of {n})")
+        format!("a median {pc} % of the images' variance (more than half in {over} of {n})")
     } else {
         format!(
-            "a median {pc:.0} % of the variance of the {n} of {images} images that record it \
+            "a median {pc} % of the variance of the {n} of {images} images that record it \
              (sums of older versions do not; more than half in {over})"
         )
     })

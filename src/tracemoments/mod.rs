@@ -65,7 +65,12 @@
 //! harmonic fill against 1.49 whole). The spectrum
 //! (beta, hence H) still sees holes filled with the mean: a harmonic fill
 //! is smoother than the terrain and steepened beta there (3.50 against
-//! 3.38 whole, 3.40 mean-filled). Ensembles are annealed: the
+//! 3.38 whole, 3.40 mean-filled). A tilted field's plane can be removed
+//! first (`--detrend plane`, [`TraceMomentConfig::detrend`]): it adds `c l`
+//! to every increment at lag `l`, pulling `H_sf` (and the automatic
+//! derivative order) toward 1, and [`diagnostics`] names it when `H_sf`
+//! exceeds the spectral H (whose spectrum removes a plane of its own) and
+//! the plane explains more than half the variance. Ensembles are annealed: the
 //! accumulator adds `Σ_boxes φ_λ^q` over images before any logarithm
 //! ([`TraceMomentAccumulator::merge`]), and the normalisation by the ensemble
 //! mean is exact afterwards because box averages are linear in `φ`.
@@ -504,12 +509,37 @@ pub struct TraceMomentAccumulator {
     /// [`FluxDiff::Auto`]).
     #[serde(default)]
     pub diff_orders: Vec<f64>,
-    /// Per field, in merge order: the share of its variance the
-    /// least-squares plane explains ([`Field::plane_share`], before any
-    /// detrending; `None` without a plane or for fluxes given directly).
-    /// Empty in accumulators saved before it was recorded.
+    /// Per field, in merge order: its least-squares plane (default for
+    /// fluxes given directly). Empty in accumulators saved before it was
+    /// recorded (merging pads them with defaults, one per field).
     #[serde(default)]
-    pub plane_shares: Vec<Option<f64>>,
+    pub planes: Vec<FieldPlane>,
+}
+
+/// A field's least-squares plane, as the trace moments record it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FieldPlane {
+    /// The share of the raw field's variance the plane explains
+    /// ([`Field::plane_share`]); `None` without a plane.
+    pub share: Option<f64>,
+    /// `ξ(1)` of the raw field and of the field less its plane
+    /// (`flux::hurst_sf`), recorded when the share exceeds
+    /// [`crate::spectra::PLANE_SHARE_WARN`] and the plane is not removed:
+    /// how much the plane moves `H_sf` ([`diagnostics`]).
+    pub h_sf: Option<[f64; 2]>,
+}
+
+impl FieldPlane {
+    fn of(field: &Field, config: &TraceMomentConfig) -> Self {
+        let share = field.plane_share();
+        let h_sf = share
+            .filter(|&p| config.detrend == Trend::None && p > crate::spectra::PLANE_SHARE_WARN)
+            .and_then(|_| {
+                let flat = field.detrended(Trend::Plane).ok()?;
+                Some([flux::hurst_sf(field)?, flux::hurst_sf(&flat)?])
+            });
+        FieldPlane { share, h_sf }
+    }
 }
 
 impl TraceMomentAccumulator {
@@ -529,7 +559,7 @@ impl TraceMomentAccumulator {
             sf: vec![Vec::new(); config.sf_q.len()],
             spectrum: None,
             diff_orders: Vec::new(),
-            plane_shares: Vec::new(),
+            planes: Vec::new(),
             config,
         })
     }
@@ -546,13 +576,13 @@ impl TraceMomentAccumulator {
         if let Some(why) = field.amplitude_problem() {
             return Err(Error::Input(why));
         }
-        let share = field.plane_share();
-        let field = &*field.detrended(self.config.detrend);
+        let plane = FieldPlane::of(field, &self.config);
+        let field = &*field.detrended(self.config.detrend)?;
         let ps = field_power_spectrum(field, &self.config.spectrum)?;
         let (phi, ok, diff) = self.field_flux(field)?;
         self.accumulate_flux(&phi, &ok, None)?;
         self.diff_orders.push(diff);
-        self.plane_shares.push(share);
+        self.planes.push(plane);
         self.accumulate_sf(field, None);
         match &mut self.spectrum {
             Some(s) => s.merge(&ps)?,
@@ -639,13 +669,13 @@ impl TraceMomentAccumulator {
         if let Some(why) = field.amplitude_problem() {
             return Err(Error::Input(why));
         }
-        let share = field.plane_share();
-        let field = &*field.detrended(config.detrend);
+        let plane = FieldPlane::of(field, config);
+        let field = &*field.detrended(config.detrend)?;
         let mut whole = TraceMomentAccumulator::new(config.clone())?;
         let (phi, ok, diff) = whole.field_flux(field)?;
         whole.accumulate_flux(&phi, &ok, None)?;
         whole.diff_orders.push(diff);
-        whole.plane_shares.push(share);
+        whole.planes.push(plane);
         whole.accumulate_sf(field, None);
         whole.spectrum = Some(field_power_spectrum(field, &config.spectrum)?);
         let (ny, nx) = field.dim();
@@ -665,7 +695,7 @@ impl TraceMomentAccumulator {
                 Err(e) => return Err(e),
             }
             p.diff_orders.push(diff);
-            p.plane_shares.push(share);
+            p.planes.push(plane);
             p.accumulate_sf(field, Some(b));
             p.spectrum.clone_from(&whole.spectrum);
             parts.push(p);
@@ -711,7 +741,10 @@ impl TraceMomentAccumulator {
                 *v = 0.0;
             }
         }
-        self.accumulate_flux(&p, &ok, None)
+        self.accumulate_flux(&p, &ok, None)?;
+        // no field, no plane: the entry keeps the shares one per field
+        self.planes.push(FieldPlane::default());
+        Ok(())
     }
 
     /// Adds the box moments of a flux over the windows of
@@ -871,6 +904,11 @@ impl TraceMomentAccumulator {
                 "cannot merge trace moments accumulated with different settings",
             ));
         }
+        // accumulators saved before the shares were recorded have none: pad
+        // them with None so that the shares stay one per field, in order
+        let own = self.images;
+        self.planes
+            .resize(own.max(self.planes.len()), FieldPlane::default());
         self.images += o.images;
         self.max_side = self.max_side.max(o.max_side);
         self.n_valid += o.n_valid;
@@ -916,7 +954,11 @@ impl TraceMomentAccumulator {
             _ => {}
         }
         self.diff_orders.extend_from_slice(&o.diff_orders);
-        self.plane_shares.extend_from_slice(&o.plane_shares);
+        self.planes.extend_from_slice(&o.planes);
+        self.planes.resize(
+            (own + o.images).max(self.planes.len()),
+            FieldPlane::default(),
+        );
         Ok(())
     }
 
@@ -1171,6 +1213,18 @@ impl TraceMomentAccumulator {
             diff: self.config.diff,
             diff_order: do_mean,
             diff_order_sd: do_sd,
+            detrend: self.config.detrend,
+            plane_share: crate::skeleton::median_share(
+                &self.planes.iter().filter_map(|p| p.share).collect::<Vec<_>>(),
+            ),
+            h_sf_plane_shift: {
+                let d: Vec<f64> = self
+                    .planes
+                    .iter()
+                    .filter_map(|p| p.h_sf.map(|[raw, flat]| raw - flat))
+                    .collect();
+                (!d.is_empty()).then(|| d.iter().sum::<f64>() / d.len() as f64)
+            },
             frac_int: self.config.frac_int,
             q,
             k: kq,
@@ -1313,6 +1367,20 @@ pub struct TraceMomentResult {
     /// Its standard deviation over images.
     #[serde(deserialize_with = "crate::nan_null::f64")]
     pub diff_order_sd: f64,
+    /// Trend removed from each field first ([`TraceMomentConfig::detrend`]).
+    #[serde(default)]
+    pub detrend: Trend,
+    /// Median over the fields of the share of their variance their
+    /// least-squares plane explains (before any detrending); `None` when
+    /// no field records one (fluxes given directly, older accumulators).
+    #[serde(default)]
+    pub plane_share: Option<f64>,
+    /// Without detrending, the mean over the fields whose plane explains
+    /// more than half their variance of their `ξ(1)` less that of the field
+    /// less its plane ([`FieldPlane::h_sf`]): about how much `H_sf` would
+    /// drop with `--detrend plane`. `None` when no field records it.
+    #[serde(default)]
+    pub h_sf_plane_shift: Option<f64>,
     /// Order of the fractional integration applied before the flux, if any.
     pub frac_int: Option<f64>,
     /// Trace-moment orders q.
@@ -1710,6 +1778,7 @@ pub const TILE_ERROR_FACTOR: f64 = 2.0;
 /// 2. else the spectral H and `H_sf = ξ(1)` apart (both estimate H:
 ///    `ξ(1) = H - K(1) = H`, TM eq 10), the error that of their
 ///    difference (jackknifed as a difference: the two share the tiles);
+///    with 5. said, it names the plane;
 /// 3. with a jackknife, moment lines `log2 <φ_λ^q>` curved over the fitted
 ///    scales, at the q of the universal fit (beyond `q_s/2` the sampling
 ///    bends them anyway, TM eq 15): the change of their local slope
@@ -1720,7 +1789,14 @@ pub const TILE_ERROR_FACTOR: f64 = 2.0;
 ///    tolerance of published tau(q), and K(q) has no such scale;
 /// 4. with a GLS universal fit, its alpha and the OLS fit's apart, against
 ///    the jackknife error of their difference: K(q) not of the universal
-///    form over the fitted q, so alpha depends on the weighting.
+///    form over the fitted q, so alpha depends on the weighting;
+/// 5. (said before 2.) without detrending, a median plane share above
+///    [`crate::spectra::PLANE_SHARE_WARN`] whose removal would move `H_sf`
+///    ([`TraceMomentResult::h_sf_plane_shift`]) by more than its error and
+///    toward the spectral H: a tilt (the increments carry it, the spectrum
+///    removes a plane). An untilted rough surface's own planes mostly
+///    fail the last test (8 fBm of 512², H = 0.8: `H_sf` 0.776 would drop
+///    further from the spectral 0.823).
 ///
 /// Measured (`experiment_lone_image_tiles` in tests/tracemoments.rs): on 24
 /// single topo-fif fields, 3, 1 and 1 of them got a straightness warning at
@@ -1797,6 +1873,38 @@ pub fn diagnostics(
             });
         }
     }
+    // 5. (said first: 2. defers to it) a plane that pulls H_sf away from
+    // the spectral H, whose spectrum removes a plane of its own
+    let plane = match (r.h, r.h_sf, r.h_sf_plane_shift, r.plane_share) {
+        (Some(h), Some(hsf), Some(e), Some(p))
+            if r.detrend == Trend::None
+                && p > crate::spectra::PLANE_SHARE_WARN
+                && e > r.h_sf_stderr.unwrap_or(0.0)
+                && (hsf - e - h).abs() < (hsf - h).abs() =>
+        {
+            w.push(format!(
+                "the least-squares plane explains {} % of the {}: without it H_sf = xi(1) = \
+                 {hsf:.3} reads about {:.3}, nearer the spectral H = {h:.3}, whose spectrum \
+                 removes a plane of its own; a regional slope c adds c l to every increment \
+                 at lag l{}; if the surface is tilted (a rough surface's own large scales \
+                 make planes too), rerun with --detrend plane (TraceMomentConfig::detrend)",
+                crate::skeleton::share_percent(p),
+                if r.images == 1 {
+                    "image's variance"
+                } else {
+                    "images' variance (median)"
+                },
+                hsf - e,
+                if r.diff == FluxDiff::Auto {
+                    " and raises the automatic --diff-order"
+                } else {
+                    ""
+                }
+            ));
+            true
+        }
+        _ => false,
+    };
     // 2. the two estimates of H (1. already says why they part when H > 1)
     if let (Some(h), Some(hsf), false) = (r.h, r.h_sf, too_smooth) {
         let diff = |x: &TraceMomentResult| x.h.unwrap_or(f64::NAN) - x.h_sf.unwrap_or(f64::NAN);
@@ -1813,10 +1921,13 @@ pub fn diagnostics(
         let z = (h - hsf) / se;
         if se > 0.0 && z.abs() > WARN_Z {
             let why = if h > hsf && h > 1.0 {
-                ": first differences saturate, and H_sf cannot follow an H above 1"
+                ": first differences saturate, and H_sf cannot follow an H above 1".to_string()
+            } else if plane {
+                ": the plane (the warning above) may be why".to_string()
             } else {
                 ": a fit range misses the scaling of the spectrum or of the structure \
                  functions (--k-range, --lag-fit)"
+                    .to_string()
             };
             let auto = if r.diff == FluxDiff::Auto {
                 format!(
