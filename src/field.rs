@@ -267,12 +267,12 @@ impl Field {
         let Some((p, share)) = fit else {
             return Ok(std::borrow::Cow::Borrowed(self));
         };
-        if let Some(r) = share.filter(|&r| r >= 1.0 - PLANE_ONLY) {
+        if share.is_some_and(|r| r >= 1.0 - PLANE_ONLY) {
             return Err(Error::Input(format!(
-                "the image is a plane: its least-squares plane explains all but {:.1e} of its \
-                 variance, so nothing but rounding is left once it is removed (--detrend \
-                 plane)",
-                1.0 - r
+                "the image is a plane: its least-squares plane leaves less than {PLANE_ONLY:e} \
+                 of its variance unexplained (a residue below 1e-6 of its standard deviation), \
+                 so nothing but rounding would be analysed once it is removed (--detrend \
+                 plane)"
             )));
         }
         let mut f = self.clone();
@@ -325,7 +325,8 @@ impl Plane {
 }
 
 /// Unexplained share of the variance below which an image is taken for a
-/// plane ([`Field::detrended`]): far above the 1e-15 to which the share is
+/// plane ([`Field::detrended`]; a residue of rms 1e-6 of the image's
+/// standard deviation sits on it): far above the 1e-15 to which the share is
 /// computed (an exact plane read 1 - 3.4e-15), and above the residue of a
 /// plane stored in float32, which is refused too (rounding of 6e-8 of the
 /// values: 2e-13 of the variance of a plane spanning a quarter of their

@@ -337,7 +337,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     )?;
     // the reading on stdout, even with --quiet (as analyze and tm give theirs)
     show!(
-        "correlate: {}, {wall:.1} s\n",
+        "correlate: {}\n",
         super::common::count_of(input.len(), "image")
     );
     if let Some(c) = body.get("checks").and_then(|c| c.as_object()) {

@@ -411,7 +411,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     {
         let cu = &out.main.cumulants;
         show!(
-            "kernel ({} set, {}, fit {}:{} octaves, {wall:.1} s): c1 = {}, c2 = {}, c3 = {}\n",
+            "kernel ({} set, {}, fit {}:{} octaves): c1 = {}, c2 = {}, c3 = {}\n",
             args.set.name(),
             super::common::count_of(out.main.images, "image"),
             fit.0,

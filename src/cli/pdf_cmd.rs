@@ -845,7 +845,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     )?;
     // the reading on stdout, even with --quiet (as analyze and tm give theirs)
     show!(
-        "pdf: {}, {} set, h0 = {h0:.3} ({h0_source}), {wall:.1} s\n",
+        "pdf: {}, {} set, h0 = {h0:.3} ({h0_source})\n",
         super::common::count_of(hist.images, "image"),
         args.set.name(),
     );

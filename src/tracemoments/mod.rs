@@ -1218,13 +1218,17 @@ impl TraceMomentAccumulator {
                 &self.planes.iter().filter_map(|p| p.share).collect::<Vec<_>>(),
             ),
             h_sf_plane_shift: {
+                // over every field with a share (the pooled structure
+                // functions average them all), 0 for those at or below half
+                let n = self.planes.iter().filter(|p| p.share.is_some()).count();
                 let d: Vec<f64> = self
                     .planes
                     .iter()
                     .filter_map(|p| p.h_sf.map(|[raw, flat]| raw - flat))
                     .collect();
-                (!d.is_empty()).then(|| d.iter().sum::<f64>() / d.len() as f64)
+                (!d.is_empty()).then(|| d.iter().sum::<f64>() / n.max(d.len()) as f64)
             },
+            planes_over_half: self.planes.iter().filter(|p| p.h_sf.is_some()).count(),
             frac_int: self.config.frac_int,
             q,
             k: kq,
@@ -1375,12 +1379,17 @@ pub struct TraceMomentResult {
     /// no field records one (fluxes given directly, older accumulators).
     #[serde(default)]
     pub plane_share: Option<f64>,
-    /// Without detrending, the mean over the fields whose plane explains
-    /// more than half their variance of their `ξ(1)` less that of the field
-    /// less its plane ([`FieldPlane::h_sf`]): about how much `H_sf` would
-    /// drop with `--detrend plane`. `None` when no field records it.
+    /// Without detrending, the shift of `ξ(1)` (raw less without the
+    /// plane, [`FieldPlane::h_sf`]) of the fields whose plane explains more
+    /// than half their variance, averaged over all fields with a share (0
+    /// for the others): about how much `H_sf` would drop with `--detrend
+    /// plane`. `None` when no field records it.
     #[serde(default)]
     pub h_sf_plane_shift: Option<f64>,
+    /// How many fields record that shift (their plane explains more than
+    /// half their variance, without detrending).
+    #[serde(default)]
+    pub planes_over_half: usize,
     /// Order of the fractional integration applied before the flux, if any.
     pub frac_int: Option<f64>,
     /// Trace-moment orders q.
@@ -1790,13 +1799,14 @@ pub const TILE_ERROR_FACTOR: f64 = 2.0;
 /// 4. with a GLS universal fit, its alpha and the OLS fit's apart, against
 ///    the jackknife error of their difference: K(q) not of the universal
 ///    form over the fitted q, so alpha depends on the weighting;
-/// 5. (said before 2.) without detrending, a median plane share above
-///    [`crate::spectra::PLANE_SHARE_WARN`] whose removal would move `H_sf`
-///    ([`TraceMomentResult::h_sf_plane_shift`]) by more than its error and
-///    toward the spectral H: a tilt (the increments carry it, the spectrum
-///    removes a plane). An untilted rough surface's own planes mostly
-///    fail the last test (8 fBm of 512², H = 0.8: `H_sf` 0.776 would drop
-///    further from the spectral 0.823).
+/// 5. (said before 2.) without detrending, fields whose plane explains
+///    more than [`crate::spectra::PLANE_SHARE_WARN`] of their variance,
+///    whose removal would move `H_sf`
+///    ([`TraceMomentResult::h_sf_plane_shift`]) by more than its error
+///    (0.01 without one): the numbers, with the spectral H as a guide,
+///    not a verdict: a tilt and a rough surface's own large scales both
+///    make planes (8 untilted fBm of 512², H = 0.8: `H_sf` 0.776 would
+///    drop to about 0.758, away from the spectral 0.823).
 ///
 /// Measured (`experiment_lone_image_tiles` in tests/tracemoments.rs): on 24
 /// single topo-fif fields, 3, 1 and 1 of them got a straightness warning at
@@ -1873,28 +1883,37 @@ pub fn diagnostics(
             });
         }
     }
-    // 5. (said first: 2. defers to it) a plane that pulls H_sf away from
-    // the spectral H, whose spectrum removes a plane of its own
-    let plane = match (r.h, r.h_sf, r.h_sf_plane_shift, r.plane_share) {
-        (Some(h), Some(hsf), Some(e), Some(p))
+    // 5. (said first: 2. refers to it) planes that move H_sf by more than
+    // its error: the numbers, not a verdict (a tilt and a rough surface's
+    // own large scales both make planes, and one image cannot tell them
+    // apart; the spectral H, whose spectrum removes a plane, is a guide)
+    let plane = match (r.h_sf, r.h_sf_plane_shift) {
+        (Some(hsf), Some(e))
             if r.detrend == Trend::None
-                && p > crate::spectra::PLANE_SHARE_WARN
-                && e > r.h_sf_stderr.unwrap_or(0.0)
-                && (hsf - e - h).abs() < (hsf - h).abs() =>
+                && e > r.h_sf_stderr.filter(|s| s.is_finite()).unwrap_or(0.01) =>
         {
+            let k = r.planes_over_half;
             w.push(format!(
-                "the least-squares plane explains {} % of the {}: without it H_sf = xi(1) = \
-                 {hsf:.3} reads about {:.3}, nearer the spectral H = {h:.3}, whose spectrum \
-                 removes a plane of its own; a regional slope c adds c l to every increment \
-                 at lag l{}; if the surface is tilted (a rough surface's own large scales \
-                 make planes too), rerun with --detrend plane (TraceMomentConfig::detrend)",
-                crate::skeleton::share_percent(p),
+                "the least-squares plane explains more than half the variance of {}: without \
+                 {} H_sf = xi(1) = {hsf:.3} would read about {:.3}{}. A regional slope \
+                 c adds c l to every increment at lag l{}, but a rough surface's own large \
+                 scales make planes too, and removing those lowers H_sf below H: for a tilted \
+                 surface rerun with --detrend plane (TraceMomentConfig::detrend), otherwise \
+                 keep the planes",
                 if r.images == 1 {
-                    "image's variance"
+                    "the image".to_string()
                 } else {
-                    "images' variance (median)"
+                    format!("{k} of the {} images", r.images)
+                },
+                if r.images == 1 {
+                    "its plane"
+                } else {
+                    "their planes"
                 },
                 hsf - e,
+                r.h.map_or(String::new(), |h| format!(
+                    " (the spectral H, whose spectrum removes a plane of its own: {h:.3})"
+                )),
                 if r.diff == FluxDiff::Auto {
                     " and raises the automatic --diff-order"
                 } else {
