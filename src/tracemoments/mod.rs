@@ -68,9 +68,10 @@
 //! 3.38 whole, 3.40 mean-filled). A tilted field's plane can be removed
 //! first (`--detrend plane`, [`TraceMomentConfig::detrend`]): it adds `c l`
 //! to every increment at lag `l`, pulling `H_sf` (and the automatic
-//! derivative order) toward 1, and [`diagnostics`] names it when `H_sf`
-//! exceeds the spectral H (whose spectrum removes a plane of its own) and
-//! the plane explains more than half the variance. Ensembles are annealed: the
+//! derivative order) toward 1; without it, [`diagnostics`] gives `H_sf`
+//! without the planes of the images they dominate, beside the spectral H
+//! (whose spectrum removes a plane of its own), when that would move
+//! `H_sf` by more than its error. Ensembles are annealed: the
 //! accumulator adds `Σ_boxes φ_λ^q` over images before any logarithm
 //! ([`TraceMomentAccumulator::merge`]), and the normalisation by the ensemble
 //! mean is exact afterwards because box averages are linear in `φ`.
@@ -904,8 +905,8 @@ impl TraceMomentAccumulator {
                 "cannot merge trace moments accumulated with different settings",
             ));
         }
-        // accumulators saved before the shares were recorded have none: pad
-        // them with None so that the shares stay one per field, in order
+        // accumulators saved before the planes were recorded have none: pad
+        // them with defaults so that the planes stay one per field, in order
         let own = self.images;
         self.planes
             .resize(own.max(self.planes.len()), FieldPlane::default());
@@ -1897,7 +1898,7 @@ pub fn diagnostics(
                 "the least-squares plane explains more than half the variance of {}: without \
                  {} H_sf = xi(1) = {hsf:.3} would read about {:.3}{}. A regional slope \
                  c adds c l to every increment at lag l{}, but a rough surface's own large \
-                 scales make planes too, and removing those lowers H_sf below H: for a tilted \
+                 scales make planes too, and removing those lowers H_sf: for a tilted \
                  surface rerun with --detrend plane (TraceMomentConfig::detrend), otherwise \
                  keep the planes",
                 if r.images == 1 {
