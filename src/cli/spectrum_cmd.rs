@@ -177,16 +177,18 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     body["beta_stderr_regression"] = json!(fit.beta_stderr);
     body["r2"] = json!(fit.line.r2);
     body["k_range"] = json!([k_lo, k_hi]);
+    // the fit range as wavelengths 2 pi / k, in px (JSON and summary)
+    let wavelengths_px = [
+        2.0 * std::f64::consts::PI / k_hi,
+        2.0 * std::f64::consts::PI / k_lo,
+    ];
     body["k_units"] = json!("rad/px");
     if let Some(p) = &px {
         // the fit range in the pixel's units: wavenumbers and wavelengths
         let side = p.side();
         body["k_range_physical"] = json!([k_lo / side, k_hi / side]);
         body["k_physical_units"] = json!(format!("rad/{}", p.units));
-        body["wavelength_range"] = json!([
-            2.0 * std::f64::consts::PI / k_hi * side,
-            2.0 * std::f64::consts::PI / k_lo * side
-        ]);
+        body["wavelength_range"] = json!(wavelengths_px.map(|l| l * side));
     }
     body["convention"] = json!(CONVENTION);
     // missing pixels were filled with the image mean before the FFT: say so
@@ -320,11 +322,10 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         beta_se
     );
     if let Some(p) = &px {
-        let tau = 2.0 * std::f64::consts::PI;
         line += &format!(
             " (wavelengths {} - {})",
-            p.length(tau / k_hi),
-            p.length(tau / k_lo)
+            p.length(wavelengths_px[0]),
+            p.length(wavelengths_px[1])
         );
     }
     if fields.len() > 1 {
