@@ -141,8 +141,8 @@ fn synth_fif_then_tm() {
 
     // the settings of the runs below as library settings: default --q
     // 0.1:4:0.1 (the decimal grid, i/10 correctly rounded), --eta as given,
-    // --dtm-q 1.5, --sf-q 0.5,...,3, and the spectrum of a non-periodic
-    // image (tm's default)
+    // --dtm-q 1.5, --sf-q 0.5,...,3, and the spectrum of a periodic field
+    // (tm reads the synth.json beside the files: a FIF is a torus)
     let config = |diff: FluxDiff, eta: Vec<f64>| TraceMomentConfig {
         flux: FluxKind::Gradient,
         diff,
@@ -151,7 +151,7 @@ fn synth_fif_then_tm() {
         eta,
         dtm_q: vec![1.5],
         sf_q: vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0],
-        spectrum: PowerSpectrumConfig::for_field(false),
+        spectrum: PowerSpectrumConfig::for_field(true),
         detrend: wtmm::field::Trend::None,
     };
     let accumulate = |cfg: &TraceMomentConfig, fs: &[wtmm::Field]| -> Vec<TraceMomentAccumulator> {
@@ -242,6 +242,7 @@ fn synth_fif_then_tm() {
         }
         assert_eq!(tm["command"], "tm");
         assert_eq!(tm["images"], n);
+        assert_eq!(tm["params"]["origin"]["periodic"], true);
         for key in ["alpha", "C1", "H", "q_s", "dtm_alpha", "dtm_C1", "beta"] {
             assert!(num(&tm, key).is_finite(), "{key}: {}", tm[key]);
         }
@@ -1732,6 +1733,145 @@ fn svg_beside_every_png() {
 /// image (spectra, kernel and the correlation on an interior), is refused
 /// on the torus its periodic models use by default and by `compare`, and
 /// the stats commands and `tm` warn of a tilted image as the spectra do.
+/// Files `synth` wrote from a periodic model are analysed as tori, as
+/// `validate` analyses the model in memory (README Conventions, "Analysis
+/// domain"): analyze, skeleton and pdf take margin 0 (the same sums as an
+/// explicit `--margin 0`), spectrum no taper and only the mean removed,
+/// info says so; each records `origin` and notes it on stderr. An explicit
+/// `--margin` or `--detrend`, an fBm (not periodic), a file outside its
+/// record's directory or changed since keep the defaults of other data.
+#[test]
+fn synth_files_are_analysed_as_tori() {
+    let dir = scratch("synth_tori");
+    let p = |s: &str| dir.join(s).display().to_string();
+    let synth = |model: &[&str], out: &str, count: &str| {
+        let a = [
+            &["synth"][..],
+            model,
+            &["--size", "128", "--count", count, "--out", out][..],
+        ]
+        .concat();
+        assert_eq!(run(&a), 0);
+    };
+    synth(&["--preset", "paper-lognormal"], &p("wc"), "3");
+    synth(&["fbm", "--hurst", "0.4"], &p("fb"), "1");
+    let wc = npy_files(&dir.join("wc"));
+    let wcs: Vec<&str> = wc.iter().map(String::as_str).collect();
+    let analyze = |files: &[&str], extra: &[&str], out: &str| -> (Value, String) {
+        let a = [
+            &["analyze"][..],
+            files,
+            &["--octaves", "3", "--out", out][..],
+            extra,
+        ]
+        .concat();
+        let (code, err) = run_bin_stderr(&a);
+        assert_eq!(code, 0, "{err}");
+        (json(&Path::new(out).join("spectra.json")), err)
+    };
+    // the torus, said and recorded, the same sums as --margin 0
+    let (auto, err) = analyze(&wcs, &[], &p("a_auto"));
+    assert!(
+        err.contains("the 3 images are periodic wcascade fields written by `wtmm synth`"),
+        "{err}"
+    );
+    assert_eq!(auto["params"]["analysis"]["margin"], 0);
+    assert_eq!(auto["params"]["origin"]["periodic"], true);
+    assert_eq!(
+        auto["params"]["origin"]["models"],
+        serde_json::json!(["wcascade"])
+    );
+    let (torus, err) = analyze(&wcs, &["--margin", "0"], &p("a_torus"));
+    assert!(!err.contains("written by `wtmm synth`"), "{err}");
+    assert!(torus["params"]["origin"].is_null());
+    assert_eq!(auto["tau"], torus["tau"]);
+    assert_eq!(auto["log2_Z"], torus["log2_Z"]);
+    // what the user gave wins
+    for (extra, name) in [
+        (&["--margin", "20"][..], "a_m20"),
+        (&["--detrend", "plane"][..], "a_dt"),
+    ] {
+        let (v, err) = analyze(&wcs, extra, &p(name));
+        assert!(v["params"]["origin"].is_null(), "{extra:?}");
+        assert_ne!(v["params"]["analysis"]["margin"], 0, "{extra:?}");
+        assert!(!err.contains("written by `wtmm synth`"), "{extra:?}: {err}");
+    }
+    // fBm is cropped from a larger torus: not periodic
+    let fb = npy_files(&dir.join("fb"));
+    let (v, _) = analyze(&[fb[0].as_str()], &[], &p("a_fbm"));
+    assert!(v["params"]["origin"].is_null());
+    assert_ne!(v["params"]["analysis"]["margin"], 0);
+    // a copy elsewhere (no record), a file changed after its record
+    std::fs::create_dir_all(dir.join("elsewhere")).unwrap();
+    let copy = p("elsewhere/w.npy");
+    std::fs::copy(&wc[0], &copy).unwrap();
+    let (v, _) = analyze(&[copy.as_str()], &[], &p("a_copy"));
+    assert!(v["params"]["origin"].is_null());
+    std::fs::File::options()
+        .write(true)
+        .open(&wc[2])
+        .unwrap()
+        .set_modified(std::time::SystemTime::now() + std::time::Duration::from_secs(60))
+        .unwrap();
+    let (v, _) = analyze(&wcs, &[], &p("a_changed"));
+    assert!(v["params"]["origin"].is_null());
+    let two = &wcs[..2];
+    // pdf's --domain auto: the torus
+    let (code, err) = run_bin_stderr(
+        &[
+            &["pdf"][..],
+            two,
+            &["--octaves", "3", "--out", &p("pdf")][..],
+        ]
+        .concat(),
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("--domain torus"), "{err}");
+    let pdf = json(&dir.join("pdf/pdf.json"));
+    assert_eq!(pdf["params"]["input"]["periodic"], true);
+    assert_eq!(pdf["params"]["input"]["origin"]["periodic"], true);
+    assert_eq!(pdf["params"]["analysis"]["margin"], 0);
+    // skeleton
+    let (code, err) = run_bin_stderr(&["skeleton", two[0], "--octaves", "3", "--out", &p("sk")]);
+    assert_eq!(code, 0, "{err}");
+    let sk = json(&dir.join("sk/skeleton.json"));
+    assert_eq!(sk["margin"], 0);
+    assert_eq!(sk["params"]["origin"]["periodic"], true);
+    // spectrum: validate's settings for the model, each flag still wins
+    for (extra, window, detrend) in [
+        (&[][..], "none", "mean"),
+        (&["--window", "hann"][..], "hann", "mean"),
+        (
+            &["--window", "hann", "--detrend", "plane"][..],
+            "hann",
+            "plane",
+        ),
+    ] {
+        let out = p(&format!("sp{}", extra.len()));
+        assert_eq!(
+            run(&[&["spectrum"][..], two, &["--out", &out][..], extra].concat()),
+            0
+        );
+        let sp = json(&Path::new(&out).join("spectrum.json"));
+        assert_eq!(sp["params"]["window"], window, "{extra:?}");
+        assert_eq!(sp["params"]["detrend"], detrend, "{extra:?}");
+        assert_eq!(
+            sp["params"]["origin"].is_null(),
+            extra.len() == 4,
+            "{extra:?}"
+        );
+    }
+    // info
+    let (code, out, err) = run_bin_output(&["info", two[0], "--octaves", "3", "--json"], true);
+    assert_eq!(code, 0, "{err}");
+    let info: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(info["images"][0]["origin"]["periodic"], true);
+    assert!(
+        info["images"][0]["notes"].to_string().contains("margin 0"),
+        "{out}"
+    );
+}
+
 #[test]
 fn detrend_reaches_every_part() {
     let dir = scratch("detrend");

@@ -7,7 +7,7 @@ use clap::Args;
 use rayon::prelude::*;
 use serde_json::json;
 
-use super::common::save_chart;
+use super::common::{PeriodicSynth, save_chart};
 use super::common::{f, header, make_out_dir, parse_q, parse_range, progress, write_csv};
 use super::model_args::{ModelName, ModelOpts};
 use super::{CwtOpts, OutDir, Outcome, PixelOpts, PixelSize};
@@ -257,6 +257,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
             );
         }
     }
+    let origin = torus_for_synth(&mut opts.line, &args.images);
     let cfg = opts.analysis()?;
     let (theory, theory_model) = match resolved {
         Some(r) => {
@@ -294,6 +295,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         "images": args.images, "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit,
         "rule": args.opts.rule(), "theory": theory_model,
         "pixel_size": px.as_ref().map(PixelSize::json),
+        "origin": origin.as_ref().map(PeriodicSynth::json),
     });
     write_outputs(
         &args.out.out,
@@ -309,6 +311,24 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         say!("warning: {w}");
     }
     Ok(Outcome::Ok)
+}
+
+/// Margin 0 (the whole torus, as `validate` analyses the same model) for
+/// files `wtmm synth` wrote from a periodic model
+/// ([`super::common::periodic_synth`]), unless `--margin` or `--detrend`
+/// was given (a plane is removed inside a margin only); said in a note.
+pub(super) fn torus_for_synth(line: &mut LineOpts, images: &[PathBuf]) -> Option<PeriodicSynth> {
+    if line.cwt.margin.is_some() || line.detrend != crate::field::Trend::None {
+        return None;
+    }
+    let origin = super::common::periodic_synth(images)?;
+    line.cwt.margin = Some(0);
+    say!(
+        "note: {}: analysed whole, as a torus (--margin 0), as validate analyses the model; \
+         give --margin N for the interior",
+        origin.describe(images.len())
+    );
+    Some(origin)
 }
 
 /// The answer in a few lines (stdout, as `tm`'s): what was fitted, the

@@ -126,6 +126,101 @@ pub fn in_file(path: &Path, e: Error) -> Error {
     Error::format(path, reason(e))
 }
 
+/// Image files that `wtmm synth` wrote from a periodic model (W-cascade,
+/// FISC, FIF): the tori `validate` analyses whole.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PeriodicSynth {
+    /// The `synth.json` files that list the images.
+    pub records: Vec<PathBuf>,
+    /// The models' names, each once ("wcascade").
+    pub models: Vec<String>,
+}
+
+impl PeriodicSynth {
+    /// What `params` records about the inputs' origin.
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({"periodic": true, "synth_json": self.records, "models": self.models})
+    }
+
+    /// "the 8 images are periodic W-cascade fields written by `wtmm synth`
+    /// (wc/synth.json)", for a note.
+    pub fn describe(&self, n: usize) -> String {
+        let recs: Vec<String> = self
+            .records
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
+        format!(
+            "{} periodic {} {} written by `wtmm synth` ({})",
+            if n == 1 {
+                "the image is a".to_string()
+            } else {
+                format!("the {n} images are")
+            },
+            self.models.join(" and "),
+            if n == 1 { "field" } else { "fields" },
+            recs.join(", ")
+        )
+    }
+}
+
+/// The periodic `synth` origin of `paths`, when every one of them is listed
+/// in the `synth.json` beside it, that record names a periodic model
+/// ([`crate::theory::Model::is_periodic`]), and the file is not newer than
+/// the record (`synth` writes its record last: a file changed since is no
+/// longer what the record describes). `None` otherwise, and for any file
+/// or record that cannot be read: the commands then keep the defaults of
+/// non-periodic data, which are valid on a torus too, only wasteful.
+///
+/// Why: analysed inside the margin, a periodic field loses half its maxima
+/// and its spectrum a taper's worth of power (SPEC §1, §14), and the same
+/// files then read differently from `validate`'s in-memory ensemble.
+pub fn periodic_synth(paths: &[PathBuf]) -> Option<PeriodicSynth> {
+    use std::collections::BTreeMap;
+    // one record per directory, read once
+    type Record = Option<(Vec<String>, crate::theory::Model, std::time::SystemTime)>;
+    let mut records: BTreeMap<PathBuf, Record> = BTreeMap::new();
+    let read = |rec: &Path| -> Record {
+        let time = std::fs::metadata(rec).ok()?.modified().ok()?;
+        let v: serde_json::Value = serde_json::from_slice(&std::fs::read(rec).ok()?).ok()?;
+        if v["command"] != "synth" {
+            return None;
+        }
+        let files = v["files"]
+            .as_array()?
+            .iter()
+            .map(|f| f.as_str().map(str::to_string))
+            .collect::<Option<Vec<_>>>()?;
+        let model = serde_json::from_value(v["params"]["model"].clone()).ok()?;
+        Some((files, model, time))
+    };
+    let mut models = Vec::new();
+    for p in paths {
+        let name = p.file_name()?.to_str()?;
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let rec = dir.join("synth.json");
+        let entry = records.entry(rec.clone()).or_insert_with(|| read(&rec));
+        let (files, model, time) = entry.as_ref()?;
+        let modified = std::fs::metadata(p).ok()?.modified().ok()?;
+        if !model.is_periodic() || !files.iter().any(|f| f == name) || modified > *time {
+            return None;
+        }
+        if !models.contains(&model.name().to_string()) {
+            models.push(model.name().to_string());
+        }
+    }
+    if paths.is_empty() {
+        return None;
+    }
+    Some(PeriodicSynth {
+        records: records.into_keys().collect(),
+        models,
+    })
+}
+
 /// Refuses, before any image is generated, a `size` whose interior at the
 /// analysis margin is empty (`validate`, `compare`: the images are made
 /// for the analysis, so `--size` is what to change).

@@ -179,7 +179,7 @@ impl Runner {
 }
 
 pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
-    let input = args.input.resolve(args.opts.cwt.margin)?;
+    let input = args.input.resolve(&args.opts)?;
     input.say_pixel(quiet);
     let cfg = input.analysis(&args.opts)?;
     let grid = cfg.scale_list();
@@ -801,6 +801,7 @@ impl ValidationExtras {
             size,
             seed,
             periodic,
+            origin: None,
             wavelet: cfg.wavelet,
             holes: Default::default(),
             planes: Default::default(),

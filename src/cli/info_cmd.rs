@@ -247,6 +247,15 @@ fn describe(
             ""
         }
     );
+    let origin = super::common::periodic_synth(&[path.to_path_buf()]);
+    if let Some(o) = &origin {
+        notes.push(format!(
+            "{}: analyze, skeleton, pdf, kernel and correlate take it whole (margin 0) unless \
+             given --margin, --domain or --detrend, and spectrum and tm neither taper it nor \
+             remove a plane from its spectrum",
+            o.describe(1)
+        ));
+    }
     for n in &notes {
         text += &format!("  note: {n}\n");
     }
@@ -261,7 +270,8 @@ fn describe(
             "source": p.source})),
         "plane": plane.map(|p| json!({"c0": p.c0, "cx": p.cx, "cy": p.cy, "slope": p.slope(),
             "variance_share": share})),
-        "domains": domains, "notes": notes, "usable": problems.is_empty(), "problems": problems,
+        "domains": domains, "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
+        "notes": notes, "usable": problems.is_empty(), "problems": problems,
     });
     Ok(Described {
         text,

@@ -270,7 +270,7 @@ pub struct KernelOutputs {
 }
 
 pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
-    let input = args.input.resolve(args.opts.cwt.margin)?;
+    let input = args.input.resolve(&args.opts)?;
     input.say_pixel(quiet);
     let cfg = input.analysis(&args.opts)?;
     let fit = fit_range(

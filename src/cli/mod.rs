@@ -217,7 +217,9 @@ pub struct CwtOpts {
     pub voices: usize,
     /// Interior margin in pixels (default: computed from the wavelet and the
     /// largest scale; 0, the whole torus, for the periodic models generated
-    /// by validate, compare, pdf, kernel and correlate).
+    /// by validate, compare, pdf, kernel and correlate, and for the files
+    /// `wtmm synth` wrote from them, listed in the synth.json beside them,
+    /// unless --detrend is given).
     #[arg(long)]
     pub margin: Option<usize>,
 }

@@ -10,8 +10,10 @@
 //!
 //! **Domain.** `--domain torus` analyses the whole periodic image (margin 0,
 //! correlations wrap around); `interior` uses the SPEC §1 margin. `auto` =
-//! torus for generated W-cascades and FISC (periodic by construction),
-//! interior otherwise (files, fBm).
+//! torus for generated W-cascades, FISC and FIF (periodic by construction)
+//! and for the files `synth` wrote from them
+//! ([`super::common::periodic_synth`]), interior otherwise (other files,
+//! fBm).
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -42,8 +44,9 @@ use crate::theory::Model;
 /// Analysis domain.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum DomainChoice {
-    /// Torus for the generated models that are periodic (W-cascades, FISC, FIF),
-    /// interior otherwise.
+    /// Torus for the generated models that are periodic (W-cascades, FISC, FIF)
+    /// and for the files `wtmm synth` wrote from them (listed in the synth.json
+    /// beside them, not changed since; not with --detrend), interior otherwise.
     Auto,
     /// Interior: leaves out a margin where the wavelet at the largest scale
     /// reaches the border (non-periodic data; its width: --margin).
@@ -94,6 +97,8 @@ pub struct Input {
     pub size: usize,
     pub seed: u64,
     pub periodic: bool,
+    /// The `synth` record that made `periodic` true for image files.
+    pub origin: Option<super::common::PeriodicSynth>,
     /// The wavelet the preset recommends (gauss without a model).
     pub wavelet: Wavelet,
     /// Missing pixels met by [`Input::fold`], so that an ensemble-level
@@ -225,13 +230,18 @@ impl StatsInput {
     }
 
     /// Checks the flags and resolves the model.
-    /// `margin` is `--margin`: it must agree with `--domain` (margin 0 is
-    /// the torus), and under `auto` it decides.
+    /// `line.cwt.margin` is `--margin`: it must agree with `--domain`
+    /// (margin 0 is the torus), and under `auto` it decides. Without it,
+    /// `auto` takes the torus for a generated periodic model, and for
+    /// files `wtmm synth` wrote from one
+    /// ([`super::common::periodic_synth`]) unless `--detrend` is given (a
+    /// plane is removed inside a margin only).
     ///
     /// **Errors** naming the flag: neither images nor a model, a model option
     /// without a model, `--count 0`. (A model name where a file goes is
     /// refused before, with the inputs: `refuse_model_names`.)
-    pub fn resolve(&self, margin: Option<usize>) -> Result<Input> {
+    pub fn resolve(&self, line: &LineOpts) -> Result<Input> {
+        let margin = line.cwt.margin;
         let resolved = self.model.resolve_optional(self.theory)?;
         if self.images.is_empty() && resolved.is_none() {
             return Err(Error::param(
@@ -296,6 +306,20 @@ impl StatsInput {
                 generated && resolved.as_ref().is_some_and(|r| r.model.is_periodic())
             }
         };
+        let origin = match (self.domain, margin, line.detrend) {
+            (DomainChoice::Auto, None, crate::field::Trend::None) if !generated => {
+                super::common::periodic_synth(&self.images)
+            }
+            _ => None,
+        };
+        if let Some(o) = &origin {
+            say!(
+                "note: {}: analysed whole, as a torus (--domain torus), as validate analyses \
+                 the model; give --domain interior for the interior",
+                o.describe(self.images.len())
+            );
+        }
+        let periodic = periodic || origin.is_some();
         Ok(Input {
             images: self.images.clone(),
             name: resolved
@@ -308,6 +332,7 @@ impl StatsInput {
             size,
             seed,
             periodic,
+            origin,
             holes: HoleTally::default(),
             planes: PlaneTally::default(),
             pixel,
@@ -481,6 +506,7 @@ impl Input {
                 "pixel_size": self.pixel.as_ref().map(super::PixelSize::json)})
         } else {
             json!({"images": self.images, "theory": self.model, "periodic": self.periodic,
+                "origin": self.origin.as_ref().map(super::common::PeriodicSynth::json),
                 "missing_pixels": self.holes.json(),
                 "pixel_size": self.pixel.as_ref().map(super::PixelSize::json)})
         }
@@ -714,7 +740,7 @@ pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64), set: WtmmmSet) -
 }
 
 pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
-    let input = args.input.resolve(args.opts.cwt.margin)?;
+    let input = args.input.resolve(&args.opts)?;
     input.say_pixel(quiet);
     let cfg = input.analysis(&args.opts)?;
     let fit = fit_range(

@@ -33,7 +33,9 @@ pub struct SkeletonArgs {
 }
 
 pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
-    let cfg = args.opts.analysis()?;
+    let mut opts = args.opts.clone();
+    let origin = super::analyze_cmd::torus_for_synth(&mut opts, std::slice::from_ref(&args.image));
+    let cfg = opts.analysis()?;
     let (px, mut warnings) = args.pixel.resolve(std::slice::from_ref(&args.image))?;
     warnings.extend(
         px.as_ref()
@@ -235,7 +237,8 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     let mut body = header(
         "skeleton",
         json!({"image": args.image, "analysis": super::common::analysis_json(&cfg),
-            "scales_requested": want, "pixel_size": px.as_ref().map(PixelSize::json)}),
+            "scales_requested": want, "pixel_size": px.as_ref().map(PixelSize::json),
+            "origin": origin.as_ref().map(super::common::PeriodicSynth::json)}),
     );
     body["shape"] = json!([ny, nx]);
     body["missing_pixels"] = json!(field.missing_count());

@@ -26,12 +26,16 @@ pub struct SpectrumArgs {
     /// Fit range in rad/px, `LO:HI` (default: 8 cycles per image to pi/4).
     #[arg(long, allow_hyphen_values = true)]
     pub k_range: Option<String>,
-    /// Taper before the FFT (hann for non-periodic fields, none for periodic ones).
-    #[arg(long, value_enum, default_value_t = Window::Hann)]
-    pub window: Window,
-    /// Trend removed before the FFT.
-    #[arg(long, value_enum, default_value_t = Detrend::Plane)]
-    pub detrend: Detrend,
+    /// Taper before the FFT (hann for non-periodic fields, none for periodic ones)
+    /// [default: hann; none for files `wtmm synth` wrote from a periodic model,
+    /// listed in the synth.json beside them].
+    #[arg(long, value_enum)]
+    pub window: Option<Window>,
+    /// Trend removed before the FFT [default: plane; mean for files `wtmm synth`
+    /// wrote from a periodic model: a plane removed from a torus is a sawtooth
+    /// across its edges].
+    #[arg(long, value_enum)]
+    pub detrend: Option<Detrend>,
     /// Log-spaced bins per octave of |k|.
     #[arg(long, default_value_t = 4)]
     pub bins_per_octave: usize,
@@ -88,11 +92,28 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         let (ny, nx) = fl.dim();
         super::common::check_spectrum_memory((p, ny, nx), fields.len())?;
     }
+    // periodic synth files: the settings validate uses for their model
+    // (PowerSpectrumConfig::for_field), unless given
+    let origin = match (args.window, args.detrend) {
+        (None, _) | (_, None) => super::common::periodic_synth(&args.images),
+        _ => None,
+    };
+    let base = PowerSpectrumConfig::for_field(origin.is_some());
     let cfg = PowerSpectrumConfig {
-        window: args.window,
-        detrend: args.detrend,
+        window: args.window.unwrap_or(base.window),
+        detrend: args.detrend.unwrap_or(base.detrend),
         bins_per_octave: args.bins_per_octave,
     };
+    if let Some(o) = &origin {
+        say!(
+            "note: {}: by default without a taper and with only the mean removed, as validate \
+             takes the model's spectrum (a torus needs no taper, and a plane removed from it is \
+             a sawtooth across its edges); here window {}, detrend {}",
+            o.describe(args.images.len()),
+            format!("{:?}", cfg.window).to_lowercase(),
+            format!("{:?}", cfg.detrend).to_lowercase()
+        );
+    }
     let nmin = fields
         .iter()
         .map(|f| f.dim().0.min(f.dim().1))
@@ -152,7 +173,8 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     let mut body = header(
         "spectrum",
         json!({"images": args.images, "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave,
-            "pixel_size": px.as_ref().map(PixelSize::json)}),
+            "pixel_size": px.as_ref().map(PixelSize::json),
+            "origin": origin.as_ref().map(super::common::PeriodicSynth::json)}),
     );
     body["images"] = json!(fields.len());
     body["image_shapes"] = json!(crate::spectra::ShapeCount::tally(fields.iter().map(|f| {

@@ -83,8 +83,9 @@ pub struct TmOpts {
     /// runs over their tiles: not independent samples for the covariance].
     #[arg(long, value_enum)]
     pub universal_fit: Option<UniversalWeighting>,
-    /// Taper before the FFT of the spectrum [default: hann for `tm`; none for
-    /// the periodic models of `compare`, hann for fbm].
+    /// Taper before the FFT of the spectrum [default: hann for `tm`, none for
+    /// files `wtmm synth` wrote from a periodic model (listed in the synth.json
+    /// beside them); none for the periodic models of `compare`, hann for fbm].
     #[arg(long, value_enum)]
     pub window: Option<Window>,
 }
@@ -243,10 +244,25 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             ),
         ));
     }
+    // files `synth` wrote from a periodic model: the spectrum settings
+    // compare takes for the model (no taper, only the mean removed)
+    let origin = match args.detrend {
+        crate::field::Trend::None => super::common::periodic_synth(&args.images),
+        _ => None,
+    };
     let cfg = TraceMomentConfig {
         detrend: args.detrend,
-        ..args.tm.config(q, false)?
+        ..args.tm.config(q, origin.is_some())?
     };
+    if let Some(o) = &origin {
+        say!(
+            "note: {}: the spectrum (H from beta) with window {} and only the mean removed, as \
+             compare takes the model's (a torus needs no taper, and a plane removed from it is \
+             a sawtooth across its edges); --window to choose the taper",
+            o.describe(args.images.len()),
+            format!("{:?}", cfg.spectrum.window).to_lowercase()
+        );
+    }
     // fewer than 3 images: a jackknife over the images has 1 degree of
     // freedom at most, so it runs over the tiles of every image, as in
     // `analyze` (tracemoments::pool_tiles)
@@ -394,6 +410,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit),
         "plane_shares": acc.planes.iter().map(|p| p.share).collect::<Vec<_>>(),
+        "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
         "pixel_size": px.as_ref().map(PixelSize::json)});
     write_outputs(
         &args.out.out,

@@ -213,10 +213,12 @@ pub struct TraceMomentConfig {
     /// Spectrum options (the field's spectrum, for H via β). The default
     /// tapers and removes a plane, as a DEM needs; for periodic fields
     /// (the generators' W-cascades, FISC, FIF) use
-    /// `PowerSpectrumConfig::for_field(true)`, as the CLI does: a plane
-    /// removed from a periodic field adds a sawtooth across the border
-    /// (8 FIF fields of 256^2: beta 3.03 with the default, 3.26 with
-    /// `for_field(true)`; H read 0.625 for a true 0.70 with the default).
+    /// `PowerSpectrumConfig::for_field(true)`, as the CLI does (`compare`,
+    /// and `tm` on periodic `synth` files): a torus needs no taper, and a
+    /// plane removed from it without one is a sawtooth across its edges
+    /// (`wtmm spectrum`, 8 paper-fisc fields of 512^2, seed 1, theory
+    /// 3.100: beta 3.081 with `for_field(true)`, 3.072 with the default,
+    /// 3.009 with the plane removed and no taper).
     pub spectrum: PowerSpectrumConfig,
     /// Trend removed from each field before everything else (flux,
     /// structure functions, spectrum). A plane of slope `c` adds `c·l` to
