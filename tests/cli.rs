@@ -1989,6 +1989,27 @@ fn detrend_reaches_every_part() {
             j["params"]["plane_shares"][0].as_f64().unwrap() > 0.5,
             "{j}"
         );
+        // analyze's reading (and its figures' titles) say a plane was removed
+        let out = o(&format!("an_{d}"));
+        let (code, stdout, err) = run_bin_output(
+            &[
+                "analyze",
+                &img,
+                "--octaves",
+                "3",
+                "--detrend",
+                d,
+                "--out",
+                &out,
+            ],
+            true,
+        );
+        assert_eq!(code, 0, "{err}");
+        assert_eq!(
+            stdout.contains("gauss, plane removed,"),
+            !warned,
+            "{stdout}"
+        );
     }
 }
 

@@ -631,10 +631,13 @@ fn split_points(points: &[(f64, f64)], flag: &[bool]) -> [Vec<(f64, f64)>; 2] {
 
 /// What the figures show, for their titles: images and sizes, wavelet, rule.
 fn describe(s: &Spectra, sums: &PartitionSums) -> String {
-    let wavelet = sums
-        .analysis
-        .as_ref()
-        .map_or(String::new(), |a| format!(", {}", a.wavelet.name()));
+    let wavelet = sums.analysis.as_ref().map_or(String::new(), |a| {
+        format!(
+            ", {}{}",
+            a.wavelet.name(),
+            super::common::trend_label(a.detrend)
+        )
+    });
     let labels: Vec<&str> = sums.images.iter().map(|i| i.label.as_str()).collect();
     format!(
         "{}{wavelet}, {} rule",

@@ -370,6 +370,15 @@ pub fn file_label(p: &std::path::Path) -> String {
         .map_or_else(|| p.display().to_string(), |f| f.to_string_lossy().into())
 }
 
+/// ", plane removed" after a title's data when `--detrend plane` was
+/// given (the figure is then not of the method as published), else "".
+pub fn trend_label(t: crate::field::Trend) -> &'static str {
+    match t {
+        crate::field::Trend::None => "",
+        crate::field::Trend::Plane => ", plane removed",
+    }
+}
+
 /// The data behind a figure, for its title: the file (or first .. last
 /// files) when the images are files, their number and size
 /// ("levi_fell_dem.npy, 1 x 400^2"; "a.npy .. d.npy, 4 x 512^2"; "big/a.npy

@@ -328,7 +328,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
         cwt_res.as_ref(),
         sk_res.as_ref(),
         input.model.as_ref(),
-        &input.title(cfg.wavelet),
+        &input.title(&cfg),
         l,
         cfg.a_min,
         wall,
@@ -1002,7 +1002,7 @@ impl ValidationExtras {
         let (model, count, size, seed) = (&model, input.count, input.size, input.seed);
         let mut crit = Vec::new();
         let name = input.name.clone();
-        let title = input.title(kcfg_a.wavelet);
+        let title = input.title(&kcfg_a);
         // kernel
         // the defaults of `kernel` (pairs lowered onto a short grid's top)
         let kopts = KernelOptions {

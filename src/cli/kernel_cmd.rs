@@ -394,7 +394,7 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
         params,
         &out,
         input.model.as_ref(),
-        (&input.name, &input.title(cfg.wavelet)),
+        (&input.name, &input.title(&cfg)),
         wall,
     )?;
     // "value +- se", the se spelled out when it cannot be estimated

@@ -480,9 +480,13 @@ impl Input {
     }
 
     /// What a figure's title says of its data: the preset (or files), the
-    /// images and their size, the wavelet.
-    pub fn title(&self, wavelet: Wavelet) -> String {
-        let w = wavelet.name();
+    /// images and their size, the wavelet, and a plane removed (`--detrend`).
+    pub fn title(&self, cfg: &AnalysisConfig) -> String {
+        let w = format!(
+            "{}{}",
+            cfg.wavelet.name(),
+            super::common::trend_label(cfg.detrend)
+        );
         if self.generated() {
             let (n, s) = (self.count, self.size);
             return format!("{}, {n} images of {s}x{s}, {w}", self.name);
@@ -864,7 +868,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     )?;
     plot_pdfs(
         dir,
-        &input.title(cfg.wavelet),
+        &input.title(&cfg),
         &show.iter().map(|&j| get(j)).collect::<Vec<_>>(),
         &sec.iter().map(|&j| get(j)).collect::<Vec<_>>(),
         h0,

@@ -406,7 +406,8 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     make_out_dir(&args.out.out)?;
     // box levels are in pixels: images of several sizes weigh by their area
     let shapes = crate::spectra::ShapeCount::tally(shapes);
-    let what = super::common::data_label(&args.images, args.images.len(), &shapes);
+    let what = super::common::data_label(&args.images, args.images.len(), &shapes)
+        + super::common::trend_label(args.detrend);
     let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit),
         "plane_shares": acc.planes.iter().map(|p| p.share).collect::<Vec<_>>(),
