@@ -812,6 +812,74 @@ fn rejects_bad_input() {
     );
 }
 
+/// What the fits cannot deliver is said in the library's warnings, not
+/// only by the CLI: the flux of a plane (a constant gradient with rounding
+/// noise) has no universal K(q), and its alpha lands on an end of the
+/// search interval; a `--lag-fit` holding one lag is refused; an eta or
+/// k range holding no point leaves the DTM or H without a fit, said.
+#[test]
+fn what_a_fit_cannot_deliver_is_said() {
+    let plane = Field::new(Array2::from_shape_fn((64, 64), |(y, x)| (x + y) as f64));
+    let (_, r) = analyze_tiled(
+        &[plane],
+        &TraceMomentConfig::default(),
+        &TraceMomentFitConfig::for_tiles(),
+    )
+    .unwrap();
+    // (alpha 3 +- 0.79, C1 0.26 before, with no warning)
+    assert!(r.alpha > 2.999, "alpha {}", r.alpha);
+    assert!(
+        has(&r, "sits at an end of the universal fit's search"),
+        "{:?}",
+        r.warnings
+    );
+    let fif = Field::new(
+        fif(
+            &FifParams {
+                alpha: 1.8,
+                c1: 0.12,
+                hurst: 0.7,
+            },
+            128,
+            128,
+            3,
+            0,
+        )
+        .unwrap(),
+    );
+    let cfg = TraceMomentConfig {
+        spectrum: wtmm::stats::powspec::PowerSpectrumConfig::for_field(true),
+        ..Default::default()
+    };
+    let fit = |fc: TraceMomentFitConfig| analyze_tiled(std::slice::from_ref(&fif), &cfg, &fc);
+    let e = fit(TraceMomentFitConfig {
+        log2_lag: Some((1.0, 1.5)),
+        ..TraceMomentFitConfig::for_tiles()
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("lag-fit") && e.contains("holds 1 lag"), "{e}");
+    let (_, r) = fit(TraceMomentFitConfig {
+        eta: (50.0, 100.0),
+        ..TraceMomentFitConfig::for_tiles()
+    })
+    .unwrap();
+    assert!(r.dtm_alpha.is_nan());
+    assert!(has(&r, "usable eta value(s)"), "{:?}", r.warnings);
+    let (_, r) = fit(TraceMomentFitConfig {
+        k_range: Some((3.0, 3.1)),
+        ..TraceMomentFitConfig::for_tiles()
+    })
+    .unwrap();
+    assert!(r.h.is_none());
+    assert!(has(&r, "beta and H not estimable"), "{:?}", r.warnings);
+    // the default fit on the same field: none of these
+    let (_, r) = fit(TraceMomentFitConfig::for_tiles()).unwrap();
+    for w in ["search interval", "usable eta", "not estimable"] {
+        assert!(!has(&r, w), "{w}: {:?}", r.warnings);
+    }
+}
+
 /// K(q) of the default (auto) flux minus K(q) of the generator's flux on
 /// the same images, and its jackknife error, measured by
 /// `experiment_fif_bias` on 64 topo-fif images of 256² (seed 4242): the

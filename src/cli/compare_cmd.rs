@@ -569,12 +569,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     body["tm_q_s"] = json!(t_all.q_s);
     // the warnings of both full-ensemble estimates (tm/tm.json's as `tm`
     // words them)
-    let tm_warnings: Vec<String> = t_all
-        .warnings
-        .iter()
-        .cloned()
-        .chain(super::tm_cmd::tm_warnings(&t_all))
-        .collect();
+    let tm_warnings: Vec<String> = t_all.warnings.clone();
     body["warnings"] = json!(w_all.warnings);
     body["tm_warnings"] = json!(tm_warnings);
     write_json(&dir.join("compare.json"), &body)?;

@@ -426,7 +426,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     if let Some(p) = &px {
         show!("{}", lengths_line(&res, p));
     }
-    for w in res.warnings.iter().chain(&tm_warnings(&res)).chain(&extra) {
+    for w in res.warnings.iter().chain(&extra) {
         say!("warning: {w}");
     }
     Ok(Outcome::Ok)
@@ -615,62 +615,6 @@ pub fn summary(r: &TraceMomentResult) -> String {
 
 /// The `tm.json` body: the header, every key of [`TraceMomentResult`], and
 /// the derived `tau` and `K_universal`.
-/// Estimates outside the universal model's range (TM §6: 0 <= alpha <= 2,
-/// C1 >= 0), usually a sign of too few scales or too few images.
-pub(super) fn tm_warnings(res: &TraceMomentResult) -> Vec<String> {
-    let mut w = Vec::new();
-    // a NaN alpha is explained by the library's warnings
-    if res.alpha.is_finite() && !(res.alpha >= 0.0 && res.alpha <= 2.0) {
-        w.push(format!(
-            "alpha = {:.3} lies outside [0, 2], the range of universal multifractals: \
-             too few scales or images for the fit",
-            res.alpha
-        ));
-    }
-    if res.c1.is_finite() && res.c1 < 0.0 {
-        w.push(format!(
-            "C1 = {:.4} < 0: no intermittency is resolved",
-            res.c1
-        ));
-    } else if res.c1.is_finite()
-        && (res.c1 <= 2.0 * res.c1_stderr || res.k.iter().all(|k| !k.is_finite() || k.abs() < 1e-9))
-    {
-        // K(q) = C1 x shape(alpha): with C1 ~ 0 the shape, alpha, is free
-        w.push(format!(
-            "C1 = {:.4} +- {:.4} is not distinguishable from 0 (no intermittency resolved), \
-             so alpha, the shape of K(q), is undetermined: do not quote it",
-            res.c1, res.c1_stderr
-        ));
-    }
-    if res.beta.is_none() {
-        w.push(
-            "beta and H not estimable: fewer than 3 spectrum bins in the k range \
-             (images too small for the default range; give --k-range)"
-                .to_string(),
-        );
-    }
-    for d in res.dtm.iter().filter(|d| d.n < 3) {
-        w.push(format!(
-            "DTM at q = {}: {} usable eta value(s) (K(q, eta) of the sign of K(q), eta in the \
-             fit range, q eta <= q_s/2): {}",
-            d.q,
-            d.n,
-            if d.n < 2 {
-                "no fit"
-            } else {
-                "a line through two points"
-            }
-        ));
-    }
-    if res.dtm_alpha.is_finite() && !(res.dtm_alpha >= 0.0 && res.dtm_alpha <= 2.0) {
-        w.push(format!(
-            "DTM alpha = {:.3} lies outside [0, 2]: too few scales or images",
-            res.dtm_alpha
-        ));
-    }
-    w
-}
-
 pub fn result_json(
     command: &str,
     params: serde_json::Value,
@@ -684,9 +628,9 @@ pub fn result_json(
             obj.insert(k, v);
         }
     }
-    // the library's diagnostics, then the range checks, then the command's
+    // the library's diagnostics (the range checks among them), then the
+    // command's
     let mut warnings = res.warnings.clone();
-    warnings.extend(tm_warnings(res));
     warnings.extend_from_slice(extra_warnings);
     body["warnings"] = json!(warnings);
     body["K_universal"] = json!(k_universal(res, &res.q));

@@ -361,11 +361,16 @@ pub fn fit_universal_gls(q: &[f64], k: &[f64], w: &[Vec<f64>]) -> Option<Univers
     })
 }
 
-/// The alpha in [0.02, 3] minimising `obj`: a grid of 150 points, then
-/// golden-section refinement around the best one (`obj` need not be
+/// The interval the universal fits search alpha in: wider than the
+/// universal range [0, 2] (TM §6), so that an estimate beyond 2 shows as
+/// one; an alpha at either end is no minimum (`diagnostics` says so).
+pub(crate) const ALPHA_SEARCH: (f64, f64) = (0.02, 3.0);
+
+/// The alpha in [`ALPHA_SEARCH`] minimising `obj`: a grid of 150 points,
+/// then golden-section refinement around the best one (`obj` need not be
 /// unimodal over the whole range, only near its minimum).
 fn minimise_alpha(obj: impl Fn(f64) -> f64) -> f64 {
-    let (lo, hi) = (0.02, 3.0);
+    let (lo, hi) = ALPHA_SEARCH;
     let steps = 149;
     let mut best = (lo, f64::INFINITY);
     for i in 0..=steps {

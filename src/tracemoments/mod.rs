@@ -420,7 +420,7 @@ impl TraceMomentFitConfig {
     /// 2^(nj-1)` px; [`sf_lags`]): the given range or `[1, max(kmax - 3,
     /// 2)]` (lags of 2 px to L/8).
     ///
-    /// **Errors** on a given range beyond the lags.
+    /// **Errors** on a given range beyond the lags, or holding fewer than 2.
     pub fn lag_range(&self, kmax: usize, nj: usize) -> Result<(f64, f64)> {
         let (llo, lhi) = self.log2_lag.unwrap_or((1.0, (kmax as f64 - 3.0).max(2.0)));
         if self.log2_lag.is_some() && (llo < -1e-9 || lhi > (nj as f64 - 1.0) + 1e-9) {
@@ -428,6 +428,21 @@ impl TraceMomentFitConfig {
                 "lag-fit",
                 format!(
                     "[{llo}, {lhi}] goes beyond the lags: log2 of the lag runs from 0 to {}",
+                    nj as f64 - 1.0
+                ),
+            ));
+        }
+        // lags are the integers 0..nj in log2: a line needs 2 of them (the
+        // default range holds 2 or more whenever the image has lags of 4 px)
+        let lags = (0..nj)
+            .filter(|&j| (j as f64) >= llo - 1e-9 && (j as f64) <= lhi + 1e-9)
+            .count();
+        if self.log2_lag.is_some() && lags < 2 {
+            return Err(Error::param(
+                "lag-fit",
+                format!(
+                    "[{llo}, {lhi}] holds {lags} lag(s) (log2 of the lag is a whole number, \
+                     0 to {}): the structure functions' line needs 2 or more",
                     nj as f64 - 1.0
                 ),
             ));
@@ -1811,6 +1826,11 @@ pub const TILE_ERROR_FACTOR: f64 = 2.0;
 ///    make planes (8 untilted fBm of 512², H = 0.8: `H_sf` 0.776 would
 ///    drop to about 0.758, away from the spectral 0.823).
 ///
+/// Then the range checks, whatever the errors: alpha at an end of the
+/// fit's search interval (no minimum) or outside the universal [0, 2], C1
+/// below or indistinguishable from 0, and β, H, the DTM or `H_sf` left
+/// without a fit by their ranges.
+///
 /// Measured (`experiment_lone_image_tiles` in tests/tracemoments.rs): on 24
 /// single topo-fif fields, 3, 1 and 1 of them got a straightness warning at
 /// 256², 400² and 512², 1, 0 and 1 an H disagreement, none the first; an
@@ -2060,6 +2080,83 @@ pub fn diagnostics(
                 (d / se).abs()
             ));
         }
+    }
+    w.extend(range_warnings(r));
+    w
+}
+
+/// Estimates outside what the fits can deliver, said in `warnings` after
+/// [`diagnostics`]' tests: alpha at an end of the fit's search interval
+/// (no minimum: K(q) is not of the universal form, e.g. the flux of a
+/// plane) or outside the universal range [0, 2] (TM §6), C1 < 0 or not
+/// distinguishable from 0 (then alpha, the shape of K(q), is free), and
+/// the estimates a fit range left empty (β and H, the DTM, `H_sf`).
+fn range_warnings(r: &TraceMomentResult) -> Vec<String> {
+    let mut w = Vec::new();
+    let (lo, hi) = fit::ALPHA_SEARCH;
+    // a NaN alpha is explained by diagnostics' item 0
+    if r.alpha.is_finite() && (r.alpha - lo < 1e-3 || hi - r.alpha < 1e-3) {
+        w.push(format!(
+            "alpha = {:.3} sits at an end of the universal fit's search interval [{lo}, {hi}]: \
+             no minimum was found, so K(q) is not of the universal form C1/(alpha-1) \
+             (q^alpha - q) (a smooth or planar field, too few scales or images): alpha and C1 \
+             are not estimates",
+            r.alpha
+        ));
+    } else if r.alpha.is_finite() && !(r.alpha >= 0.0 && r.alpha <= 2.0) {
+        w.push(format!(
+            "alpha = {:.3} lies outside [0, 2], the range of universal multifractals: \
+             too few scales or images for the fit",
+            r.alpha
+        ));
+    }
+    if r.c1.is_finite() && r.c1 < 0.0 {
+        w.push(format!(
+            "C1 = {:.4} < 0: no intermittency is resolved",
+            r.c1
+        ));
+    } else if r.c1.is_finite()
+        && (r.c1 <= 2.0 * r.c1_stderr || r.k.iter().all(|k| !k.is_finite() || k.abs() < 1e-9))
+    {
+        // K(q) = C1 x shape(alpha): with C1 ~ 0 the shape, alpha, is free
+        w.push(format!(
+            "C1 = {:.4} +- {:.4} is not distinguishable from 0 (no intermittency resolved), \
+             so alpha, the shape of K(q), is undetermined: do not quote it",
+            r.c1, r.c1_stderr
+        ));
+    }
+    if r.beta.is_none() {
+        w.push(
+            "beta and H not estimable: fewer than 3 spectrum bins in the k range \
+             (images too small for the default range; give --k-range)"
+                .to_string(),
+        );
+    }
+    for d in r.dtm.iter().filter(|d| d.n < 3) {
+        w.push(format!(
+            "DTM at q = {}: {} usable eta value(s) (K(q, eta) of the sign of K(q), eta in the \
+             fit range, q eta <= q_s/2): {}",
+            d.q,
+            d.n,
+            if d.n < 2 {
+                "no fit (--eta, --eta-fit)"
+            } else {
+                "a line through two points"
+            }
+        ));
+    }
+    if r.dtm_alpha.is_finite() && !(r.dtm_alpha >= 0.0 && r.dtm_alpha <= 2.0) {
+        w.push(format!(
+            "DTM alpha = {:.3} lies outside [0, 2]: too few scales or images",
+            r.dtm_alpha
+        ));
+    }
+    if r.h_sf.is_none() && r.sf_q.iter().any(|&q| (q - 1.0).abs() < 1e-12) {
+        w.push(
+            "H_sf = xi(1) not estimable: no line through the structure function of order 1 \
+             over the lag fit range (--lag-fit)"
+                .to_string(),
+        );
     }
     w
 }
