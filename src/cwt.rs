@@ -209,16 +209,19 @@ impl ScaleGrid {
         Ok(())
     }
 
-    /// The scales, smallest first.
+    /// The scales, smallest first (`octaves x voices` of them: check the
+    /// grid with [`Self::validate`] first, which bounds them to 20 x 64).
     pub fn scales(&self) -> Vec<f64> {
         (0..self.octaves * self.voices)
             .map(|j| self.a_min * 2f64.powf(j as f64 / self.voices as f64))
             .collect()
     }
 
-    /// Largest scale of the grid.
+    /// Largest scale of the grid (`a_min` for an empty one; huge or not
+    /// finite for grids [`Self::validate`] refuses, never an overflow).
     pub fn a_max(&self) -> f64 {
-        self.a_min * 2f64.powf((self.octaves * self.voices - 1) as f64 / self.voices as f64)
+        let n = self.octaves.saturating_mul(self.voices).saturating_sub(1);
+        self.a_min * 2f64.powf(n as f64 / self.voices.max(1) as f64)
     }
 }
 

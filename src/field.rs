@@ -62,6 +62,25 @@ impl Field {
         })
     }
 
+    /// **Errors** if the mask differs from the data in shape: the fields
+    /// are public, so a `Field` can be built without [`Self::with_mask`]'s
+    /// check; the analyses call this before reading the mask.
+    pub fn check(&self) -> Result<()> {
+        match &self.mask {
+            Some(m) if m.dim() != self.data.dim() => Err(Error::param(
+                "mask",
+                format!(
+                    "the mask is {}x{} but the data are {}x{}",
+                    m.dim().0,
+                    m.dim().1,
+                    self.data.dim().0,
+                    self.data.dim().1
+                ),
+            )),
+            _ => Ok(()),
+        }
+    }
+
     /// `(ny, nx)`.
     pub fn dim(&self) -> (usize, usize) {
         self.data.dim()
@@ -136,8 +155,10 @@ impl Field {
     /// Borrowed when nothing is missing (a copy of a large DEM is 8 B/px
     /// for nothing).
     ///
-    /// **Errors** if no pixel is valid.
+    /// **Errors** if no pixel is valid, or on a mask of another shape
+    /// ([`Self::check`]).
     pub fn filled(&self) -> Result<std::borrow::Cow<'_, Array2<f64>>> {
+        self.check()?;
         let Some(mask) = &self.mask else {
             return Ok(std::borrow::Cow::Borrowed(&self.data));
         };
@@ -177,9 +198,10 @@ impl Field {
         self.plane_fit().and_then(|(_, r)| r)
     }
 
-    /// The plane and its R² (`None` for a constant field, or a NaN from
-    /// values too large to square).
+    /// The plane and its R² (`None` for a constant field, a NaN from
+    /// values too large to square, or a mask of another shape).
     fn plane_fit(&self) -> Option<(Plane, Option<f64>)> {
+        self.check().ok()?;
         // centred on the valid pixels' centroid and mean, the constant
         // decouples and the slopes solve a 2x2 system; the sums run over
         // f - mean, so a DEM's large offset costs no precision
@@ -260,6 +282,7 @@ impl Field {
     /// variance: what is left is the rounding of the values, which the
     /// analyses would read as a surface.
     pub fn detrended(&self, trend: Trend) -> Result<std::borrow::Cow<'_, Field>> {
+        self.check()?;
         let fit = match trend {
             Trend::None => None,
             Trend::Plane => self.plane_fit(),

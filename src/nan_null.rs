@@ -21,6 +21,12 @@ pub fn vec<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
     Vec::<Option<f64>>::deserialize(d).map(|v| v.into_iter().map(nan).collect())
 }
 
+/// An optional list of f64 (absent or `null`: `None`), `null` entries as
+/// NaN.
+pub fn opt_vec<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Vec<f64>>, D::Error> {
+    Option::<Vec<Option<f64>>>::deserialize(d).map(|o| o.map(|v| v.into_iter().map(nan).collect()))
+}
+
 /// A list of lists of f64, `null` entries as NaN.
 pub fn vec2<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<Vec<f64>>, D::Error> {
     Vec::<Vec<Option<f64>>>::deserialize(d).map(|v| {

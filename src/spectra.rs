@@ -556,6 +556,9 @@ impl PartitionSums {
         if self.q.is_empty() || !self.q.iter().all(|x| x.is_finite()) || !ascending(&self.q) {
             return Err("`q` must be a non-empty list of finite values in ascending order".into());
         }
+        if self.q.iter().any(|x| x.abs() > MAX_ABS_Q) {
+            return Err(format!("`q` must lie within +-{MAX_ABS_Q} (MAX_ABS_Q)"));
+        }
         if self.scales.is_empty()
             || !self.scales.iter().all(|a| a.is_finite() && *a > 0.0)
             || !ascending(&self.scales)
@@ -655,8 +658,8 @@ impl PartitionSums {
                     return Err(format!(
                         "{at}: `{name}` cell {k} (q = {}, a = {} px) is invalid: e = {}, z = {}, \
                          zl = {}, z2 = {} (need finite sums, z and z2 >= 0, |e| <= 2^30)",
-                        self.q[k / ns],
-                        self.scales[k % ns],
+                        crate::error::short(self.q[k / ns]),
+                        crate::error::short(self.scales[k % ns]),
                         c.e,
                         c.z,
                         c.zl,
@@ -1961,8 +1964,11 @@ impl PartitionSums {
 }
 
 impl Spectra {
-    /// Index of q closest to `q0`.
+    /// Index of q closest to `q0` (`None` for a NaN `q0` or an empty grid).
     pub fn q_index(&self, q0: f64) -> Option<usize> {
+        if q0.is_nan() {
+            return None;
+        }
         (0..self.q.len()).min_by(|&a, &b| (self.q[a] - q0).abs().total_cmp(&(self.q[b] - q0).abs()))
     }
 }
@@ -2018,7 +2024,9 @@ pub fn image_sums_tiled(
 ) -> Result<PartitionSums> {
     // before the transform, not at the fit: a bad grid costs nothing
     check_q(q)?;
-    let a_max = cfg.scale_list().last().copied().unwrap_or(0.0);
+    cfg.validate()?;
+    field.check()?;
+    let a_max = cfg.a_max();
     let min_side = (2.0 * a_max).ceil() as usize;
     if tile_side > 0 && tile_side < min_side {
         return Err(Error::param(
@@ -2055,6 +2063,8 @@ pub fn ensemble_sums(
 ) -> Result<PartitionSums> {
     use rayon::prelude::*;
     check_q(q)?;
+    // before sizing tiles from it
+    cfg.validate()?;
     let par = if fields.len() == 1 {
         crate::skeleton::Parallelism::Scales
     } else {
@@ -2089,9 +2099,11 @@ pub fn ensemble_sums(
 /// 1024^2 (25 tiles), 0.68 / 0.96 / 1.29 / 1.05 on fBm 512^2 (4 tiles of
 /// 2 a_max), where the regression's error was 0.10-0.39 of it.
 pub fn default_tile_side(cfg: &crate::skeleton::AnalysisConfig, ny: usize, nx: usize) -> usize {
-    let a_max = cfg.scale_list().last().copied().unwrap_or(1.0);
-    let m = cfg.margin_px();
-    let (h, w) = (ny.saturating_sub(2 * m), nx.saturating_sub(2 * m));
+    // (saturating: an absurd grid or margin is refused by the analysis,
+    // with its reason, not by an overflow here)
+    let a_max = cfg.a_max();
+    let m = cfg.margin_px().saturating_mul(2);
+    let (h, w) = (ny.saturating_sub(m), nx.saturating_sub(m));
     let side = (4.0 * a_max).ceil() as usize;
     if side > 0 && (h / side) * (w / side) >= 4 {
         side
@@ -2205,9 +2217,17 @@ fn legendre_warnings(q: &[f64], est: &Estimates, reps: &[Estimates]) -> Vec<Stri
     out
 }
 
+/// Largest |q| of a partition-sum grid. The sums keep `M^q` as a mantissa
+/// and a binary exponent near `q log2 M`, bounded by 2^30 so that exponent
+/// differences fit an `i32`; with any modulus an f64 holds (|log2 M| <=
+/// 1075) that bounds |q| near 1e6.
+/// Published spectra use |q| <= 10, and no finite ensemble resolves
+/// moments of order thousands; 1e4 leaves room and the arithmetic exact.
+pub const MAX_ABS_Q: f64 = 1e4;
+
 /// A q grid the partition sums can use: non-empty, finite, strictly
 /// ascending (the Legendre transform differences neighbours; a repeated q
-/// would count twice).
+/// would count twice), |q| <= [`MAX_ABS_Q`].
 ///
 /// **Errors** naming `q`.
 pub fn check_q(q: &[f64]) -> Result<()> {
@@ -2215,6 +2235,16 @@ pub fn check_q(q: &[f64]) -> Result<()> {
         return Err(Error::param(
             "q",
             "must be a non-empty list of finite values in ascending order, none twice",
+        ));
+    }
+    if let Some(x) = q.iter().find(|x| x.abs() > MAX_ABS_Q) {
+        return Err(Error::param(
+            "q",
+            format!(
+                "{} is beyond +-{MAX_ABS_Q}: moments of such orders overflow the partition \
+                 sums' exponents, and no ensemble resolves them (published spectra use |q| <= 10)",
+                crate::error::short(*x)
+            ),
         ));
     }
     Ok(())

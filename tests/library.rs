@@ -330,3 +330,133 @@ fn ensemble_sums_is_the_recipe_of_analyze() {
     err(ensemble_sums(&bad, &cfg, &q), "image 2: ");
     err(ensemble_sums(&[], &cfg, &q), "no field");
 }
+
+/// Found by helper-41's external-consumer review: absurd grids and margins,
+/// a mask of another shape built through the public fields, and |q| beyond
+/// what the sums' exponents hold are errors naming the problem (before:
+/// overflow panics in debug builds, index panics, or an internal message),
+/// and the small helpers answer `None` or an error where they used to
+/// answer a plausible number.
+#[test]
+fn absurd_settings_are_errors_not_panics() {
+    let f = surface(128);
+    let q = [0.0, 1.0];
+    for (cfg, needle) in [
+        (
+            AnalysisConfig {
+                octaves: 100,
+                ..Default::default()
+            },
+            "octaves",
+        ),
+        (
+            AnalysisConfig {
+                octaves: usize::MAX,
+                ..Default::default()
+            },
+            "octaves",
+        ),
+        (
+            AnalysisConfig {
+                voices: usize::MAX,
+                ..Default::default()
+            },
+            "voices",
+        ),
+        (
+            AnalysisConfig {
+                a_min: 1e300,
+                ..Default::default()
+            },
+            "a-min",
+        ),
+        (
+            AnalysisConfig {
+                a_min: f64::INFINITY,
+                ..Default::default()
+            },
+            "a-min",
+        ),
+    ] {
+        err(image_sums(&f, &cfg, &q, "x"), needle);
+        err(
+            wtmm::spectra::ensemble_sums(std::slice::from_ref(&f), &cfg, &q),
+            needle,
+        );
+        // sizing tiles from such a grid saturates instead of overflowing
+        let _ = wtmm::spectra::default_tile_side(&cfg, 128, 128);
+    }
+    let huge = AnalysisConfig {
+        margin: Some(usize::MAX),
+        ..Default::default()
+    };
+    assert!(wtmm::spectra::ensemble_sums(std::slice::from_ref(&f), &huge, &q).is_err());
+    assert_eq!(
+        wtmm::cwt::ScaleGrid {
+            octaves: 0,
+            ..Default::default()
+        }
+        .a_max(),
+        1.5
+    );
+    // a mask of another shape, set through the public fields
+    let bad = Field {
+        data: f.data.clone(),
+        mask: Some(Array2::from_elem((10, 10), false)),
+    };
+    err(bad.check(), "the mask is 10x10 but the data are 128x128");
+    err(image_sums(&bad, &torus(3), &q, "x"), "mask");
+    err(skeleton(&bad, &torus(3)), "mask");
+    let mut acc = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();
+    err(acc.add_field(&bad), "mask");
+    assert_eq!(bad.plane_share(), None);
+    // |q| beyond MAX_ABS_Q: named, the value short
+    err(
+        image_sums(&f, &torus(3), &[-3e8, 0.0, 3e8], "x"),
+        "beyond +-10000",
+    );
+    err(image_sums(&f, &torus(3), &[0.0, 1e300], "x"), "1.000e300 is beyond");
+    // helpers
+    let (scales, pairs) = wtmm::stats::correlation::pair_scales(1.5, &[(f64::NAN, 1.0)]);
+    assert!(scales.iter().any(|a| a.is_nan()) && pairs.len() == 1);
+    let fbm_model = wtmm::Model::preset("paper-fbm").unwrap().model;
+    err(fbm_model.check_size(0), "size");
+    err(fbm_model.check_size(1), "size");
+    assert!(fbm_model.check_size(2).is_ok() && fbm_model.synthesize(2, 1, 0).is_ok());
+    let fif_model = wtmm::Model::preset("topo-fif").unwrap().model;
+    err(fif_model.check_size(3), "size");
+    assert!(fif_model.check_size(4).is_ok() && fif_model.synthesize(4, 1, 0).is_ok());
+    let fisc = wtmm::Model::preset("paper-fisc").unwrap().model;
+    assert_eq!(fisc.dh(f64::NAN), None);
+    assert_eq!(fbm_model.dh(f64::NAN), None);
+    let sums = image_sums(&f, &torus(3), &[-1.0, 0.0, 1.0], "x").unwrap();
+    let sp = sums.spectra(Rule::Plain, default_fit(3, 10)).unwrap();
+    assert_eq!(sp.q_index(f64::NAN), None);
+    assert_eq!(sp.q_index(0.1), Some(1));
+    // trace-moment settings the CLI refused and the library took
+    for (cfg, needle) in [
+        (
+            TraceMomentConfig {
+                eta: vec![2.0, 1.0],
+                ..Default::default()
+            },
+            "ascending",
+        ),
+        (
+            TraceMomentConfig {
+                eta: vec![1.0, 1.0],
+                ..Default::default()
+            },
+            "none twice",
+        ),
+        (
+            TraceMomentConfig {
+                frac_int: Some(-10.0),
+                ..Default::default()
+            },
+            "|order| < 1",
+        ),
+    ] {
+        err(cfg.validate(), needle);
+    }
+}

@@ -128,17 +128,7 @@ impl TmOpts {
             },
             detrend: crate::field::Trend::None,
         };
-        if let Some(h) = cfg.frac_int
-            && !(h.is_finite() && h > -1.0 && h < 1.0)
-        {
-            return Err(Error::param(
-                "frac-int",
-                format!(
-                    "a small smoothing order is expected (|order| < 1, e.g. 0.1), got {h_s}",
-                    h_s = crate::error::short(h)
-                ),
-            ));
-        }
+        // (the library's checks: --frac-int |order| < 1 among them)
         cfg.validate()?;
         Ok(cfg)
     }

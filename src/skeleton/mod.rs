@@ -313,9 +313,19 @@ impl AnalysisConfig {
         self.scales.clone().unwrap_or_else(|| self.grid().scales())
     }
 
+    /// The largest scale analysed (1 px for an empty list), without
+    /// building the list: an absurd grid gives a huge or non-finite value
+    /// here, for [`Self::validate`] to refuse, not an overflow.
+    pub fn a_max(&self) -> f64 {
+        match &self.scales {
+            Some(s) => s.last().copied().unwrap_or(1.0),
+            None => self.grid().a_max(),
+        }
+    }
+
     /// The margin actually used.
     pub fn margin_px(&self) -> usize {
-        let a_max = self.scale_list().last().copied().unwrap_or(1.0);
+        let a_max = self.a_max();
         self.margin
             .unwrap_or_else(|| default_margin(self.wavelet, a_max))
     }
@@ -549,6 +559,7 @@ fn build(
     link: bool,
 ) -> Result<(Skeleton, Vec<Vec<Wtmmm>>)> {
     cfg.validate()?;
+    field.check()?;
     let domain = cfg.domain(field)?;
     let img = cfg.input(field)?;
     let scales = cfg.scale_list();

@@ -177,15 +177,15 @@ pub const FIG30_PAIR_OCTAVES: [(f64, f64); 4] = [(1.0, 1.0), (0.0, 1.0), (0.0, 2
 
 /// The distinct scales (px, ascending) of octave pairs above `a_min` and
 /// the pairs as indices into them, as [`CorrelationConfig`] takes them.
+/// A non-finite octave gives a non-finite scale, which the correlation's
+/// checks refuse with a message.
 pub fn pair_scales(a_min: f64, pairs: &[(f64, f64)]) -> (Vec<f64>, Vec<(usize, usize)>) {
     let mut oct: Vec<f64> = pairs.iter().flat_map(|&(a, b)| [a, b]).collect();
     oct.sort_by(f64::total_cmp);
-    oct.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
-    let idx = |o: f64| {
-        oct.iter()
-            .position(|&x| (x - o).abs() < 1e-9)
-            .expect("listed")
-    };
+    // (a NaN equals itself only under total_cmp)
+    let same = |x: f64, o: f64| (x - o).abs() < 1e-9 || x.total_cmp(&o).is_eq();
+    oct.dedup_by(|a, b| same(*a, *b));
+    let idx = |o: f64| oct.iter().position(|&x| same(x, o)).unwrap_or(0);
     (
         oct.iter().map(|o| a_min * o.exp2()).collect(),
         pairs.iter().map(|&(a, b)| (idx(a), idx(b))).collect(),

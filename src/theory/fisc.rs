@@ -149,7 +149,8 @@ impl Multifractal for FiscParams {
         if hi - lo < tol {
             return ((h - self.hstar).abs() <= tol).then_some(2.0);
         }
-        if h < lo - tol || h > hi + tol {
+        // (written so that a NaN h is outside too)
+        if !(h >= lo - tol && h <= hi + tol) {
             return None;
         }
         let w = ((self.hstar - 1.0 - h - (1.0 - self.p).log2())

@@ -272,8 +272,11 @@ impl Model {
         self.theory().d_of_q(q)
     }
 
-    /// `D(h)`, see [`Multifractal::dh`].
+    /// `D(h)`, see [`Multifractal::dh`] (`None` for a NaN `h`).
     pub fn dh(&self, h: f64) -> Option<f64> {
+        if h.is_nan() {
+            return None;
+        }
         self.theory().dh(h)
     }
 
@@ -333,8 +336,20 @@ impl Model {
     }
 
     /// **Errors** unless [`Model::synthesize`] can make `size x size`
-    /// images: a power of two for the cascades, at most 16384^2 pixels.
+    /// images: 2 px or more (FIF 4), a power of two for the cascades, at
+    /// most 16384^2 pixels.
     pub fn check_size(&self, size: usize) -> Result<()> {
+        // the generators' own floors (fbm, fisc::steps_for_size: 2; fif: 4)
+        let min = match self {
+            Model::Fif(_) => 4,
+            _ => 2,
+        };
+        if size < min {
+            return Err(Error::param(
+                "size",
+                format!("{} needs {min} px or more, got {size}", self.name()),
+            ));
+        }
         if self.needs_power_of_two() && !size.is_power_of_two() {
             return Err(Error::param(
                 "size",
@@ -542,7 +557,9 @@ pub struct Cumulants {
     pub c3: f64,
 }
 
-/// Everything `wtmm theory` prints for one model on a q grid.
+/// Everything `wtmm theory` prints for one model on a q grid. JSON has
+/// no infinities nor NaN: both are written `null`, and read back as NaN
+/// (the docs below say which fields can be infinite, and of what sign).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TheoryTable {
     /// The model and its parameters.
@@ -550,21 +567,27 @@ pub struct TheoryTable {
     /// The q grid.
     pub q: Vec<f64>,
     /// `τ(q)` per q (`-∞`, JSON `null`, for a FIF with α <= 1 at q < 0).
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub tau: Vec<f64>,
     /// `h(q) = τ'(q)` per q.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub h: Vec<f64>,
     /// `D(q) = q h(q) - τ(q)`.
-    #[serde(rename = "D")]
+    #[serde(rename = "D", deserialize_with = "crate::nan_null::vec")]
     pub d: Vec<f64>,
     /// Lower end of the support of `D(h)` (where `D(h) >= 0`; for FISC the
     /// limit of h(q) as q → +∞, see the module doc).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub h_min: f64,
     /// Upper end of the support of `D(h)` (`+∞`, JSON `null`, for a FIF
     /// with α <= 1).
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub h_max: f64,
     /// The most frequent Hölder exponent `h(q = 0)`, where `D = 2`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub h_of_q0: f64,
     /// Angle-averaged: `S(|k|) ~ |k|^-β`.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
     pub beta: f64,
     /// Always `"angle-averaged"`.
     pub beta_convention: String,
@@ -573,14 +596,20 @@ pub struct TheoryTable {
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub cumulants: Option<Cumulants>,
     /// The flux moment function K(q) (FIF only; `null` where infinite).
-    #[serde(rename = "K", skip_serializing_if = "Option::is_none", default)]
+    #[serde(
+        rename = "K",
+        skip_serializing_if = "Option::is_none",
+        default,
+        deserialize_with = "crate::nan_null::opt_vec"
+    )]
     pub k: Option<Vec<f64>>,
     /// The D(h) curve sampled on `[h_min, h_max]` (one point for a
     /// monofractal); where `h_max` is infinite (FIF with α <= 1, D -> 2 as
     /// h -> ∞) up to `h(q = 0.001)`, where `D = 2 - C1 0.001^α`.
+    #[serde(deserialize_with = "crate::nan_null::vec")]
     pub dh_h: Vec<f64>,
     /// `D(h)` at each `dh_h` (JSON `dh_D`).
-    #[serde(rename = "dh_D")]
+    #[serde(rename = "dh_D", deserialize_with = "crate::nan_null::vec")]
     pub dh_d: Vec<f64>,
 }
 
@@ -644,6 +673,27 @@ impl TheoryTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A table with infinities and undefined values (FIF with α = 1: τ =
+    /// -∞ at q < 0, h_max = +∞; K undefined at q < 0) reads back from its
+    /// JSON, the non-finite values as NaN, the rest exactly.
+    #[test]
+    fn tables_with_infinities_read_back() {
+        let m = Model::Fif(FifParams {
+            alpha: 1.0,
+            c1: 0.1,
+            hurst: 0.5,
+        });
+        let t = TheoryTable::new(&m, &[-1.0, 0.0, 1.0, 2.0]).unwrap();
+        assert!(t.h_max.is_infinite() && t.tau[0] == f64::NEG_INFINITY);
+        let back: TheoryTable = serde_json::from_str(&serde_json::to_string(&t).unwrap()).unwrap();
+        assert!(back.h_max.is_nan() && back.tau[0].is_nan());
+        assert_eq!(back.tau[1..], t.tau[1..]);
+        assert_eq!(back.h_min, t.h_min);
+        assert_eq!(back.dh_d, t.dh_d);
+        let k = back.k.unwrap();
+        assert!(k[0].is_nan() && k[3] == t.k.unwrap()[3]);
+    }
 
     /// Parameters out of range give an error naming them, not NaN curves.
     #[test]

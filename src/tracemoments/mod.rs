@@ -290,8 +290,13 @@ impl TraceMomentConfig {
                 "trace-moment orders must be finite and >= 0, in ascending order, none twice",
             ));
         }
-        if self.eta.iter().any(|e| !(e.is_finite() && *e > 0.0)) {
-            return Err(Error::param("eta", "η values must be finite and > 0"));
+        if self.eta.iter().any(|e| !(e.is_finite() && *e > 0.0))
+            || self.eta.windows(2).any(|w| w[0] >= w[1])
+        {
+            return Err(Error::param(
+                "eta",
+                "η values must be finite and > 0, in ascending order, none twice",
+            ));
         }
         if self.dtm_q.iter().any(|q| !(q.is_finite() && *q > 0.0)) {
             return Err(Error::param(
@@ -313,9 +318,15 @@ impl TraceMomentConfig {
             ));
         }
         if let Some(h) = self.frac_int
-            && !h.is_finite()
+            && !(h.is_finite() && h > -1.0 && h < 1.0)
         {
-            return Err(Error::param("frac-int", "must be finite"));
+            return Err(Error::param(
+                "frac-int",
+                format!(
+                    "a small smoothing order is expected (|order| < 1, e.g. 0.1), got {h_s}",
+                    h_s = crate::error::short(h)
+                ),
+            ));
         }
         if let FluxDiff::Order(d) = self.diff
             && !(d.is_finite() && d.abs() < 3.0)
@@ -591,6 +602,7 @@ impl TraceMomentAccumulator {
     /// values beyond [`crate::field::AMPLITUDE_LIMIT`]; the accumulator is
     /// then unchanged (everything that can fail is computed first).
     pub fn add_field(&mut self, field: &Field) -> Result<()> {
+        field.check()?;
         if let Some(why) = field.amplitude_problem() {
             return Err(Error::Input(why));
         }
