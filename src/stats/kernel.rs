@@ -434,10 +434,51 @@ impl KernelSums {
         )
     }
 
+    /// **Errors** unless the sums are whole: a valid p grid, positive
+    /// finite ascending scales, and in each image one [`Moments`] per scale
+    /// and `scales x p` characteristic-function sums (tiles: one `Moments`
+    /// per scale each). A deserialised shard (truncated, edited) is checked
+    /// before it is merged or read ([`Self::merge`], [`kernel_estimates`]).
+    pub fn check(&self) -> Result<()> {
+        self.config.validate()?;
+        if self.scales.is_empty()
+            || !self.scales.iter().all(|a| a.is_finite() && *a > 0.0)
+            || self.scales.windows(2).any(|w| w[0] >= w[1])
+        {
+            return Err(Error::param(
+                "scales",
+                "the kernel sums need positive, finite, ascending scales",
+            ));
+        }
+        let (ns, np) = (self.scales.len(), self.config.len());
+        for (i, im) in self.images.iter().enumerate() {
+            let cells = ns * np;
+            if im.moments.len() != ns
+                || im.cf_re.len() != cells
+                || im.cf_im.len() != cells
+                || im.tiles.iter().any(|t| t.len() != ns)
+            {
+                return Err(Error::Input(format!(
+                    "kernel sums of image {i} ({}): {} moments, {} + {} characteristic-function \
+                     sums for {ns} scales x {np} p, tiles of {:?} scales",
+                    im.label,
+                    im.moments.len(),
+                    im.cf_re.len(),
+                    im.cf_im.len(),
+                    im.tiles.iter().map(Vec::len).collect::<Vec<_>>()
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// Adds `other`'s images (order-independent once evaluated).
     ///
-    /// **Errors** if the scales, the p grid or the WTMMM set differ.
+    /// **Errors** if the scales, the p grid or the WTMMM set differ, or
+    /// either fails [`Self::check`].
     pub fn merge(&mut self, other: &KernelSums) -> Result<()> {
+        self.check()?;
+        other.check()?;
         if self.config != other.config {
             return Err(Error::param(
                 "p-max",
@@ -984,15 +1025,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     if s.images.is_empty() {
         return Err(Error::Input("no image in the kernel sums".into()));
     }
-    if s.scales.is_empty()
-        || !s.scales.iter().all(|a| a.is_finite() && *a > 0.0)
-        || s.scales.windows(2).any(|w| w[0] >= w[1])
-    {
-        return Err(Error::param(
-            "scales",
-            "the kernel sums need positive, finite, ascending scales",
-        ));
-    }
+    s.check()?;
     let oct: Vec<f64> = s.scales.iter().map(|a| (a / s.scales[0]).log2()).collect();
     let top = oct[ns - 1];
     let in_range = |o: f64| octave_on_grid(&s.scales, o);

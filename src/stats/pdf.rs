@@ -324,6 +324,39 @@ impl WtmmmHistograms {
         })
     }
 
+    /// **Errors** unless the histograms are whole: what [`Self::new`]
+    /// checks, one histogram per scale, `rows x arg_bins` counts in each,
+    /// summing to its `n`. A deserialised shard (truncated, edited) is
+    /// checked before it is merged or read ([`Self::merge`],
+    /// [`wtmmm_pdfs`]).
+    pub fn check(&self) -> Result<()> {
+        Self::new(&self.scales, self.config)?;
+        if self.hist.len() != self.scales.len() {
+            return Err(Error::Input(format!(
+                "{} histograms for {} scales",
+                self.hist.len(),
+                self.scales.len()
+            )));
+        }
+        let nb = self.config.arg_bins;
+        for (j, h) in self.hist.iter().enumerate() {
+            if h.rows.checked_mul(nb) != Some(h.counts.len()) {
+                return Err(Error::Input(format!(
+                    "histogram {j}: {} counts for {} rows of {nb} argument bins",
+                    h.counts.len(),
+                    h.rows
+                )));
+            }
+            if h.counts.iter().try_fold(0u64, |a, &c| a.checked_add(c)) != Some(h.n) {
+                return Err(Error::Input(format!(
+                    "histogram {j}: its counts do not sum to its {} WTMMM",
+                    h.n
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// The histograms of one image's WTMMM (`points[j]` at scale `j`).
     ///
     /// **Errors** if `points` does not have one list per scale.
@@ -363,8 +396,11 @@ impl WtmmmHistograms {
 
     /// Adds `other`'s counts (exact, order-independent).
     ///
-    /// **Errors** if the binning or the scales differ.
+    /// **Errors** if the binning or the scales differ, or either fails
+    /// [`Self::check`].
     pub fn merge(&mut self, other: &WtmmmHistograms) -> Result<()> {
+        self.check()?;
+        other.check()?;
         if self.config != other.config {
             return Err(Error::param(
                 "lnm-bin",
@@ -613,6 +649,7 @@ pub struct ScalePdf {
 ///
 /// **Errors** if a scale index is out of range or a grid option is invalid.
 pub fn wtmmm_pdfs(h: &WtmmmHistograms, opts: &PdfOptions) -> Result<Vec<ScalePdf>> {
+    h.check()?;
     if let Some(&j) = opts.show.iter().find(|&&j| j >= h.scales.len()) {
         return Err(Error::param(
             "show",

@@ -593,6 +593,71 @@ impl TraceMomentAccumulator {
         })
     }
 
+    /// **Errors** unless the accumulator is whole: valid settings, one
+    /// sum list per q, η, DTM order and structure-function order, each as
+    /// long as its level or lag counts, no more box levels or lags than
+    /// the largest image holds (`log2 max_side + 1`: a level appended to a
+    /// shard would shift every `log2 λ`), and at most one plane and one
+    /// differentiation order per image. A deserialised shard (truncated,
+    /// edited) is checked before it is merged or finished.
+    pub fn check(&self) -> Result<()> {
+        self.config.validate()?;
+        let c = &self.config;
+        let bad = |what: String| Err(Error::Input(format!("trace-moment sums: {what}")));
+        let (nl, nj) = (self.box_count.len(), self.sf_count.len());
+        if self.eta_sum.len() != c.eta.len()
+            || self.tm.len() != c.q.len()
+            || self.dtm.len() != c.eta.len()
+            || self.dtm.iter().any(|e| e.len() != c.dtm_q.len())
+            || self.sf.len() != c.sf_q.len()
+        {
+            return bad(format!(
+                "{} eta sums, {} moment lists, {} x {:?} DTM lists, {} structure-function lists \
+                 for {} eta, {} q, {} DTM q, {} structure-function q",
+                self.eta_sum.len(),
+                self.tm.len(),
+                self.dtm.len(),
+                self.dtm.iter().map(Vec::len).collect::<Vec<_>>(),
+                self.sf.len(),
+                c.eta.len(),
+                c.q.len(),
+                c.dtm_q.len(),
+                c.sf_q.len()
+            ));
+        }
+        if self
+            .tm
+            .iter()
+            .chain(self.dtm.iter().flatten())
+            .any(|v| v.len() != nl)
+            || self.sf.iter().any(|v| v.len() != nj)
+        {
+            return bad(format!(
+                "sum lists of other lengths than the {nl} box levels or {nj} lags"
+            ));
+        }
+        let levels = if self.max_side > 0 {
+            self.max_side.ilog2() as usize + 1
+        } else {
+            0
+        };
+        if nl > levels || nj > levels {
+            return bad(format!(
+                "{nl} box levels and {nj} lags, but images of at most {} px hold {levels}",
+                self.max_side
+            ));
+        }
+        if self.planes.len() > self.images || self.diff_orders.len() > self.images {
+            return bad(format!(
+                "{} planes and {} differentiation orders for {} images",
+                self.planes.len(),
+                self.diff_orders.len(),
+                self.images
+            ));
+        }
+        Ok(())
+    }
+
     /// Adds one field: flux (after the optional fractional integration),
     /// structure functions and spectrum.
     ///
@@ -926,8 +991,10 @@ impl TraceMomentAccumulator {
 
     /// Adds another accumulator's sums (annealed ensemble).
     ///
-    /// **Errors** if the configurations differ.
+    /// **Errors** if the configurations differ, or either fails [`Self::check`].
     pub fn merge(&mut self, o: &TraceMomentAccumulator) -> Result<()> {
+        self.check()?;
+        o.check()?;
         if !self.config.same_settings(&o.config) {
             return Err(Error::param(
                 "config",
@@ -1034,6 +1101,7 @@ impl TraceMomentAccumulator {
         pin: Option<(f64, f64)>,
     ) -> Result<TraceMomentResult> {
         fc.validate()?;
+        self.check()?;
         if self.images == 0 || self.n_valid == 0 {
             return Err(Error::Input("no image accumulated".into()));
         }
