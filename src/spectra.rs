@@ -485,7 +485,8 @@ impl PartitionSums {
                     "analysis",
                     format!(
                         "cannot merge partition sums of different analyses ({})",
-                        config_difference(a, b)
+                        // margins resolved to pixels ("margin: 36 vs 0")
+                        config_difference(&same_analysis(a), &same_analysis(b))
                     ),
                 ));
             }

@@ -554,3 +554,18 @@ fn edited_shards_are_refused() {
     let mut good = acc.clone();
     err(good.merge(&bad), "moment lists");
 }
+
+/// Shards of an interior and a torus analysis are refused, with the
+/// margins in pixels (before: "margin: null vs 0").
+#[test]
+fn margins_that_differ_are_named_in_pixels() {
+    let f = surface(128);
+    let interior = AnalysisConfig {
+        octaves: 3,
+        ..Default::default()
+    };
+    let px = interior.margin_px();
+    let mut a = image_sums(&f, &interior, &[0.0, 1.0], "i").unwrap();
+    let b = image_sums(&f, &torus(3), &[0.0, 1.0], "t").unwrap();
+    err(a.merge(&b), &format!("margin: {px} vs 0"));
+}
