@@ -1852,9 +1852,57 @@ fn synth_files_are_analysed_as_tori() {
         .unwrap()
         .set_modified(std::time::SystemTime::now() + std::time::Duration::from_secs(60))
         .unwrap();
-    let (v, _) = analyze(&wcs, &[], &p("a_changed"));
+    let (v, err) = analyze(&wcs, &[], &p("a_changed"));
     assert!(v["params"]["origin"].is_null());
+    assert!(
+        err.contains("wcascade_0002.npy is newer than")
+            && err.contains("so all 3 inputs are analysed as non-periodic"),
+        "{err}"
+    );
     let two = &wcs[..2];
+    // a file an earlier run left in the directory: named
+    let stale = p("wc/wcascade_0007.npy");
+    std::fs::copy(&wc[2], &stale).unwrap();
+    let (v, err) = analyze(&[two, &[stale.as_str()][..]].concat(), &[], &p("a_stale"));
+    assert!(v["params"]["origin"].is_null());
+    assert!(
+        err.contains("wcascade_0007.npy is not listed in") && err.contains("earlier run"),
+        "{err}"
+    );
+    std::fs::remove_file(&stale).unwrap();
+    // FISC: validate's wavelet too (mexican), and validate's tau
+    synth(&["--preset", "paper-fisc"], &p("fisc"), "2");
+    let fisc = npy_files(&dir.join("fisc"));
+    let fiscs: Vec<&str> = fisc.iter().map(String::as_str).collect();
+    let (fa, err) = analyze(&fiscs, &[], &p("a_fisc"));
+    assert!(
+        err.contains("with the mexican wavelet its synth.json recommends"),
+        "{err}"
+    );
+    assert_eq!(fa["params"]["analysis"]["wavelet"], "mexican");
+    let v = [
+        "validate",
+        "--preset",
+        "paper-fisc",
+        "--count",
+        "2",
+        "--size",
+        "128",
+        "--seed",
+        "1",
+        "--octaves",
+        "3",
+        "--out",
+        &p("val_fisc"),
+    ];
+    assert!(run(&v) <= 1);
+    let fv = json(&dir.join("val_fisc/spectra.json"));
+    for q in [-2.0, 0.0, 2.0, 4.0] {
+        assert!(
+            (tau_at(&fa, q) - tau_at(&fv, q)).abs() < 1e-12,
+            "fisc tau({q})"
+        );
+    }
     // pdf's --domain auto: the torus
     let (code, err) = run_bin_stderr(
         &[
@@ -1877,16 +1925,22 @@ fn synth_files_are_analysed_as_tori() {
     assert_eq!(sk["margin"], 0);
     assert_eq!(sk["params"]["origin"]["periodic"], true);
     // spectrum: validate's settings for the model, each flag still wins
-    for (extra, window, detrend) in [
+    // (--detrend plane: the non-periodic defaults, as in every command)
+    for (i, (extra, window, detrend)) in [
         (&[][..], "none", "mean"),
         (&["--window", "hann"][..], "hann", "mean"),
+        (&["--detrend", "none"][..], "none", "none"),
+        (&["--detrend", "plane"][..], "hann", "plane"),
         (
             &["--window", "hann", "--detrend", "plane"][..],
             "hann",
             "plane",
         ),
-    ] {
-        let out = p(&format!("sp{}", extra.len()));
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let out = p(&format!("sp{i}"));
         assert_eq!(
             run(&[&["spectrum"][..], two, &["--out", &out][..], extra].concat()),
             0
@@ -1896,7 +1950,7 @@ fn synth_files_are_analysed_as_tori() {
         assert_eq!(sp["params"]["detrend"], detrend, "{extra:?}");
         assert_eq!(
             sp["params"]["origin"].is_null(),
-            extra.len() == 4,
+            extra.contains(&"plane"),
             "{extra:?}"
         );
     }
@@ -1905,6 +1959,8 @@ fn synth_files_are_analysed_as_tori() {
     assert_eq!(code, 0, "{err}");
     let info: Value = serde_json::from_str(&out).unwrap();
     assert_eq!(info["images"][0]["origin"]["periodic"], true);
+    // its domains are counted whole, as analyze counts them
+    assert_eq!(info["images"][0]["domains"][2]["margin"], 0);
     assert!(
         info["images"][0]["notes"].to_string().contains("margin 0"),
         "{out}"

@@ -313,20 +313,39 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     Ok(Outcome::Ok)
 }
 
-/// Margin 0 (the whole torus, as `validate` analyses the same model) for
-/// files `wtmm synth` wrote from a periodic model
-/// ([`super::common::periodic_synth`]), unless `--margin` or `--detrend`
-/// was given (a plane is removed inside a margin only); said in a note.
+/// What `validate` takes for the model of files `wtmm synth` wrote from a
+/// periodic one ([`super::common::periodic_synth`]): margin 0 (the whole
+/// torus) unless `--margin` or `--detrend` was given (a plane is removed
+/// inside a margin only), and the wavelet its record recommends (mexican
+/// for FISC) unless `--wavelet` or a theory named one; said in a note.
 pub(super) fn torus_for_synth(line: &mut LineOpts, images: &[PathBuf]) -> Option<PeriodicSynth> {
-    if line.cwt.margin.is_some() || line.detrend != crate::field::Trend::None {
+    let torus = line.cwt.margin.is_none() && line.detrend == crate::field::Trend::None;
+    let wavelet_open = line.cwt.wavelet.is_none();
+    if !torus && !wavelet_open {
         return None;
     }
     let origin = super::common::periodic_synth(images)?;
-    line.cwt.margin = Some(0);
+    let mut took = Vec::new();
+    if torus {
+        line.cwt.margin = Some(0);
+        took.push("analysed whole, as a torus (--margin 0)".to_string());
+    }
+    if let Some(w) = origin
+        .wavelet
+        .filter(|&w| wavelet_open && w != Wavelet::Gauss)
+    {
+        line.cwt.wavelet = Some(w);
+        took.push(format!(
+            "with the {w} wavelet its synth.json recommends (--wavelet)"
+        ));
+    }
+    if took.is_empty() {
+        return None;
+    }
     say!(
-        "note: {}: analysed whole, as a torus (--margin 0), as validate analyses the model; \
-         give --margin N for the interior",
-        origin.describe(images.len())
+        "note: {}: {}, as validate analyses the model; give the flags to choose otherwise",
+        origin.describe(images.len()),
+        took.join(", ")
     );
     Some(origin)
 }

@@ -134,15 +134,19 @@ pub struct PeriodicSynth {
     pub records: Vec<PathBuf>,
     /// The models' names, each once ("wcascade").
     pub models: Vec<String>,
+    /// The wavelet the records recommend for their models (mexican for
+    /// FISC, as `validate` uses), when they all agree.
+    pub wavelet: Option<crate::cwt::Wavelet>,
 }
 
 impl PeriodicSynth {
     /// What `params` records about the inputs' origin.
     pub fn json(&self) -> serde_json::Value {
-        serde_json::json!({"periodic": true, "synth_json": self.records, "models": self.models})
+        serde_json::json!({"periodic": true, "synth_json": self.records, "models": self.models,
+            "recommended_wavelet": self.wavelet})
     }
 
-    /// "the 8 images are periodic W-cascade fields written by `wtmm synth`
+    /// "the 8 images are periodic wcascade fields written by `wtmm synth`
     /// (wc/synth.json)", for a note.
     pub fn describe(&self, n: usize) -> String {
         let recs: Vec<String> = self
@@ -170,17 +174,28 @@ impl PeriodicSynth {
 /// the record (`synth` writes its record last: a file changed since is no
 /// longer what the record describes). `None` otherwise, and for any file
 /// or record that cannot be read: the commands then keep the defaults of
-/// non-periodic data, which are valid on a torus too, only wasteful.
+/// non-periodic data, which are valid on a torus too, only wasteful. When
+/// some inputs qualify and one does not (a stale file of an earlier run, a
+/// file changed since, another model), a note names it, since the others
+/// then lose their periodic defaults too.
 ///
 /// Why: analysed inside the margin, a periodic field loses half its maxima
 /// and its spectrum a taper's worth of power (SPEC §1, §14), and the same
 /// files then read differently from `validate`'s in-memory ensemble.
+///
+/// Trusted, not verified: the record's file list and times (a file put in
+/// place with an older time, `cp -p`, passes; its shape is not compared
+/// with the record's size).
 pub fn periodic_synth(paths: &[PathBuf]) -> Option<PeriodicSynth> {
     use std::collections::BTreeMap;
-    // one record per directory, read once
-    type Record = Option<(Vec<String>, crate::theory::Model, std::time::SystemTime)>;
-    let mut records: BTreeMap<PathBuf, Record> = BTreeMap::new();
-    let read = |rec: &Path| -> Record {
+    struct Record {
+        shown: PathBuf,
+        files: Vec<String>,
+        model: crate::theory::Model,
+        wavelet: Option<crate::cwt::Wavelet>,
+        time: std::time::SystemTime,
+    }
+    let read = |rec: &Path| -> Option<Record> {
         let time = std::fs::metadata(rec).ok()?.modified().ok()?;
         let v: serde_json::Value = serde_json::from_slice(&std::fs::read(rec).ok()?).ok()?;
         if v["command"] != "synth" {
@@ -192,32 +207,91 @@ pub fn periodic_synth(paths: &[PathBuf]) -> Option<PeriodicSynth> {
             .map(|f| f.as_str().map(str::to_string))
             .collect::<Option<Vec<_>>>()?;
         let model = serde_json::from_value(v["params"]["model"].clone()).ok()?;
-        Some((files, model, time))
+        let wavelet = serde_json::from_value(v["theory"]["recommended_wavelet"].clone()).ok();
+        Some(Record {
+            shown: rec.to_path_buf(),
+            files,
+            model,
+            wavelet,
+            time,
+        })
     };
-    let mut models = Vec::new();
+    // one record per directory (however its path is spelled), read once
+    let mut records: BTreeMap<PathBuf, Option<Record>> = BTreeMap::new();
+    let mut used: Vec<PathBuf> = Vec::new();
+    let (mut ok, mut broken): (usize, Option<String>) = (0, None);
     for p in paths {
-        let name = p.file_name()?.to_str()?;
         let dir = match p.parent() {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => PathBuf::from("."),
         };
         let rec = dir.join("synth.json");
-        let entry = records.entry(rec.clone()).or_insert_with(|| read(&rec));
-        let (files, model, time) = entry.as_ref()?;
-        let modified = std::fs::metadata(p).ok()?.modified().ok()?;
-        if !model.is_periodic() || !files.iter().any(|f| f == name) || modified > *time {
-            return None;
+        let key = std::fs::canonicalize(&dir)
+            .unwrap_or(dir)
+            .join("synth.json");
+        let entry = records.entry(key.clone()).or_insert_with(|| read(&rec));
+        let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        let why = match entry.as_ref() {
+            None => Some("without a synth.json of `wtmm synth` beside it".to_string()),
+            Some(r) if !r.files.iter().any(|f| f == name) => Some(format!(
+                "not listed in {} (left by an earlier run?)",
+                r.shown.display()
+            )),
+            Some(r) if !r.model.is_periodic() => {
+                Some(format!("from a non-periodic model ({})", r.model.name()))
+            }
+            Some(r)
+                if std::fs::metadata(p)
+                    .and_then(|m| m.modified())
+                    .map_or(true, |t| t > r.time) =>
+            {
+                Some(format!(
+                    "newer than {} (changed since synth wrote it?)",
+                    r.shown.display()
+                ))
+            }
+            Some(_) => None,
+        };
+        match why {
+            None => {
+                ok += 1;
+                if !used.contains(&key) {
+                    used.push(key);
+                }
+            }
+            Some(w) => {
+                broken.get_or_insert_with(|| format!("{} is {w}", p.display()));
+            }
         }
-        if !models.contains(&model.name().to_string()) {
-            models.push(model.name().to_string());
+    }
+    if let Some(b) = broken {
+        if ok > 0 {
+            say!(
+                "note: {b}, so all {} inputs are analysed as non-periodic data (inside the \
+                 margin, the spectrum tapered), though {ok} of them are periodic fields of `wtmm \
+                 synth`: give --margin 0 (--domain torus) for tori",
+                paths.len()
+            );
         }
+        return None;
     }
     if paths.is_empty() {
         return None;
     }
+    let recs: Vec<&Record> = used.iter().filter_map(|k| records[k].as_ref()).collect();
+    let mut models: Vec<String> = Vec::new();
+    for r in &recs {
+        if !models.contains(&r.model.name().to_string()) {
+            models.push(r.model.name().to_string());
+        }
+    }
+    let wavelet = recs[0]
+        .wavelet
+        .filter(|w| recs.iter().all(|r| r.wavelet == Some(*w)));
     Some(PeriodicSynth {
-        records: records.into_keys().collect(),
+        records: recs.iter().map(|r| r.shown.clone()).collect(),
         models,
+        wavelet,
     })
 }
 

@@ -94,6 +94,22 @@ fn describe(
     fit_scales: (f64, f64),
 ) -> Result<Described> {
     let (field, info) = crate::io::read_field_with_info(path)?;
+    // a periodic synth field is counted whole by default, as analyze does
+    let origin = match plan.margin {
+        None => super::common::periodic_synth(&[path.to_path_buf()]),
+        Some(_) => None,
+    };
+    let torus;
+    let plan = match origin {
+        Some(_) => {
+            torus = AnalysisConfig {
+                margin: Some(0),
+                ..plan.clone()
+            };
+            &torus
+        }
+        None => plan,
+    };
     let (ny, nx) = field.dim();
     let missing = field.missing_count();
     // mean and sd of the valid pixels, in two passes (no copy)
@@ -247,13 +263,17 @@ fn describe(
             ""
         }
     );
-    let origin = super::common::periodic_synth(&[path.to_path_buf()]);
     if let Some(o) = &origin {
         notes.push(format!(
-            "{}: analyze, skeleton, pdf, kernel and correlate take it whole (margin 0) unless \
-             given --margin, --domain or --detrend, and spectrum and tm neither taper it nor \
-             remove a plane from its spectrum",
-            o.describe(1)
+            "{}: analyze, skeleton, pdf, kernel and correlate take it whole (margin 0, the \
+             domains above) unless given --margin, --domain or --detrend{}, and spectrum and tm \
+             neither taper it nor remove a plane from its spectrum",
+            o.describe(1),
+            o.wavelet
+                .filter(|w| *w != crate::cwt::Wavelet::Gauss)
+                .map_or(String::new(), |w| format!(
+                    ", with the {w} wavelet it recommends"
+                ))
         ));
     }
     for n in &notes {

@@ -306,20 +306,33 @@ impl StatsInput {
                 generated && resolved.as_ref().is_some_and(|r| r.model.is_periodic())
             }
         };
-        let origin = match (self.domain, margin, line.detrend) {
-            (DomainChoice::Auto, None, crate::field::Trend::None) if !generated => {
-                super::common::periodic_synth(&self.images)
-            }
-            _ => None,
+        // files synth wrote from a periodic model: validate's torus (when
+        // the domain is left to auto) and its wavelet (when neither
+        // --wavelet nor a theory names one)
+        let torus_open = matches!(
+            (self.domain, margin, line.detrend),
+            (DomainChoice::Auto, None, crate::field::Trend::None)
+        );
+        let wavelet_open = line.cwt.wavelet.is_none() && resolved.is_none();
+        let origin = if !generated && (torus_open || wavelet_open) {
+            super::common::periodic_synth(&self.images)
+        } else {
+            None
         };
-        if let Some(o) = &origin {
+        let origin_wavelet = origin
+            .as_ref()
+            .and_then(|o| o.wavelet)
+            .filter(|_| wavelet_open);
+        let origin =
+            origin.filter(|_| torus_open || origin_wavelet.is_some_and(|w| w != Wavelet::Gauss));
+        if let Some(o) = origin.as_ref().filter(|_| torus_open) {
             say!(
                 "note: {}: analysed whole, as a torus (--domain torus), as validate analyses \
                  the model; give --domain interior for the interior",
                 o.describe(self.images.len())
             );
         }
-        let periodic = periodic || origin.is_some();
+        let periodic = periodic || (torus_open && origin.is_some());
         Ok(Input {
             images: self.images.clone(),
             name: resolved
@@ -327,7 +340,11 @@ impl StatsInput {
                 .map(|r| r.preset.unwrap_or(r.model.name()).to_string())
                 .unwrap_or_default(),
             model: resolved.as_ref().map(|r| r.model),
-            wavelet: resolved.as_ref().map_or(Wavelet::Gauss, |r| r.wavelet),
+            wavelet: resolved
+                .as_ref()
+                .map(|r| r.wavelet)
+                .or(origin_wavelet)
+                .unwrap_or(Wavelet::Gauss),
             count,
             size,
             seed,
@@ -375,7 +392,11 @@ impl Input {
                     "note: analysing with the {} wavelet, the one {} recommends (the default \
                      without a theory is {default}); give --wavelet to choose",
                     self.wavelet,
-                    self.name
+                    if self.name.is_empty() {
+                        "the synth.json beside the files"
+                    } else {
+                        &self.name
+                    }
                 );
             }
         }

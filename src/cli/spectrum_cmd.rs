@@ -33,7 +33,8 @@ pub struct SpectrumArgs {
     pub window: Option<Window>,
     /// Trend removed before the FFT [default: plane; mean for files `wtmm synth`
     /// wrote from a periodic model: a plane removed from a torus is a sawtooth
-    /// across its edges].
+    /// across its edges; `plane` given, such files take the non-periodic
+    /// defaults (a taper), as with the other commands' --detrend plane].
     #[arg(long, value_enum)]
     pub detrend: Option<Detrend>,
     /// Log-spaced bins per octave of |k|.
@@ -94,9 +95,11 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     }
     // periodic synth files: the settings validate uses for their model
     // (PowerSpectrumConfig::for_field), unless given
+    // (--detrend plane asks for the non-periodic treatment, as in the
+    // other commands: no origin then)
     let origin = match (args.window, args.detrend) {
-        (None, _) | (_, None) => super::common::periodic_synth(&args.images),
-        _ => None,
+        (Some(_), Some(_)) | (_, Some(Detrend::Plane)) => None,
+        _ => super::common::periodic_synth(&args.images),
     };
     let base = PowerSpectrumConfig::for_field(origin.is_some());
     let cfg = PowerSpectrumConfig {

@@ -550,12 +550,13 @@ pub fn summary(r: &TraceMomentResult) -> String {
         FluxDiff::Order(d) => format!(" after differentiation of order {d}"),
     };
     let mut out = format!(
-        "trace moments: {} image(s), flux |{}|{}{}, fit log2 lambda {}:{}\n  \
+        "trace moments: {} image(s){}, flux |{}|{}{}, fit log2 lambda {}:{}\n  \
          alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} ({} universal fit over 0 < q <= {:.2}; q_s {:.2})\n  \
          DTM (q = {}): alpha {:.3} +- {:.3}, C1 {:.4}\n  \
          beta {} (angle-integrated), H {} (spectrum), H_sf {} (structure functions)\n  \
          errors: {} (fit-only: alpha +- {:.3}, C1 +- {:.4})\n",
         r.images,
+        super::common::trend_label(r.detrend),
         r.flux.name(),
         diff,
         r.frac_int

@@ -2179,15 +2179,17 @@ fn range_warnings(r: &TraceMomentResult) -> Vec<String> {
         w.push(format!(
             "alpha = {:.3} sits at an end of the universal fit's search interval [{lo}, {hi}]: \
              no minimum was found, so K(q) is not of the universal form C1/(alpha-1) \
-             (q^alpha - q) (a smooth or planar field, too few scales or images): alpha and C1 \
-             are not estimates",
-            r.alpha
+             (q^alpha - q) over the fitted q (a smooth or planar field, moments beyond the \
+             sampling order q_s = {:.2}, too few scales or images): alpha and C1 are not \
+             estimates",
+            r.alpha, r.q_s
         ));
-    } else if r.alpha.is_finite() && !(r.alpha >= 0.0 && r.alpha <= 2.0) {
+    } else if outside_universal(r.alpha, r.alpha_stderr) {
         w.push(format!(
-            "alpha = {:.3} lies outside [0, 2], the range of universal multifractals: \
-             too few scales or images for the fit",
-            r.alpha
+            "alpha = {:.3} +- {:.3} lies outside [0, 2], the range of universal \
+             multifractals, by more than 2 errors: K(q) is not of the universal form over the \
+             fitted q, or too few scales or images for the fit",
+            r.alpha, r.alpha_stderr
         ));
     }
     if r.c1.is_finite() && r.c1 < 0.0 {
@@ -2200,8 +2202,9 @@ fn range_warnings(r: &TraceMomentResult) -> Vec<String> {
     {
         // K(q) = C1 x shape(alpha): with C1 ~ 0 the shape, alpha, is free
         w.push(format!(
-            "C1 = {:.4} +- {:.4} is not distinguishable from 0 (no intermittency resolved), \
-             so alpha, the shape of K(q), is undetermined: do not quote it",
+            "C1 = {:.4} +- {:.4} is not distinguishable from 0 (its error is half of it or \
+             more: the intermittency is not resolved), so alpha, the shape of K(q), is \
+             undetermined: do not quote it",
             r.c1, r.c1_stderr
         ));
     }
@@ -2225,10 +2228,11 @@ fn range_warnings(r: &TraceMomentResult) -> Vec<String> {
             }
         ));
     }
-    if r.dtm_alpha.is_finite() && !(r.dtm_alpha >= 0.0 && r.dtm_alpha <= 2.0) {
+    if outside_universal(r.dtm_alpha, r.dtm_alpha_stderr) {
         w.push(format!(
-            "DTM alpha = {:.3} lies outside [0, 2]: too few scales or images",
-            r.dtm_alpha
+            "DTM alpha = {:.3} +- {:.3} lies outside [0, 2] by more than 2 errors: too few \
+             scales or images",
+            r.dtm_alpha, r.dtm_alpha_stderr
         ));
     }
     if r.h_sf.is_none() && r.sf_q.iter().any(|&q| (q - 1.0).abs() < 1e-12) {
@@ -2239,6 +2243,16 @@ fn range_warnings(r: &TraceMomentResult) -> Vec<String> {
         );
     }
     w
+}
+
+/// True when `alpha` lies outside the universal [0, 2] (TM §6) by more
+/// than 2 of its errors (by any amount without an error): a log-normal
+/// field's estimates scatter either side of 2 (6 of 12 single 128^2 FIF
+/// with alpha = 2 read 2.005-2.025, within one error, and were warned
+/// about before).
+fn outside_universal(alpha: f64, se: f64) -> bool {
+    let se = if se.is_finite() { se } else { 0.0 };
+    alpha.is_finite() && (alpha > 2.0 + 2.0 * se || alpha < -2.0 * se)
 }
 
 /// `P(Z > z)` for a standard normal `Z`.
@@ -2670,6 +2684,19 @@ pub fn box_levels(side: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// alpha is warned about beyond [0, 2] only by more than 2 of its
+    /// errors (a log-normal field's 2.013 +- 0.139 is no anomaly), by any
+    /// amount without an error.
+    #[test]
+    fn alpha_beyond_the_universal_range_by_its_errors() {
+        assert!(!outside_universal(2.013, 0.139));
+        assert!(!outside_universal(1.0, 0.1));
+        assert!(outside_universal(2.5, 0.1));
+        assert!(outside_universal(2.01, f64::NAN));
+        assert!(outside_universal(-0.3, 0.1));
+        assert!(!outside_universal(f64::NAN, 0.1));
+    }
 
     /// A q grid the universal fit cannot use gives K(q), no alpha, and a
     /// warning saying why; an unsorted or repeated grid is refused.
