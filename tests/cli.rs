@@ -1790,41 +1790,28 @@ fn synth_files_are_analysed_as_tori() {
     assert_eq!(auto["tau"], torus["tau"]);
     assert_eq!(auto["log2_Z"], torus["log2_Z"]);
     // and validate's in-memory ensemble of the same seed reads the same
-    let val = p("val");
-    let v = [
-        "validate",
-        "--preset",
-        "paper-lognormal",
-        "--count",
-        "3",
-        "--size",
-        "128",
-        "--seed",
-        "1",
-        "--octaves",
-        "3",
-        "--out",
-        &val,
-    ];
-    assert!(run(&v) <= 1);
-    let val = json(&dir.join("val/spectra.json"));
-    let tau_at = |s: &Value, q: f64| {
-        let i = s["q"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .position(|x| x.as_f64() == Some(q));
-        s["tau"][i.unwrap_or_else(|| panic!("no q = {q}"))]
-            .as_f64()
-            .unwrap()
+    // (not to the bit: the sums run a recurrence along each q grid)
+    let reads_as_validate = |files: &Value, preset: &str, count: &str| {
+        let out = p(&format!("val_{preset}"));
+        let v = validate_args(preset, count, "128", &["--seed", "1", "--out", &out]);
+        assert!(run(&v) <= 1);
+        let val = json(&Path::new(&out).join("spectra.json"));
+        let tau_at = |s: &Value, q: f64| {
+            let i = s["q"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .position(|x| x.as_f64() == Some(q));
+            s["tau"][i.unwrap_or_else(|| panic!("no q = {q}"))]
+                .as_f64()
+                .unwrap()
+        };
+        for q in [-2.0, 0.0, 2.0, 4.0] {
+            let d = (tau_at(files, q) - tau_at(&val, q)).abs();
+            assert!(d < 1e-12, "{preset} tau({q}): {d}");
+        }
     };
-    for q in [-2.0, 0.0, 2.0, 4.0] {
-        // (not to the bit: the sums run a recurrence along each q grid)
-        assert!(
-            (tau_at(&auto, q) - tau_at(&val, q)).abs() < 1e-12,
-            "tau({q})"
-        );
-    }
+    reads_as_validate(&auto, "paper-lognormal", "3");
     // what the user gave wins
     for (extra, name) in [
         (&["--margin", "20"][..], "a_m20"),
@@ -1880,29 +1867,7 @@ fn synth_files_are_analysed_as_tori() {
         "{err}"
     );
     assert_eq!(fa["params"]["analysis"]["wavelet"], "mexican");
-    let v = [
-        "validate",
-        "--preset",
-        "paper-fisc",
-        "--count",
-        "2",
-        "--size",
-        "128",
-        "--seed",
-        "1",
-        "--octaves",
-        "3",
-        "--out",
-        &p("val_fisc"),
-    ];
-    assert!(run(&v) <= 1);
-    let fv = json(&dir.join("val_fisc/spectra.json"));
-    for q in [-2.0, 0.0, 2.0, 4.0] {
-        assert!(
-            (tau_at(&fa, q) - tau_at(&fv, q)).abs() < 1e-12,
-            "fisc tau({q})"
-        );
-    }
+    reads_as_validate(&fa, "paper-fisc", "2");
     // pdf's --domain auto: the torus
     let (code, err) = run_bin_stderr(
         &[
