@@ -97,7 +97,8 @@ pub struct Input {
     pub size: usize,
     pub seed: u64,
     pub periodic: bool,
-    /// The `synth` record that made `periodic` true for image files.
+    /// The `synth` record whose defaults (the torus, the wavelet) the image
+    /// files took.
     pub origin: Option<super::common::PeriodicSynth>,
     /// The wavelet the preset recommends (gauss without a model).
     pub wavelet: Wavelet,
