@@ -323,6 +323,19 @@ pub struct CwtPlan {
     scratch_len: usize,
 }
 
+/// What a plan is for (the FFT plans and tables are not printed): written
+/// by hand because the FFT plan objects have no `Debug`.
+impl std::fmt::Debug for CwtPlan {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CwtPlan")
+            .field("ny", &self.ny)
+            .field("nx", &self.nx)
+            .field("wavelet", &self.wavelet)
+            .field("scales", &self.scales)
+            .finish_non_exhaustive()
+    }
+}
+
 /// An image of `ny x nx` can be transformed from the scale `smallest`:
 /// at least 8x8, and as wide as the wavelet's support there.
 ///

@@ -569,3 +569,28 @@ fn margins_that_differ_are_named_in_pixels() {
     let b = image_sums(&f, &torus(3), &[0.0, 1.0], "t").unwrap();
     err(a.merge(&b), &format!("margin: {px} vs 0"));
 }
+
+/// A program's own structs holding the plans can derive `Debug`: the plans
+/// print what they are for.
+#[test]
+fn plans_print_what_they_are_for() {
+    use wtmm::cwt::{CwtPlan, Wavelet};
+    use wtmm::stats::correlation::{CorrelationConfig, CorrelationPlan};
+    let p = CwtPlan::new(64, 32, Wavelet::Gauss, &[1.5, 3.0]).unwrap();
+    let s = format!("{p:?}");
+    assert!(
+        s.contains("ny: 64") && s.contains("nx: 32") && s.contains("scales: [1.5, 3.0]"),
+        "{s}"
+    );
+    let c = CorrelationPlan::new(
+        128,
+        128,
+        &CorrelationConfig::fig30(Wavelet::Gauss, 1.5, true),
+    )
+    .unwrap();
+    let s = format!("{c:?}");
+    assert!(
+        s.starts_with("CorrelationPlan") && s.contains("ny: 128"),
+        "{s}"
+    );
+}

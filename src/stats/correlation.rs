@@ -586,6 +586,18 @@ pub struct CorrelationPlan {
     pool: Mutex<Vec<Workspace>>,
 }
 
+/// What a plan is for (the FFT plans and lag tables are not printed).
+impl std::fmt::Debug for CorrelationPlan {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CorrelationPlan")
+            .field("cfg", &self.cfg)
+            .field("ny", &self.ny)
+            .field("nx", &self.nx)
+            .field("domain", &((self.y0, self.y1), (self.x0, self.x1)))
+            .finish_non_exhaustive()
+    }
+}
+
 /// Smallest `n' >= n` whose prime factors are 2, 3, 5, 7 (fast FFT sizes).
 fn smooth(n: usize) -> usize {
     let mut m = n.max(1);
