@@ -263,6 +263,28 @@ impl PdfConfig {
     }
 }
 
+/// The binning and the scales [`WtmmmHistograms::new`] accepts (shared by
+/// [`WtmmmHistograms::check`], which must not build histograms to ask).
+fn check_grid(scales: &[f64], config: PdfConfig) -> Result<()> {
+    config.validate()?;
+    if scales.is_empty() {
+        return Err(Error::param("scales", "no scale given"));
+    }
+    if let Some(a) = scales.iter().find(|a| !(a.is_finite() && **a > 0.0)) {
+        return Err(Error::param(
+            "scales",
+            format!("scales must be > 0, got {}", crate::error::short(*a)),
+        ));
+    }
+    if scales.windows(2).any(|w| w[1] <= w[0]) {
+        return Err(Error::param(
+            "scales",
+            "scales must be increasing (smallest first)",
+        ));
+    }
+    Ok(())
+}
+
 /// The `(ln M, A)` histogram of one scale: `counts[(k - lo) * arg_bins + b]`
 /// for `ln M` bin `k` and argument bin `b`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -299,22 +321,7 @@ impl WtmmmHistograms {
     /// holds a non-positive or non-finite scale, or is not increasing (the
     /// kernel and the rescaling test read it as smallest first).
     pub fn new(scales: &[f64], config: PdfConfig) -> Result<Self> {
-        config.validate()?;
-        if scales.is_empty() {
-            return Err(Error::param("scales", "no scale given"));
-        }
-        if let Some(a) = scales.iter().find(|a| !(a.is_finite() && **a > 0.0)) {
-            return Err(Error::param(
-                "scales",
-                format!("scales must be > 0, got {}", crate::error::short(*a)),
-            ));
-        }
-        if scales.windows(2).any(|w| w[1] <= w[0]) {
-            return Err(Error::param(
-                "scales",
-                "scales must be increasing (smallest first)",
-            ));
-        }
+        check_grid(scales, config)?;
         Ok(WtmmmHistograms {
             version: crate::VERSION.to_string(),
             config,
@@ -330,7 +337,7 @@ impl WtmmmHistograms {
     /// checked before it is merged or read ([`Self::merge`],
     /// [`wtmmm_pdfs`]).
     pub fn check(&self) -> Result<()> {
-        Self::new(&self.scales, self.config)?;
+        check_grid(&self.scales, self.config)?;
         if self.hist.len() != self.scales.len() {
             return Err(Error::Input(format!(
                 "{} histograms for {} scales",
