@@ -304,7 +304,9 @@ pub struct CwtWorkspace {
 pub const ROW_BLOCK: usize = 8;
 
 /// A resolved CWT: FFT plans and frequency tables for one image size, one
-/// wavelet and one list of scales. Cheap to share between threads.
+/// wavelet and one list of scales. Cheap to share between threads, and
+/// cheap to clone (the FFT plans are shared, the tables copied).
+#[derive(Clone)]
 pub struct CwtPlan {
     ny: usize,
     nx: usize,

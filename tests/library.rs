@@ -593,4 +593,17 @@ fn plans_print_what_they_are_for() {
         s.starts_with("CorrelationPlan") && s.contains("ny: 128"),
         "{s}"
     );
+    // Clones compute what their originals compute, the correlation plan's
+    // cloned after a call has left a workspace in its pool.
+    let f = surface(128);
+    let cwt = |p: &CwtPlan| {
+        let fi = p.forward(f.data.view()).unwrap();
+        let mut ws = p.workspace();
+        p.scale(&fi, 1, &mut ws).clone()
+    };
+    let p64 = CwtPlan::new(128, 128, Wavelet::Gauss, &[1.5, 3.0]).unwrap();
+    assert_eq!(cwt(&p64), cwt(&p64.clone()));
+    let first = wtmm::stats::correlation::cwt_correlation(&f, &c, "f").unwrap();
+    let again = wtmm::stats::correlation::cwt_correlation(&f, &c.clone(), "f").unwrap();
+    assert_eq!(first, again);
 }

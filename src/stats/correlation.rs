@@ -320,6 +320,7 @@ const COL_PAD: usize = 8;
 /// multiple of 4 KiB, so the [`COLS`] columns a row is scattered into (and
 /// gathered from) all fall in the same L1 set and evict each other. The
 /// padding is never read as data (its products are of zeros).
+#[derive(Clone)]
 struct RFft2 {
     fy: usize,
     fx: usize,
@@ -584,6 +585,35 @@ pub struct CorrelationPlan {
     cwt: CwtPlan,
     /// Workspaces of finished calls (one per thread at most).
     pool: Mutex<Vec<Workspace>>,
+}
+
+/// A clone shares the FFT plans and copies the lag tables; the workspaces
+/// of finished calls are not copied (the clone grows its own). Written by
+/// hand because a `Mutex` is not `Clone`.
+impl Clone for CorrelationPlan {
+    fn clone(&self) -> Self {
+        Self {
+            cfg: self.cfg.clone(),
+            ny: self.ny,
+            nx: self.nx,
+            y0: self.y0,
+            y1: self.y1,
+            x0: self.x0,
+            x1: self.x1,
+            fft: self.fft.clone(),
+            runs: self.runs.clone(),
+            l2: self.l2.clone(),
+            n_bins: self.n_bins,
+            lag_n: self.lag_n.clone(),
+            lag_l: self.lag_l.clone(),
+            rect_n: self.rect_n.clone(),
+            rect_l: self.rect_l.clone(),
+            maxlag: self.maxlag,
+            max_dx: self.max_dx,
+            cwt: self.cwt.clone(),
+            pool: Mutex::new(Vec::new()),
+        }
+    }
 }
 
 /// What a plan is for (the FFT plans and lag tables are not printed).
