@@ -1843,9 +1843,12 @@ fn synth_files_are_analysed_as_tori() {
     assert!(v["params"]["origin"].is_null());
     assert!(
         err.contains("wcascade_0002.npy is newer than")
-            && err.contains("so all 3 inputs are analysed as non-periodic"),
+            && err.contains("so all 3 inputs are read as non-periodic data (analysed inside the margin: --margin 0"),
         "{err}"
     );
+    // with --margin given, losing the torus costs nothing: no note
+    let (_, err) = analyze(&wcs, &["--margin", "3"], &p("a_changed_m"));
+    assert!(!err.contains("non-periodic"), "{err}");
     let two = &wcs[..2];
     // a file an earlier run left in the directory: named
     let stale = p("wc/wcascade_0007.npy");

@@ -324,7 +324,10 @@ pub(super) fn torus_for_synth(line: &mut LineOpts, images: &[PathBuf]) -> Option
     if !torus && !wavelet_open {
         return None;
     }
-    let origin = super::common::periodic_synth(images)?;
+    let origin = super::common::periodic_synth(
+        images,
+        torus.then_some("analysed inside the margin: --margin 0 takes tori whole"),
+    )?;
     let mut took = Vec::new();
     if torus {
         line.cwt.margin = Some(0);

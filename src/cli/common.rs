@@ -177,7 +177,9 @@ impl PeriodicSynth {
 /// non-periodic data, which are valid on a torus too, only wasteful. When
 /// some inputs qualify and one does not (a stale file of an earlier run, a
 /// file changed since, another model), a note names it, since the others
-/// then lose their periodic defaults too.
+/// then lose their periodic defaults too: `lost` says what they get
+/// instead and the flags that choose otherwise (no note when `None`: the
+/// caller's flags already chose).
 ///
 /// Why: analysed inside the margin, a periodic field loses half its maxima
 /// and its spectrum a taper's worth of power (SPEC §1, §14), and the same
@@ -186,7 +188,7 @@ impl PeriodicSynth {
 /// Trusted, not verified: the record's file list and times (a file put in
 /// place with an older time, `cp -p`, passes; its shape is not compared
 /// with the record's size).
-pub fn periodic_synth(paths: &[PathBuf]) -> Option<PeriodicSynth> {
+pub fn periodic_synth(paths: &[PathBuf], lost: Option<&str>) -> Option<PeriodicSynth> {
     use std::collections::BTreeMap;
     struct Record {
         shown: PathBuf,
@@ -265,11 +267,10 @@ pub fn periodic_synth(paths: &[PathBuf]) -> Option<PeriodicSynth> {
         }
     }
     if let Some(b) = broken {
-        if ok > 0 {
+        if let Some(lost) = lost.filter(|_| ok > 0) {
             say!(
-                "note: {b}, so all {} inputs are analysed as non-periodic data (inside the \
-                 margin, the spectrum tapered), though {ok} of them are periodic fields of `wtmm \
-                 synth`: give --margin 0 (--domain torus) for tori",
+                "note: {b}, so all {} inputs are read as non-periodic data ({lost}), though {ok} \
+                 of them are periodic fields of `wtmm synth`",
                 paths.len()
             );
         }

@@ -96,7 +96,7 @@ fn describe(
     let (field, info) = crate::io::read_field_with_info(path)?;
     // a periodic synth field is counted whole by default, as analyze does
     let origin = match plan.margin {
-        None => super::common::periodic_synth(&[path.to_path_buf()]),
+        None => super::common::periodic_synth(&[path.to_path_buf()], None),
         Some(_) => None,
     };
     let torus;

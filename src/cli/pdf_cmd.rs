@@ -316,7 +316,10 @@ impl StatsInput {
         );
         let wavelet_open = line.cwt.wavelet.is_none() && resolved.is_none();
         let origin = if !generated && (torus_open || wavelet_open) {
-            super::common::periodic_synth(&self.images)
+            super::common::periodic_synth(
+                &self.images,
+                torus_open.then_some("inside the margin: --domain torus takes tori whole"),
+            )
         } else {
             None
         };

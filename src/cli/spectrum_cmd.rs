@@ -99,7 +99,12 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     // other commands: no origin then)
     let origin = match (args.window, args.detrend) {
         (Some(_), Some(_)) | (_, Some(Detrend::Plane)) => None,
-        _ => super::common::periodic_synth(&args.images),
+        _ => super::common::periodic_synth(
+            &args.images,
+            (args.window, args.detrend).eq(&(None, None)).then_some(
+                "tapered, a plane removed: --window none --detrend mean are the periodic settings",
+            ),
+        ),
     };
     let base = PowerSpectrumConfig::for_field(origin.is_some());
     let cfg = PowerSpectrumConfig {

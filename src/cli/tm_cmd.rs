@@ -237,7 +237,13 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     // files `synth` wrote from a periodic model: the spectrum settings
     // compare takes for the model (no taper, only the mean removed)
     let origin = match args.detrend {
-        crate::field::Trend::None => super::common::periodic_synth(&args.images),
+        crate::field::Trend::None => super::common::periodic_synth(
+            &args.images,
+            Some(match args.tm.window {
+                None => "their power spectrum tapered and a plane removed",
+                Some(_) => "a plane removed from their power spectrum",
+            }),
+        ),
         _ => None,
     };
     let cfg = TraceMomentConfig {
