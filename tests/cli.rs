@@ -1933,6 +1933,15 @@ fn synth_files_are_analysed_as_tori() {
         info["images"][0]["notes"].to_string().contains("margin 0"),
         "{out}"
     );
+    assert_eq!(info["images"][0]["wavelet"], "gauss");
+    // a FISC file: the wavelet analyze takes for it (mexican), unless given
+    for (extra, wavelet) in [(&[][..], "mexican"), (&["--wavelet", "gauss"][..], "gauss")] {
+        let args = [&["info", fiscs[0], "--octaves", "3", "--json"][..], extra].concat();
+        let (code, out, err) = run_bin_output(&args, true);
+        assert_eq!(code, 0, "{err}");
+        let info: Value = serde_json::from_str(&out).unwrap();
+        assert_eq!(info["images"][0]["wavelet"], wavelet, "{extra:?}");
+    }
 }
 
 #[test]

@@ -53,7 +53,13 @@ pub fn run(args: InfoArgs, _quiet: bool) -> Result<Outcome> {
     let fit_scales = (grid[idx[0]], grid[idx[idx.len() - 1]]);
     let mut out = Vec::new();
     for p in &args.images {
-        out.push(describe(p, &plan, fit, fit_scales)?);
+        out.push(describe(
+            p,
+            &plan,
+            args.cwt.wavelet.is_some(),
+            fit,
+            fit_scales,
+        )?);
     }
     if args.json {
         let mut body = header(
@@ -90,6 +96,7 @@ struct Described {
 fn describe(
     path: &Path,
     plan: &AnalysisConfig,
+    wavelet_given: bool,
     fit: (f64, f64),
     fit_scales: (f64, f64),
 ) -> Result<Described> {
@@ -102,8 +109,13 @@ fn describe(
     let torus;
     let plan = match origin {
         Some(_) => {
+            // and the wavelet its record recommends, as analyze takes
             torus = AnalysisConfig {
                 margin: Some(0),
+                wavelet: match origin.as_ref().and_then(|o| o.wavelet) {
+                    Some(w) if !wavelet_given => w,
+                    _ => plan.wavelet,
+                },
                 ..plan.clone()
             };
             &torus
@@ -153,7 +165,8 @@ fn describe(
             f(p.cy),
             100.0 * r
         );
-        if r > crate::spectra::PLANE_SHARE_WARN {
+        // mexican (3 vanishing moments) is blind to planes
+        if r > crate::spectra::PLANE_SHARE_WARN && plan.wavelet == crate::cwt::Wavelet::Gauss {
             notes.push(format!(
                 "the least-squares plane explains {:.0} % of the variance: the gauss wavelet \
                  adds a plane to its transform as a vector growing like the scale, which \
@@ -272,7 +285,7 @@ fn describe(
             o.wavelet
                 .filter(|w| *w != crate::cwt::Wavelet::Gauss)
                 .map_or(String::new(), |w| format!(
-                    ", with the {w} wavelet it recommends"
+                    ", with the {w} wavelet it recommends unless given --wavelet"
                 ))
         ));
     }
@@ -290,7 +303,7 @@ fn describe(
             "source": p.source})),
         "plane": plane.map(|p| json!({"c0": p.c0, "cx": p.cx, "cy": p.cy, "slope": p.slope(),
             "variance_share": share})),
-        "domains": domains, "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
+        "wavelet": plan.wavelet, "margin": plan.margin, "domains": domains, "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
         "notes": notes, "usable": problems.is_empty(), "problems": problems,
     });
     Ok(Described {
