@@ -155,8 +155,21 @@ impl PowerSpectrum {
     /// Fits `log S = c - β log |k|` over bins with `k_lo <= |k| <= k_hi`
     /// (rad/px). The returned fit's slope is `-β`.
     ///
-    /// **Errors** if fewer than 3 bins fall in the range.
+    /// **Errors** unless `0 < k_lo < k_hi <= π` (beyond the Nyquist
+    /// wavenumber the bins are the spectrum's corners only, and the range
+    /// recorded would not be the one fitted), or if fewer than 3 bins fall
+    /// in the range.
     pub fn fit(&self, k_lo: f64, k_hi: f64) -> Result<SpectrumFit> {
+        if !(k_lo > 0.0 && k_lo < k_hi && k_hi <= std::f64::consts::PI) {
+            return Err(Error::param(
+                "k-range",
+                format!(
+                    "[{}, {}] rad/px: need 0 < LO < HI <= pi (the Nyquist wavenumber)",
+                    crate::error::short(k_lo),
+                    crate::error::short(k_hi)
+                ),
+            ));
+        }
         let pts: Vec<(f64, f64)> = self
             .points()
             .into_iter()
@@ -505,6 +518,17 @@ mod tests {
         };
         let ps = power_spectrum(f.view(), &cfg).unwrap();
         let fit = ps.fit(0.1, 1.5).unwrap();
+        // ranges that are no fit range: refused, not recorded as asked
+        for (lo, hi) in [
+            (0.1, 4.0),
+            (0.0, 1.0),
+            (1.0, 0.5),
+            (f64::NAN, 1.0),
+            (0.1, f64::INFINITY),
+        ] {
+            let e = ps.fit(lo, hi).unwrap_err().to_string();
+            assert!(e.contains("k-range") && e.contains("Nyquist"), "{e}");
+        }
         // the exact periodogram of these modes: each cosine of amplitude A
         // puts |F|^2 / n^2 = A^2 n^2 / 4 on its mode and on its twin
         let mut dens = Array2::<f64>::zeros((n, n));
