@@ -4380,3 +4380,55 @@ fn csv_fields(line: &str) -> Vec<String> {
     out.push(cur);
     out
 }
+
+/// A file name that is not UTF-8 (a Latin-1 name on Linux) is read and
+/// recorded lossily (U+FFFD), never a panic of the JSON writer.
+#[cfg(unix)]
+#[test]
+fn file_names_that_are_not_utf8_are_recorded_lossily() {
+    use std::ffi::OsStr;
+    use std::os::unix::ffi::OsStrExt;
+    let dir = scratch("non_utf8");
+    let d = dir.display().to_string();
+    assert_eq!(
+        run(&[
+            "synth", "fbm", "--hurst", "0.4", "--size", "96", "--count", "1", "--seed", "4",
+            "--out", &d
+        ]),
+        0
+    );
+    let name = dir.join(OsStr::from_bytes(b"caf\xe9.npy"));
+    std::fs::rename(dir.join("fbm_0000.npy"), &name).unwrap();
+    for cmd in [
+        &["analyze", "--octaves", "2"][..],
+        &["tm"][..],
+        &["pdf", "--octaves", "2"][..],
+        &["skeleton", "--octaves", "2"][..],
+    ] {
+        let out = dir.join(cmd[0]);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
+            .arg("--quiet")
+            .args(cmd)
+            .arg("--out")
+            .arg(&out)
+            .arg(&name)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(0), "{cmd:?}: {err}");
+        let json = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| p.extension().is_some_and(|e| e == "json") && !p.ends_with("sums.json"))
+            .unwrap();
+        let s = std::fs::read_to_string(&json).unwrap();
+        assert!(s.contains("caf\u{fffd}.npy"), "{cmd:?}: {}", json.display());
+    }
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
+        .args(["info", "--json", "--octaves", "2"])
+        .arg(&name)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("caf\u{fffd}.npy"));
+}

@@ -292,7 +292,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     PixelSize::say_note(px.as_ref(), quiet);
     make_out_dir(&args.out.out)?;
     let params = json!({
-        "images": args.images, "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit,
+        "images": super::common::paths_json(&args.images), "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit,
         "rule": args.opts.rule(), "theory": theory_model,
         "pixel_size": px.as_ref().map(PixelSize::json),
         "origin": origin.as_ref().map(PeriodicSynth::json),

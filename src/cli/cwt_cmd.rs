@@ -135,7 +135,7 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     }
     let mut body = header(
         "cwt",
-        json!({"image": args.image, "wavelet": args.wavelet, "scales": scales, "detrend": args.detrend}),
+        json!({"image": super::common::path_json(&args.image), "wavelet": args.wavelet, "scales": scales, "detrend": args.detrend}),
     );
     body["margin"] = json!(margin);
     body["margin_rule"] = json!(format!(

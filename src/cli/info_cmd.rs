@@ -64,7 +64,7 @@ pub fn run(args: InfoArgs, _quiet: bool) -> Result<Outcome> {
     if args.json {
         let mut body = header(
             "info",
-            json!({"images": args.images, "wavelet": wavelet, "a_min": args.cwt.a_min,
+            json!({"images": super::common::paths_json(&args.images), "wavelet": wavelet, "a_min": args.cwt.a_min,
                 "octaves": args.cwt.octaves, "voices": args.cwt.voices, "margin": args.cwt.margin,
                 "default_fit_octaves": fit, "default_fit_scales": fit_scales}),
         );
@@ -296,7 +296,7 @@ fn describe(
         text += &format!("  not usable: {p}\n");
     }
     let json = json!({
-        "file": path, "format": info.format.name(), "dtype": info.dtype, "shape": [ny, nx],
+        "file": super::common::path_json(path), "format": info.format.name(), "dtype": info.dtype, "shape": [ny, nx],
         "missing": missing, "min": range.map(|r| r.0), "max": range.map(|r| r.1),
         "mean": (n > 0.0).then_some(mean), "sd": (n > 1.0).then_some(sd),
         "pixel_size": px.as_ref().map(|p| json!({"x": p.x, "y": p.y, "units": p.units,

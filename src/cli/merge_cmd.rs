@@ -151,7 +151,7 @@ pub fn run(args: MergeArgs, quiet: bool) -> Result<Outcome> {
         .map(|(m, name)| theory_curves(&m, name, &s.q))
         .transpose()?;
     // the analysis the shards share (null when no shard records it)
-    let params = json!({"sums": args.sums, "analysis": sums.analysis, "fit_octaves": fit,
+    let params = json!({"sums": super::common::paths_json(&args.sums), "analysis": sums.analysis, "fit_octaves": fit,
         "rule": rule, "theory": theory.map(|(m, _)| m), "pixel_size": px.as_ref().map(PixelSize::json)});
     write_outputs(
         &args.out.out,

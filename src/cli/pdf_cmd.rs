@@ -534,7 +534,7 @@ impl Input {
                 "size": self.size, "seed": self.seed}, "periodic": self.periodic,
                 "pixel_size": self.pixel.as_ref().map(super::PixelSize::json)})
         } else {
-            json!({"images": self.images, "theory": self.model, "periodic": self.periodic,
+            json!({"images": super::common::paths_json(&self.images), "theory": self.model, "periodic": self.periodic,
                 "origin": self.origin.as_ref().map(super::common::PeriodicSynth::json),
                 "missing_pixels": self.holes.json(),
                 "pixel_size": self.pixel.as_ref().map(super::PixelSize::json)})

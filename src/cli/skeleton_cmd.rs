@@ -236,7 +236,7 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     }
     let mut body = header(
         "skeleton",
-        json!({"image": args.image, "analysis": super::common::analysis_json(&cfg),
+        json!({"image": super::common::path_json(&args.image), "analysis": super::common::analysis_json(&cfg),
             "scales_requested": want, "pixel_size": px.as_ref().map(PixelSize::json),
             "origin": origin.as_ref().map(super::common::PeriodicSynth::json)}),
     );

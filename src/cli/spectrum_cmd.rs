@@ -180,7 +180,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     let pts = ens.points();
     let mut body = header(
         "spectrum",
-        json!({"images": args.images, "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave,
+        json!({"images": super::common::paths_json(&args.images), "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave,
             "pixel_size": px.as_ref().map(PixelSize::json),
             "origin": origin.as_ref().map(super::common::PeriodicSynth::json)}),
     );

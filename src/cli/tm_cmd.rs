@@ -404,7 +404,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let shapes = crate::spectra::ShapeCount::tally(shapes);
     let what = super::common::data_label(&args.images, args.images.len(), &shapes)
         + super::common::trend_label(args.detrend);
-    let params = json!({"images": args.images, "image_shapes": shapes, "missing_pixels": missing,
+    let params = json!({"images": super::common::paths_json(&args.images), "image_shapes": shapes, "missing_pixels": missing,
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit),
         "plane_shares": acc.planes.iter().map(|p| p.share).collect::<Vec<_>>(),
         "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
