@@ -2335,6 +2335,25 @@ fn outputs_never_replace_an_input() {
         .map(|e| e.unwrap().file_name())
         .collect();
     assert_eq!(names, vec![std::ffi::OsString::from("modulus_00.npy")]);
+    // nor the JSON beside an input (a PNG's decoding): analyze of
+    // spectra.png into its own directory would replace spectra.json
+    let pd = scratch("clobber_png");
+    let pds = pd.display().to_string();
+    assert_eq!(
+        run(&[
+            "synth", "fbm", "--hurst", "0.5", "--size", "64", "--count", "1", "--format", "png",
+            "--out", &pds
+        ]),
+        0
+    );
+    std::fs::rename(pd.join("fbm_0000.png"), pd.join("spectra.png")).unwrap();
+    std::fs::rename(pd.join("fbm_0000.json"), pd.join("spectra.json")).unwrap();
+    let side = std::fs::read(pd.join("spectra.json")).unwrap();
+    let png = pd.join("spectra.png").display().to_string();
+    let (code, err) = run_bin_stderr(&["analyze", &png, "--octaves", "1", "--out", &pds]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("would overwrite the input"), "{err}");
+    assert_eq!(std::fs::read(pd.join("spectra.json")).unwrap(), side);
 }
 
 /// Scattered missing pixels can leave no maxima to count (maxima count only

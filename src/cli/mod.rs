@@ -392,7 +392,21 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         input.refuse_model_names()?;
     }
     check_inputs(&inputs, images)?;
-    let _inputs = crate::io::protect(&inputs);
+    // and the JSON beside each image: a PNG's decoding (scale, offset,
+    // nodata), a DEM's provenance and pixel; an output of that name
+    // (spectra.json beside an input spectra.png) would silently change how
+    // the image reads next time
+    let sidecars: Vec<PathBuf> = if images {
+        inputs.iter().map(|p| p.with_extension("json")).collect()
+    } else {
+        Vec::new()
+    };
+    let guarded: Vec<&Path> = inputs
+        .iter()
+        .copied()
+        .chain(sidecars.iter().map(PathBuf::as_path))
+        .collect();
+    let _inputs = crate::io::protect(&guarded);
     let out: Option<PathBuf> = out.map(Path::to_path_buf);
     // a panic (a bug) unwinds past the clean-up below: this removes the
     // directories made for it, after the batch (declared later, dropped
