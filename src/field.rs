@@ -279,24 +279,34 @@ impl Field {
     /// fits).
     ///
     /// **Errors** when the plane explains all but [`PLANE_ONLY`] of the
-    /// variance: what is left is the rounding of the values, which the
-    /// analyses would read as a surface.
+    /// variance, whatever the trend: removed, what is left is the rounding
+    /// of the values, which the analyses would read as a surface; kept, the
+    /// gauss wavelet reads the plane as one vector at every point and the
+    /// mexican as nothing, and the flux of trace moments is constant (a
+    /// plane once read D(q) = 6.1 and h = 1 at every q, and a DTM alpha).
     pub fn detrended(&self, trend: Trend) -> Result<std::borrow::Cow<'_, Field>> {
         self.check()?;
-        let fit = match trend {
-            Trend::None => None,
-            Trend::Plane => self.plane_fit(),
-        };
-        let Some((p, share)) = fit else {
+        let Some((p, share)) = self.plane_fit() else {
             return Ok(std::borrow::Cow::Borrowed(self));
         };
         if share.is_some_and(|r| r >= 1.0 - PLANE_ONLY) {
             return Err(Error::Input(format!(
                 "the image is a plane: its least-squares plane leaves less than {PLANE_ONLY:e} \
                  of its variance unexplained (a residue below 1e-6 of its standard deviation), \
-                 so nothing but rounding would be analysed once it is removed (--detrend \
-                 plane)"
+                 so {}",
+                match trend {
+                    Trend::Plane =>
+                        "nothing but rounding would be analysed once it is removed \
+                                     (--detrend plane)",
+                    Trend::None =>
+                        "there is no rough surface to analyse (a wavelet reads a \
+                                    plane as the same vector at every point, or as zero; its \
+                                    flux is constant)",
+                }
             )));
+        }
+        if trend == Trend::None {
+            return Ok(std::borrow::Cow::Borrowed(self));
         }
         let mut f = self.clone();
         p.subtract(&mut f.data);

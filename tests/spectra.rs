@@ -1330,6 +1330,9 @@ fn planar_trends_are_removed_and_warned_about() {
     // nothing but rounding would be left: refused
     let e = f.transform_input(Trend::Plane).unwrap_err().to_string();
     assert!(e.contains("the image is a plane"), "{e}");
+    // and kept: no rough surface (a plane once read D(q) = 6.1, h = 1)
+    let e = f.transform_input(Trend::None).unwrap_err().to_string();
+    assert!(e.contains("no rough surface"), "{e}");
     // the transform's input: the residual with the holes filled (with its
     // mean, near 0: a fill before the removal would put the tilted
     // image's mean, 4 to 8 off the plane there, into the holes)

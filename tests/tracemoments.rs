@@ -819,7 +819,10 @@ fn rejects_bad_input() {
 /// k range holding no point leaves the DTM or H without a fit, said.
 #[test]
 fn what_a_fit_cannot_deliver_is_said() {
-    let plane = Field::new(Array2::from_shape_fn((64, 64), |(y, x)| (x + y) as f64));
+    // a plane with a faint ripple (an exact plane is refused outright)
+    let plane = Field::new(Array2::from_shape_fn((64, 64), |(y, x)| {
+        (x + y) as f64 + 1e-4 * ((x * 7 + y * 13) % 17) as f64
+    }));
     let (_, r) = analyze_tiled(
         &[plane],
         &TraceMomentConfig::default(),
@@ -1759,6 +1762,17 @@ fn a_plane_is_removed_before_the_moments() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("the image is a plane"), "{e}");
+    // and kept: its gradient flux is constant (a DTM alpha was read from it)
+    let kept = TraceMomentConfig {
+        detrend: wtmm::field::Trend::None,
+        ..plane.clone()
+    };
+    let e = TraceMomentAccumulator::new(kept)
+        .unwrap()
+        .add_field(&exact)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no rough surface"), "{e}");
 }
 
 /// The straightness diagnostic on ensembles of 16 log-normal cascades of

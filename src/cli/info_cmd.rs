@@ -13,7 +13,7 @@ use serde_json::json;
 use super::common::header;
 use super::short_num as f;
 use super::{CwtOpts, Outcome};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::skeleton::AnalysisConfig;
 
 #[derive(Args, Debug)]
@@ -166,7 +166,10 @@ fn describe(
             100.0 * r
         );
         // mexican (3 vanishing moments) is blind to planes
-        if r > crate::spectra::PLANE_SHARE_WARN && plan.wavelet == crate::cwt::Wavelet::Gauss {
+        if r > crate::spectra::PLANE_SHARE_WARN
+            && r < 1.0 - crate::field::PLANE_ONLY
+            && plan.wavelet == crate::cwt::Wavelet::Gauss
+        {
             notes.push(format!(
                 "the least-squares plane explains {:.0} % of the variance: the gauss wavelet \
                  adds a plane to its transform as a vector growing like the scale, which \
@@ -184,6 +187,13 @@ fn describe(
         None => problems.push("every pixel is missing (NaN or nodata)".into()),
     }
     problems.extend(field.amplitude_problem());
+    // a plane: what analyze refuses whatever the trend
+    if let Err(e) = field.detrended(crate::field::Trend::None) {
+        problems.push(match e {
+            Error::Input(m) => m,
+            e => e.to_string(),
+        });
+    }
     if let Err(e) = crate::cwt::check_size(ny, nx, plan.wavelet, plan.a_min) {
         problems.push(e.to_string());
     }
