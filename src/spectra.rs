@@ -572,6 +572,45 @@ impl PartitionSums {
         if self.images.is_empty() {
             return Err("no images".into());
         }
+        // the analysis recorded must be the one that made these scales: the
+        // warnings derive the margin and the counting domain from it
+        if let Some(a) = &self.analysis {
+            a.validate()
+                .map_err(|e| format!("`analysis` is not a valid analysis: {e}"))?;
+            let list = a.scale_list();
+            let same = list.len() == self.scales.len()
+                && list
+                    .iter()
+                    .zip(&self.scales)
+                    .all(|(x, y)| (x - y).abs() <= 1e-9 * x.abs());
+            if !same {
+                return Err(format!(
+                    "`analysis` (a_min {} px, {} octaves of {} voices: {} scales, {:.3} .. {:.3} \
+                     px) does not make the {} `scales` ({:.3} .. {:.3} px) the sums are at",
+                    crate::error::short(a.a_min),
+                    a.octaves,
+                    a.voices,
+                    list.len(),
+                    list.first().copied().unwrap_or(f64::NAN),
+                    list.last().copied().unwrap_or(f64::NAN),
+                    self.scales.len(),
+                    self.scales[0],
+                    self.scales[self.scales.len() - 1],
+                ));
+            }
+        }
+        if let Some((i, im)) = self.images.iter().enumerate().find(|(_, im)| {
+            im.shape.is_some_and(|[ny, nx]| {
+                ny == 0 || nx == 0 || im.missing >= (ny as u64).saturating_mul(nx as u64)
+            })
+        }) {
+            return Err(format!(
+                "image {i} ({:?}): shape {:?} with {} missing pixels holds no valid pixel",
+                im.label,
+                im.shape.unwrap_or_default(),
+                im.missing
+            ));
+        }
         if let Some((i, im)) = self
             .images
             .iter()
@@ -2566,8 +2605,10 @@ mod tests {
             .collect();
         let q: Vec<f64> = (-4..=4).map(f64::from).collect();
         let mut s = PartitionSums::from_log2_values(&scales, &values, &q, "x").unwrap();
+        // the analysis that makes these 41 scales
         s.analysis = Some(crate::skeleton::AnalysisConfig {
             wavelet,
+            scales: Some(scales),
             ..Default::default()
         });
         s

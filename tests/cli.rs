@@ -1458,17 +1458,14 @@ fn pixel_size_gives_lengths() {
         Some(3.0 * m["fit_scales"][0].as_f64().unwrap())
     );
     assert_warns(&m, "--pixel-size 3 m differs from the 2 m");
-    // a shard without a pixel: none, and said
-    let (code, err) = run_bin_stderr(&["analyze", &img, "--octaves", "3", "--out", &o("b")]);
+    // a shard without a pixel (another image: merge refuses one image
+    // twice, whatever its label): none, and said
+    let g = fbm_npy(&dir, "g.npy", 256, 9);
+    let (code, err) = run_bin_stderr(&["analyze", &g, "--octaves", "3", "--out", &o("b")]);
     assert_eq!(code, 0, "{err}");
     let bare = dir.join("b/sums.json").display().to_string();
     assert!(json(&dir.join("b/sums.json")).get("pixel").is_none());
-    // b is a's image: relabelled, or merge would refuse it as counted twice
-    let text = std::fs::read_to_string(&bare).unwrap();
-    let relabelled = dir.join("b/other.json");
-    std::fs::write(&relabelled, text.replace("f.npy", "g.npy")).unwrap();
-    let relabelled = relabelled.display().to_string();
-    let (code, err) = run_bin_stderr(&["merge", &sums, &relabelled, "--out", &o("m2")]);
+    let (code, err) = run_bin_stderr(&["merge", &sums, &bare, "--out", &o("m2")]);
     assert_eq!(code, 0, "{err}");
     let m = json(&dir.join("m2/spectra.json"));
     assert!(m["params"]["pixel_size"].is_null());
@@ -1483,11 +1480,20 @@ fn pixel_size_gives_lengths() {
     assert!(source.ends_with("m0/sums.json: --pixel-size"), "{source}");
     assert_eq!(source.matches("recorded in").count(), 1, "{source}");
     // the same pixel in km is the same pixel (the first shard's unit kept)
-    analyze_px("0.002", "km", "km");
-    let km = dir.join("km/other.json");
-    let text = std::fs::read_to_string(dir.join("km/sums.json")).unwrap();
-    std::fs::write(&km, text.replace("f.npy", "h.npy")).unwrap();
-    let km = km.display().to_string();
+    let (code, err) = run_bin_stderr(&[
+        "analyze",
+        &g,
+        "--octaves",
+        "3",
+        "--pixel-size",
+        "0.002",
+        "--units",
+        "km",
+        "--out",
+        &o("km"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let km = o("km/sums.json");
     let (code, err) = run_bin_stderr(&["merge", &sums, &km, "--out", &o("mkm")]);
     assert_eq!(code, 0, "{err}");
     let m = json(&dir.join("mkm/spectra.json"));
@@ -2516,8 +2522,9 @@ fn two_shards(name: &str) -> (PathBuf, String, String, String) {
 }
 
 /// `merge` counts no shard or image twice: an --out whose sums.json is an
-/// input, one file named twice, and one image in two shards (same label
-/// and sums) are refused, naming the files, before anything is written.
+/// input, one file named twice, and one image in two shards (the same
+/// sums, under its own or another name) are refused, naming the files,
+/// before anything is written.
 /// The same label with other sums is another image.
 #[test]
 fn merge_refuses_to_count_a_shard_or_an_image_twice() {
@@ -2557,7 +2564,18 @@ fn merge_refuses_to_count_a_shard_or_an_image_twice() {
     let (code, err) = run_bin_stderr(&["merge", &ja, &jb, &jc, "--fit", "0.5:2", "--out", &ms]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains(&ja) && err.contains(&jc), "{err}");
-    assert!(err.contains("counted twice"), "{err}");
+    assert!(err.contains("shrink the error bars"), "{err}");
+    assert!(!m.exists(), "output directory created");
+    // a copy of an image analysed under another name
+    std::fs::copy(&a, dir.join("a_copy.npy")).unwrap();
+    let je = merge_shard(
+        &dir.join("a_copy.npy").display().to_string(),
+        &dir.join("E"),
+        &[],
+    );
+    let (code, err) = run_bin_stderr(&["merge", &ja, &je, "--fit", "0.5:2", "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("a_copy.npy") && err.contains(&ja), "{err}");
     assert!(!m.exists(), "output directory created");
     // a.npy rewritten with another field: same label, other sums
     fbm_npy(&dir, "a.npy", 128, 5);
@@ -2577,7 +2595,7 @@ fn merge_checks_the_content_of_each_shard() {
     let m = dir.join("m");
     let ms = m.display().to_string();
     type Edit = fn(&mut Value);
-    let cases: [(&str, Edit, &str); 9] = [
+    let cases: [(&str, Edit, &str); 12] = [
         ("q_empty", |v| v["q"] = serde_json::json!([]), "`q`"),
         (
             "q_descending",
@@ -2624,6 +2642,21 @@ fn merge_checks_the_content_of_each_shard() {
                 v.as_object_mut().unwrap().remove("analysis");
             },
             "no analysis",
+        ),
+        (
+            "octaves_edited",
+            |v| v["analysis"]["octaves"] = 3.into(),
+            "does not make the 20 `scales` (1.500 .. 5.598 px)",
+        ),
+        (
+            "octaves_zero",
+            |v| v["analysis"]["octaves"] = 0.into(),
+            "not a valid analysis",
+        ),
+        (
+            "shape_empty",
+            |v| v["images"][0]["shape"] = serde_json::json!([0, 0]),
+            "holds no valid pixel",
         ),
     ];
     for (name, edit, want) in cases {

@@ -222,23 +222,37 @@ fn not_sums(path: &Path, detail: &str) -> String {
     format!("not a partition-sums file{what}: {SUMS_FILES}{beside}; the JSON reader said: {detail}")
 }
 
-/// The same image in two shards (same label and the same sums) would be
-/// counted twice: an error naming both files. Labels alone may repeat
-/// (they are free file names). `owner[i]` is the file of image `i`.
+/// The same image in two shards (the same line counts and sums, whatever
+/// its label: a copy analysed under another name, as analyze refuses for
+/// files of the same content) would be counted twice: an error naming both
+/// files. Labels alone may repeat (they are free file names); images that
+/// kept no line are not compared. `owner[i]` is the file of image `i`.
 fn check_duplicate_images(paths: &[PathBuf], owner: &[usize], sums: &PartitionSums) -> Result<()> {
-    let mut seen: HashMap<&str, Vec<(usize, &ImagePartial)>> = HashMap::new();
+    let mut seen: HashMap<&[u64], Vec<(usize, &ImagePartial)>> = HashMap::new();
     for (&f, im) in owner.iter().zip(&sums.images) {
-        let same = seen.entry(im.label.as_str()).or_default();
-        if let Some((g, _)) = same
+        if im.lines.iter().all(|&n| n == 0) {
+            continue;
+        }
+        let same = seen.entry(im.lines.as_slice()).or_default();
+        if let Some((g, o)) = same
             .iter()
-            .find(|(g, o)| *g != f && o.lines == im.lines && o.plain == im.plain && o.sup == im.sup)
+            .find(|(_, o)| o.plain == im.plain && o.sup == im.sup)
         {
+            let label = if o.label == im.label {
+                format!("image {:?}", im.label)
+            } else {
+                format!("image {:?} (as {:?} there)", im.label, o.label)
+            };
+            let there = if *g == f {
+                "also in this file".to_string()
+            } else {
+                format!("also in {}", paths[*g].display())
+            };
             return Err(Error::format(
                 &paths[f],
                 format!(
-                    "image {:?} is also in {} (same label and sums): it would be counted twice",
-                    im.label,
-                    paths[*g].display()
+                    "{label} is {there}, with the same line counts and sums: one image twice \
+                     would pass for two independent samples and shrink the error bars"
                 ),
             ));
         }
