@@ -1602,9 +1602,14 @@ fn pixel_size_gives_lengths() {
         "{err}"
     );
     assert!(json(&dir.join("mixed/tm.json"))["params"]["pixel_size"].is_null());
-    for bad in ["0", "1:2:3", "x"] {
-        let (code, err) =
-            run_bin_stderr(&["analyze", &img, "--pixel-size", bad, "--out", &o("bad")]);
+    for bad in ["0", "1:2:3", "x", "1e-300", "1e300", "1e40:1e-40"] {
+        let (code, err) = run_bin_stderr(&[
+            "analyze",
+            &img,
+            &format!("--pixel-size={bad}"),
+            "--out",
+            &o("bad"),
+        ]);
         assert_eq!(code, 2, "{bad}: {err}");
         assert!(err.contains("pixel-size"), "{err}");
         assert!(!dir.join("bad").exists());

@@ -982,6 +982,13 @@ impl PixelOpts {
         if v.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
             return Err(bad("sizes must be finite and > 0"));
         }
+        // no unit makes a pixel of 1e-300 or 1e300 (a typo): lengths and
+        // wavenumbers derived from it would underflow or overflow
+        if v.iter().any(|x| !(1e-30..=1e30).contains(x)) {
+            return Err(bad(
+                "sizes must lie within 1e-30 .. 1e30 (choose --units to match)",
+            ));
+        }
         Ok(Some(PixelSize {
             x: v[0],
             y: *v.last().expect("one at least"),
@@ -995,7 +1002,12 @@ impl PixelSize {
     /// The side of a square pixel of the same area, `sqrt(x y)`: what a
     /// scale in px is multiplied by (x itself for square pixels).
     pub fn side(&self) -> f64 {
-        (self.x * self.y).sqrt()
+        // as two roots: x y itself can underflow or overflow
+        if self.x == self.y {
+            self.x
+        } else {
+            self.x.sqrt() * self.y.sqrt()
+        }
     }
 
     /// As recorded with the partition sums (`sums.json`), for `merge`.
@@ -1187,6 +1199,17 @@ mod tests {
         let r = given(p("77.5:92.6", None)).unwrap().unwrap();
         assert_eq!(r.units, "units");
         assert!((r.side() - (77.5f64 * 92.6).sqrt()).abs() < 1e-12);
+        // x y would underflow (and overflow for the reciprocal pixel)
+        let tiny = PixelSize {
+            x: 1e-200,
+            y: 4e-200,
+            ..r.clone()
+        };
+        assert!(
+            (tiny.side() / 2e-200 - 1.0).abs() < 1e-12,
+            "{}",
+            tiny.side()
+        );
         let w = r.warning(Isotropic::Wavelet).unwrap();
         assert!(
             w.contains("and the wavelet, isotropic in pixels, mixes"),
