@@ -485,6 +485,10 @@ fn tm_bad_input_exits_2_and_writes_nothing() {
         vec![g, "--diff-order", "5"],
         vec![g, "--eta", "0,1"],
         vec![g, "--eta-fit", "0:2"],
+        // selectors that select nothing (the same k range spectrum refuses)
+        vec![g, "--eta-fit", "5:9"],
+        vec![g, "--eta", "1e9"],
+        vec![g, "--k-range", "3:3.1"],
         vec![g, "--flux", "laplacian"],
         vec![g, "--surrogates", "4"],
         vec![g, "--surrogate-seed", "3"],

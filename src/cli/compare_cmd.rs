@@ -301,7 +301,9 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     tm_q.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
     let tm_cfg = args.tm.config(tm_q.clone(), model.is_periodic())?;
     let tm_fit = args.tm.fit()?;
-    crate::tracemoments::check_ensemble_fit(&tm_fit, &vec![[args.size; 2]; args.count])?;
+    let shapes = vec![[args.size; 2]; args.count];
+    crate::tracemoments::check_ensemble_fit(&tm_fit, &shapes)?;
+    crate::tracemoments::check_fit_selectors(&tm_cfg, &tm_fit, &shapes)?;
     let name = r.preset.unwrap_or(model.name()).to_string();
 
     // library: stream the ensemble through both methods

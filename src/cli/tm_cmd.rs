@@ -281,6 +281,13 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             .unwrap_or(TraceMomentFitConfig::for_tiles().universal);
     }
     let mut surrogate_failure = None;
+    // what the fit selectors select, from the files' headers
+    let sizes = args
+        .images
+        .iter()
+        .map(crate::io::read_shape)
+        .collect::<Result<Vec<_>>>()?;
+    crate::tracemoments::check_fit_selectors(&cfg, &fc, &sizes)?;
     let (acc, res, shapes) = if tiled {
         let fields = args
             .images
@@ -327,11 +334,6 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         (whole, res, shapes)
     } else {
         // a fit the sizes rule out is said before every image is read
-        let sizes = args
-            .images
-            .iter()
-            .map(crate::io::read_shape)
-            .collect::<Result<Vec<_>>>()?;
         check_ensemble_fit(&fc, &sizes)?;
         let (parts, shapes) = accumulate_paths(&args.images, &cfg, quiet)?;
         let (acc, res) = finish_ensemble(&parts, &fc)?;

@@ -176,7 +176,7 @@ use crate::error::{Error, Result};
 use crate::field::{Field, Trend};
 use crate::stats::fit::{line_fit, mean_std};
 use crate::stats::powspec::{
-    PowerSpectrum, PowerSpectrumConfig, default_k_range, field_power_spectrum,
+    PowerSpectrum, PowerSpectrumConfig, bins_in_range, default_k_range, field_power_spectrum,
 };
 use crate::theory::fif::UniversalK;
 
@@ -2211,7 +2211,7 @@ fn range_warnings(r: &TraceMomentResult) -> Vec<String> {
     if r.beta.is_none() {
         w.push(
             "beta and H not estimable: fewer than 3 spectrum bins in the k range \
-             (images too small for the default range; give --k-range)"
+             (images too small for the default range, or a --k-range holding too few)"
                 .to_string(),
         );
     }
@@ -2618,6 +2618,77 @@ pub fn check_ensemble_fit(fc: &TraceMomentFitConfig, shapes: &[[usize; 2]]) -> R
         }
         None => Ok(()),
     }
+}
+
+/// Refuses, before any image is read, fit selectors that select too little
+/// to fit: none of `cfg.eta` in the DTM's η range (when there is a DTM; one
+/// or two are a choice, `--eta 1` to skip the DTM's cost, and the result's
+/// warnings say what the DTM lacks), or a `k_range` holding fewer than 3
+/// spectrum bins in the largest
+/// of `shapes` (the `spectrum` command refuses the same). A default k range
+/// on images too small for it is left to the fit, which says so.
+///
+/// **Errors** naming the flag, with what it selects.
+pub fn check_fit_selectors(
+    cfg: &TraceMomentConfig,
+    fc: &TraceMomentFitConfig,
+    shapes: &[[usize; 2]],
+) -> Result<()> {
+    let (lo, hi) = fc.eta;
+    let in_fit = cfg
+        .eta
+        .iter()
+        .filter(|&&e| e >= lo - 1e-12 && e <= hi + 1e-12)
+        .count();
+    if !cfg.dtm_q.is_empty() && in_fit == 0 {
+        // 3 significant digits, as a reader gives them
+        let num = |e: f64| {
+            if (1e-3..1e6).contains(&e.abs()) {
+                let s = format!("{e:.3}");
+                s.trim_end_matches('0').trim_end_matches('.').to_string()
+            } else {
+                format!("{e:.3e}")
+            }
+        };
+        let list = match cfg.eta.as_slice() {
+            [first, .., last] if cfg.eta.len() > 6 => {
+                format!(
+                    "{} values, {} .. {}",
+                    cfg.eta.len(),
+                    num(*first),
+                    num(*last)
+                )
+            }
+            v => v.iter().map(|&e| num(e)).collect::<Vec<_>>().join(", "),
+        };
+        return Err(Error::param(
+            "eta-fit",
+            format!(
+                "none of the eta values ({list}) lies in the fit range [{}, {}]: the double trace \
+                 moment would have nothing to fit (--eta, --eta-fit)",
+                crate::error::short(lo),
+                crate::error::short(hi)
+            ),
+        ));
+    }
+    if let Some(k) = fc.k_range {
+        let mut most = 0;
+        for s in shapes {
+            most = most.max(bins_in_range(s[0], s[1], cfg.spectrum.bins_per_octave, k)?);
+        }
+        if !shapes.is_empty() && most < 3 {
+            return Err(Error::param(
+                "k-range",
+                format!(
+                    "[{}, {}] rad/px holds {most} spectrum bins of the largest image; the fit of \
+                     beta needs 3",
+                    crate::error::short(k.0),
+                    crate::error::short(k.1)
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The smallest side (px) of an image or flux with trace moments.
