@@ -4242,6 +4242,19 @@ fn synth_names_every_file_it_did_not_write() {
         "wcascade_0001.npy",
         "wcascade_0002.npy",
     ]);
+    // the unfinished write of a killed run (hidden) is named, and said
+    // to be safe to delete; other hidden files are not
+    std::fs::write(out.join(".fbm_0007.npy.tmp4000000001"), b"x").unwrap();
+    std::fs::write(out.join(".hidden"), b"x").unwrap();
+    let (code, err) = run_bin_stderr(&[
+        "synth", "fbm", "--hurst", "0.3", "--count", "1", "--size", "16", "--out", o,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("killed: safe to delete"), "{err}");
+    let s = json(&out.join("synth.json"));
+    let got: Vec<String> = serde_json::from_value(s["stale_files"].clone()).unwrap();
+    assert_eq!(got[0], ".fbm_0007.npy.tmp4000000001");
+    assert!(!got.contains(&".hidden".to_string()));
 }
 
 /// A W-cascade on the Haar basis is said to be one (its steps are read

@@ -492,6 +492,20 @@ fn files_under(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
+/// What a stale-file warning adds when some of `names` are the staged
+/// writes of a killed run ([`crate::io::is_foreign_temp`]).
+fn temp_note<'a>(mut names: impl Iterator<Item = &'a str>) -> &'static str {
+    if names.any(|n| {
+        let base = n.rsplit('/').next().unwrap_or(n);
+        crate::io::is_foreign_temp(base)
+    }) {
+        " (.NAME.tmpPID files are the unfinished writes of a run that was killed: safe to \
+         delete)"
+    } else {
+        ""
+    }
+}
+
 /// Warns when the output directory still holds files of an earlier run
 /// that this command did not rewrite (they would pass for its results).
 fn warn_stale(dir: &Path, before: &[PathBuf], written: &[PathBuf]) {
@@ -510,7 +524,7 @@ fn warn_stale(dir: &Path, before: &[PathBuf], written: &[PathBuf]) {
         .collect();
     say!(
         "warning: {} holds {} older file(s) this command did not write ({}{}): they are not \
-         results of this run; remove them or use a fresh --out",
+         results of this run; remove them or use a fresh --out{}",
         dir.display(),
         stale.len(),
         show.join(", "),
@@ -518,7 +532,12 @@ fn warn_stale(dir: &Path, before: &[PathBuf], written: &[PathBuf]) {
             ", ..."
         } else {
             ""
-        }
+        },
+        temp_note(
+            stale
+                .iter()
+                .filter_map(|p| p.file_name().and_then(|n| n.to_str()))
+        )
     );
 }
 

@@ -151,10 +151,12 @@ where
     if !stale.is_empty() {
         say!(
             "warning: {} holds {} older file(s) this run did not write (e.g. {}): they are not \
-             part of this ensemble (synth.json lists its files); remove them or use a fresh --out",
+             part of this ensemble (synth.json lists its files); remove them or use a fresh \
+             --out{}",
             c.out.out.display(),
             stale.len(),
-            stale[..stale.len().min(3)].join(", ")
+            stale[..stale.len().min(3)].join(", "),
+            super::temp_note(stale.iter().map(String::as_str))
         );
         body["stale_files"] = json!(stale);
     }
@@ -164,7 +166,8 @@ where
 
 /// The files in `dir` (not its subdirectories) other than `written`, their
 /// PNG sidecars, synth.json and hidden files (the staged writes of this
-/// run among them), sorted: left by an earlier run.
+/// run among them) except the staged writes of a killed run, sorted: left
+/// by an earlier run.
 fn stale_files(dir: &std::path::Path, written: &[String]) -> Vec<String> {
     let Ok(rd) = std::fs::read_dir(dir) else {
         return Vec::new();
@@ -182,7 +185,7 @@ fn stale_files(dir: &std::path::Path, written: &[String]) -> Vec<String> {
             e.file_type().ok()?.is_file().then_some(())?;
             e.file_name().into_string().ok()
         })
-        .filter(|n| !n.starts_with('.') && !keep.contains(n))
+        .filter(|n| (!n.starts_with('.') || crate::io::is_foreign_temp(n)) && !keep.contains(n))
         .collect();
     v.sort();
     v

@@ -117,6 +117,24 @@ impl Drop for Protected {
     }
 }
 
+/// Whether `name` is the staged write of another process (`.NAME.tmpPID`,
+/// as [`write_atomic`] names them, PID not this process's): left by a run
+/// that was killed before it could remove it (SIGKILL, a power cut).
+pub fn is_foreign_temp(name: &str) -> bool {
+    let Some(rest) = name.strip_prefix('.') else {
+        return false;
+    };
+    match rest.rsplit_once(".tmp") {
+        Some((stem, pid)) => {
+            !stem.is_empty()
+                && !pid.is_empty()
+                && pid.bytes().all(|b| b.is_ascii_digit())
+                && pid != std::process::id().to_string()
+        }
+        None => false,
+    }
+}
+
 fn check_not_input(path: &Path) -> Result<()> {
     let g = PROTECTED.lock().unwrap_or_else(|e| e.into_inner());
     if g.is_empty() {

@@ -24,8 +24,8 @@ mod tiff;
 mod tiff_lzw;
 
 pub use atomic::{
-    OutputBatch, Protected, file_identity, outputs_committed, protect, remove_temporaries,
-    write_atomic, write_json, write_json_compact,
+    OutputBatch, Protected, file_identity, is_foreign_temp, outputs_committed, protect,
+    remove_temporaries, write_atomic, write_json, write_json_compact,
 };
 pub use georef::{PixelSpacing, degrees_to_metres, unit_metres, unit_ratio};
 pub use png::{PNG16_NODATA, Png16Mapping};
