@@ -67,9 +67,20 @@ pub type Result<T> = std::result::Result<T, Error>;
 
 /// A number for a message: as Rust prints it in the usual range, in
 /// scientific notation beyond it (`1e-300` printed in full is 300 digits).
+/// In the usual range at most 9 significant digits, trailing zeros
+/// trimmed: what a user typed reads back as typed, a sum's rounding
+/// (`1.9000000000000001`) does not show.
 pub(crate) fn short(x: f64) -> String {
-    if x == 0.0 || !x.is_finite() || (1e-3..1e6).contains(&x.abs()) {
+    if x == 0.0 || !x.is_finite() {
         format!("{x}")
+    } else if (1e-3..1e6).contains(&x.abs()) {
+        let decimals = (8 - x.abs().log10().floor() as i32).max(0) as usize;
+        let s = format!("{x:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
     } else {
         format!("{x:.3e}")
     }

@@ -4002,6 +4002,20 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
             "--out",
             &out,
         ],
+        // the replicates of validate, as the count (it ran until killed)
+        vec![
+            "validate",
+            "--preset",
+            "paper-fbm",
+            "--size",
+            "64",
+            "--count",
+            "2",
+            "--replicates",
+            "100000",
+            "--out",
+            &out,
+        ],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -4025,7 +4039,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "are the same file",
         "is not the PNG's",
         "must be at most 10000",
-        "wcascade needs a power of two, got 100",
+        "wcascade, needs a side that is a power of two (its construction halves the grid at each step), got 100",
         "too small for the spectral criterion",
         "only 0 scales in the fit range",
         "holds 1 order(s) in 0 < q <= 2",
@@ -4038,6 +4052,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "`size`: must be in 16..=16384, got 100000",
         "`count`: must be at most 10000, got 1000000",
         "`size`: 128 px is too small for the analysis",
+        "`replicates`: must be at most 1000, got 100000",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {

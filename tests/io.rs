@@ -1373,6 +1373,16 @@ fn declared_pixel_spacing() {
         "{g:?}"
     );
     assert_eq!(grid("none", "xllcorner 0", None), None);
+    // a cell size that is no size: none, and said by the reader
+    for (name, head) in [("zero", "cellsize 0"), ("neg", "dx 10\ndy -20")] {
+        assert_eq!(grid(name, head, None), None, "{name}");
+        let (_, info) = wtmm::io::read_field_with_info(dir.join(format!("{name}.asc"))).unwrap();
+        assert!(
+            info.warnings.iter().any(|w| w.contains("is no pixel size")),
+            "{name}: {:?}",
+            info.warnings
+        );
+    }
     // Web Mercator grid at 60 N: 100 m of map are 50 m of ground, as in
     // the GeoTIFF above
     let y60 = 6_378_137.0 * (60f64.to_radians().tan()).asinh();

@@ -124,12 +124,19 @@ fn describe(
     };
     let (ny, nx) = field.dim();
     let missing = field.missing_count();
-    // mean and sd of the valid pixels, in two passes (no copy)
-    let valid = || field.data.iter().filter(|v| v.is_finite());
-    let n = field.valid_count() as f64;
-    let mean = valid().sum::<f64>() / n;
-    let sd = (valid().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    // mean and sd of the valid pixels, in two passes (no copy), on the
+    // values divided by the largest magnitude: sums of values near 1e308
+    // overflow, squares of values near 1e-300 underflow (both read sd 0)
     let range = field.range();
+    let s = range
+        .map(|(lo, hi)| lo.abs().max(hi.abs()))
+        .filter(|&s| s > 0.0)
+        .unwrap_or(1.0);
+    let valid = || field.data.iter().filter(|v| v.is_finite()).map(|v| v / s);
+    let n = field.valid_count() as f64;
+    let m = valid().sum::<f64>() / n;
+    let mean = m * s;
+    let sd = (valid().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt() * s;
     let mut text = format!(
         "{}: {ny} x {nx} px (rows x columns), {} {}\n",
         path.display(),

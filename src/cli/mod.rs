@@ -371,12 +371,23 @@ fn prepare_out(dir: &Path) -> Result<()> {
             dir.display()
         )));
     }
-    common::make_out_dir(dir)?;
-    // writable? (an existing directory may not be)
+    common::make_out_dir(dir).map_err(|e| match e {
+        Error::Write { source, .. } => {
+            Error::format(dir, format!("cannot create the output directory: {source}"))
+        }
+        e => e,
+    })?;
+    // writable? (an existing directory may not be; /proc refuses new files
+    // as "no such file")
     let probe = dir.join(format!(".wtmm-probe-{}", std::process::id()));
-    std::fs::write(&probe, b"").map_err(|source| Error::Write {
-        path: dir.into(),
-        source,
+    std::fs::write(&probe, b"").map_err(|source| {
+        Error::format(
+            dir,
+            format!(
+                "the output directory does not take new files (a test file could not be \
+                 created: {source})"
+            ),
+        )
     })?;
     let _ = std::fs::remove_file(&probe);
     Ok(())
@@ -1129,6 +1140,10 @@ fn short_num(v: f64) -> String {
     if v == 0.0 || !v.is_finite() {
         return format!("{v}");
     }
+    // in full, 1e308 is 309 digits and 1e-300 300 zeros
+    if !(1e-4..1e9).contains(&v.abs()) {
+        return format!("{v:.3e}");
+    }
     let digits = (3 - v.abs().log10().floor() as i32).max(0) as usize;
     let s = format!("{v:.digits$}");
     if s.contains('.') {
@@ -1140,6 +1155,24 @@ fn short_num(v: f64) -> String {
 
 #[cfg(test)]
 mod tests {
+    /// Numbers in messages: 4 significant digits in the usual range, 3
+    /// after the point in scientific notation beyond it (1e308 in full is
+    /// 309 digits); the library's `short` reads typed values back as typed
+    /// and hides a sum's rounding.
+    #[test]
+    fn numbers_in_messages_are_short() {
+        use crate::error::short;
+        assert_eq!(super::short_num(1e308), "1.000e308");
+        assert_eq!(super::short_num(-3.6e-299), "-3.600e-299");
+        assert_eq!(super::short_num(65536.0), "65536");
+        assert_eq!(super::short_num(0.1234567), "0.1235");
+        assert_eq!(short(2.0 - 0.1), "1.9");
+        assert_eq!(short(0.1), "0.1");
+        assert_eq!(short(1.0 + 1e-10), "1");
+        assert_eq!(short(123456.789), "123456.789");
+        assert_eq!(short(1e-9), "1.000e-9");
+    }
+
     /// Messages wrap at spaces to the width with a 2-space indent, words
     /// stay whole, other lines and short messages are untouched, and the
     /// words come back in order.

@@ -187,9 +187,20 @@ fn sample_spectra(
     Ok(sums.spectra(crate::spectra::Rule::Plain, (0.0, span)).ok())
 }
 
+/// Most `--replicates` a run takes.
+pub const MAX_REPLICATES: usize = 1000;
+
 pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     if args.replicates == 0 {
         return Err(Error::param("replicates", "must be >= 1"));
+    }
+    // a typo guard, as synth's --count: 1000 replicates of a paper preset
+    // (32 x 1024^2) run about 7 hours on 2 cores
+    if args.replicates > MAX_REPLICATES {
+        return Err(Error::param(
+            "replicates",
+            format!("must be at most {MAX_REPLICATES}, got {}", args.replicates),
+        ));
     }
     if args.replicates == 1 {
         let one = run_one(&args, quiet)?;

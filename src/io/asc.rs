@@ -89,10 +89,19 @@ impl Header {
                 }
             ));
         };
-        let cell = cellsize
-            .map(|c| (c, c))
-            .or(dx.zip(dy))
-            .filter(|&(x, y)| x.is_finite() && y.is_finite() && x > 0.0 && y > 0.0);
+        let given = cellsize.map(|c| (c, c)).or(dx.zip(dy));
+        let cell = given.filter(|&(x, y)| x.is_finite() && y.is_finite() && x > 0.0 && y > 0.0);
+        if let (Some((x, y)), None) = (given, cell) {
+            // said, not silently read as "no pixel declared"
+            let what = match cellsize {
+                Some(c) => format!("cellsize {c}"),
+                None => format!("dx {x}, dy {y}"),
+            };
+            warnings.push(format!(
+                "the header's {what} is no pixel size (need > 0): no pixel is taken from it \
+                 (give --pixel-size)"
+            ));
+        }
         Ok(Header {
             nx,
             ny,

@@ -113,6 +113,22 @@ fn too_small_for_its_header(ihdr: &[u8], len: u64) -> Option<String> {
     })
 }
 
+/// The decoder's message without its debug dumps: a bad chunk reads
+/// `ChunkType { type: ..., critical: true, ... } chunk appeared before
+/// IHDR chunk`, with the chunk's raw (often binary) name; that part is
+/// said as "a chunk".
+fn plain_png_error(e: &png::DecodingError) -> String {
+    let mut s = e.to_string();
+    // (the name's escapes, `\u{16}`, hold braces: the dump ends after
+    // its last field)
+    while let Some(a) = s.find("ChunkType {") {
+        let from = s[a..].find("safecopy").map_or(a, |k| a + k);
+        let Some(b) = s[from..].find('}') else { break };
+        s.replace_range(a..from + b + 1, "a");
+    }
+    s
+}
+
 /// The eight bytes every PNG file starts with.
 const PNG_SIGNATURE: [u8; 8] = [137, 80, 78, 71, 13, 10, 26, 10];
 
@@ -144,7 +160,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
     dec.set_transformations(Transformations::EXPAND);
     let mut reader = dec
         .read_info()
-        .map_err(|e| bad(format!("corrupt or unsupported: {e}")))?;
+        .map_err(|e| bad(format!("corrupt or unsupported: {}", plain_png_error(&e))))?;
     let (src_color, src_depth) = {
         let i = reader.info();
         check_pixels(path, i.height as usize, i.width as usize)?;
@@ -471,5 +487,18 @@ mod tests {
             Some(65535.0)
         );
         assert_eq!(nodata_from_text("value = png*scale + offset"), None);
+    }
+
+    /// A chunk of a binary name before IHDR: said without the decoder's
+    /// debug dump of the chunk type (its escapes hold braces).
+    #[test]
+    fn chunk_errors_are_said_plainly() {
+        let mut b = b"\x89PNG\r\n\x1a\n".to_vec();
+        b.extend_from_slice(&[0x12, 0x45, 0x79, 0x45, 0x16, 0x69, 0xed, 0x73]);
+        b.extend_from_slice(&[0; 24]);
+        let e = Decoder::new(Cursor::new(&b[..])).read_info().err().unwrap();
+        assert!(e.to_string().contains("ChunkType {"), "{e}");
+        let s = plain_png_error(&e);
+        assert_eq!(s, "a chunk appeared before IHDR chunk");
     }
 }

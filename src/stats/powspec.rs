@@ -183,18 +183,22 @@ impl PowerSpectrum {
         if pts.len() < 3 && in_range >= 3 {
             // the bins are there but hold no power: the data's fault
             return Err(Error::Input(format!(
-                "the power spectrum is 0 at {} of the {in_range} bins in [{k_lo:.4}, \
-                 {k_hi:.4}] rad/px: once the mean (or the plane, for non-periodic images) is \
-                 removed nothing is left there (a constant or planar image?)",
-                in_range - pts.len()
+                "the power spectrum is 0 at {} of the {in_range} bins in [{}, {}] rad/px: once \
+                 the mean (or the plane, for non-periodic images) is removed nothing is left \
+                 there (a constant or planar image?)",
+                in_range - pts.len(),
+                crate::error::short(k_lo),
+                crate::error::short(k_hi)
             )));
         }
         if pts.len() < 3 {
             return Err(Error::param(
                 "k-range",
                 format!(
-                    "only {} spectrum bins in [{k_lo:.4}, {k_hi:.4}] rad/px; need 3",
-                    pts.len()
+                    "only {} spectrum bins in [{}, {}] rad/px; need 3",
+                    pts.len(),
+                    crate::error::short(k_lo),
+                    crate::error::short(k_hi)
                 ),
             ));
         }

@@ -353,7 +353,11 @@ impl Model {
         if self.needs_power_of_two() && !size.is_power_of_two() {
             return Err(Error::param(
                 "size",
-                format!("{} needs a power of two, got {size}", self.name()),
+                format!(
+                    "the model generated, {}, needs a side that is a power of two (its \
+                     construction halves the grid at each step), got {size}",
+                    self.name()
+                ),
             ));
         }
         crate::synth::check_pixels(size, size)
