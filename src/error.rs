@@ -67,14 +67,14 @@ pub type Result<T> = std::result::Result<T, Error>;
 
 /// A number for a message: as Rust prints it in the usual range, in
 /// scientific notation beyond it (`1e-300` printed in full is 300 digits).
-/// In the usual range at most 9 significant digits, trailing zeros
-/// trimmed: what a user typed reads back as typed, a sum's rounding
-/// (`1.9000000000000001`) does not show.
+/// In the usual range at most 6 significant digits, trailing zeros
+/// trimmed: what a user typed reads back as typed (to 6 digits), a sum's
+/// rounding (`1.9000000000000001`) does not show, nor pi/4's 16 digits.
 pub(crate) fn short(x: f64) -> String {
     if x == 0.0 || !x.is_finite() {
         format!("{x}")
     } else if (1e-3..1e6).contains(&x.abs()) {
-        let decimals = (8 - x.abs().log10().floor() as i32).max(0) as usize;
+        let decimals = (5 - x.abs().log10().floor() as i32).max(0) as usize;
         let s = format!("{x:.decimals$}");
         if s.contains('.') {
             s.trim_end_matches('0').trim_end_matches('.').to_string()

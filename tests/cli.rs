@@ -1886,6 +1886,31 @@ fn synth_files_are_analysed_as_tori() {
     );
     assert_eq!(fa["params"]["analysis"]["wavelet"], "mexican");
     reads_as_validate(&fa, "paper-fisc", "2");
+    // a stray file among them costs the FISC files their wavelet too, said
+    // even when --margin chose the domain; spectrum names the setting that
+    // was left to the default
+    let stray = fbm_npy(&dir.join("fisc"), "stray.npy", 128, 7);
+    let mixed = [&fiscs[..], &[stray.as_str()][..]].concat();
+    let (v, err) = analyze(&mixed, &["--margin", "3"], &p("a_fisc_stray"));
+    assert_eq!(v["params"]["analysis"]["wavelet"], "gauss");
+    assert!(
+        err.contains("stray.npy is not listed in") && err.contains("--wavelet mexican"),
+        "{err}"
+    );
+    let sp_out = p("sp_stray");
+    let sp = [
+        &["spectrum"][..],
+        &mixed,
+        &["--window", "hann", "--out", &sp_out][..],
+    ]
+    .concat();
+    let (code, err) = run_bin_stderr(&sp);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("--detrend mean is the periodic setting"),
+        "{err}"
+    );
+    std::fs::remove_file(&stray).unwrap();
     // pdf's --domain auto: the torus
     let (code, err) = run_bin_stderr(
         &[
@@ -2369,6 +2394,15 @@ fn outputs_never_replace_an_input() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("would overwrite the input"), "{err}");
     assert_eq!(std::fs::read(pd.join("spectra.json")).unwrap(), side);
+    // an output of an earlier run is no sidecar: a second run into the
+    // image's own directory rewrites it
+    let rd = scratch("clobber_rerun");
+    let t = fbm_npy(&rd, "tm.npy", 64, 3);
+    let rds = rd.display().to_string();
+    for _ in 0..2 {
+        let (code, err) = run_bin_stderr(&["tm", &t, "--out", &rds]);
+        assert_eq!(code, 0, "{err}");
+    }
 }
 
 /// Scattered missing pixels can leave no maxima to count (maxima count only
@@ -2586,6 +2620,42 @@ fn merge_refuses_to_count_a_shard_or_an_image_twice() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("a_copy.npy") && err.contains(&ja), "{err}");
     assert!(!m.exists(), "output directory created");
+    // an image and its negative (the same moduli, the same sums) in one
+    // shard that analyze wrote: merged, not refused
+    let neg = dir.join("neg.npy");
+    write_npy(
+        &neg,
+        &-fbm(FbmParams { hurst: 0.4 }, 128, 128, 2, 0).unwrap(),
+    )
+    .unwrap();
+    let (n, nd) = (dir.join("N"), neg.display().to_string());
+    let ns = n.display().to_string();
+    assert_eq!(
+        run(&[
+            "analyze",
+            &a,
+            &nd,
+            "--octaves",
+            "2",
+            "--fit",
+            "0.5:2",
+            "--q",
+            "-2:2:1",
+            "--out",
+            &ns
+        ]),
+        0
+    );
+    let nsum = n.join("sums.json").display().to_string();
+    let (code, err) = run_bin_stderr(&[
+        "merge",
+        &nsum,
+        "--fit",
+        "0.5:2",
+        "--out",
+        &dir.join("mn").display().to_string(),
+    ]);
+    assert_eq!(code, 0, "{err}");
     // a.npy rewritten with another field: same label, other sums
     fbm_npy(&dir, "a.npy", 128, 5);
     let jd = merge_shard(&a, &dir.join("D"), &[]);
@@ -4100,9 +4170,10 @@ fn default_fit_with_odd_voices() {
     assert_eq!(t["tau"], s["tau"]);
 }
 
-/// A plane: `spectrum` blames the data, not a flag the user never gave, and
-/// `analyze` and `tm` refuse it, naming the file (analyze read h = 1 and
-/// D(q) = 6.1 from the transform's edges, tm a DTM alpha from rounding;
+/// A plane: `analyze`, `tm` and `spectrum` refuse it, naming the file and
+/// the data, not a flag the user never gave (analyze read h = 1 and D(q) =
+/// 6.1 from the transform's edges, tm a DTM alpha from rounding, spectrum
+/// beta 1.7 with --window none --detrend mean;
 /// h at the wavelet's order is flagged in `spectra`'s unit tests).
 #[test]
 fn a_plane_is_named_as_smooth_not_as_a_bad_flag() {
@@ -4115,14 +4186,12 @@ fn a_plane_is_named_as_smooth_not_as_a_bad_flag() {
     .unwrap();
     let p = p.display().to_string();
     let o = dir.join("o").display().to_string();
-    let (code, err) = run_bin_stderr(&["spectrum", &p, "--out", &o]);
-    assert_eq!(code, 2, "{err}");
-    assert!(
-        err.contains(&p) && err.contains("power spectrum is 0"),
-        "{err}"
-    );
-    assert!(!err.contains("k-range"), "{err}");
-    for cmd in [&["analyze", "--octaves", "2"][..], &["tm"][..]] {
+    for cmd in [
+        &["analyze", "--octaves", "2"][..],
+        &["tm"][..],
+        &["spectrum"][..],
+        &["spectrum", "--window", "none", "--detrend", "mean"][..],
+    ] {
         let (code, err) = run_bin_stderr(&[cmd, &[p.as_str(), "--out", &o][..]].concat());
         assert_eq!(code, 2, "{cmd:?}: {err}");
         assert!(

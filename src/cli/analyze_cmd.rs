@@ -327,6 +327,7 @@ pub(super) fn torus_for_synth(line: &mut LineOpts, images: &[PathBuf]) -> Option
     let origin = super::common::periodic_synth(
         images,
         torus.then_some("analysed inside the margin: --margin 0 takes tori whole"),
+        wavelet_open,
     )?;
     let mut took = Vec::new();
     if torus {

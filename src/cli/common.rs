@@ -178,8 +178,9 @@ impl PeriodicSynth {
 /// some inputs qualify and one does not (a stale file of an earlier run, a
 /// file changed since, another model), a note names it, since the others
 /// then lose their periodic defaults too: `lost` says what they get
-/// instead and the flags that choose otherwise (no note when `None`: the
-/// caller's flags already chose).
+/// instead and the flags that choose otherwise (`None`: the caller's flags
+/// already chose them), and with `wavelet_open` (no `--wavelet`) the
+/// wavelet a qualifying record recommends, when not gauss, is named too.
 ///
 /// Why: analysed inside the margin, a periodic field loses half its maxima
 /// and its spectrum a taper's worth of power (SPEC §1, §14), and the same
@@ -188,7 +189,11 @@ impl PeriodicSynth {
 /// Trusted, not verified: the record's file list and times (a file put in
 /// place with an older time, `cp -p`, passes; its shape is not compared
 /// with the record's size).
-pub fn periodic_synth(paths: &[PathBuf], lost: Option<&str>) -> Option<PeriodicSynth> {
+pub fn periodic_synth(
+    paths: &[PathBuf],
+    lost: Option<&str>,
+    wavelet_open: bool,
+) -> Option<PeriodicSynth> {
     use std::collections::BTreeMap;
     struct Record {
         shown: PathBuf,
@@ -267,11 +272,26 @@ pub fn periodic_synth(paths: &[PathBuf], lost: Option<&str>) -> Option<PeriodicS
         }
     }
     if let Some(b) = broken {
-        if let Some(lost) = lost.filter(|_| ok > 0) {
+        // the wavelet the qualifying inputs' records recommend (mexican for
+        // FISC), lost with them
+        let wavelet = used
+            .iter()
+            .filter_map(|k| records[k].as_ref().and_then(|r| r.wavelet))
+            .find(|&w| wavelet_open && w != crate::cwt::Wavelet::Gauss)
+            .map(|w| {
+                format!("the gauss wavelet, not the {w} their synth.json recommends: --wavelet {w}")
+            });
+        let lost: Vec<String> = lost
+            .map(str::to_string)
+            .into_iter()
+            .chain(wavelet)
+            .collect();
+        if ok > 0 && !lost.is_empty() {
             say!(
-                "note: {b}, so all {} inputs are read as non-periodic data ({lost}), though {ok} \
-                 of them are periodic fields of `wtmm synth`",
-                paths.len()
+                "note: {b}, so all {} inputs are read as non-periodic data ({}), though {ok} of \
+                 them are periodic fields of `wtmm synth`",
+                paths.len(),
+                lost.join("; ")
             );
         }
         return None;

@@ -102,16 +102,19 @@ fn describe(
 ) -> Result<Described> {
     let (field, info) = crate::io::read_field_with_info(path)?;
     // a periodic synth field is counted whole by default, as analyze does
-    let origin = match plan.margin {
-        None => super::common::periodic_synth(&[path.to_path_buf()], None),
-        Some(_) => None,
+    // (looked up while the margin or the wavelet is open, as analyze does)
+    let origin = if plan.margin.is_none() || !wavelet_given {
+        super::common::periodic_synth(&[path.to_path_buf()], None, false)
+    } else {
+        None
     };
+    let margin_given = plan.margin.is_some();
     let torus;
     let plan = match origin {
         Some(_) => {
             // and the wavelet its record recommends, as analyze takes
             torus = AnalysisConfig {
-                margin: Some(0),
+                margin: plan.margin.or(Some(0)),
                 wavelet: match origin.as_ref().and_then(|o| o.wavelet) {
                     Some(w) if !wavelet_given => w,
                     _ => plan.wavelet,
@@ -295,10 +298,15 @@ fn describe(
     );
     if let Some(o) = &origin {
         notes.push(format!(
-            "{}: analyze, skeleton, pdf, kernel and correlate take it whole (margin 0, the \
-             domains above) unless given --margin, --domain or --detrend{}, and spectrum and tm \
-             neither taper it nor remove a plane from its spectrum",
+            "{}: analyze, skeleton, pdf, kernel and correlate take it whole (margin 0{}) unless \
+             given --margin, --domain or --detrend{}, and spectrum and tm neither taper it nor \
+             remove a plane from its spectrum",
             o.describe(1),
+            if margin_given {
+                "; the domains above are at the --margin given"
+            } else {
+                ", the domains above"
+            },
             o.wavelet
                 .filter(|w| *w != crate::cwt::Wavelet::Gauss)
                 .map_or(String::new(), |w| format!(

@@ -226,7 +226,9 @@ fn not_sums(path: &Path, detail: &str) -> String {
 /// its label: a copy analysed under another name, as analyze refuses for
 /// files of the same content) would be counted twice: an error naming both
 /// files. Labels alone may repeat (they are free file names); images that
-/// kept no line are not compared. `owner[i]` is the file of image `i`.
+/// kept no line are not compared, nor images of one file (analyze has
+/// compared their files; an image and its negative have the same sums).
+/// `owner[i]` is the file of image `i`.
 fn check_duplicate_images(paths: &[PathBuf], owner: &[usize], sums: &PartitionSums) -> Result<()> {
     let mut seen: HashMap<&[u64], Vec<(usize, &ImagePartial)>> = HashMap::new();
     for (&f, im) in owner.iter().zip(&sums.images) {
@@ -236,18 +238,14 @@ fn check_duplicate_images(paths: &[PathBuf], owner: &[usize], sums: &PartitionSu
         let same = seen.entry(im.lines.as_slice()).or_default();
         if let Some((g, o)) = same
             .iter()
-            .find(|(_, o)| o.plain == im.plain && o.sup == im.sup)
+            .find(|(g, o)| *g != f && o.plain == im.plain && o.sup == im.sup)
         {
             let label = if o.label == im.label {
                 format!("image {:?}", im.label)
             } else {
                 format!("image {:?} (as {:?} there)", im.label, o.label)
             };
-            let there = if *g == f {
-                "also in this file".to_string()
-            } else {
-                format!("also in {}", paths[*g].display())
-            };
+            let there = format!("also in {}", paths[*g].display());
             return Err(Error::format(
                 &paths[f],
                 format!(

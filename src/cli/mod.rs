@@ -361,6 +361,25 @@ fn prefix_hash(p: &Path) -> Result<u64> {
     Ok(h.finish())
 }
 
+/// Whether the JSON file `p` is an output of a wtmm command (a top-level
+/// `command` with a `version`, or the partition sums' `scales`, `q` and
+/// `images`), not a sidecar or a user's record. Files beyond 64 MiB are
+/// taken as outputs unread (a sidecar is a few hundred bytes).
+fn is_wtmm_output(p: &Path) -> bool {
+    if std::fs::metadata(p).is_ok_and(|m| m.len() > 64 << 20) {
+        return true;
+    }
+    let Ok(v) = std::fs::read(p).map(|b| serde_json::from_slice::<serde_json::Value>(&b)) else {
+        return false;
+    };
+    let Ok(serde_json::Value::Object(o)) = v else {
+        return false;
+    };
+    o.contains_key("version")
+        && (o.contains_key("command")
+            || ["scales", "q", "images"].iter().all(|k| o.contains_key(*k)))
+}
+
 /// Creates the output directory before computing, so that an unwritable
 /// one fails at once (the directories created are noted, to be removed
 /// again, if still empty, when the command fails).
@@ -406,9 +425,14 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
     // and the JSON beside each image: a PNG's decoding (scale, offset,
     // nodata), a DEM's provenance and pixel; an output of that name
     // (spectra.json beside an input spectra.png) would silently change how
-    // the image reads next time
+    // the image reads next time. An output of an earlier wtmm run is not
+    // one (a second run into the image's directory rewrites it).
     let sidecars: Vec<PathBuf> = if images {
-        inputs.iter().map(|p| p.with_extension("json")).collect()
+        inputs
+            .iter()
+            .map(|p| p.with_extension("json"))
+            .filter(|j| j.is_file() && !is_wtmm_output(j))
+            .collect()
     } else {
         Vec::new()
     };
@@ -811,11 +835,29 @@ impl PixelOpts {
     pub fn resolve(&self, images: &[PathBuf]) -> Result<(Option<PixelSize>, Vec<String>)> {
         // a file that cannot be read declares nothing here: its reader
         // says why when the command reads it
+        // a declared size beyond the bounds of --pixel-size (an ESRI
+        // cellsize 1e-310) is none, said: its lengths would overflow
+        let mut odd = Vec::new();
         let declared: Vec<Option<crate::io::PixelSpacing>> = images
             .iter()
-            .map(|p| crate::io::read_pixel_spacing(p).ok().flatten())
+            .map(|p| {
+                let s = crate::io::read_pixel_spacing(p).ok().flatten()?;
+                if [s.x, s.y].iter().all(|v| (1e-30..=1e30).contains(v)) {
+                    return Some(s);
+                }
+                odd.push(format!(
+                    "{} declares a pixel of {} x {}, outside 1e-30 .. 1e30: no pixel is taken \
+                     from it (give --pixel-size)",
+                    p.display(),
+                    short_num(s.x),
+                    short_num(s.y)
+                ));
+                None
+            })
             .collect();
-        self.resolve_from(&declared, images, &IMAGES)
+        let (px, mut warnings) = self.resolve_from(&declared, images, &IMAGES)?;
+        odd.append(&mut warnings);
+        Ok((px, odd))
     }
 
     /// [`resolve`](Self::resolve) for `merge`: the pixel each sums file
@@ -1169,7 +1211,8 @@ mod tests {
         assert_eq!(short(2.0 - 0.1), "1.9");
         assert_eq!(short(0.1), "0.1");
         assert_eq!(short(1.0 + 1e-10), "1");
-        assert_eq!(short(123456.789), "123456.789");
+        assert_eq!(short(123456.789), "123457");
+        assert_eq!(short(std::f64::consts::FRAC_PI_4), "0.785398");
         assert_eq!(short(1e-9), "1.000e-9");
     }
 

@@ -319,6 +319,7 @@ impl StatsInput {
             super::common::periodic_synth(
                 &self.images,
                 torus_open.then_some("inside the margin: --domain torus takes tori whole"),
+                wavelet_open,
             )
         } else {
             None

@@ -84,6 +84,10 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     let fields = read_all(&args.images)?;
     for (fl, p) in fields.iter().zip(&args.images) {
         super::common::refuse_constant(fl, p, "its spectrum is zero")?;
+        // an exact plane, as every analysis refuses (with --window none
+        // --detrend mean it read beta 1.7 +- 0.8)
+        fl.detrended(crate::field::Trend::None)
+            .map_err(|e| super::common::in_file(p, e))?;
     }
     if let Some((fl, p)) = fields
         .iter()
@@ -101,9 +105,16 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         (Some(_), Some(_)) | (_, Some(Detrend::Plane)) => None,
         _ => super::common::periodic_synth(
             &args.images,
-            (args.window, args.detrend).eq(&(None, None)).then_some(
-                "tapered, a plane removed: --window none --detrend mean are the periodic settings",
-            ),
+            match (args.window, args.detrend) {
+                (None, None) => Some(
+                    "tapered, a plane removed: --window none --detrend mean are the periodic \
+                     settings",
+                ),
+                (None, Some(_)) => Some("tapered: --window none is the periodic setting"),
+                (Some(_), None) => Some("a plane removed: --detrend mean is the periodic setting"),
+                (Some(_), Some(_)) => None,
+            },
+            false,
         ),
     };
     let base = PowerSpectrumConfig::for_field(origin.is_some());

@@ -243,6 +243,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                 None => "their power spectrum tapered and a plane removed",
                 Some(_) => "a plane removed from their power spectrum",
             }),
+            false,
         ),
         _ => None,
     };
