@@ -594,9 +594,6 @@ pub fn save_raster_chart(
     Ok(())
 }
 
-/// The provenance every JSON output starts with: version, build, the
-/// command and its parameters, and the command line as typed (`demo` runs
-/// `validate`, whose parameters it records; the command line says so).
 /// A path for a JSON record: as text, lossily (U+FFFD) where it is not
 /// UTF-8. serde refuses such a `Path`, and `json!` would panic on it.
 pub fn path_json(p: &Path) -> serde_json::Value {
@@ -608,6 +605,9 @@ pub fn paths_json<P: AsRef<Path>>(ps: &[P]) -> serde_json::Value {
     ps.iter().map(|p| path_json(p.as_ref())).collect()
 }
 
+/// The provenance every JSON output starts with: version, build, the
+/// command and its parameters, and the command line as typed (`demo` runs
+/// `validate`, whose parameters it records; the command line says so).
 pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
     let mut h = serde_json::json!({"version": crate::VERSION, "build": crate::BUILD, "command": command, "params": params});
     if let Some(cl) = COMMAND_LINE.with(|c| c.borrow().clone()) {

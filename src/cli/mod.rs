@@ -822,6 +822,11 @@ const SUMS_BAD: Declarers = Declarers {
     ..SUMS
 };
 
+/// The pixel sizes taken, given or declared, in any unit: no unit makes a
+/// pixel of 1e-300 or 1e300 (a typo, a corrupt header), and the lengths and
+/// wavenumbers derived from one would underflow or overflow.
+const PIXEL_SIZES: std::ops::RangeInclusive<f64> = 1e-30..=1e30;
+
 impl PixelOpts {
     /// The pixel: `--pixel-size`, else the spacing every one of `images`
     /// declares ([`crate::io::read_pixel_spacing`]), with the warnings to
@@ -842,7 +847,7 @@ impl PixelOpts {
             .iter()
             .map(|p| {
                 let s = crate::io::read_pixel_spacing(p).ok().flatten()?;
-                if [s.x, s.y].iter().all(|v| (1e-30..=1e30).contains(v)) {
+                if [s.x, s.y].iter().all(|v| PIXEL_SIZES.contains(v)) {
                     return Some(s);
                 }
                 odd.push(format!(
@@ -1054,9 +1059,7 @@ impl PixelOpts {
         if v.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
             return Err(bad("sizes must be finite and > 0"));
         }
-        // no unit makes a pixel of 1e-300 or 1e300 (a typo): lengths and
-        // wavenumbers derived from it would underflow or overflow
-        if v.iter().any(|x| !(1e-30..=1e30).contains(x)) {
+        if v.iter().any(|x| !PIXEL_SIZES.contains(x)) {
             return Err(bad(
                 "sizes must lie within 1e-30 .. 1e30 (choose --units to match)",
             ));

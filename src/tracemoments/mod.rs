@@ -2624,9 +2624,9 @@ pub fn check_ensemble_fit(fc: &TraceMomentFitConfig, shapes: &[[usize; 2]]) -> R
 /// to fit: none of `cfg.eta` in the DTM's η range (when there is a DTM; one
 /// or two are a choice, `--eta 1` to skip the DTM's cost, and the result's
 /// warnings say what the DTM lacks), or a `k_range` holding fewer than 3
-/// spectrum bins in the largest
-/// of `shapes` (the `spectrum` command refuses the same). A default k range
-/// on images too small for it is left to the fit, which says so.
+/// spectrum bins in the largest of `shapes` (the `spectrum` command refuses
+/// the same). A default k range on images too small for it is left to the
+/// fit, which says so.
 ///
 /// **Errors** naming the flag, with what it selects.
 pub fn check_fit_selectors(
@@ -2641,15 +2641,7 @@ pub fn check_fit_selectors(
         .filter(|&&e| e >= lo - 1e-12 && e <= hi + 1e-12)
         .count();
     if !cfg.dtm_q.is_empty() && in_fit == 0 {
-        // 3 significant digits, as a reader gives them
-        let num = |e: f64| {
-            if (1e-3..1e6).contains(&e.abs()) {
-                let s = format!("{e:.3}");
-                s.trim_end_matches('0').trim_end_matches('.').to_string()
-            } else {
-                format!("{e:.3e}")
-            }
-        };
+        let num = crate::error::short;
         let list = match cfg.eta.as_slice() {
             [first, .., last] if cfg.eta.len() > 6 => {
                 format!(
