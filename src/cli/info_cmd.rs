@@ -13,7 +13,7 @@ use serde_json::json;
 use super::common::header;
 use super::short_num as f;
 use super::{CwtOpts, Outcome};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::skeleton::AnalysisConfig;
 
 #[derive(Args, Debug)]
@@ -199,10 +199,7 @@ fn describe(
     problems.extend(field.amplitude_problem());
     // a plane: what analyze refuses whatever the trend
     if let Err(e) = field.detrended(crate::field::Trend::None) {
-        problems.push(match e {
-            Error::Input(m) => m,
-            e => e.to_string(),
-        });
+        problems.push(super::common::reason(e));
     }
     if let Err(e) = crate::cwt::check_size(ny, nx, plan.wavelet, plan.a_min) {
         problems.push(e.to_string());

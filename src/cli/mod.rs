@@ -527,13 +527,11 @@ fn files_under(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
-/// What a stale-file warning adds when some of `names` are the staged
+/// What a stale-file warning adds when some of `names` (file names, no
+/// directories) are the staged
 /// writes of a killed run ([`crate::io::is_foreign_temp`]).
 fn temp_note<'a>(mut names: impl Iterator<Item = &'a str>) -> &'static str {
-    if names.any(|n| {
-        let base = n.rsplit('/').next().unwrap_or(n);
-        crate::io::is_foreign_temp(base)
-    }) {
+    if names.any(crate::io::is_foreign_temp) {
         " (.NAME.tmpPID files are the unfinished writes of a run that was killed: safe to \
          delete)"
     } else {
