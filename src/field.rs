@@ -1,7 +1,7 @@
 //! The image type that flows through the pipeline: values plus a mask of
 //! missing pixels (NaN or nodata in the file).
 
-use ndarray::Array2;
+use ndarray::{Array2, ArrayView1, Axis};
 
 use crate::error::{Error, Result};
 
@@ -321,6 +321,60 @@ impl Field {
     /// Min and max over valid pixels, `None` if every pixel is masked.
     pub fn range(&self) -> Option<(f64, f64)> {
         finite_range(self.data.iter())
+    }
+
+    /// How wide, in pixels, the terraces of a quantised image are: the
+    /// mean length of the runs of equal neighbouring valid values along
+    /// the rows, and along the columns, the smaller of the two (the
+    /// steps' spacing across the terraces: a ramp quantised along x has
+    /// runs of its whole height down the columns). 1 for a surface whose
+    /// neighbours differ, about `1 / (1 - f)` when a fraction `f` of
+    /// neighbours are equal; a flat lake or sea adds a few long runs and
+    /// moves the mean little. Runs break at missing pixels. `None` when
+    /// no pixel is valid.
+    ///
+    /// A wavelet narrower than the terraces sees the steps between them
+    /// (h = 0 along their edges) rather than the surface
+    /// ([`PartitionSums::spectra`](crate::spectra::PartitionSums::spectra)
+    /// warns).
+    pub fn terrace_width(&self) -> Option<f64> {
+        // (valid pixels, runs) along one lane of pixels
+        let lane = |vals: ArrayView1<'_, f64>, mask: Option<ArrayView1<'_, bool>>| {
+            let (mut pixels, mut runs) = (0usize, 0usize);
+            let mut prev: Option<f64> = None;
+            for (i, &v) in vals.iter().enumerate() {
+                if mask.as_ref().is_some_and(|m| m[i]) || !v.is_finite() {
+                    prev = None;
+                    continue;
+                }
+                pixels += 1;
+                if prev != Some(v) {
+                    runs += 1;
+                }
+                prev = Some(v);
+            }
+            (pixels, runs)
+        };
+        let mean_run = |axis: Axis| -> Option<f64> {
+            let (mut pixels, mut runs) = (0usize, 0usize);
+            let mut add = |(p, r): (usize, usize)| {
+                pixels += p;
+                runs += r;
+            };
+            let lanes = self.data.lanes(axis).into_iter();
+            match &self.mask {
+                None => lanes.for_each(|v| add(lane(v, None))),
+                Some(m) => lanes
+                    .zip(m.lanes(axis))
+                    .for_each(|(v, mk)| add(lane(v, Some(mk)))),
+            }
+            (runs > 0).then(|| pixels as f64 / runs as f64)
+        };
+        // lanes along Axis(1) are the rows
+        match (mean_run(Axis(1)), mean_run(Axis(0))) {
+            (Some(r), Some(c)) => Some(r.min(c)),
+            _ => None,
+        }
     }
 }
 

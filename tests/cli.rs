@@ -1253,6 +1253,52 @@ fn tm_names_a_quantised_dem() {
     assert!(!said(&["tm", &f, "--out", &o]));
 }
 
+/// An image quantised into terraces wider than twice the smallest scale
+/// that counts is named by `info` (its width, the note) and warned about
+/// by analyze (stderr and spectra.json), pdf, kernel and correlate, with
+/// the remedy; the same field unrounded is not.
+#[test]
+fn quantised_images_are_named_by_the_wtmm_commands() {
+    let dir = scratch("wtmm_quantised");
+    let f = fbm(FbmParams { hurst: 0.7 }, 256, 256, 4, 0).unwrap();
+    // a relief of ~8 units in whole units: terraces several px wide
+    let (lo, hi) = f
+        .iter()
+        .fold((f64::MAX, f64::MIN), |m, &v| (m.0.min(v), m.1.max(v)));
+    let q = f.mapv(|v| (8.0 * (v - lo) / (hi - lo)).round());
+    let (pq, pf) = (dir.join("q.npy"), dir.join("f.npy"));
+    write_npy(&pq, &q).unwrap();
+    write_npy(&pf, &f).unwrap();
+    let (q, f) = (pq.display().to_string(), pf.display().to_string());
+    let (code, out, _) = run_bin_output(&["info", "--json", "--octaves", "3", &q], true);
+    assert_eq!(code, 0);
+    let v: Value = serde_json::from_str(&out).unwrap();
+    let w = v["images"][0]["terrace_width"].as_f64().unwrap();
+    assert!(w > 2.0 * 1.5 * 2f64.sqrt(), "{w}");
+    let (_, text, _) = run_bin_output(&["info", "--octaves", "3", &q], true);
+    assert!(
+        text.contains(&format!("quantised: equal neighbours in runs of {w:.1} px"))
+            && text.contains("note: the image's values are quantised into terraces"),
+        "{text}"
+    );
+    let o = dir.join("o").display().to_string();
+    for cmd in ["analyze", "pdf", "kernel", "correlate"] {
+        let said = |img: &str| {
+            let (code, err) = run_bin_stderr(&[cmd, img, "--octaves", "3", "--out", &o]);
+            assert_eq!(code, 0, "{cmd}: {err}");
+            err.contains("quantised into terraces")
+        };
+        assert!(said(&q), "{cmd}");
+        assert!(!said(&f), "{cmd}");
+    }
+    analyze(&q, "3", &[], &o);
+    let s = json(&dir.join("o/spectra.json"));
+    assert_warns(&s, &format!("fit from a >= {w:.1} px (--fit)"));
+    // the record in the sums
+    let sums = json(&dir.join("o/sums.json"));
+    assert_eq!(sums["images"][0]["terrace_width"].as_f64(), Some(w));
+}
+
 /// `info`: shape, values and missing pixels of each file, its declared
 /// pixel, and the counting domain of each number of octaves (the default
 /// margin ceil(3.2 a_max) on every side; --margin 0 the whole image), as

@@ -1446,3 +1446,114 @@ fn planar_trends_are_removed_and_warned_about() {
         .to_string();
     assert!(e.contains("detrend"), "{e}");
 }
+
+/// Quantised values: the terrace width is the mean run of equal
+/// neighbours (the narrower direction; runs break at missing pixels); it
+/// is recorded with the sums, survives a merge and a file, and terraces
+/// wider than twice the smallest fitted scale are warned about, while
+/// the same fields unquantised are not. A record below 1 px is refused.
+#[test]
+fn quantised_images_are_warned_about() {
+    use ndarray::Array2;
+    // neighbours differ: 1
+    let ramp = Field::new(Array2::from_shape_fn((16, 20), |(y, x)| {
+        x as f64 + 0.5 * y as f64
+    }));
+    assert_eq!(ramp.terrace_width(), Some(1.0));
+    // terraces 4 px wide along x, one run down each column: 4
+    let stairs = Field::new(Array2::from_shape_fn((16, 20), |(_, x)| (x / 4) as f64));
+    assert_eq!(stairs.terrace_width(), Some(4.0));
+    // a missing pixel splits a run: 1 1 _ 1 1 in rows and columns
+    let mut img = Array2::from_elem((5, 5), 1.0);
+    img.row_mut(2).fill(f64::NAN);
+    img.column_mut(2).fill(f64::NAN);
+    assert_eq!(Field::new(img).terrace_width(), Some(2.0));
+    assert_eq!(
+        Field::new(Array2::from_elem((3, 3), f64::NAN)).terrace_width(),
+        None
+    );
+
+    // fBm H = 0.7 quantised so that its one-pixel increments have an sd
+    // of 0.1 quanta: terraces about 12 px wide (README, Conventions)
+    let cfg = small_cfg();
+    let q = [-1.0, 0.0, 1.0, 2.0];
+    let fit = (0.5, 3.0);
+    let a_fit = 1.5 * 2f64.powf(0.5);
+    let fields: Vec<Field> = (0..3)
+        .map(|i| Field::new(fbm(FbmParams { hurst: 0.7 }, 128, 128, 17, i).unwrap()))
+        .collect();
+    let quantised: Vec<Field> = fields
+        .iter()
+        .map(|f| {
+            let d = &f.data;
+            let inc = ndarray::Zip::from(d.slice(ndarray::s![.., 1..]))
+                .and(d.slice(ndarray::s![.., ..-1]))
+                .fold(0.0, |s, a, b| s + (a - b).powi(2));
+            let sd = (inc / (d.nrows() * (d.ncols() - 1)) as f64).sqrt();
+            Field::new(d.mapv(|v| (v / sd * 0.1).round()))
+        })
+        .collect();
+    let sums_of = |fs: &[Field]| -> PartitionSums {
+        let parts: Vec<PartitionSums> = fs
+            .iter()
+            .enumerate()
+            .map(|(i, f)| image_sums(f, &cfg, &q, format!("{i}")).unwrap())
+            .collect();
+        let mut all = parts[0].clone();
+        for p in &parts[1..] {
+            all.merge(p).unwrap();
+        }
+        all
+    };
+    let plain = sums_of(&fields);
+    assert!(plain.images.iter().all(|im| im.terrace_width == Some(1.0)));
+    let s = plain.spectra(Rule::Plain, fit).unwrap();
+    assert!(
+        !s.warnings.iter().any(|w| w.contains("terraces")),
+        "{:?}",
+        s.warnings
+    );
+
+    let quant = sums_of(&quantised);
+    let widths: Vec<f64> = quant
+        .images
+        .iter()
+        .map(|im| im.terrace_width.unwrap())
+        .collect();
+    assert!(widths.iter().all(|&w| w > 2.0 * a_fit), "{widths:?}");
+    // through a file, as merge reads it
+    let back: PartitionSums =
+        serde_json::from_str(&serde_json::to_string(&quant).unwrap()).unwrap();
+    let s = back.spectra(Rule::Plain, fit).unwrap();
+    let w = s
+        .warnings
+        .iter()
+        .find(|w| w.contains("terraces"))
+        .unwrap_or_else(|| panic!("{:?}", s.warnings));
+    assert!(
+        w.contains("the values of 3 of 3 images") && w.contains("a = 2.12 px"),
+        "{w}"
+    );
+    // the fit starts above the terraces: no warning
+    let wide = widths.iter().cloned().fold(0.0, f64::max);
+    // (on the grid of 10 voices per octave)
+    let lo = ((wide / 1.5).log2() * 10.0).ceil() / 10.0;
+    let cfg5 = AnalysisConfig {
+        octaves: (lo + 0.5).ceil() as usize,
+        margin: Some(0),
+        ..Default::default()
+    };
+    let s = image_sums(&quantised[0], &cfg5, &q, "q")
+        .unwrap()
+        .spectra(Rule::Plain, (lo, lo + 0.5))
+        .unwrap();
+    assert!(
+        !s.warnings.iter().any(|w| w.contains("terraces")),
+        "{:?}",
+        s.warnings
+    );
+    // a record below one pixel is no run length
+    let mut bad = quant.clone();
+    bad.images[0].terrace_width = Some(0.5);
+    assert!(bad.check().unwrap_err().contains("terrace_width"));
+}

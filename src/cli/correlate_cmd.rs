@@ -303,7 +303,14 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let mut sk_res = sums.wtmmm.as_ref().map(correlation_estimates).transpose()?;
     let holes = input.holes.warning(input.len(), "the correlations");
     let planes = input.planes.warning(&cfg, input.len());
-    for w in holes.iter().chain(&planes).chain(&input.pixel_warnings) {
+    let a0 = ccfg.scales.iter().copied().fold(f64::INFINITY, f64::min);
+    let terraces = input.planes.terrace_warning(a0, input.len());
+    for w in holes
+        .iter()
+        .chain(&planes)
+        .chain(&terraces)
+        .chain(&input.pixel_warnings)
+    {
         for r in cwt_res.iter_mut().chain(sk_res.iter_mut()) {
             r.warnings.push(w.clone());
         }

@@ -189,6 +189,23 @@ fn describe(
             ));
         }
     }
+    // quantised values: terraces wider than twice the smallest fitted
+    // scale bias the spectra (analyze warns: spectra::terrace_warning);
+    // a line of its own from 1.5 px (a continuous surface reads 1)
+    let terrace = field.terrace_width();
+    if let Some(w) = terrace.filter(|&w| w >= 1.5) {
+        text += &format!(
+            "  quantised: equal neighbours in runs of {w:.1} px on average (terraces; 1 where \
+             neighbours differ)\n"
+        );
+        notes.extend(crate::spectra::terrace_warning(
+            &[w],
+            1,
+            fit_scales.0,
+            "the smallest scale analyze fits by default",
+            |w| format!("fit from a >= {w:.1} px (--fit)"),
+        ));
+    }
     // what analyze refuses, the reason it would give
     let mut problems: Vec<String> = Vec::new();
     match range {
@@ -325,6 +342,7 @@ fn describe(
             "source": p.source})),
         "plane": plane.map(|p| json!({"c0": p.c0, "cx": p.cx, "cy": p.cy, "slope": p.slope(),
             "variance_share": share})),
+        "terrace_width": terrace,
         "wavelet": plan.wavelet, "margin": plan.margin, "domains": domains, "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
         "notes": notes, "usable": problems.is_empty(), "problems": problems,
     });

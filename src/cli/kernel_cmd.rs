@@ -362,6 +362,11 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     }
     main.warnings
         .extend(input.planes.warning(&cfg, input.len()));
+    main.warnings.extend(
+        input
+            .planes
+            .terrace_warning(cfg.scale_list()[0], input.len()),
+    );
     let mut c = main.cumulants.values().to_vec();
     if c[1] < 0.0 {
         // a kernel with c2 < 0 is no density (reconstruct refuses it); the

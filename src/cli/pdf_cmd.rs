@@ -105,9 +105,10 @@ pub struct Input {
     /// Missing pixels met by [`Input::fold`], so that an ensemble-level
     /// shortage of maxima can name them as its likely cause.
     pub holes: HoleTally,
-    /// The images' least-squares plane shares met by [`Input::fold`]
-    /// ([`Field::plane_share`]), for the planar-trend warning.
-    pub planes: PlaneTally,
+    /// The images' least-squares plane shares ([`Field::plane_share`]) and
+    /// terrace widths ([`Field::terrace_width`]) met by [`Input::fold`],
+    /// for the planar-trend and quantisation warnings.
+    pub planes: FieldTally,
     /// The pixel (`--pixel-size`, or what the files declare): scales also
     /// as lengths.
     pub pixel: Option<super::PixelSize>,
@@ -173,15 +174,28 @@ impl HoleTally {
 }
 
 /// The share of each image's variance its least-squares plane explains,
-/// collected while folding (shared across the rayon workers).
+/// and the width of its terraces, collected while folding (shared across
+/// the rayon workers).
 #[derive(Debug, Default)]
-pub struct PlaneTally(Mutex<Vec<f64>>);
+pub struct FieldTally(Mutex<Vec<f64>>, Mutex<Vec<f64>>);
 
-impl PlaneTally {
+impl FieldTally {
     fn add(&self, field: &Field) {
         if let Some(r) = field.plane_share() {
             self.0.lock().unwrap_or_else(|e| e.into_inner()).push(r);
         }
+        if let Some(w) = field.terrace_width() {
+            self.1.lock().unwrap_or_else(|e| e.into_inner()).push(w);
+        }
+    }
+
+    /// [`crate::spectra::terrace_warning`] of the widths met, for `images`
+    /// analysed from the scale `a` up.
+    pub fn terrace_warning(&self, a: f64, images: usize) -> Option<String> {
+        let widths = self.1.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        crate::spectra::terrace_warning(&widths, images, a, "the smallest scale analysed", |w| {
+            format!("start the scales at a >= {w:.1} px (--a-min)")
+        })
     }
 
     /// What to add to a "too few maxima" message when the median image is
@@ -189,7 +203,7 @@ impl PlaneTally {
     /// the surface at large scales).
     pub fn note(&self) -> Option<String> {
         let s = self.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
-        let median = crate::skeleton::median_share(&s)?;
+        let median = crate::skeleton::median(&s)?;
         let whose = if s.len() == 1 {
             format!("{:.0} % of the image's variance", 100.0 * median)
         } else {
@@ -356,7 +370,7 @@ impl StatsInput {
             periodic,
             origin,
             holes: HoleTally::default(),
-            planes: PlaneTally::default(),
+            planes: FieldTally::default(),
             pixel,
             pixel_warnings,
         })
@@ -877,12 +891,16 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     body["wall_seconds"] = json!(wall);
     let holes = input.holes.warning(input.len(), "the WTMMM counted");
     let planes = input.planes.warning(&cfg, input.len());
+    let terraces = input
+        .planes
+        .terrace_warning(cfg.scale_list()[0], input.len());
     body["warnings"] = json!(
         warning
             .iter()
             .chain(&few)
             .chain(&holes)
             .chain(&planes)
+            .chain(&terraces)
             .chain(&input.pixel_warnings)
             .collect::<Vec<_>>()
     );
@@ -911,7 +929,12 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     if let Some(w) = few {
         say!("warning: {}: {w}", input.describe());
     }
-    for w in holes.iter().chain(&planes).chain(&input.pixel_warnings) {
+    for w in holes
+        .iter()
+        .chain(&planes)
+        .chain(&terraces)
+        .chain(&input.pixel_warnings)
+    {
         say!("warning: {w}");
     }
     Ok(Outcome::Ok)

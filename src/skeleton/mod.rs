@@ -106,9 +106,9 @@ impl Default for AnalysisConfig {
     }
 }
 
-/// The median of plane shares ([`Field::plane_share`]); `None` for none.
-pub(crate) fn median_share(shares: &[f64]) -> Option<f64> {
-    let mut s = shares.to_vec();
+/// The median of `values` (plane shares, terrace widths); `None` for none.
+pub(crate) fn median(values: &[f64]) -> Option<f64> {
+    let mut s = values.to_vec();
     s.sort_by(f64::total_cmp);
     let n = s.len();
     (n > 0).then(|| (s[(n - 1) / 2] + s[n / 2]) / 2.0)
@@ -132,7 +132,7 @@ pub(crate) fn share_percent(share: f64) -> String {
 /// sums come from versions that did not record them.
 pub(crate) fn plane_dominance(shares: &[f64], images: usize) -> Option<String> {
     let shares: Vec<f64> = shares.iter().copied().filter(|s| s.is_finite()).collect();
-    let median = median_share(&shares)?;
+    let median = median(&shares)?;
     let n = shares.len();
     if !(median > crate::spectra::PLANE_SHARE_WARN) {
         return None;

@@ -1312,7 +1312,7 @@ impl TraceMomentAccumulator {
             diff_order: do_mean,
             diff_order_sd: do_sd,
             detrend: self.config.detrend,
-            plane_share: crate::skeleton::median_share(
+            plane_share: crate::skeleton::median(
                 &self.planes.iter().filter_map(|p| p.share).collect::<Vec<_>>(),
             ),
             h_sf_plane_shift: {
