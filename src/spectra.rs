@@ -117,10 +117,27 @@ pub struct ImagePartial {
     pub plane_share: Option<f64>,
     /// How wide the terraces of a quantised image are, in px
     /// ([`crate::Field::terrace_width`]; 1 when neighbours differ): wider
-    /// than twice the smallest fitted scale, the wavelet sees their steps
-    /// (said by [`PartitionSums::spectra`]).
+    /// than [`TERRACE_SCALES`] times the smallest fitted scale, the
+    /// wavelet sees their steps (said by [`PartitionSums::spectra`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub terrace_width: Option<f64>,
+    /// The one value that fills flat areas of the image and its share of
+    /// the valid pixels ([`crate::Field::flat_value`]): above
+    /// [`crate::field::FLAT_SHARE_WARN`], said by [`PartitionSums::spectra`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flat: Option<FlatRecord>,
+}
+
+/// [`ImagePartial::flat`]: a value and the share of the valid pixels
+/// holding it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FlatRecord {
+    /// The value.
+    #[serde(deserialize_with = "crate::nan_null::f64")]
+    pub value: f64,
+    /// Its share of the image's valid pixels, in (0, 1].
+    #[serde(deserialize_with = "crate::nan_null::f64")]
+    pub share: f64,
 }
 
 pub(crate) fn is_zero(n: &usize) -> bool {
@@ -278,20 +295,20 @@ impl PartitionSums {
 
     /// [`terrace_warning`] of the images' recorded terrace widths
     /// ([`ImagePartial::terrace_width`]), against `a_fit`, the smallest
-    /// fitted scale.
-    fn terrace_warning(&self, a_fit: f64) -> Option<String> {
-        let widths: Vec<f64> = self
-            .images
-            .iter()
-            .filter_map(|im| im.terrace_width)
-            .collect();
-        terrace_warning(
+    /// fitted scale, and [`flat_warning`] of their flat values.
+    fn quantisation_warnings(&self, a_fit: f64) -> Vec<String> {
+        let widths: Vec<Option<f64>> = self.images.iter().map(|im| im.terrace_width).collect();
+        let voices = self.analysis.as_ref().map_or(10, |a| a.voices);
+        let top = self.scales.last().copied().unwrap_or(a_fit);
+        let terraces = terrace_warning(
             &widths,
-            self.images.len(),
             a_fit,
             "the smallest fitted scale",
-            |w| format!("fit from a >= {w:.1} px (--fit)"),
-        )
+            ", which lowers h(q) and raises D",
+            fit_remedy(self.scales[0], voices, top),
+        );
+        let flats: Vec<Option<FlatRecord>> = self.images.iter().map(|im| im.flat).collect();
+        terraces.into_iter().chain(flat_warning(&flats)).collect()
     }
 
     /// "; `wtmm info IMAGE --octaves 5` lists the domain each number of
@@ -424,6 +441,7 @@ impl PartitionSums {
                 tiles,
                 plane_share: None,
                 terrace_width: None,
+                flat: None,
             }],
         }
     }
@@ -484,6 +502,7 @@ impl PartitionSums {
                 tile_side: 0,
                 plane_share: None,
                 terrace_width: None,
+                flat: None,
             }],
         })
     }
@@ -661,6 +680,15 @@ impl PartitionSums {
                 im.terrace_width.unwrap_or(f64::NAN)
             ));
         }
+        if let Some((i, im)) = self.images.iter().enumerate().find(|(_, im)| {
+            im.flat
+                .is_some_and(|f| !(f.value.is_finite() && f.share > 0.0 && f.share <= 1.0))
+        }) {
+            return Err(format!(
+                "image {i} ({:?}): flat {:?} is no finite value with a share of pixels (0 to 1)",
+                im.label, im.flat
+            ));
+        }
         let (ns, nc) = (self.scales.len(), self.q.len() * self.scales.len());
         // tiles partition their image: at least 2, a side, and line counts
         // adding up to the image's at every scale (a tile deleted from the
@@ -771,6 +799,7 @@ impl PartitionSums {
                     tile_side: 0,
                     plane_share: None,
                     terrace_width: None,
+                    flat: None,
                 })
             })
             .collect();
@@ -1231,7 +1260,7 @@ impl PartitionSums {
         };
         warnings.extend(unlike_images(&per_image));
         warnings.extend(self.plane_warning());
-        warnings.extend(self.terrace_warning(self.scales[in_fit[0]]));
+        warnings.extend(self.quantisation_warnings(self.scales[in_fit[0]]));
         if ens.lines[last_fit] < 100 {
             // the border margin is often why: say how much of the image it
             // leaves (a 400^2 DEM keeps 112^2 px at the default 5 octaves)
@@ -1596,55 +1625,134 @@ pub fn at_wavelet_order(h: f64, order: f64) -> bool {
 /// a tilted plane.
 pub const PLANE_SHARE_WARN: f64 = 0.5;
 
-/// The warning for `images` quantised into terraces (`widths`: the
-/// [`crate::Field::terrace_width`] of those known) a median width above
+/// The warning for images quantised into terraces (`widths`: each image's
+/// [`crate::Field::terrace_width`], `None` where not recorded) wider than
 /// [`TERRACE_SCALES`] times `a`, the smallest scale that counts (`what_a`
-/// names it; `remedy` says how to start above terraces of a given width). A wavelet narrower than the terraces sees the steps
-/// between them, edges with h = 0, rather than the surface. Measured on 4
-/// fBm of 512^2 (H = 0.7, gauss, fit from 2.1 px), quantised to terraces
-/// 5 px wide: h(0) and D(h(0)) within half an error; 6.2 px: D +0.05
-/// (1.8 errors); 8.2 px: h(0) -0.06; 12 px: h(0) 0.69 -> 0.46; fitted from
-/// 12 px, the 12 px terraces read as the unquantised fields (README,
-/// Conventions).
+/// names it; `effect` is added to what the steps do; `remedy` says how to
+/// start at a given scale). A wavelet narrower than the terraces sees the
+/// steps between them, edges with h = 0, rather than the surface.
 pub(crate) fn terrace_warning(
-    widths: &[f64],
-    images: usize,
+    widths: &[Option<f64>],
     a: f64,
     what_a: &str,
+    effect: &str,
     remedy: impl Fn(f64) -> String,
 ) -> Option<String> {
-    let w = crate::skeleton::median(widths)?;
-    if !(w > TERRACE_SCALES * a) {
+    let known: Vec<f64> = widths.iter().flatten().copied().collect();
+    let over = known.iter().filter(|&&w| w > TERRACE_SCALES * a).count();
+    let widest = known.iter().copied().fold(f64::NAN, f64::max);
+    if over == 0 {
         return None;
     }
     let run = "the mean run of equal neighbours along rows or columns; 1 where neighbours differ";
-    let whose = if images == 1 {
+    let k = TERRACE_SCALES;
+    let whose = if widths.len() == 1 {
         format!(
-            "the image's values are quantised into terraces {w:.1} px wide ({run}), more than \
-             {TERRACE_SCALES} times {what_a}, a = {a:.2} px"
+            "the image's values are quantised into terraces {widest:.1} px wide ({run}), more \
+             than {k} times {what_a}, a = {a:.2} px"
         )
     } else {
-        let over = widths.iter().filter(|&&x| x > TERRACE_SCALES * a).count();
         format!(
-            "the values of {over} of {images} images are quantised into terraces more than \
-             {TERRACE_SCALES} times as wide as {what_a}, a = {a:.2} px (a median {w:.1} px: \
-             {run})"
+            "{over} of {} images{} are quantised into terraces more than {k} times as wide as \
+             {what_a}, a = {a:.2} px (up to {widest:.1} px: {run})",
+            widths.len(),
+            recorded(known.len(), widths.len()),
         )
     };
     Some(format!(
-        "{whose}: a wavelet narrower than the terraces sees the steps between them (h = 0 along \
-         their edges) rather than the surface, which lowers h(q) and raises D (README, \
-         Conventions); {}, or analyse values quantised more finely",
-        remedy(w)
+        "{whose}: a wavelet that narrow sees the steps between the terraces (h = 0 along their \
+         edges) rather than the surface{effect} (README, Conventions); {}, or analyse values \
+         quantised more finely",
+        remedy(widest / k)
+    ))
+}
+
+/// " (of the 3 that record it: sums of older versions do not)" when only
+/// `known` of `all` images record a value; empty when all do.
+fn recorded(known: usize, all: usize) -> String {
+    if known == all {
+        String::new()
+    } else {
+        format!(" (of the {known} that record it: sums of older versions do not)")
+    }
+}
+
+/// What [`terrace_warning`] advises for a WTMM analysis on scales from
+/// `a_min` up to `top` px at `voices` per octave: the `--fit` start, in
+/// octaves above `a_min` on the grid, that clears the terraces, and
+/// whether it leaves an octave to fit.
+pub(crate) fn fit_remedy(a_min: f64, voices: usize, top: f64) -> impl Fn(f64) -> String {
+    move |a: f64| {
+        let v = voices.max(1) as f64;
+        let lo = ((a / a_min).log2() * v - 1e-9).ceil().max(0.0) / v;
+        let span = (top / a_min).log2() - lo;
+        let short = if span < 1.0 {
+            format!(
+                ", which leaves less than an octave below the largest scale, {top:.1} px: \
+                 the quantisation is too coarse for the image size"
+            )
+        } else {
+            String::new()
+        };
+        format!(
+            "fit from a >= {a:.1} px (--fit {}:HI, octaves above a_min = {} px){short}",
+            crate::error::short(lo),
+            crate::error::short(a_min)
+        )
+    }
+}
+
+/// The warning for images holding one value in more than
+/// [`crate::field::FLAT_SHARE_WARN`] of their valid pixels (`flats`: each
+/// image's [`ImagePartial::flat`], `None` without a flat value or where
+/// not recorded): a sea, a lake, a fill or an undeclared nodata value,
+/// whose rim the wavelet sees as a step or a kink of the surface.
+pub(crate) fn flat_warning(flats: &[Option<FlatRecord>]) -> Option<String> {
+    let big: Vec<FlatRecord> = flats
+        .iter()
+        .flatten()
+        .filter(|f| f.share > crate::field::FLAT_SHARE_WARN)
+        .copied()
+        .collect();
+    let most = big
+        .iter()
+        .copied()
+        .max_by(|a, b| a.share.total_cmp(&b.share))?;
+    let pc = 100.0 * crate::field::FLAT_SHARE_WARN;
+    let whose = if flats.len() == 1 {
+        format!(
+            "the image holds one value, {}, in {:.0} % of its valid pixels",
+            crate::error::short(most.value),
+            100.0 * most.share
+        )
+    } else {
+        format!(
+            "{} of {} images hold one value in more than {pc:.0} % of their valid pixels (up to \
+             {:.0} %, the value {})",
+            big.len(),
+            flats.len(),
+            100.0 * most.share,
+            crate::error::short(most.value)
+        )
+    };
+    Some(format!(
+        "{whose}: flat areas (a sea or a lake at one level, a fill, a nodata value the file does \
+         not declare), whose rim the wavelet sees as a step or a kink, not the roughness of the \
+         surface (README, Conventions); if they are no data, give them as missing (NaN, or the \
+         file's nodata value)"
     ))
 }
 
 /// How many times the smallest fitted scale the terraces of a quantised
 /// image ([`crate::Field::terrace_width`]) may be wide before the spectra
-/// are warned about: on quantised fBm the estimates moved by half an
-/// error at 2.4 times, by 1.8 errors at 2.9 times
-/// ([`PartitionSums::spectra`]'s terrace warning).
-pub const TERRACE_SCALES: f64 = 2.0;
+/// are warned about. Measured on 4 fBm of 512^2 (H = 0.7, gauss) rounded
+/// into terraces 12.3 px wide: fitted over 2 octaves from 8.5 px (1.45
+/// times) they read as unquantised (h(0) 0.582 against 0.586), from 6 px
+/// (2.05 times) 3 errors low (0.628 against 0.700). Over the default fit
+/// (2.1-24 px) the lowest scales weigh less: terraces 5 px wide (2.4 times)
+/// moved h(0) by half an error, 6.2 px (2.9 times) D by 1.8 (README,
+/// Conventions).
+pub const TERRACE_SCALES: f64 = 1.5;
 
 /// Effective number of lines below which a cell is flagged as dominated.
 pub const N_EFF_WARN: f64 = 10.0;
@@ -2407,6 +2515,9 @@ pub fn skeleton_sums_tiled(
     s.images[0].missing = (ny * nx - field.valid_count()) as u64;
     s.images[0].plane_share = field.plane_share();
     s.images[0].terrace_width = field.terrace_width();
+    s.images[0].flat = field
+        .flat_value()
+        .map(|(value, share)| FlatRecord { value, share });
     s
 }
 
@@ -2655,6 +2766,7 @@ mod tests {
                     tile_side: 0,
                     plane_share: None,
                     terrace_width: None,
+                    flat: None,
                 })
                 .collect();
             let s = PartitionSums {

@@ -1274,7 +1274,8 @@ fn quantised_images_are_named_by_the_wtmm_commands() {
     assert_eq!(code, 0);
     let v: Value = serde_json::from_str(&out).unwrap();
     let w = v["images"][0]["terrace_width"].as_f64().unwrap();
-    assert!(w > 2.0 * 1.5 * 2f64.sqrt(), "{w}");
+    let k = wtmm::spectra::TERRACE_SCALES;
+    assert!(w > k * 1.5 * 2f64.sqrt(), "{w}");
     let (_, text, _) = run_bin_output(&["info", "--octaves", "3", &q], true);
     assert!(
         text.contains(&format!("quantised: equal neighbours in runs of {w:.1} px"))
@@ -1293,7 +1294,7 @@ fn quantised_images_are_named_by_the_wtmm_commands() {
     }
     analyze(&q, "3", &[], &o);
     let s = json(&dir.join("o/spectra.json"));
-    assert_warns(&s, &format!("fit from a >= {w:.1} px (--fit)"));
+    assert_warns(&s, &format!("fit from a >= {:.1} px (--fit ", w / k));
     // the record in the sums
     let sums = json(&dir.join("o/sums.json"));
     assert_eq!(sums["images"][0]["terrace_width"].as_f64(), Some(w));

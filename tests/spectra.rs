@@ -1463,11 +1463,19 @@ fn quantised_images_are_warned_about() {
     // terraces 4 px wide along x, one run down each column: 4
     let stairs = Field::new(Array2::from_shape_fn((16, 20), |(_, x)| (x / 4) as f64));
     assert_eq!(stairs.terrace_width(), Some(4.0));
-    // a missing pixel splits a run: 1 1 _ 1 1 in rows and columns
-    let mut img = Array2::from_elem((5, 5), 1.0);
+    // a missing pixel splits a run: 0 0 _ 1 1 in rows, 0 0 _ 2 2 in columns
+    let mut img = Array2::from_shape_fn((5, 5), |(y, x)| {
+        f64::from(u8::from(x > 2)) + 2.0 * f64::from(u8::from(y > 2))
+    });
     img.row_mut(2).fill(f64::NAN);
     img.column_mut(2).fill(f64::NAN);
-    assert_eq!(Field::new(img).terrace_width(), Some(2.0));
+    let cross = Field::new(img);
+    assert_eq!(cross.terrace_width(), Some(2.0));
+    // no value holds more than half the pixels in runs: no flat value
+    assert_eq!(
+        (stairs.flat_value(), cross.flat_value(), ramp.flat_value()),
+        (None, None, None)
+    );
     assert_eq!(
         Field::new(Array2::from_elem((3, 3), f64::NAN)).terrace_width(),
         None
@@ -1475,6 +1483,7 @@ fn quantised_images_are_warned_about() {
 
     // fBm H = 0.7 quantised so that its one-pixel increments have an sd
     // of 0.1 quanta: terraces about 12 px wide (README, Conventions)
+    let k = wtmm::spectra::TERRACE_SCALES;
     let cfg = small_cfg();
     let q = [-1.0, 0.0, 1.0, 2.0];
     let fit = (0.5, 3.0);
@@ -1520,7 +1529,8 @@ fn quantised_images_are_warned_about() {
         .iter()
         .map(|im| im.terrace_width.unwrap())
         .collect();
-    assert!(widths.iter().all(|&w| w > 2.0 * a_fit), "{widths:?}");
+    assert!(widths.iter().all(|&w| w > k * a_fit), "{widths:?}");
+    assert!(quant.images.iter().all(|im| im.flat.is_none()));
     // through a file, as merge reads it
     let back: PartitionSums =
         serde_json::from_str(&serde_json::to_string(&quant).unwrap()).unwrap();
@@ -1530,14 +1540,33 @@ fn quantised_images_are_warned_about() {
         .iter()
         .find(|w| w.contains("terraces"))
         .unwrap_or_else(|| panic!("{:?}", s.warnings));
+    let wide = widths.iter().cloned().fold(0.0, f64::max);
     assert!(
-        w.contains("the values of 3 of 3 images") && w.contains("a = 2.12 px"),
+        w.contains("3 of 3 images are quantised")
+            && w.contains("a = 2.12 px")
+            && w.contains(&format!("up to {wide:.1} px"))
+            && w.contains(&format!("fit from a >= {:.1} px (--fit ", wide / k)),
         "{w}"
     );
-    // the fit starts above the terraces: no warning
-    let wide = widths.iter().cloned().fold(0.0, f64::max);
-    // (on the grid of 10 voices per octave)
-    let lo = ((wide / 1.5).log2() * 10.0).ceil() / 10.0;
+    // beside sums that do not record it (an older version's)
+    let mut old = plain.clone();
+    for im in old.images.iter_mut() {
+        im.terrace_width = None;
+        im.flat = None;
+    }
+    let mut mixed = old.clone();
+    mixed.merge(&quant).unwrap();
+    let s = mixed.spectra(Rule::Plain, fit).unwrap();
+    assert!(
+        s.warnings
+            .iter()
+            .any(|w| w.contains("3 of 6 images (of the 3 that record it")),
+        "{:?}",
+        s.warnings
+    );
+    // the fit starts above the terraces: no warning (the start on the
+    // grid of 10 voices per octave)
+    let lo = ((wide / k / 1.5).log2() * 10.0).ceil() / 10.0;
     let cfg5 = AnalysisConfig {
         octaves: (lo + 0.5).ceil() as usize,
         margin: Some(0),
@@ -1556,4 +1585,61 @@ fn quantised_images_are_warned_about() {
     let mut bad = quant.clone();
     bad.images[0].terrace_width = Some(0.5);
     assert!(bad.check().unwrap_err().contains("terrace_width"));
+}
+
+/// A continuous surface with a flat area of one value (a sea set to 0):
+/// the flat value and its share are found and recorded, the terraces of
+/// the rest read 1 (the flat pixels are left out), and the spectra warn
+/// of the flat area, not of terraces; the same sea given as missing is
+/// neither.
+#[test]
+fn flat_areas_are_named_not_taken_for_terraces() {
+    let f = fbm(FbmParams { hurst: 0.7 }, 128, 128, 23, 0).unwrap();
+    let mut sorted: Vec<f64> = f.iter().copied().collect();
+    sorted.sort_by(f64::total_cmp);
+    let level = sorted[sorted.len() * 3 / 10];
+    let sea = Field::new(f.mapv(|v| if v <= level { 0.0 } else { v }));
+    let missing = Field::new(f.mapv(|v| if v <= level { f64::NAN } else { v }));
+    let (value, share) = sea.flat_value().unwrap();
+    assert_eq!(value, 0.0);
+    assert!((share - 0.3).abs() < 0.01, "{share}");
+    assert!(sea.terrace_width().unwrap() < 1.01);
+    assert_eq!(missing.flat_value(), None);
+    // no margin: the missing sea, grown by a margin, would leave no domain
+    let cfg = AnalysisConfig {
+        margin: Some(0),
+        ..small_cfg()
+    };
+    let q = [-1.0, 0.0, 1.0, 2.0];
+    let s = image_sums(&sea, &cfg, &q, "sea").unwrap();
+    let flat = s.images[0].flat.unwrap();
+    assert_eq!((flat.value, flat.share), (value, share));
+    let w = s.spectra(Rule::Plain, (0.5, 3.0)).unwrap().warnings;
+    assert!(
+        w.iter()
+            .any(|w| w.starts_with("the image holds one value, 0, in 30 %")
+                && w.contains("give them as missing")),
+        "{w:?}"
+    );
+    assert!(!w.iter().any(|w| w.contains("terraces")), "{w:?}");
+    // one octave: the missing sea's surroundings at larger scales cover
+    // nearly all of a 128 px image
+    let one = AnalysisConfig {
+        octaves: 1,
+        ..cfg.clone()
+    };
+    let w = image_sums(&missing, &one, &q, "nan")
+        .unwrap()
+        .spectra(Rule::Plain, (0.0, 1.0))
+        .unwrap()
+        .warnings;
+    assert!(
+        !w.iter()
+            .any(|w| w.contains("one value") || w.contains("terraces")),
+        "{w:?}"
+    );
+    // a record that is no share is refused
+    let mut bad = s.clone();
+    bad.images[0].flat.as_mut().unwrap().share = 1.5;
+    assert!(bad.check().unwrap_err().contains("flat"));
 }

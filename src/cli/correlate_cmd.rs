@@ -302,9 +302,13 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let mut cwt_res = sums.cwt.as_ref().map(correlation_estimates).transpose()?;
     let mut sk_res = sums.wtmmm.as_ref().map(correlation_estimates).transpose()?;
     let holes = input.holes.warning(input.len(), "the correlations");
-    let planes = input.planes.warning(&cfg, input.len());
+    let planes = input.tally.warning(&cfg, input.len());
     let a0 = ccfg.scales.iter().copied().fold(f64::INFINITY, f64::min);
-    let terraces = input.planes.terrace_warning(a0, input.len());
+    let terraces = input
+        .tally
+        .quantisation_warnings(a0, "the smallest scale correlated", |a| {
+            format!("correlate scales from a >= {a:.1} px (--pairs, or --a-min)")
+        });
     for w in holes
         .iter()
         .chain(&planes)
@@ -811,7 +815,7 @@ impl ValidationExtras {
             origin: None,
             wavelet: cfg.wavelet,
             holes: Default::default(),
-            planes: Default::default(),
+            tally: Default::default(),
             pixel: None,
             pixel_warnings: Vec::new(),
         };

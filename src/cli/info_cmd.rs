@@ -189,23 +189,39 @@ fn describe(
             ));
         }
     }
-    // quantised values: terraces wider than twice the smallest fitted
-    // scale bias the spectra (analyze warns: spectra::terrace_warning);
-    // a line of its own from 1.5 px (a continuous surface reads 1)
+    // quantised values and flat areas: terraces wider than
+    // TERRACE_SCALES times the smallest fitted scale, one value over
+    // FLAT_SHARE_WARN of the pixels (analyze warns: spectra::terrace_warning,
+    // flat_warning); a line of their own from 1.5 px (a continuous surface
+    // reads 1) and from 1 % of the pixels
     let terrace = field.terrace_width();
     if let Some(w) = terrace.filter(|&w| w >= 1.5) {
         text += &format!(
             "  quantised: equal neighbours in runs of {w:.1} px on average (terraces; 1 where \
              neighbours differ)\n"
         );
-        notes.extend(crate::spectra::terrace_warning(
-            &[w],
-            1,
-            fit_scales.0,
-            "the smallest scale analyze fits by default",
-            |w| format!("fit from a >= {w:.1} px (--fit)"),
-        ));
     }
+    let top = plan.scale_list().last().copied().unwrap_or(plan.a_min);
+    notes.extend(crate::spectra::terrace_warning(
+        &[terrace],
+        fit_scales.0,
+        "the smallest scale analyze fits by default",
+        ", which lowers h(q) and raises D",
+        crate::spectra::fit_remedy(plan.a_min, plan.voices, top),
+    ));
+    // (a constant image is one flat value: said below as not usable)
+    let flat = field
+        .flat_value()
+        .filter(|_| range.is_some_and(|(lo, hi)| lo < hi))
+        .map(|(value, share)| crate::spectra::FlatRecord { value, share });
+    if let Some(fl) = flat.filter(|f| f.share >= 0.01) {
+        text += &format!(
+            "  flat: the value {} fills {:.1} % of the valid pixels\n",
+            f(fl.value),
+            100.0 * fl.share
+        );
+    }
+    notes.extend(crate::spectra::flat_warning(&[flat]));
     // what analyze refuses, the reason it would give
     let mut problems: Vec<String> = Vec::new();
     match range {
@@ -342,7 +358,7 @@ fn describe(
             "source": p.source})),
         "plane": plane.map(|p| json!({"c0": p.c0, "cx": p.cx, "cy": p.cy, "slope": p.slope(),
             "variance_share": share})),
-        "terrace_width": terrace,
+        "terrace_width": terrace, "flat": flat,
         "wavelet": plan.wavelet, "margin": plan.margin, "domains": domains, "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
         "notes": notes, "usable": problems.is_empty(), "problems": problems,
     });

@@ -360,13 +360,14 @@ pub fn run(args: KernelArgs, quiet: bool) -> Result<Outcome> {
     if let Some(w) = input.holes.warning(input.len(), "the WTMMM counted") {
         main.warnings.push(w);
     }
-    main.warnings
-        .extend(input.planes.warning(&cfg, input.len()));
-    main.warnings.extend(
-        input
-            .planes
-            .terrace_warning(cfg.scale_list()[0], input.len()),
-    );
+    main.warnings.extend(input.tally.warning(&cfg, input.len()));
+    // the cumulants are fitted from `fit.0` octaves up
+    let a_top = cfg.scale_list().last().copied().unwrap_or(cfg.a_min);
+    main.warnings.extend(input.tally.quantisation_warnings(
+        cfg.a_min * 2f64.powf(fit.0),
+        "the smallest scale of the cumulants' fit",
+        crate::spectra::fit_remedy(cfg.a_min, cfg.voices, a_top),
+    ));
     let mut c = main.cumulants.values().to_vec();
     if c[1] < 0.0 {
         // a kernel with c2 < 0 is no density (reconstruct refuses it); the

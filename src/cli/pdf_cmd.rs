@@ -108,7 +108,7 @@ pub struct Input {
     /// The images' least-squares plane shares ([`Field::plane_share`]) and
     /// terrace widths ([`Field::terrace_width`]) met by [`Input::fold`],
     /// for the planar-trend and quantisation warnings.
-    pub planes: FieldTally,
+    pub tally: FieldTally,
     /// The pixel (`--pixel-size`, or what the files declare): scales also
     /// as lengths.
     pub pixel: Option<super::PixelSize>,
@@ -174,28 +174,44 @@ impl HoleTally {
 }
 
 /// The share of each image's variance its least-squares plane explains,
-/// and the width of its terraces, collected while folding (shared across
+/// and its terraces and flat value, collected while folding (shared across
 /// the rayon workers).
 #[derive(Debug, Default)]
-pub struct FieldTally(Mutex<Vec<f64>>, Mutex<Vec<f64>>);
+pub struct FieldTally(Mutex<Vec<f64>>, Mutex<Vec<Quantisation>>);
+
+/// One image's [`Field::terrace_width`] and [`Field::flat_value`].
+type Quantisation = (Option<f64>, Option<crate::spectra::FlatRecord>);
 
 impl FieldTally {
     fn add(&self, field: &Field) {
         if let Some(r) = field.plane_share() {
             self.0.lock().unwrap_or_else(|e| e.into_inner()).push(r);
         }
-        if let Some(w) = field.terrace_width() {
-            self.1.lock().unwrap_or_else(|e| e.into_inner()).push(w);
-        }
+        let flat = field
+            .flat_value()
+            .map(|(value, share)| crate::spectra::FlatRecord { value, share });
+        self.1
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push((field.terrace_width(), flat));
     }
 
-    /// [`crate::spectra::terrace_warning`] of the widths met, for `images`
-    /// analysed from the scale `a` up.
-    pub fn terrace_warning(&self, a: f64, images: usize) -> Option<String> {
-        let widths = self.1.lock().unwrap_or_else(|e| e.into_inner()).clone();
-        crate::spectra::terrace_warning(&widths, images, a, "the smallest scale analysed", |w| {
-            format!("start the scales at a >= {w:.1} px (--a-min)")
-        })
+    /// [`crate::spectra::terrace_warning`] of the terraces met, against
+    /// `a`, the smallest scale that counts (`what_a`; `remedy` as there),
+    /// and [`crate::spectra::flat_warning`] of the flat values.
+    pub fn quantisation_warnings(
+        &self,
+        a: f64,
+        what_a: &str,
+        remedy: impl Fn(f64) -> String,
+    ) -> Vec<String> {
+        let q = self.1.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let widths: Vec<Option<f64>> = q.iter().map(|x| x.0).collect();
+        let flats: Vec<Option<crate::spectra::FlatRecord>> = q.iter().map(|x| x.1).collect();
+        crate::spectra::terrace_warning(&widths, a, what_a, "", remedy)
+            .into_iter()
+            .chain(crate::spectra::flat_warning(&flats))
+            .collect()
     }
 
     /// What to add to a "too few maxima" message when the median image is
@@ -370,7 +386,7 @@ impl StatsInput {
             periodic,
             origin,
             holes: HoleTally::default(),
-            planes: FieldTally::default(),
+            tally: FieldTally::default(),
             pixel,
             pixel_warnings,
         })
@@ -461,7 +477,7 @@ impl Input {
             .try_fold(&init, |mut acc, i| -> Result<A> {
                 let (field, label) = self.load(i)?;
                 self.holes.add(&field);
-                self.planes.add(&field);
+                self.tally.add(&field);
                 step(&mut acc, &field, &label, par).map_err(|e| {
                     if self.generated() {
                         e
@@ -510,7 +526,7 @@ impl Input {
         if let Some(note) = self.holes.note(self.len()) {
             msg.push_str(&note);
         }
-        if let Some(note) = self.planes.note() {
+        if let Some(note) = self.tally.note() {
             msg.push_str(&note);
         }
         match self.images.as_slice() {
@@ -890,10 +906,12 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     );
     body["wall_seconds"] = json!(wall);
     let holes = input.holes.warning(input.len(), "the WTMMM counted");
-    let planes = input.planes.warning(&cfg, input.len());
-    let terraces = input
-        .planes
-        .terrace_warning(cfg.scale_list()[0], input.len());
+    let planes = input.tally.warning(&cfg, input.len());
+    let terraces = input.tally.quantisation_warnings(
+        cfg.scale_list()[0],
+        "the smallest scale analysed",
+        |a| format!("read the pdfs from a >= {a:.1} px, or start the scales there (--a-min)"),
+    );
     body["warnings"] = json!(
         warning
             .iter()

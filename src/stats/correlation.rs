@@ -2224,7 +2224,8 @@ impl CorrelationResult {
     /// integral scale `l` px (the image side for a W-cascade, II eq 76)
     /// over `factor sup(a1, a2) < Δx < l/4`, the window of the issue's
     /// acceptance with `factor = PAPER_UNIT`. Bins where the model gives no
-    /// value (e.g. a model without a closed form) are skipped.
+    /// value (e.g. a model without a closed form), or the data none (a bin
+    /// without pairs), are skipped, and not counted in `bins`.
     pub fn compare_theory(&self, model: &crate::theory::Model, l: f64, factor: f64) -> TheoryCheck {
         let mut out = TheoryCheck {
             factor,
@@ -2246,8 +2247,12 @@ impl CorrelationResult {
                 max_abs_dev_ensemble: 0.0,
             };
             for (i, &dx) in p.dx.iter().enumerate() {
+                // a bin without pairs (NaN) is no comparison: f64::max
+                // would skip it silently while it was counted
                 if dx > lo
                     && dx < l / 4.0
+                    && p.c[i].is_finite()
+                    && p.c_ensemble[i].is_finite()
                     && let Some(t) = model.magnitude_correlation(dx, l)
                 {
                     pc.max_abs_dev = pc.max_abs_dev.max((p.c[i] - t).abs());
@@ -2522,6 +2527,20 @@ mod tests {
         assert!((w.dev + 0.04).abs() < 1e-12);
         // read literally (dx > sup(a1, a2) px) the 10 px bin counts
         assert!((r.compare_theory(&m, l, 1.0).max_abs_dev - 1.0).abs() < 1e-12);
+        // a bin without pairs (NaN) in the window is neither compared nor
+        // counted; with none left, bins = 0 says the maxima mean nothing
+        let mut gap = r.clone();
+        gap.pairs[0].c[2] = f64::NAN;
+        gap.pairs[0].c_ensemble[2] = f64::NAN;
+        let c = gap.compare_theory(&m, l, PAPER_UNIT);
+        assert_eq!((c.pairs[0].bins, c.bins), (2, 4));
+        assert!((c.pairs[0].max_abs_dev - 0.01).abs() < 1e-12);
+        for p in gap.pairs.iter_mut() {
+            p.c.fill(f64::NAN);
+            p.c_ensemble.fill(f64::NAN);
+        }
+        let c = gap.compare_theory(&m, l, PAPER_UNIT);
+        assert_eq!((c.bins, c.worst_ensemble), (0, None));
     }
 
     #[test]
