@@ -339,7 +339,19 @@ impl Field {
     /// ([`PartitionSums::spectra`](crate::spectra::PartitionSums::spectra)
     /// warns).
     pub fn terrace_width(&self) -> Option<f64> {
-        let flat = self.flat_value().map(|(v, _)| v);
+        self.terraces().0
+    }
+
+    /// [`terrace_width`](Self::terrace_width) and
+    /// [`flat_value`](Self::flat_value) together, the flat value found
+    /// once (the width needs it).
+    pub fn terraces(&self) -> (Option<f64>, Option<(f64, f64)>) {
+        let flat = self.flat_value();
+        (self.terrace_width_without(flat.map(|(v, _)| v)), flat)
+    }
+
+    /// The terrace width with the pixels holding `flat` left out.
+    fn terrace_width_without(&self, flat: Option<f64>) -> Option<f64> {
         let counts = |v: &f64| v.is_finite() && Some(*v) != flat;
         // valid pixels and runs over the lanes along `axis`
         let mean_run = |axis: Axis| -> Option<f64> {

@@ -2514,11 +2514,18 @@ pub fn skeleton_sums_tiled(
     let (ny, nx) = field.dim();
     s.images[0].missing = (ny * nx - field.valid_count()) as u64;
     s.images[0].plane_share = field.plane_share();
-    s.images[0].terrace_width = field.terrace_width();
-    s.images[0].flat = field
-        .flat_value()
-        .map(|(value, share)| FlatRecord { value, share });
+    (s.images[0].terrace_width, s.images[0].flat) = quantisation(field);
     s
+}
+
+/// An image's [`crate::Field::terraces`], the flat value as the record
+/// [`ImagePartial`] keeps.
+pub(crate) fn quantisation(field: &crate::Field) -> (Option<f64>, Option<FlatRecord>) {
+    let (width, flat) = field.terraces();
+    (
+        width,
+        flat.map(|(value, share)| FlatRecord { value, share }),
+    )
 }
 
 /// An analysis as merging sees it: the scales are compared on their own

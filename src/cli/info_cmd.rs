@@ -194,7 +194,7 @@ fn describe(
     // FLAT_SHARE_WARN of the pixels (analyze warns: spectra::terrace_warning,
     // flat_warning); a line of their own from 1.5 px (a continuous surface
     // reads 1) and from 1 % of the pixels
-    let terrace = field.terrace_width();
+    let (terrace, flat) = crate::spectra::quantisation(&field);
     if let Some(w) = terrace.filter(|&w| w >= 1.5) {
         text += &format!(
             "  quantised: equal neighbours in runs of {w:.1} px on average (terraces; 1 where \
@@ -210,10 +210,7 @@ fn describe(
         crate::spectra::fit_remedy(plan.a_min, plan.voices, top),
     ));
     // (a constant image is one flat value: said below as not usable)
-    let flat = field
-        .flat_value()
-        .filter(|_| range.is_some_and(|(lo, hi)| lo < hi))
-        .map(|(value, share)| crate::spectra::FlatRecord { value, share });
+    let flat = flat.filter(|_| range.is_some_and(|(lo, hi)| lo < hi));
     if let Some(fl) = flat.filter(|f| f.share >= 0.01) {
         text += &format!(
             "  flat: the value {} fills {:.1} % of the valid pixels\n",

@@ -179,7 +179,7 @@ impl HoleTally {
 #[derive(Debug, Default)]
 pub struct FieldTally(Mutex<Vec<f64>>, Mutex<Vec<Quantisation>>);
 
-/// One image's [`Field::terrace_width`] and [`Field::flat_value`].
+/// One image's [`crate::spectra::quantisation`]: terrace width and flat value.
 type Quantisation = (Option<f64>, Option<crate::spectra::FlatRecord>);
 
 impl FieldTally {
@@ -187,13 +187,10 @@ impl FieldTally {
         if let Some(r) = field.plane_share() {
             self.0.lock().unwrap_or_else(|e| e.into_inner()).push(r);
         }
-        let flat = field
-            .flat_value()
-            .map(|(value, share)| crate::spectra::FlatRecord { value, share });
         self.1
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .push((field.terrace_width(), flat));
+            .push(crate::spectra::quantisation(field));
     }
 
     /// [`crate::spectra::terrace_warning`] of the terraces met, against
