@@ -408,7 +408,14 @@ impl Field {
             close(run);
         }
         let (bits, n) = by_value.into_iter().max_by_key(|&(b, n)| (n, b))?;
-        (2 * n > in_runs).then(|| (f64::from_bits(bits), n as f64 / self.valid_count() as f64))
+        if 2 * n <= in_runs {
+            return None;
+        }
+        // the share counts every pixel of the value, lone ones too (a
+        // coast's pixels between land on either side)
+        let value = f64::from_bits(bits);
+        let all = self.data.iter().filter(|&&v| v == value).count();
+        Some((value, all as f64 / self.valid_count() as f64))
     }
 }
 

@@ -1253,6 +1253,58 @@ fn tm_names_a_quantised_dem() {
     assert!(!said(&["tm", &f, "--out", &o]));
 }
 
+/// A sea at the coast's level over 30 % of a DEM in whole units is named
+/// by `tm` (value, share, and in tm.json), and its equal pixels do not
+/// make the DEM look quantised (no `--frac-int` offered: it cannot mend a
+/// sea); the same DEM without the sea is named for neither.
+#[test]
+fn tm_names_a_flat_area() {
+    let dir = scratch("tm_flat");
+    let f = fbm(FbmParams { hurst: 0.7 }, 256, 256, 5, 0).unwrap();
+    // a relief of 40000 units: next to no equal neighbours on the land
+    let (lo, hi) = f
+        .iter()
+        .fold((f64::MAX, f64::MIN), |m, &v| (m.0.min(v), m.1.max(v)));
+    let land = f.mapv(|v| (40000.0 * (v - lo) / (hi - lo)).round());
+    let mut sorted: Vec<f64> = land.iter().copied().collect();
+    sorted.sort_by(f64::total_cmp);
+    let level = sorted[sorted.len() * 3 / 10];
+    let sea = land.mapv(|v| v.max(level));
+    let (ps, pl) = (dir.join("sea.npy"), dir.join("land.npy"));
+    write_npy(&ps, &sea).unwrap();
+    write_npy(&pl, &land).unwrap();
+    let o = dir.join("o").display().to_string();
+    let tm = |img: &Path| {
+        let (code, err) = run_bin_stderr(&["tm", &img.display().to_string(), "--out", &o]);
+        assert_eq!(code, 0, "{err}");
+        (err, json(&dir.join("o/tm.json")))
+    };
+    let (err, v) = tm(&ps);
+    let share = (sorted.partition_point(|&x| x <= level)) as f64 / sorted.len() as f64;
+    assert!((share - 0.30).abs() < 0.005, "{share}");
+    assert!(
+        err.contains(&format!(
+            "one value, {level}, fills {:.0} % of the valid pixels",
+            100.0 * share
+        )),
+        "{err}"
+    );
+    assert!(!err.contains("every value is a whole number"), "{err}");
+    let rec = &v["params"]["flat"][0];
+    assert_eq!(rec["value"].as_f64(), Some(level));
+    assert!(
+        (rec["share"].as_f64().unwrap() - share).abs() < 1e-12,
+        "{rec}"
+    );
+    assert_warns(&v, "give it as missing");
+    let (err, v) = tm(&pl);
+    assert!(
+        !err.contains("fills") && !err.contains("whole number"),
+        "{err}"
+    );
+    assert!(v["params"]["flat"][0].is_null());
+}
+
 /// An image quantised into terraces wider than twice the smallest scale
 /// that counts is named by `info` (its width, the note) and warned about
 /// by analyze (stderr and spectra.json), pdf, kernel and correlate, with

@@ -314,13 +314,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                 })
                 .unwrap_or(e)
         })?;
-        let shapes = fields
-            .iter()
-            .map(|f| {
-                let (ny, nx) = f.dim();
-                ([ny, nx], ny * nx - f.valid_count(), quantised(f))
-            })
-            .collect();
+        let shapes = fields.iter().map(ImageInfo::of).collect();
         let mut res = res;
         if let Some(k) = args.surrogates {
             // the data's result stands when no model can be drawn from it
@@ -342,9 +336,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     };
     // the flux skips missing pixels; the spectrum (beta, H) sees them filled
     // with the image mean
-    let missing: Vec<usize> = shapes.iter().map(|s| s.1).collect();
-    let quant: Vec<Option<f64>> = shapes.iter().map(|s| s.2).collect();
-    let shapes: Vec<[usize; 2]> = shapes.iter().map(|s| s.0).collect();
+    let missing: Vec<usize> = shapes.iter().map(|s| s.missing).collect();
+    let quant: Vec<Option<f64>> = shapes.iter().map(|s| s.equal).collect();
+    let flats: Vec<Option<(f64, f64)>> = shapes.iter().map(|s| s.flat).collect();
+    let shapes: Vec<[usize; 2]> = shapes.iter().map(|s| s.shape).collect();
     let mut extra = Vec::new();
     // as the other commands: jackknife errors over few images (or tiles of
     // one image) are rough, and say by how much (for tiles the library
@@ -369,6 +364,22 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                     100.0 * eq
                 ));
             }
+        }
+    }
+    // a flat area has a flux of about 0, which the coarse-grained moments
+    // read as intermittency (README, Conventions: "Flat areas")
+    for (f, p) in flats.iter().zip(&args.images) {
+        if let Some((v, share)) = f.filter(|f| f.1 > crate::field::FLAT_SHARE_WARN) {
+            extra.push(format!(
+                "{}: one value, {}, fills {:.0} % of the valid pixels: a flat area (a sea or a \
+                 lake at one level, a fill, a nodata value the file does not declare), whose \
+                 flux is about 0 and which the moments read as intermittency (alpha and C1 move: \
+                 README, Conventions); if it is no data, give it as missing (NaN, or the file's \
+                 nodata value)",
+                p.display(),
+                crate::error::short(v),
+                100.0 * share
+            ));
         }
     }
     for (n, p) in missing.iter().zip(&args.images) {
@@ -408,6 +419,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let what = super::common::data_label(&args.images, args.images.len(), &shapes)
         + super::common::trend_label(args.detrend);
     let params = json!({"images": super::common::paths_json(&args.images), "image_shapes": shapes, "missing_pixels": missing,
+        "flat": flats.iter().map(|f| f.map(|(value, share)| json!({"value": value, "share": share}))).collect::<Vec<_>>(),
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit),
         "plane_shares": acc.planes.iter().map(|p| p.share).collect::<Vec<_>>(),
         "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
@@ -470,22 +482,48 @@ fn draw_surrogates(
     out
 }
 
-/// An image's `[ny, nx]`, missing pixels, and (when every value is a
-/// whole number) the fraction of equal horizontal neighbours.
-type ImageInfo = ([usize; 2], usize, Option<f64>);
+/// What the warnings of `tm` need to know of an image.
+pub struct ImageInfo {
+    /// `[ny, nx]`.
+    shape: [usize; 2],
+    /// Missing pixels.
+    missing: usize,
+    /// When every value is a whole number, the fraction of equal
+    /// horizontal neighbours ([`quantised`]).
+    equal: Option<f64>,
+    /// The value filling flat areas and its share of the valid pixels
+    /// ([`crate::Field::flat_value`]).
+    flat: Option<(f64, f64)>,
+}
+
+impl ImageInfo {
+    fn of(f: &crate::Field) -> Self {
+        let (ny, nx) = f.dim();
+        let flat = f.flat_value();
+        ImageInfo {
+            shape: [ny, nx],
+            missing: ny * nx - f.valid_count(),
+            equal: quantised(f, flat.map(|(v, _)| v)),
+            flat,
+        }
+    }
+}
 
 /// For a field whose valid values are all whole numbers (a DEM in whole
 /// metres), the fraction of valid horizontal neighbour pairs that are
-/// equal: there the gradient flux is exactly 0 (TM §5.2).
-fn quantised(f: &crate::Field) -> Option<f64> {
+/// equal: there the gradient flux is exactly 0 (TM §5.2). Pairs touching
+/// the `flat` value (a sea: [`crate::Field::flat_value`]) are left out,
+/// since no fractional integration mends those (a warning of their own).
+fn quantised(f: &crate::Field, flat: Option<f64>) -> Option<f64> {
     let valid = |v: &f64| v.is_finite();
     if !f.data.iter().filter(|v| valid(v)).all(|v| v.fract() == 0.0) {
         return None;
     }
+    let counts = |v: &f64| valid(v) && Some(*v) != flat;
     let (mut pairs, mut equal) = (0usize, 0usize);
     for row in f.data.rows() {
         for (a, b) in row.iter().zip(row.iter().skip(1)) {
-            if valid(a) && valid(b) {
+            if counts(a) && counts(b) {
                 pairs += 1;
                 equal += (a == b) as usize;
             }
@@ -512,9 +550,7 @@ pub fn accumulate_paths(
             acc.add_field(&field)
                 .map_err(|e| super::common::in_file(p, e))?;
             pb.inc(1);
-            let (ny, nx) = field.dim();
-            let q = quantised(&field);
-            Ok((acc, ([ny, nx], ny * nx - field.valid_count(), q)))
+            Ok((acc, ImageInfo::of(&field)))
         })
         .collect::<Result<_>>()?;
     pb.finish_and_clear();
