@@ -1974,6 +1974,34 @@ fn synth_files_are_analysed_as_tori() {
         "{err}"
     );
     std::fs::remove_file(&stale).unwrap();
+    // a file of another shape (cropped) put in place with an older time
+    // than its record: named by its shape
+    let kept = std::fs::read(&wc[1]).unwrap();
+    let cropped = fbm(FbmParams { hurst: 0.4 }, 120, 128, 3, 0).unwrap();
+    write_npy(&wc[1], &cropped).unwrap();
+    let record = std::fs::metadata(dir.join("wc/synth.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    let set_time = |t: std::time::SystemTime| {
+        std::fs::File::options()
+            .write(true)
+            .open(&wc[1])
+            .unwrap()
+            .set_modified(t)
+            .unwrap();
+    };
+    set_time(record - std::time::Duration::from_secs(60));
+    let (v, err) = analyze(two, &[], &p("a_cropped"));
+    assert!(v["params"]["origin"].is_null());
+    assert!(
+        err.contains("wcascade_0001.npy is 120 x 128 px, not the 128 x 128 its"),
+        "{err}"
+    );
+    std::fs::write(&wc[1], kept).unwrap();
+    set_time(record - std::time::Duration::from_secs(60));
+    let (v, _) = analyze(two, &[], &p("a_restored"));
+    assert_eq!(v["params"]["origin"]["periodic"], true);
     // FISC: validate's wavelet too (mexican), and validate's tau
     synth(&["--preset", "paper-fisc"], &p("fisc"), "2");
     let fisc = npy_files(&dir.join("fisc"));

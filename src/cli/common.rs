@@ -186,9 +186,9 @@ impl PeriodicSynth {
 /// and its spectrum a taper's worth of power (SPEC §1, §14), and the same
 /// files then read differently from `validate`'s in-memory ensemble.
 ///
-/// Trusted, not verified: the record's file list and times (a file put in
-/// place with an older time, `cp -p`, passes; its shape is not compared
-/// with the record's size).
+/// Trusted, not verified: the record's file list, size and times (a file
+/// of the recorded shape put in place with an older time, `cp -p`,
+/// passes; a file of another shape does not).
 pub fn periodic_synth(
     paths: &[PathBuf],
     lost: Option<&str>,
@@ -201,6 +201,8 @@ pub fn periodic_synth(
         model: crate::theory::Model,
         wavelet: Option<crate::cwt::Wavelet>,
         time: std::time::SystemTime,
+        /// The side of the square fields (`params.size`).
+        size: Option<usize>,
     }
     let read = |rec: &Path| -> Option<Record> {
         let time = std::fs::metadata(rec).ok()?.modified().ok()?;
@@ -215,12 +217,14 @@ pub fn periodic_synth(
             .collect::<Option<Vec<_>>>()?;
         let model = serde_json::from_value(v["params"]["model"].clone()).ok()?;
         let wavelet = serde_json::from_value(v["theory"]["recommended_wavelet"].clone()).ok();
+        let size = v["params"]["size"].as_u64().map(|n| n as usize);
         Some(Record {
             shown: rec.to_path_buf(),
             files,
             model,
             wavelet,
             time,
+            size,
         })
     };
     // one record per directory (however its path is spelled), read once
@@ -238,27 +242,44 @@ pub fn periodic_synth(
             .join("synth.json");
         let entry = records.entry(key.clone()).or_insert_with(|| read(&rec));
         let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
-        let why = match entry.as_ref() {
-            None => Some("without a synth.json of `wtmm synth` beside it".to_string()),
-            Some(r) if !r.files.iter().any(|f| f == name) => Some(format!(
-                "not listed in {} (left by an earlier run?)",
-                r.shown.display()
-            )),
-            Some(r) if !r.model.is_periodic() => {
-                Some(format!("from a non-periodic model ({})", r.model.name()))
+        let why = (|| {
+            let Some(r) = entry.as_ref() else {
+                return Some("without a synth.json of `wtmm synth` beside it".to_string());
+            };
+            if !r.files.iter().any(|f| f == name) {
+                return Some(format!(
+                    "not listed in {} (left by an earlier run?)",
+                    r.shown.display()
+                ));
             }
-            Some(r)
-                if std::fs::metadata(p)
-                    .and_then(|m| m.modified())
-                    .map_or(true, |t| t > r.time) =>
-            {
-                Some(format!(
+            if !r.model.is_periodic() {
+                return Some(format!("from a non-periodic model ({})", r.model.name()));
+            }
+            // a file of another shape is not the recorded torus (cropped,
+            // or put in place with an older time); unreadable ones are
+            // refused later, by the command's own reading
+            if let Some(n) = r.size {
+                match crate::io::read_shape(p) {
+                    Ok(s) if s == [n, n] => {}
+                    Ok([ny, nx]) => {
+                        return Some(format!(
+                            "{ny} x {nx} px, not the {n} x {n} its {} records",
+                            r.shown.display()
+                        ));
+                    }
+                    Err(_) => return Some("unreadable".to_string()),
+                }
+            }
+            let newer = std::fs::metadata(p)
+                .and_then(|m| m.modified())
+                .map_or(true, |t| t > r.time);
+            newer.then(|| {
+                format!(
                     "newer than {} (changed since synth wrote it?)",
                     r.shown.display()
-                ))
-            }
-            Some(_) => None,
-        };
+                )
+            })
+        })();
         match why {
             None => {
                 ok += 1;
