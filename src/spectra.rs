@@ -1366,6 +1366,7 @@ impl PartitionSums {
             n_eff: cell(&ens.n_eff),
             lines: ens.lines,
             per_image,
+            image_records: self.images.iter().map(ImageRecord::of).collect(),
             warnings,
         })
     }
@@ -1386,6 +1387,43 @@ impl PartitionSums {
                 }
             })
             .collect()
+    }
+}
+
+/// What an ensemble's sums record of one image ([`Spectra::image_records`]):
+/// the per-image numbers behind the warnings on missing pixels, planes,
+/// terraces and flat areas.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ImageRecord {
+    /// The image's label (its file).
+    pub label: String,
+    /// Its size `[ny, nx]` ([`ImagePartial::shape`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shape: Option<[usize; 2]>,
+    /// Missing pixels ([`ImagePartial::missing`]).
+    pub missing: u64,
+    /// [`ImagePartial::plane_share`]; null where the sums do not record it.
+    #[serde(default)]
+    pub plane_share: Option<f64>,
+    /// [`ImagePartial::terrace_width`]; null likewise.
+    #[serde(default)]
+    pub terrace_width: Option<f64>,
+    /// [`ImagePartial::flat`]; null without a flat value or where not
+    /// recorded.
+    #[serde(default)]
+    pub flat: Option<FlatRecord>,
+}
+
+impl ImageRecord {
+    fn of(im: &ImagePartial) -> Self {
+        ImageRecord {
+            label: im.label.clone(),
+            shape: im.shape,
+            missing: im.missing,
+            plane_share: im.plane_share,
+            terrace_width: im.terrace_width,
+            flat: im.flat,
+        }
     }
 }
 
@@ -2079,6 +2117,11 @@ pub struct Spectra {
     /// (the unlike-image test, [`unlike_images`]); empty otherwise.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub per_image: Vec<ImageExponents>,
+    /// What the sums record of each image, in their order: size, missing
+    /// pixels, plane share, terrace width, flat value (the numbers behind
+    /// the warnings, which name only the worst; `sums.json` holds the same).
+    #[serde(default)]
+    pub image_records: Vec<ImageRecord>,
     /// Human-readable warnings: q not estimable, curved log2 Z (local slope
     /// changing by more than [`SLOPE_CHANGE_WARN`]), cells dominated by few
     /// lines (below [`N_EFF_WARN`]), runs of neighbouring q in one warning,

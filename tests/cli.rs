@@ -1350,6 +1350,9 @@ fn quantised_images_are_named_by_the_wtmm_commands() {
     // the record in the sums
     let sums = json(&dir.join("o/sums.json"));
     assert_eq!(sums["images"][0]["terrace_width"].as_f64(), Some(w));
+    // and spectra.json, per image
+    assert_eq!(s["image_records"][0]["terrace_width"].as_f64(), Some(w));
+    assert_eq!(s["image_records"][0]["label"], sums["images"][0]["label"]);
 }
 
 /// `info`: shape, values and missing pixels of each file, its declared
