@@ -323,16 +323,20 @@ impl Field {
         finite_range(self.data.iter())
     }
 
-    /// How wide, in pixels, the terraces of a quantised image are: the
-    /// mean length of the runs of equal neighbouring valid values along
-    /// the rows, and along the columns, the smaller of the two (the
-    /// steps' spacing across the terraces: a ramp quantised along x has
-    /// runs of its whole height down the columns). 1 for a surface whose
-    /// neighbours differ, about `1 / (1 - f)` when a fraction `f` of
-    /// neighbours are equal. The pixels of the [`flat_value`](Self::flat_value)
-    /// are left out, like missing pixels, at which runs break: a sea set
-    /// to 0 over half a continuous DEM would otherwise read as terraces 2
-    /// px wide. `None` when no pixel counts.
+    /// How wide, in pixels, the terraces of a quantised image are:
+    /// `1 / (1 - f)`, `f` the fraction of the pairs of neighbouring valid
+    /// pixels that are equal, along the rows and along the columns, the
+    /// smaller of the two (the steps' spacing across the terraces: a ramp
+    /// quantised along x has runs of its whole height down the columns).
+    /// 1 for a surface whose neighbours differ; inside terraces `w` px
+    /// wide, `(w - 1) / w` of the pairs are equal. Pairs, not runs: a
+    /// missing pixel cuts a run in two but leaves the share of equal pairs
+    /// as it was (5 % of the pixels missing at random shortened the mean
+    /// run of terraces 6.2 px wide to 5.0 px, 20 % to 3.0). Pairs touching
+    /// the [`flat_value`](Self::flat_value) are left out like missing
+    /// ones: a sea set to 0 over half a continuous DEM would otherwise
+    /// read as terraces 2 px wide. `None` when no pair counts, or when
+    /// every pair is equal along both axes.
     ///
     /// A wavelet narrower than the terraces sees the steps between them
     /// (h = 0 along their edges) rather than the surface
@@ -353,25 +357,23 @@ impl Field {
     /// The terrace width with the pixels holding `flat` left out.
     fn terrace_width_without(&self, flat: Option<f64>) -> Option<f64> {
         let counts = |v: &f64| v.is_finite() && Some(*v) != flat;
-        // valid pixels and runs over the lanes along `axis`
-        let mean_run = |axis: Axis| -> Option<f64> {
-            let (mut pixels, mut runs) = (0usize, 0usize);
+        // pairs of neighbours that count, and equal ones, along `axis`;
+        // 1 / (1 - f) = pairs / (pairs - equal)
+        let width = |axis: Axis| -> Option<f64> {
+            let (mut pairs, mut equal) = (0usize, 0usize);
             for lane in self.data.lanes(axis) {
-                let mut prev: Option<f64> = None;
-                for v in lane.iter() {
-                    if !counts(v) {
-                        prev = None;
-                        continue;
+                for (a, b) in lane.iter().zip(lane.iter().skip(1)) {
+                    if counts(a) && counts(b) {
+                        pairs += 1;
+                        equal += usize::from(a == b);
                     }
-                    pixels += 1;
-                    runs += usize::from(prev != Some(*v));
-                    prev = Some(*v);
                 }
             }
-            (runs > 0).then(|| pixels as f64 / runs as f64)
+            (pairs > 0).then(|| pairs as f64 / (pairs - equal) as f64)
         };
         // lanes along Axis(1) are the rows
-        Some(mean_run(Axis(1))?.min(mean_run(Axis(0))?))
+        let w = width(Axis(1))?.min(width(Axis(0))?);
+        w.is_finite().then_some(w)
     }
 
     /// The one value that fills flat areas of the image (a sea or a lake

@@ -675,7 +675,7 @@ impl PartitionSums {
             .find(|(_, im)| im.terrace_width.is_some_and(|w| !(1.0..=1e9).contains(&w)))
         {
             return Err(format!(
-                "image {i} ({:?}): terrace_width {} is no mean run length of pixels (1 or more)",
+                "image {i} ({:?}): terrace_width {} is no terrace width in pixels (1 or more)",
                 im.label,
                 im.terrace_width.unwrap_or(f64::NAN)
             ));
@@ -1682,7 +1682,8 @@ pub(crate) fn terrace_warning(
     if over == 0 {
         return None;
     }
-    let run = "the mean run of equal neighbours along rows or columns; 1 where neighbours differ";
+    let run = "1 / (1 - f), f the share of equal neighbour pairs along rows or columns; 1 where \
+               neighbours differ";
     let k = TERRACE_SCALES;
     let whose = if widths.len() == 1 {
         format!(
@@ -1784,11 +1785,11 @@ pub(crate) fn flat_warning(flats: &[Option<FlatRecord>]) -> Option<String> {
 /// How many times the smallest fitted scale the terraces of a quantised
 /// image ([`crate::Field::terrace_width`]) may be wide before the spectra
 /// are warned about. Measured on 4 fBm of 512^2 (H = 0.7, gauss) rounded
-/// into terraces 12.3 px wide: fitted over 2 octaves from 8.5 px (1.45
+/// into terraces 12.6 px wide: fitted over 2 octaves from 8.5 px (1.48
 /// times) they read as unquantised (h(0) 0.582 against 0.586), from 6 px
-/// (2.05 times) 3 errors low (0.628 against 0.700). Over the default fit
+/// (2.1 times) 3 errors low (0.628 against 0.700). Over the default fit
 /// (2.1-24 px) the lowest scales weigh less: terraces 5 px wide (2.4 times)
-/// moved h(0) by half an error, 6.2 px (2.9 times) D by 1.8 (README,
+/// moved h(0) by half an error, 6.3 px (3.0 times) D by 1.8 (README,
 /// Conventions).
 pub const TERRACE_SCALES: f64 = 1.5;
 

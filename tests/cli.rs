@@ -1330,7 +1330,7 @@ fn quantised_images_are_named_by_the_wtmm_commands() {
     assert!(w > k * 1.5 * 2f64.sqrt(), "{w}");
     let (_, text, _) = run_bin_output(&["info", "--octaves", "3", &q], true);
     assert!(
-        text.contains(&format!("quantised: equal neighbours in runs of {w:.1} px"))
+        text.contains(&format!("quantised: terraces {w:.1} px wide"))
             && text.contains("note: the image's values are quantised into terraces"),
         "{text}"
     );

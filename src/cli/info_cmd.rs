@@ -197,8 +197,8 @@ fn describe(
     let (terrace, flat) = crate::spectra::quantisation(&field);
     if let Some(w) = terrace.filter(|&w| w >= 1.5) {
         text += &format!(
-            "  quantised: equal neighbours in runs of {w:.1} px on average (terraces; 1 where \
-             neighbours differ)\n"
+            "  quantised: terraces {w:.1} px wide (1 / (1 - f), f the share of equal neighbour \
+             pairs; 1 where neighbours differ)\n"
         );
     }
     let top = plan.scale_list().last().copied().unwrap_or(plan.a_min);
