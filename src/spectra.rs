@@ -2169,10 +2169,14 @@ pub fn default_q() -> Vec<f64> {
 /// "first four octaves" (II §3) less the first half octave, where the
 /// pixel-sampled transform and the lines born at a_min bias the local
 /// slopes (README "How the defaults were chosen"). `(0.5, 4.0)` for the
-/// default 5 octaves of 10 voices; `(2/3, 4)` with 3 voices.
+/// default 5 octaves of 10 voices; `(2/3, 4)` with 3 voices. A grid
+/// too short for that gives an empty range, never an inverted one
+/// (`(0, 0)` for no octave, `(1, 1)` for one octave of one voice), which
+/// the fit refuses as holding too few scales.
 pub fn default_fit(octaves: usize, voices: usize) -> (f64, f64) {
     let v = voices.max(1) as f64;
-    ((0.5 * v - 1e-9).ceil() / v, (octaves as f64).min(4.0))
+    let hi = (octaves as f64).min(4.0);
+    (((0.5 * v - 1e-9).ceil() / v).min(hi), hi)
 }
 
 impl PartitionSums {
@@ -2647,6 +2651,22 @@ fn round9(x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The default fit: half an octave (rounded up to a voice) to four
+    /// octaves; a grid too short gives an empty range, never an inverted one.
+    #[test]
+    fn default_fit_is_never_inverted() {
+        assert_eq!(default_fit(5, 10), (0.5, 4.0));
+        assert_eq!(default_fit(3, 3), (2.0 / 3.0, 3.0));
+        assert_eq!(default_fit(0, 10), (0.0, 0.0));
+        assert_eq!(default_fit(1, 1), (1.0, 1.0));
+        for octaves in 0..7 {
+            for voices in 0..13 {
+                let (lo, hi) = default_fit(octaves, voices);
+                assert!(lo <= hi && hi <= 4.0, "{octaves} {voices}: {lo} {hi}");
+            }
+        }
+    }
 
     /// h(q) rising with q and D(q) above 2 are said when they exceed their
     /// errors, as real beyond 3 of them, and not for a concave spectrum.
