@@ -1397,8 +1397,9 @@ impl PartitionSums {
 pub struct ImageRecord {
     /// The image's label (its file).
     pub label: String,
-    /// Its size `[ny, nx]` ([`ImagePartial::shape`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Its size `[ny, nx]` ([`ImagePartial::shape`]); null where the sums
+    /// do not record it.
+    #[serde(default)]
     pub shape: Option<[usize; 2]>,
     /// Missing pixels ([`ImagePartial::missing`]).
     pub missing: u64,
@@ -1706,13 +1707,16 @@ pub(crate) fn terrace_warning(
     ))
 }
 
-/// " (of the 3 that record it: sums of older versions do not)" when only
-/// `known` of `all` images record a value; empty when all do.
+/// " (of the 3 with a width: ...)" when only `known` of `all` images
+/// record a terrace width; empty when all do.
 fn recorded(known: usize, all: usize) -> String {
     if known == all {
         String::new()
     } else {
-        format!(" (of the {known} that record it: sums of older versions do not)")
+        format!(
+            " (of the {known} with a width: sums of older versions record none, nor does an \
+             image in which no step between neighbours is seen)"
+        )
     }
 }
 

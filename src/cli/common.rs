@@ -310,9 +310,14 @@ pub fn periodic_synth(
         if ok > 0 && !lost.is_empty() {
             say!(
                 "note: {b}, so all {} inputs are read as non-periodic data ({}), though {ok} of \
-                 them are periodic fields of `wtmm synth`",
+                 them {} of `wtmm synth`",
                 paths.len(),
-                lost.join("; ")
+                lost.join("; "),
+                if ok == 1 {
+                    "is a periodic field"
+                } else {
+                    "are periodic fields"
+                }
             );
         }
         return None;

@@ -353,11 +353,15 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     }
     // TM §5.2: the zero gradients of a quantised DEM; --frac-int is the cure
     if cfg.frac_int.is_none() {
-        for (q, p) in quant.iter().zip(&args.images) {
+        for ((q, p), flat) in quant.iter().zip(&args.images).zip(&flats) {
             if let Some(eq) = q.filter(|&eq| eq > 0.01) {
+                // the flat value's pairs are left out (a warning of their own)
+                let off = flat.map_or(String::new(), |(v, _)| {
+                    format!(" off the flat value {}", crate::error::short(v))
+                });
                 extra.push(format!(
-                    "{}: every value is a whole number and {:.0} % of horizontal neighbours are \
-                     equal: a quantised DEM, whose zero gradients bias the flux's low moments \
+                    "{}: every value is a whole number and {:.0} % of horizontal neighbours{off} \
+                     are equal: a quantised DEM, whose zero gradients bias the flux's low moments \
                      (TM §5.2); --frac-int (order 0.1) smooths them (README: Jacksboro's alpha \
                      1.49 -> 1.44)",
                     p.display(),
