@@ -1224,18 +1224,25 @@ fn spectrum_warns_when_two_images_differ() {
     assert!(!err.contains("do not look like one process"), "{err}");
 }
 
+/// An fBm of 256^2 (H = 0.7, `seed`) and the same rescaled to a relief of
+/// `units` and rounded to whole units (a DEM in whole metres).
+fn fbm_in_units(seed: u64, units: f64) -> (Array2<f64>, Array2<f64>) {
+    let f = fbm(FbmParams { hurst: 0.7 }, 256, 256, seed, 0).unwrap();
+    let (lo, hi) = f
+        .iter()
+        .fold((f64::MAX, f64::MIN), |m, &v| (m.0.min(v), m.1.max(v)));
+    let q = f.mapv(|v| (units * (v - lo) / (hi - lo)).round());
+    (f, q)
+}
+
 /// A DEM in whole units with runs of equal pixels (TM §5.2's quantised
 /// topography) is named, with `--frac-int` as the cure; the same field
 /// unrounded, or with `--frac-int`, is not.
 #[test]
 fn tm_names_a_quantised_dem() {
     let dir = scratch("tm_quantised");
-    let f = fbm(FbmParams { hurst: 0.7 }, 256, 256, 4, 0).unwrap();
     // a relief of ~40 units in whole units: many equal neighbours
-    let (lo, hi) = f
-        .iter()
-        .fold((f64::MAX, f64::MIN), |m, &v| (m.0.min(v), m.1.max(v)));
-    let q = f.mapv(|v| (40.0 * (v - lo) / (hi - lo)).round());
+    let (f, q) = fbm_in_units(4, 40.0);
     let (pq, pf) = (dir.join("q.npy"), dir.join("f.npy"));
     write_npy(&pq, &q).unwrap();
     write_npy(&pf, &f).unwrap();
@@ -1260,12 +1267,8 @@ fn tm_names_a_quantised_dem() {
 #[test]
 fn tm_names_a_flat_area() {
     let dir = scratch("tm_flat");
-    let f = fbm(FbmParams { hurst: 0.7 }, 256, 256, 5, 0).unwrap();
     // a relief of 40000 units: next to no equal neighbours on the land
-    let (lo, hi) = f
-        .iter()
-        .fold((f64::MAX, f64::MIN), |m, &v| (m.0.min(v), m.1.max(v)));
-    let land = f.mapv(|v| (40000.0 * (v - lo) / (hi - lo)).round());
+    let (_, land) = fbm_in_units(5, 40000.0);
     let mut sorted: Vec<f64> = land.iter().copied().collect();
     sorted.sort_by(f64::total_cmp);
     let level = sorted[sorted.len() * 3 / 10];
@@ -1312,12 +1315,8 @@ fn tm_names_a_flat_area() {
 #[test]
 fn quantised_images_are_named_by_the_wtmm_commands() {
     let dir = scratch("wtmm_quantised");
-    let f = fbm(FbmParams { hurst: 0.7 }, 256, 256, 4, 0).unwrap();
     // a relief of ~8 units in whole units: terraces several px wide
-    let (lo, hi) = f
-        .iter()
-        .fold((f64::MAX, f64::MIN), |m, &v| (m.0.min(v), m.1.max(v)));
-    let q = f.mapv(|v| (8.0 * (v - lo) / (hi - lo)).round());
+    let (f, q) = fbm_in_units(4, 8.0);
     let (pq, pf) = (dir.join("q.npy"), dir.join("f.npy"));
     write_npy(&pq, &q).unwrap();
     write_npy(&pf, &f).unwrap();
