@@ -86,6 +86,30 @@ impl Field {
         self.data.dim()
     }
 
+    /// Masks every valid pixel equal to `value` (`-0.0` equals `0.0`): a
+    /// nodata value the file does not declare, such as a sea or a fill set
+    /// to 0, or -9999. Returns how many pixels it masked. For a file
+    /// stored in 32- or 16-bit floats, give the value as stored
+    /// ([`crate::io::as_stored`]).
+    pub fn mask_value(&mut self, value: f64) -> usize {
+        let mut n = 0;
+        let mut mask = self
+            .mask
+            .take()
+            .unwrap_or_else(|| Array2::from_elem(self.data.dim(), false));
+        ndarray::Zip::from(&mut self.data)
+            .and(&mut mask)
+            .for_each(|v, m| {
+                if !*m && *v == value {
+                    *v = f64::NAN;
+                    *m = true;
+                    n += 1;
+                }
+            });
+        self.mask = mask.iter().any(|&m| m).then_some(mask);
+        n
+    }
+
     /// Number of valid (unmasked) pixels.
     pub fn valid_count(&self) -> usize {
         match &self.mask {
@@ -650,6 +674,31 @@ fn relax(out: &mut Array2<f64>, mask: &Array2<bool>, tol: f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `mask_value` masks the pixels of one value (-0.0 as 0.0), keeps the
+    /// missing ones missing, counts what it masked, and leaves a field
+    /// without such pixels unmasked; `as_stored` rounds to the file's floats.
+    #[test]
+    fn a_value_is_masked_as_the_file_stores_it() {
+        let mut f = Field::new(ndarray::array![[0.0, 1.0, -0.0], [f64::NAN, 2.0, 0.0]]);
+        assert_eq!(f.mask_value(0.0), 3);
+        assert_eq!(f.valid_count(), 2);
+        let m = f.mask.as_ref().unwrap();
+        assert!(m[[0, 0]] && m[[0, 2]] && m[[1, 0]] && m[[1, 2]] && !m[[0, 1]]);
+        assert!(f.data[[0, 0]].is_nan());
+        let mut g = Field::new(ndarray::array![[1.0, 2.0], [3.0, 4.0]]);
+        assert_eq!(g.mask_value(5.0), 0);
+        assert!(g.mask.is_none());
+        // a float32 file holds 0.1 as 0.10000000149011612
+        let stored = crate::io::as_stored(0.1, "<f4");
+        assert_eq!(stored, 0.1f32 as f64);
+        assert_ne!(stored, 0.1);
+        assert_eq!(crate::io::as_stored(0.1, "f32"), stored);
+        assert_eq!(crate::io::as_stored(0.1, "<f8"), 0.1);
+        assert_eq!(crate::io::as_stored(-9999.0, "<i2"), -9999.0);
+        let mut h = Field::new(ndarray::array![[0.1f32 as f64, 1.0], [2.0, 3.0]]);
+        assert_eq!(h.mask_value(stored), 1);
+    }
 
     /// A harmonic function (here a plane) is filled exactly in holes away
     /// from the border, whatever their shape; a hole on the border stays

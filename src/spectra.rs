@@ -1778,11 +1778,17 @@ pub(crate) fn flat_warning(flats: &[Option<FlatRecord>]) -> Option<String> {
             crate::error::short(most.value)
         )
     };
+    // the value exactly (Display round-trips), for --nodata to match it
+    let value = if big.iter().all(|f| f.value == most.value) {
+        format!("{}", most.value)
+    } else {
+        "VALUE".to_string()
+    };
     Some(format!(
         "{whose}: flat areas (a sea or a lake at one level, a fill, a nodata value the file does \
          not declare), whose rim the wavelet sees as a step or a kink, not the roughness of the \
-         surface (README, Conventions); if they are no data, give them as missing (NaN, or the \
-         file's nodata value)"
+         surface (README, Conventions); if they are no data, give them as missing (--nodata \
+         {value}, NaN, or the file's nodata value)"
     ))
 }
 

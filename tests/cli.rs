@@ -1306,6 +1306,47 @@ fn tm_names_a_flat_area() {
         "{err}"
     );
     assert!(v["params"]["flat"][0].is_null());
+
+    // --nodata, the remedy the warning names: the sea read as missing,
+    // exactly as the same pixels given as NaN (analyze, tm), recorded
+    let n_sea = sorted.partition_point(|&x| x <= level);
+    let nan_sea = sea.mapv(|v| if v == level { f64::NAN } else { v });
+    let pn = dir.join("nan_sea.npy");
+    write_npy(&pn, &nan_sea).unwrap();
+    let lv = format!("{level}");
+    let (s, n) = (ps.display().to_string(), pn.display().to_string());
+    let (code, err) = run_bin_stderr(&["tm", &s, "--nodata", &lv, "--out", &o]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("fills"), "{err}");
+    let v = json(&dir.join("o/tm.json"));
+    assert_eq!(v["params"]["nodata"].as_f64(), Some(level));
+    assert_eq!(
+        v["params"]["missing_pixels"][0].as_u64(),
+        Some(n_sea as u64)
+    );
+    let spectra = |args: &[&str], out: &str| {
+        let o = dir.join(out).display().to_string();
+        // two octaves: the sea's surroundings leave no line at the top of three
+        let a = [&["analyze"][..], args, &["--octaves", "2", "--out", &o][..]].concat();
+        let (code, err) = run_bin_stderr(&a);
+        assert_eq!(code, 0, "{err}");
+        json(&dir.join(out).join("spectra.json"))
+    };
+    let a = spectra(&[&s, "--nodata", &lv], "a_nodata");
+    let b = spectra(&[&n], "a_nan");
+    assert_eq!(a["tau"], b["tau"]);
+    assert_eq!(a["params"]["nodata"].as_f64(), Some(level));
+    assert!(b["params"]["nodata"].is_null());
+    // a value no pixel holds is said; one that is no number is refused; a
+    // command that reads no image has no --nodata
+    let (code, out, _) = run_bin_output(&["info", &s, "--octaves", "2", "--nodata", "-9999"], true);
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("no pixel equals --nodata -9999"), "{out}");
+    let (code, err) = run_bin_stderr(&["tm", &s, "--nodata", "nan", "--out", &o]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("nodata"), "{err}");
+    let (code, _) = run_bin_stderr(&["theory", "fbm", "--nodata", "0"]);
+    assert_eq!(code, 2);
 }
 
 /// An image quantised into terraces wider than twice the smallest scale

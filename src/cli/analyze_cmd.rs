@@ -205,6 +205,8 @@ pub struct AnalyzeArgs {
     #[command(flatten)]
     pub pixel: PixelOpts,
     #[command(flatten)]
+    pub read: super::ReadOpts,
+    #[command(flatten)]
     pub out: OutDir,
 }
 
@@ -237,6 +239,7 @@ pub fn theory_curves(model: &Model, name: &str, q: &[f64]) -> Result<TheoryCurve
 pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
     let q = args.opts.q()?;
     let fit = args.opts.fit()?;
+    let nodata = args.read.value()?;
     let (px, px_warnings) = args.pixel.resolve(&args.images)?;
     let resolved = args.model_opts.resolve_optional(args.theory)?;
     // the preset's wavelet unless --wavelet (paper-fisc: mexican), as in
@@ -269,7 +272,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         }
         None => (None, None),
     };
-    let mut sums = analyze_paths(&args.images, &cfg, &q, quiet)?;
+    let mut sums = analyze_paths(&args.images, nodata, &cfg, &q, quiet)?;
     // recorded in sums.json, for merge
     sums.pixel = px.as_ref().map(PixelSize::record);
     let mut spectra = sums.spectra(args.opts.rule(), fit).map_err(|e| match e {
@@ -295,7 +298,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         "images": super::common::paths_json(&args.images), "analysis": super::common::analysis_json(&cfg), "q": q, "fit_octaves": fit,
         "rule": args.opts.rule(), "theory": theory_model,
         "pixel_size": px.as_ref().map(PixelSize::json),
-        "origin": origin.as_ref().map(PeriodicSynth::json),
+        "origin": origin.as_ref().map(PeriodicSynth::json), "nodata": nodata,
     });
     write_outputs(
         &args.out.out,
@@ -428,10 +431,12 @@ pub(super) fn summary(
     out
 }
 
-/// Reads and analyses every image (in parallel over images); a bad or
-/// constant image stops everything before any output is written.
+/// Reads and analyses every image (in parallel over images; `nodata` as
+/// [`super::common::read_image`]); a bad or constant image stops everything
+/// before any output is written.
 pub fn analyze_paths(
     paths: &[PathBuf],
+    nodata: Option<f64>,
     cfg: &AnalysisConfig,
     q: &[f64],
     quiet: bool,
@@ -447,7 +452,7 @@ pub fn analyze_paths(
     let parts: Vec<PartitionSums> = paths
         .par_iter()
         .map(|p| {
-            let field = super::common::read_image(p)?;
+            let field = super::common::read_image(p, nodata)?;
             super::common::check_image_memory(p, &field, paths.len() == 1)?;
             // fewer than 3 images: the jackknife runs over tiles
             let side = if paths.len() < 3 {

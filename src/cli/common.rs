@@ -104,11 +104,11 @@ pub fn parse_range(flag: &str, s: &str) -> Result<(f64, f64)> {
 
 /// Reads every image up front, so that a bad file stops the command before
 /// anything is written.
-pub fn read_all(paths: &[PathBuf]) -> Result<Vec<Field>> {
+pub fn read_all(paths: &[PathBuf], nodata: Option<f64>) -> Result<Vec<Field>> {
     if paths.is_empty() {
         return Err(Error::param("IMAGE", "no image given"));
     }
-    paths.iter().map(|p| read_image(p)).collect()
+    paths.iter().map(|p| read_image(p, nodata)).collect()
 }
 
 /// The message of an error about the data, without the `invalid input: `
@@ -364,13 +364,24 @@ pub fn check_generated_size(cfg: &crate::skeleton::AnalysisConfig, size: usize) 
 
 /// An image for analysis: [`read_field_with_info`], its warnings (a colour
 /// image converted to luminance, an unreadable nodata tag, pages or bytes
-/// not read) said on stderr with the file's name, and an error naming the
-/// file when every pixel is missing (the library accepts such a field; no
+/// not read) said on stderr with the file's name, the pixels equal to
+/// `nodata` (`--nodata`, [`super::ReadOpts`]) masked, with a warning when
+/// none is, and an error naming the file when every pixel is missing (the library accepts such a field; no
 /// command can use it) or the values are beyond f64's squares.
-pub fn read_image(path: &Path) -> Result<Field> {
-    let (field, info) = read_field_with_info(path)?;
+pub fn read_image(path: &Path, nodata: Option<f64>) -> Result<Field> {
+    let (mut field, info) = read_field_with_info(path)?;
     for w in &info.warnings {
         say!("warning: {}: {w}", path.display());
+    }
+    // --nodata: a missing value the file does not declare (ReadOpts)
+    if let Some(v) = nodata
+        && field.mask_value(crate::io::as_stored(v, &info.dtype)) == 0
+    {
+        say!(
+            "warning: {}: no pixel equals --nodata {} (as the file stores it)",
+            path.display(),
+            crate::error::short(v)
+        );
     }
     if field.valid_count() == 0 {
         return Err(Error::format(

@@ -818,6 +818,7 @@ impl ValidationExtras {
             tally: Default::default(),
             pixel: None,
             pixel_warnings: Vec::new(),
+            nodata: None,
         };
         Ok(Some(ValidationExtras {
             model: *model,

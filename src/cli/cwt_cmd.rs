@@ -31,11 +31,14 @@ pub struct CwtArgs {
     #[arg(long, value_enum, default_value_t = crate::field::Trend::None)]
     pub detrend: crate::field::Trend,
     #[command(flatten)]
+    pub read: super::ReadOpts,
+    #[command(flatten)]
     pub out: OutDir,
 }
 
 pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
-    let field = super::common::read_image(&args.image)?;
+    let nodata = args.read.value()?;
+    let field = super::common::read_image(&args.image, nodata)?;
     let (ny, nx) = field.dim();
     super::common::check_cwt_memory(&args.image, ny, nx)?;
     super::common::refuse_constant(&field, &args.image, "its wavelet transform is zero")?;
@@ -135,7 +138,7 @@ pub fn run(args: CwtArgs, quiet: bool) -> Result<Outcome> {
     }
     let mut body = header(
         "cwt",
-        json!({"image": super::common::path_json(&args.image), "wavelet": args.wavelet, "scales": scales, "detrend": args.detrend}),
+        json!({"image": super::common::path_json(&args.image), "wavelet": args.wavelet, "scales": scales, "detrend": args.detrend, "nodata": nodata}),
     );
     body["margin"] = json!(margin);
     body["margin_rule"] = json!(format!(

@@ -28,6 +28,8 @@ pub struct InfoArgs {
     /// JSON on stdout instead of the text.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub read: super::ReadOpts,
 }
 
 pub fn run(args: InfoArgs, _quiet: bool) -> Result<Outcome> {
@@ -51,10 +53,12 @@ pub fn run(args: InfoArgs, _quiet: bool) -> Result<Outcome> {
     let grid = plan.scale_list();
     let idx = crate::spectra::fit_indices(&grid, fit)?;
     let fit_scales = (grid[idx[0]], grid[idx[idx.len() - 1]]);
+    let nodata = args.read.value()?;
     let mut out = Vec::new();
     for p in &args.images {
         out.push(describe(
             p,
+            nodata,
             &plan,
             args.cwt.wavelet.is_some(),
             fit,
@@ -66,7 +70,7 @@ pub fn run(args: InfoArgs, _quiet: bool) -> Result<Outcome> {
             "info",
             json!({"images": super::common::paths_json(&args.images), "wavelet": wavelet, "a_min": args.cwt.a_min,
                 "octaves": args.cwt.octaves, "voices": args.cwt.voices, "margin": args.cwt.margin,
-                "default_fit_octaves": fit, "default_fit_scales": fit_scales}),
+                "default_fit_octaves": fit, "default_fit_scales": fit_scales, "nodata": nodata}),
         );
         body["images"] = json!(out.iter().map(|d| &d.json).collect::<Vec<_>>());
         show!(
@@ -95,12 +99,15 @@ struct Described {
 
 fn describe(
     path: &Path,
+    nodata: Option<f64>,
     plan: &AnalysisConfig,
     wavelet_given: bool,
     fit: (f64, f64),
     fit_scales: (f64, f64),
 ) -> Result<Described> {
-    let (field, info) = crate::io::read_field_with_info(path)?;
+    let (mut field, info) = crate::io::read_field_with_info(path)?;
+    // --nodata, as the analyses read it (common::read_image)
+    let unmatched = nodata.filter(|&v| field.mask_value(crate::io::as_stored(v, &info.dtype)) == 0);
     // a periodic synth field is counted whole by default, as analyze does
     // (looked up while the margin or the wavelet is open, as analyze does)
     let origin = if plan.margin.is_none() || !wavelet_given {
@@ -161,6 +168,12 @@ fn describe(
     }
     text += "\n";
     let mut notes: Vec<String> = info.warnings.clone();
+    notes.extend(unmatched.map(|v| {
+        format!(
+            "no pixel equals --nodata {} (as the file stores it)",
+            crate::error::short(v)
+        )
+    }));
     // the least-squares plane: a regional slope adds to the gauss
     // wavelet's transform a vector growing like the scale (analyze warns
     // above half)

@@ -748,6 +748,32 @@ pub struct PixelOpts {
     pub units: Option<String>,
 }
 
+/// How the images are read (analyze, skeleton, cwt, spectrum, tm, info,
+/// pdf, kernel, correlate).
+#[derive(Args, Debug, Clone, Default)]
+pub struct ReadOpts {
+    /// A value that marks missing pixels in every image read, beside NaN and
+    /// the nodata a file declares: a sea or a fill set to 0, an undeclared
+    /// -9999. Compared with the values as the file stores them (rounded to
+    /// float32 or float16 for such files; after a PNG sidecar's scale and
+    /// offset).
+    #[arg(long, allow_hyphen_values = true, value_name = "VALUE")]
+    pub nodata: Option<f64>,
+}
+
+impl ReadOpts {
+    /// The value, refused when not finite (NaN is missing already).
+    pub fn value(&self) -> Result<Option<f64>> {
+        match self.nodata {
+            Some(v) if !v.is_finite() => Err(Error::param(
+                "nodata",
+                format!("{v} is not a finite number (NaN and infinities are missing already)"),
+            )),
+            v => Ok(v),
+        }
+    }
+}
+
 /// A resolved [`PixelOpts`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct PixelSize {

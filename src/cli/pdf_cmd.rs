@@ -84,6 +84,8 @@ pub struct StatsInput {
     pub domain: DomainChoice,
     #[command(flatten)]
     pub pixel: super::PixelOpts,
+    #[command(flatten)]
+    pub read: super::ReadOpts,
 }
 
 /// A resolved input.
@@ -115,6 +117,8 @@ pub struct Input {
     /// What [`super::PixelOpts::resolve`] had to say, and the non-square
     /// warning.
     pub pixel_warnings: Vec<String>,
+    /// `--nodata`: a value read as missing ([`super::common::read_image`]).
+    pub nodata: Option<f64>,
 }
 
 /// Images with missing pixels (NaN, inf, nodata) and their pixel count,
@@ -277,6 +281,13 @@ impl StatsInput {
                 "give image files, or a model to generate (--preset NAME, or --theory MODEL with its options)",
             ));
         }
+        let nodata = self.read.value()?;
+        if self.images.is_empty() && nodata.is_some() {
+            return Err(Error::param(
+                "nodata",
+                "applies to image files, not to a generated ensemble",
+            ));
+        }
         if !self.images.is_empty() {
             // generator options with files would be dropped without a word
             for (set, flag) in [
@@ -386,6 +397,7 @@ impl StatsInput {
             tally: FieldTally::default(),
             pixel,
             pixel_warnings,
+            nodata,
         })
     }
 }
@@ -446,7 +458,7 @@ impl Input {
             Ok((Field::new(img), format!("{} image {i}", self.name)))
         } else {
             let p = &self.images[i];
-            let field = super::common::read_image(p)?;
+            let field = super::common::read_image(p, self.nodata)?;
             super::common::check_image_memory(p, &field, self.images.len() == 1)?;
             Ok((field, p.display().to_string()))
         }
@@ -564,7 +576,7 @@ impl Input {
         } else {
             json!({"images": super::common::paths_json(&self.images), "theory": self.model, "periodic": self.periodic,
                 "origin": self.origin.as_ref().map(super::common::PeriodicSynth::json),
-                "missing_pixels": self.holes.json(),
+                "missing_pixels": self.holes.json(), "nodata": self.nodata,
                 "pixel_size": self.pixel.as_ref().map(super::PixelSize::json)})
         }
     }

@@ -29,6 +29,8 @@ pub struct SkeletonArgs {
     #[command(flatten)]
     pub pixel: PixelOpts,
     #[command(flatten)]
+    pub read: super::ReadOpts,
+    #[command(flatten)]
     pub out: OutDir,
 }
 
@@ -41,7 +43,8 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
         px.as_ref()
             .and_then(|p| p.warning(super::Isotropic::Wavelet)),
     );
-    let field = super::common::read_image(&args.image)?;
+    let nodata = args.read.value()?;
+    let field = super::common::read_image(&args.image, nodata)?;
     super::common::check_image_memory(&args.image, &field, true)?;
     let share: Vec<f64> = field.plane_share().into_iter().collect();
     warnings.extend(cfg.plane_warning(&share, 1));
@@ -238,7 +241,7 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
         "skeleton",
         json!({"image": super::common::path_json(&args.image), "analysis": super::common::analysis_json(&cfg),
             "scales_requested": want, "pixel_size": px.as_ref().map(PixelSize::json),
-            "origin": origin.as_ref().map(super::common::PeriodicSynth::json)}),
+            "origin": origin.as_ref().map(super::common::PeriodicSynth::json), "nodata": nodata}),
     );
     body["shape"] = json!([ny, nx]);
     body["missing_pixels"] = json!(field.missing_count());

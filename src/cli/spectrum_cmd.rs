@@ -46,6 +46,8 @@ pub struct SpectrumArgs {
     #[command(flatten)]
     pub pixel: PixelOpts,
     #[command(flatten)]
+    pub read: super::ReadOpts,
+    #[command(flatten)]
     pub out: OutDir,
 }
 
@@ -81,7 +83,8 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
             format!("[{lo}, {hi}] rad/px: need 0 < LO < HI <= pi (the Nyquist wavenumber)"),
         ));
     }
-    let fields = read_all(&args.images)?;
+    let nodata = args.read.value()?;
+    let fields = read_all(&args.images, nodata)?;
     for (fl, p) in fields.iter().zip(&args.images) {
         super::common::refuse_constant(fl, p, "its spectrum is zero")?;
         // an exact plane, as every analysis refuses (with --window none
@@ -193,7 +196,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         "spectrum",
         json!({"images": super::common::paths_json(&args.images), "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave,
             "pixel_size": px.as_ref().map(PixelSize::json),
-            "origin": origin.as_ref().map(super::common::PeriodicSynth::json)}),
+            "origin": origin.as_ref().map(super::common::PeriodicSynth::json), "nodata": nodata}),
     );
     body["images"] = json!(fields.len());
     body["image_shapes"] = json!(crate::spectra::ShapeCount::tally(fields.iter().map(|f| {

@@ -185,6 +185,8 @@ pub struct TmArgs {
     #[command(flatten)]
     pub pixel: PixelOpts,
     #[command(flatten)]
+    pub read: super::ReadOpts,
+    #[command(flatten)]
     pub out: OutDir,
 }
 
@@ -208,6 +210,7 @@ pub fn fit_record(fc: &TraceMomentFitConfig, used: &str) -> serde_json::Value {
 
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_q("q", &args.q)?;
+    let nodata = args.read.value()?;
     let (px, px_warnings) = args.pixel.resolve(&args.images)?;
     // the fit settings first, so that a bad --q-fit-max is named as such
     let mut fc = args.tm.fit()?;
@@ -293,7 +296,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         let fields = args
             .images
             .iter()
-            .map(|p| super::common::read_image(p))
+            .map(|p| super::common::read_image(p, nodata))
             .collect::<Result<Vec<_>>>()?;
         // tiles of the largest fitted box (log2 λ = lo) of the ensemble
         let (whole, res) = analyze_tiled(&fields, &cfg, &fc).map_err(|e| {
@@ -330,7 +333,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     } else {
         // a fit the sizes rule out is said before every image is read
         check_ensemble_fit(&fc, &sizes)?;
-        let (parts, shapes) = accumulate_paths(&args.images, &cfg, quiet)?;
+        let (parts, shapes) = accumulate_paths(&args.images, nodata, &cfg, quiet)?;
         let (acc, res) = finish_ensemble(&parts, &fc)?;
         (acc, res, shapes)
     };
@@ -378,8 +381,8 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                 "{}: one value, {}, fills {:.0} % of the valid pixels: a flat area (a sea or a \
                  lake at one level, a fill, a nodata value the file does not declare), whose \
                  flux is about 0 and which the moments read as intermittency (alpha and C1 move: \
-                 README, Conventions); if it is no data, give it as missing (NaN, or the file's \
-                 nodata value)",
+                 README, Conventions); if it is no data, give it as missing (--nodata {v}, NaN, \
+                 or the file's nodata value)",
                 p.display(),
                 crate::error::short(v),
                 100.0 * share
@@ -427,7 +430,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         "config": cfg, "fit": fit_record(&fc, &res.universal_fit),
         "plane_shares": acc.planes.iter().map(|p| p.share).collect::<Vec<_>>(),
         "origin": origin.as_ref().map(super::common::PeriodicSynth::json),
-        "pixel_size": px.as_ref().map(PixelSize::json)});
+        "pixel_size": px.as_ref().map(PixelSize::json), "nodata": nodata});
     write_outputs(
         &args.out.out,
         "tm",
@@ -542,6 +545,7 @@ fn quantised(f: &crate::Field, flat: Option<f64>) -> Option<f64> {
 /// everything before any output is written.
 pub fn accumulate_paths(
     paths: &[PathBuf],
+    nodata: Option<f64>,
     cfg: &TraceMomentConfig,
     quiet: bool,
 ) -> Result<(Vec<TraceMomentAccumulator>, Vec<ImageInfo>)> {
@@ -549,7 +553,7 @@ pub fn accumulate_paths(
     let parts: Vec<(TraceMomentAccumulator, ImageInfo)> = paths
         .par_iter()
         .map(|p| {
-            let field = super::common::read_image(p)?;
+            let field = super::common::read_image(p, nodata)?;
             let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
             acc.add_field(&field)
                 .map_err(|e| super::common::in_file(p, e))?;

@@ -125,6 +125,19 @@ pub fn read_field(path: impl AsRef<Path>) -> Result<Field> {
     read_field_with_info(path).map(|(field, _)| field)
 }
 
+/// `value` as a file of sample type `dtype` ([`ReadInfo::dtype`]) stores
+/// it: rounded to 32- or 16-bit floats for such files (a float file holds
+/// its nodata at its own precision: 0.1 reads back as 0.10000000149),
+/// itself otherwise. For [`crate::Field::mask_value`].
+pub fn as_stored(value: f64, dtype: &str) -> f64 {
+    let t = dtype.trim_start_matches(['<', '>', '=', '|']);
+    match t {
+        "f4" | "f32" => value as f32 as f64,
+        "f2" | "f16" => half::f16::from_f64(value).to_f64(),
+        _ => value,
+    }
+}
+
 /// Like [`read_field`], also returning the format, the stored sample type and
 /// any warnings.
 pub fn read_field_with_info(path: impl AsRef<Path>) -> Result<(Field, ReadInfo)> {

@@ -190,9 +190,7 @@ pub(super) fn read(path: &Path) -> Result<(Field, ReadInfo)> {
         let t = text.trim_matches(|c: char| c == '\0' || c.is_whitespace());
         match t.parse::<f64>() {
             // A float file stores the nodata rounded to its precision.
-            Ok(v) if dtype == "f32" => nodata = Some(v as f32 as f64),
-            Ok(v) if dtype == "f16" => nodata = Some(half::f16::from_f64(v).to_f64()),
-            Ok(v) => nodata = Some(v),
+            Ok(v) => nodata = Some(super::as_stored(v, dtype)),
             Err(_) => info
                 .warnings
                 .push(format!("GDAL nodata tag `{t}` is not a number; ignored")),
