@@ -379,21 +379,30 @@ impl Field {
         (self.terrace_width_without(flat.map(|(v, _)| v)), flat)
     }
 
+    /// Every pair of neighbouring pixels along `axis` (`Axis(1)`: along
+    /// the rows), missing ones included.
+    fn neighbour_pairs(&self, axis: Axis) -> impl Iterator<Item = (f64, f64)> + '_ {
+        self.data
+            .lanes(axis)
+            .into_iter()
+            .flat_map(|lane| lane.into_iter().zip(lane.into_iter().skip(1)))
+            .map(|(a, b)| (*a, *b))
+    }
+
+    /// The pairs of neighbouring valid pixels along `axis`, those holding
+    /// `skip` left out, and how many of them are equal.
+    pub(crate) fn equal_pairs(&self, axis: Axis, skip: Option<f64>) -> (usize, usize) {
+        let counts = |v: f64| v.is_finite() && Some(v) != skip;
+        self.neighbour_pairs(axis)
+            .filter(|&(a, b)| counts(a) && counts(b))
+            .fold((0, 0), |(n, e), (a, b)| (n + 1, e + usize::from(a == b)))
+    }
+
     /// The terrace width with the pixels holding `flat` left out.
     fn terrace_width_without(&self, flat: Option<f64>) -> Option<f64> {
-        let counts = |v: &f64| v.is_finite() && Some(*v) != flat;
-        // pairs of neighbours that count, and equal ones, along `axis`;
         // 1 / (1 - f) = pairs / (pairs - equal)
         let width = |axis: Axis| -> Option<f64> {
-            let (mut pairs, mut equal) = (0usize, 0usize);
-            for lane in self.data.lanes(axis) {
-                for (a, b) in lane.iter().zip(lane.iter().skip(1)) {
-                    if counts(a) && counts(b) {
-                        pairs += 1;
-                        equal += usize::from(a == b);
-                    }
-                }
-            }
+            let (pairs, equal) = self.equal_pairs(axis, flat);
             (pairs > 0).then(|| pairs as f64 / (pairs - equal) as f64)
         };
         // lanes along Axis(1) are the rows; an axis without pairs is left out
@@ -451,17 +460,13 @@ impl Field {
         // coast's pixels between land on either side)
         let value = f64::from_bits(bits);
         // steps, and those on the value's rim
-        let (mut steps, mut rim) = (0usize, 0usize);
-        for axis in [Axis(0), Axis(1)] {
-            for lane in self.data.lanes(axis) {
-                for (a, b) in lane.iter().zip(lane.iter().skip(1)) {
-                    if a.is_finite() && b.is_finite() && a != b {
-                        steps += 1;
-                        rim += usize::from(*a == value || *b == value);
-                    }
-                }
-            }
-        }
+        let (steps, rim) = [Axis(0), Axis(1)]
+            .into_iter()
+            .flat_map(|axis| self.neighbour_pairs(axis))
+            .filter(|&(a, b)| a.is_finite() && b.is_finite() && a != b)
+            .fold((0usize, 0usize), |(n, r), (a, b)| {
+                (n + 1, r + usize::from(a == value || b == value))
+            });
         if 2 * rim > steps {
             return None;
         }

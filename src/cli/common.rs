@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::error::{Error, Result};
 use crate::field::Field;
 pub use crate::io::write_json;
-use crate::io::{read_field_with_info, write_atomic};
+use crate::io::{ReadInfo, read_field_with_info, write_atomic};
 
 /// Parses `start:stop:step` (inclusive) or `a,b,c`, returned ascending;
 /// a value given twice is an error.
@@ -362,6 +362,18 @@ pub fn check_generated_size(cfg: &crate::skeleton::AnalysisConfig, size: usize) 
     Ok(())
 }
 
+/// `--nodata` ([`super::ReadOpts`]): masks the pixels equal to `nodata`
+/// as the file stores it; what to say when none is.
+pub fn apply_nodata(field: &mut Field, info: &ReadInfo, nodata: Option<f64>) -> Option<String> {
+    let v = nodata?;
+    (field.mask_value(crate::io::as_stored(v, &info.dtype)) == 0).then(|| {
+        format!(
+            "no pixel equals --nodata {} (as the file stores it)",
+            crate::error::short(v)
+        )
+    })
+}
+
 /// An image for analysis: [`read_field_with_info`], its warnings (a colour
 /// image converted to luminance, an unreadable nodata tag, pages or bytes
 /// not read) said on stderr with the file's name, the pixels equal to
@@ -373,15 +385,8 @@ pub fn read_image(path: &Path, nodata: Option<f64>) -> Result<Field> {
     for w in &info.warnings {
         say!("warning: {}: {w}", path.display());
     }
-    // --nodata: a missing value the file does not declare (ReadOpts)
-    if let Some(v) = nodata
-        && field.mask_value(crate::io::as_stored(v, &info.dtype)) == 0
-    {
-        say!(
-            "warning: {}: no pixel equals --nodata {} (as the file stores it)",
-            path.display(),
-            crate::error::short(v)
-        );
+    if let Some(w) = apply_nodata(&mut field, &info, nodata) {
+        say!("warning: {}: {w}", path.display());
     }
     if field.valid_count() == 0 {
         return Err(Error::format(

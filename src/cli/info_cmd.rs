@@ -107,7 +107,7 @@ fn describe(
 ) -> Result<Described> {
     let (mut field, info) = crate::io::read_field_with_info(path)?;
     // --nodata, as the analyses read it (common::read_image)
-    let unmatched = nodata.filter(|&v| field.mask_value(crate::io::as_stored(v, &info.dtype)) == 0);
+    let unmatched = super::common::apply_nodata(&mut field, &info, nodata);
     // a periodic synth field is counted whole by default, as analyze does
     // (looked up while the margin or the wavelet is open, as analyze does)
     let origin = if plan.margin.is_none() || !wavelet_given {
@@ -168,12 +168,7 @@ fn describe(
     }
     text += "\n";
     let mut notes: Vec<String> = info.warnings.clone();
-    notes.extend(unmatched.map(|v| {
-        format!(
-            "no pixel equals --nodata {} (as the file stores it)",
-            crate::error::short(v)
-        )
-    }));
+    notes.extend(unmatched);
     // the least-squares plane: a regional slope adds to the gauss
     // wavelet's transform a vector growing like the scale (analyze warns
     // above half)

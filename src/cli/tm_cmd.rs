@@ -522,20 +522,16 @@ impl ImageInfo {
 /// the `flat` value (a sea: [`crate::Field::flat_value`]) are left out,
 /// since no fractional integration mends those (a warning of their own).
 fn quantised(f: &crate::Field, flat: Option<f64>) -> Option<f64> {
-    let valid = |v: &f64| v.is_finite();
-    if !f.data.iter().filter(|v| valid(v)).all(|v| v.fract() == 0.0) {
+    if !f
+        .data
+        .iter()
+        .filter(|v| v.is_finite())
+        .all(|v| v.fract() == 0.0)
+    {
         return None;
     }
-    let counts = |v: &f64| valid(v) && Some(*v) != flat;
-    let (mut pairs, mut equal) = (0usize, 0usize);
-    for row in f.data.rows() {
-        for (a, b) in row.iter().zip(row.iter().skip(1)) {
-            if counts(a) && counts(b) {
-                pairs += 1;
-                equal += (a == b) as usize;
-            }
-        }
-    }
+    // along the rows
+    let (pairs, equal) = f.equal_pairs(ndarray::Axis(1), flat);
     (pairs > 0).then(|| equal as f64 / pairs as f64)
 }
 
