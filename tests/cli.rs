@@ -1349,6 +1349,36 @@ fn tm_names_a_flat_area() {
     assert_eq!(code, 2);
 }
 
+/// `spectrum` names a flat area far off the surface (its rim a cliff,
+/// which swamps the spectrum) with `--nodata` as the remedy, and not a
+/// sea at the coast's level, which leaves beta alone (README, Conventions).
+#[test]
+fn spectrum_names_a_cliff() {
+    let dir = scratch("spectrum_cliff");
+    let (_, land) = fbm_in_units(6, 40000.0);
+    let mut sorted: Vec<f64> = land.iter().copied().collect();
+    sorted.sort_by(f64::total_cmp);
+    let level = sorted[sorted.len() * 3 / 10];
+    let o = dir.join("o").display().to_string();
+    let said = |sea: f64, name: &str| {
+        let f = land.mapv(|v| if v <= level { sea } else { v });
+        let p = dir.join(name);
+        write_npy(&p, &f).unwrap();
+        let (code, err) = run_bin_stderr(&["spectrum", &p.display().to_string(), "--out", &o]);
+        assert_eq!(code, 0, "{err}");
+        err
+    };
+    // the relief below the coast: thousands of times a step
+    let err = said(level - 40000.0, "cliff.npy");
+    assert!(
+        err.contains("lies far off the surface around it")
+            && err.contains(&format!("--nodata {}", level - 40000.0)),
+        "{err}"
+    );
+    let err = said(level, "coast.npy");
+    assert!(!err.contains("far off the surface"), "{err}");
+}
+
 /// An image quantised into terraces wider than twice the smallest scale
 /// that counts is named by `info` (its width, the note) and warned about
 /// by analyze (stderr and spectra.json), pdf, kernel and correlate, with

@@ -256,6 +256,31 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
             ));
         }
     }
+    // a flat area far off the surface (a fill at 0 or -9999): its rim is a
+    // cliff, whose spectrum swamps the surface's (field::CLIFF_CONTRAST)
+    for (fl, p) in fields.iter().zip(&args.images) {
+        let Some((v, share)) = fl.flat_value() else {
+            continue;
+        };
+        if share <= crate::field::FLAT_SHARE_WARN {
+            continue;
+        }
+        if let Some(c) =
+            crate::field::rim_contrast(fl, v).filter(|&c| c > crate::field::CLIFF_CONTRAST)
+        {
+            warnings.push(format!(
+                "{}: one value, {}, fills {:.0} % of the valid pixels and lies far off the \
+                 surface around it (the median difference across its rim is {c:.0} times the \
+                 median step between the other neighbours): its rim is a cliff, whose spectrum \
+                 swamps the surface's (on Levi Fell, 30 % set 30 m below the coast moved beta \
+                 by -0.26, 100 m by -0.98); if it is no data, give it as missing (--nodata {v}, \
+                 NaN, or the file's nodata value)",
+                p.display(),
+                crate::error::short(v),
+                100.0 * share
+            ));
+        }
+    }
     if !jk.is_finite() {
         warnings.push(format!(
             "beta's standard error is the regression's over the |k| bins ({}; a jackknife \
