@@ -1260,6 +1260,17 @@ fn tm_names_a_quantised_dem() {
     assert!(!said(&["tm", &f, "--out", &o]));
 }
 
+/// A DEM in whole units with a relief of 40000 (next to no equal
+/// neighbours: `fbm_in_units`), its values sorted, and the 30th percentile,
+/// the coast's level of a sea over 30 % of it.
+fn land_and_coast(seed: u64) -> (Array2<f64>, Vec<f64>, f64) {
+    let (_, land) = fbm_in_units(seed, 40000.0);
+    let mut sorted: Vec<f64> = land.iter().copied().collect();
+    sorted.sort_by(f64::total_cmp);
+    let level = sorted[sorted.len() * 3 / 10];
+    (land, sorted, level)
+}
+
 /// A sea at the coast's level over 30 % of a DEM in whole units is named
 /// by `tm` (value, share, and in tm.json), and its equal pixels do not
 /// make the DEM look quantised (no `--frac-int` offered: it cannot mend a
@@ -1267,11 +1278,7 @@ fn tm_names_a_quantised_dem() {
 #[test]
 fn tm_names_a_flat_area() {
     let dir = scratch("tm_flat");
-    // a relief of 40000 units: next to no equal neighbours on the land
-    let (_, land) = fbm_in_units(5, 40000.0);
-    let mut sorted: Vec<f64> = land.iter().copied().collect();
-    sorted.sort_by(f64::total_cmp);
-    let level = sorted[sorted.len() * 3 / 10];
+    let (land, sorted, level) = land_and_coast(5);
     let sea = land.mapv(|v| v.max(level));
     let (ps, pl) = (dir.join("sea.npy"), dir.join("land.npy"));
     write_npy(&ps, &sea).unwrap();
@@ -1355,10 +1362,7 @@ fn tm_names_a_flat_area() {
 #[test]
 fn spectrum_names_a_cliff() {
     let dir = scratch("spectrum_cliff");
-    let (_, land) = fbm_in_units(6, 40000.0);
-    let mut sorted: Vec<f64> = land.iter().copied().collect();
-    sorted.sort_by(f64::total_cmp);
-    let level = sorted[sorted.len() * 3 / 10];
+    let (land, _, level) = land_and_coast(6);
     let o = dir.join("o").display().to_string();
     let said = |sea: f64, name: &str| {
         let f = land.mapv(|v| if v <= level { sea } else { v });
