@@ -398,6 +398,39 @@ impl Field {
             .fold((0, 0), |(n, e), (a, b)| (n + 1, e + usize::from(a == b)))
     }
 
+    /// The steps of the image (pairs of unequal valid neighbours, along
+    /// rows and columns), each as whether it lies on the rim of `value`
+    /// (one of its pixels holds it) and its height.
+    fn steps_around(&self, value: f64) -> impl Iterator<Item = (bool, f64)> + '_ {
+        [Axis(0), Axis(1)]
+            .into_iter()
+            .flat_map(|axis| self.neighbour_pairs(axis))
+            .filter(|&(a, b)| a.is_finite() && b.is_finite() && a != b)
+            .map(move |(a, b)| (a == value || b == value, (a - b).abs()))
+    }
+
+    /// How far a flat area's level lies from the surface around it: the
+    /// median step across its rim (pairs of neighbours, one holding
+    /// `value`, the other valid and not) over the median step of the rest
+    /// (pairs of unequal valid neighbours, neither holding `value`). About 1
+    /// for a sea at the coast's level, large for a fill far off the surface
+    /// (0 below a DEM's land, an undeclared -9999). `None` without a rim or
+    /// a step.
+    pub fn rim_contrast(&self, value: f64) -> Option<f64> {
+        let (mut rim, mut rest) = (Vec::new(), Vec::new());
+        for (on_rim, h) in self.steps_around(value) {
+            if on_rim { &mut rim } else { &mut rest }.push(h);
+        }
+        let median = |v: &mut Vec<f64>| -> Option<f64> {
+            if v.is_empty() {
+                return None;
+            }
+            let k = v.len() / 2;
+            Some(*v.select_nth_unstable_by(k, f64::total_cmp).1)
+        };
+        Some(median(&mut rim)? / median(&mut rest)?)
+    }
+
     /// The terrace width with the pixels holding `flat` left out.
     fn terrace_width_without(&self, flat: Option<f64>) -> Option<f64> {
         // 1 / (1 - f) = pairs / (pairs - equal)
@@ -460,12 +493,10 @@ impl Field {
         // coast's pixels between land on either side)
         let value = f64::from_bits(bits);
         // steps, and those on the value's rim
-        let (steps, rim) = [Axis(0), Axis(1)]
-            .into_iter()
-            .flat_map(|axis| self.neighbour_pairs(axis))
-            .filter(|&(a, b)| a.is_finite() && b.is_finite() && a != b)
-            .fold((0usize, 0usize), |(n, r), (a, b)| {
-                (n + 1, r + usize::from(a == value || b == value))
+        let (steps, rim) = self
+            .steps_around(value)
+            .fold((0usize, 0usize), |(n, r), (on_rim, _)| {
+                (n + 1, r + usize::from(on_rim))
             });
         if 2 * rim > steps {
             return None;
@@ -475,37 +506,7 @@ impl Field {
     }
 }
 
-/// How far a flat area's level lies from the surface around it: the
-/// median difference across its rim (pairs of neighbours, one holding
-/// `value`, the other valid and not) over the median step of the rest
-/// (pairs of unequal valid neighbours, neither holding `value`). About 1
-/// for a sea at the coast's level, large for a fill far off the surface
-/// (0 below a DEM's land, an undeclared -9999). `None` without a rim or
-/// a step.
-pub fn rim_contrast(field: &Field, value: f64) -> Option<f64> {
-    let (mut rim, mut steps) = (Vec::new(), Vec::new());
-    for (a, b) in [Axis(0), Axis(1)]
-        .into_iter()
-        .flat_map(|axis| field.neighbour_pairs(axis))
-        .filter(|&(a, b)| a.is_finite() && b.is_finite() && a != b)
-    {
-        if a == value || b == value {
-            rim.push((a - b).abs());
-        } else {
-            steps.push((a - b).abs());
-        }
-    }
-    let median = |v: &mut Vec<f64>| -> Option<f64> {
-        if v.is_empty() {
-            return None;
-        }
-        let k = v.len() / 2;
-        Some(*v.select_nth_unstable_by(k, f64::total_cmp).1)
-    };
-    Some(median(&mut rim)? / median(&mut steps)?)
-}
-
-/// [`rim_contrast`] above which `spectrum` warns of a flat area: on the
+/// [`Field::rim_contrast`] above which `spectrum` warns of a flat area: on the
 /// Levi Fell DEM (400^2; median step of its upper 70 %, 0.79 m) with its
 /// lowest 30 % set below the coast by 3 / 10 / 30 / 100 / 196 m
 /// (contrast 4.4 / 13 / 38 / 127 / 248), beta moved from 4.266 by

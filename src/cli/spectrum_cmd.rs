@@ -257,7 +257,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         }
     }
     // a flat area far off the surface (a fill at 0 or -9999): its rim is a
-    // cliff, whose spectrum swamps the surface's (field::CLIFF_CONTRAST)
+    // cliff, whose spectrum swamps the surface's (Field::rim_contrast, field::CLIFF_CONTRAST)
     for (fl, p) in fields.iter().zip(&args.images) {
         let Some((v, share)) = fl.flat_value() else {
             continue;
@@ -265,8 +265,9 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         if share <= crate::field::FLAT_SHARE_WARN {
             continue;
         }
-        if let Some(c) =
-            crate::field::rim_contrast(fl, v).filter(|&c| c > crate::field::CLIFF_CONTRAST)
+        if let Some(c) = fl
+            .rim_contrast(v)
+            .filter(|&c| c > crate::field::CLIFF_CONTRAST)
         {
             warnings.push(format!(
                 "{}: one value, {}, fills {:.0} % of the valid pixels and lies far off the \
