@@ -259,9 +259,9 @@ impl Buckets {
         ri: i64,
         max_d2: f64,
         (lo, hi): (f64, f64),
-    ) -> ((u32, f64), bool) {
+    ) -> (Want, bool) {
         let (cx, cy) = self.cell_of(last.x, last.y);
-        let mut best = (u32::MAX, f64::INFINITY);
+        let mut best = NO_WANT;
         let mut in_box = false;
         let wrap = self.period.is_some();
         for yy in Self::around(cy, self.gy, wrap) {
@@ -282,8 +282,9 @@ impl Buckets {
                     if !(ratio > lo && ratio < hi) {
                         continue;
                     }
-                    if d2 < best.1 || (d2 == best.1 && k < best.0) {
-                        best = (k, d2);
+                    let w = (k, d2, ratio.max(1.0 / ratio));
+                    if closer(w, best) {
+                        best = w;
                     }
                 }
             }
@@ -292,25 +293,41 @@ impl Buckets {
     }
 }
 
-/// One-to-one resolution: `want[i] = (candidate, d^2)` for line `ids[i]`;
-/// the nearer line wins, ties to the lower id. Returns, per entry, whether
-/// it won.
-fn resolve(want: &[(u32, f64)], ids: &[u32], n: usize, owner: &mut Vec<(u32, f64)>) -> Vec<bool> {
+/// A line's choice: `(candidate, d^2, r)` with `r = max(ratio, 1/ratio)`
+/// of the moduli (candidate over the line's last), 1 for equal moduli.
+type Want = (u32, f64, f64);
+
+/// No candidate.
+const NO_WANT: Want = (u32::MAX, f64::INFINITY, f64::INFINITY);
+
+/// `a` goes before `b`: nearer, then (at equal distance, common on the
+/// pixel grid) the modulus closer to the line's, then the lower index
+/// (exact ties only). Distances and moduli are the same for a flipped,
+/// transposed or rotated image, indices are not.
+fn closer(a: Want, b: Want) -> bool {
+    a.1 < b.1 || (a.1 == b.1 && (a.2 < b.2 || (a.2 == b.2 && a.0 < b.0)))
+}
+
+/// One-to-one resolution: `want[i]` is line `ids[i]`'s choice; of the lines
+/// wanting one candidate, the nearer wins, then the one whose modulus is
+/// closer to the candidate's, then the lower id (exact ties only). Returns,
+/// per entry, whether it won.
+fn resolve(want: &[Want], ids: &[u32], n: usize, owner: &mut Vec<Want>) -> Vec<bool> {
     owner.clear();
-    owner.resize(n, (u32::MAX, f64::INFINITY));
-    for (i, &(k, d2)) in want.iter().enumerate() {
+    owner.resize(n, NO_WANT);
+    for (i, &(k, d2, r)) in want.iter().enumerate() {
         if k == u32::MAX {
             continue;
         }
         let o = &mut owner[k as usize];
-        let l = ids[i];
-        if d2 < o.1 || (d2 == o.1 && l < o.0) {
-            *o = (l, d2);
+        let w = (ids[i], d2, r);
+        if closer(w, *o) {
+            *o = w;
         }
     }
     want.iter()
         .enumerate()
-        .map(|(i, &(k, _))| k != u32::MAX && owner[k as usize].0 == ids[i])
+        .map(|(i, &(k, ..))| k != u32::MAX && owner[k as usize].0 == ids[i])
         .collect()
 }
 
@@ -328,8 +345,8 @@ fn climb_targets(
     (lo, hi): (f64, f64),
     taken: &[bool],
     period: Option<(u32, u32)>,
-) -> Vec<(u32, f64)> {
-    let none = (u32::MAX, f64::INFINITY);
+) -> Vec<Want> {
+    let none = NO_WANT;
     let (w, h) = match period {
         Some((nx, ny)) => (nx as usize, ny as usize),
         None => {
@@ -362,7 +379,11 @@ fn climb_targets(
     lasts
         .iter()
         .map(|last| {
+            // the nearest chain pixel; at equal distance the larger modulus
+            // (the raster order of the scan would depend on the image's
+            // orientation)
             let mut best = (i64::MAX, (u32::MAX, 0u32));
+            let m_at = |lb: (u32, u32)| cm[lb.0 as usize][lb.1 as usize];
             for dy in -ri..=ri {
                 let mut y = last.y as i64 + dy;
                 if period.is_some() {
@@ -378,11 +399,11 @@ fn climb_targets(
                         continue;
                     }
                     let d2 = dx * dx + dy * dy;
-                    if d2 as f64 > max_d2 || d2 >= best.0 {
+                    if d2 as f64 > max_d2 || d2 > best.0 {
                         continue;
                     }
                     let lb = label[y as usize * w + x as usize];
-                    if lb.0 != u32::MAX {
+                    if lb.0 != u32::MAX && (d2 < best.0 || m_at(lb) > m_at(best.1)) {
                         best = (d2, lb);
                     }
                 }
@@ -437,7 +458,7 @@ fn climb_targets(
                         return none;
                     }
                     let (dx, dy) = offset(last, px, py, period);
-                    return (m, (dx * dx + dy * dy) as f64);
+                    return (m, (dx * dx + dy * dy) as f64, ratio.max(1.0 / ratio));
                 }
             }
             none
@@ -458,8 +479,8 @@ pub struct Linker {
     period: Option<(u32, u32)>,
     // reused buffers
     buckets: Buckets,
-    want: Vec<(u32, f64)>,
-    owner: Vec<(u32, f64)>,
+    want: Vec<Want>,
+    owner: Vec<Want>,
 }
 
 impl Linker {
@@ -554,7 +575,7 @@ impl Linker {
         let mut next_last = Vec::with_capacity(self.alive.len());
         let mut failed = Vec::new();
         let mut failed_last = Vec::new();
-        for (i, &(k, _)) in self.want.iter().enumerate() {
+        for (i, &(k, ..)) in self.want.iter().enumerate() {
             let l = self.alive[i];
             if !won[i] {
                 if k != u32::MAX {
@@ -596,7 +617,7 @@ impl Linker {
                 self.period,
             );
             let won = resolve(&want, &failed, sm.wtmmm.len(), &mut self.owner);
-            for (i, &(k, _)) in want.iter().enumerate() {
+            for (i, &(k, ..)) in want.iter().enumerate() {
                 if !won[i] {
                     continue; // the line ends here
                 }
