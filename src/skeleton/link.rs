@@ -4,7 +4,10 @@
 //! `a_{j+1}` inside a search box (its half-width evaluated at `a_{j+1}`,
 //! the scale looked at; SPEC §3 does not say which) and a modulus-ratio
 //! window, takes the nearest; links are one-to-one and when two lines want the same candidate
-//! the nearer wins (ties: the lower line id) and the other line ends. Lines
+//! the nearer wins and the other line ends. Ties of distance, common on the
+//! pixel grid, go to the modulus closer to the line's (not to the order of
+//! a scan, which would make the skeleton depend on the image's
+//! orientation), and only exact ties of both to the lower index. Lines
 //! are born only at `a_min`. Only the previous scale's line ends and the
 //! current scale's WTMMM are needed, so linking streams with the CWT.
 //!
@@ -563,7 +566,8 @@ impl Linker {
             }
             self.want.push(best);
         }
-        // resolve contested candidates: the nearer line wins, ties to the lower id
+        // resolve contested candidates: the nearer line wins, ties to the
+        // closer modulus, then the lower id
         let won = resolve(&self.want, &self.alive, sm.wtmmm.len(), &mut self.owner);
         // the lines left without a WTMMM get a second chance along their chain
         let climb = match chain_m {
@@ -752,10 +756,39 @@ mod tests {
         assert_eq!(xs(&lines[0]), vec![50, 54]);
     }
 
-    /// Exact ties (common on the integer grid) are broken by index, so the
-    /// skeleton does not depend on the order the cells are scanned in: a
-    /// line equidistant from two candidates takes the lower WTMMM index; a
-    /// candidate equidistant from two lines goes to the lower line id.
+    /// Ties of distance (common on the integer grid) go to the modulus
+    /// closer to the line's: a line equidistant from two candidates takes
+    /// the one whose modulus is nearer its own (in ratio), and a candidate
+    /// equidistant from two lines goes to the line whose modulus is nearer
+    /// the candidate's, whatever their order.
+    #[test]
+    fn distance_ties_go_to_the_closer_modulus() {
+        let s0 = scale(0, 1.5, &[(50, 50, 1.0)]);
+        // ratios 1.05 and 1 / 0.97 = 1.031
+        for (pts, want) in [
+            ([(52, 50, 1.05), (48, 50, 0.97)], 48),
+            ([(52, 50, 0.97), (48, 50, 1.05)], 52),
+        ] {
+            let (lines, _) = link(LinkParams::default(), &[s0.clone(), scale(1, 1.6, &pts)]);
+            assert_eq!(lines[0].points[1].x, want, "{pts:?}");
+        }
+        // the candidate (M = 1.06) is 2 px from both lines: ratio 1.06 to
+        // the line of M = 1, 1.019 to the line of M = 1.08
+        let s1 = scale(1, 1.6, &[(42, 50, 1.06)]);
+        for (pts, winner) in [
+            ([(40, 50, 1.0), (44, 50, 1.08)], 1),
+            ([(40, 50, 1.08), (44, 50, 1.0)], 0),
+        ] {
+            let (lines, ends) = link(LinkParams::default(), &[scale(0, 1.5, &pts), s1.clone()]);
+            assert_eq!(lines[winner].points.len(), 2, "{pts:?}");
+            assert_eq!(lines[1 - winner].points.len(), 1, "{pts:?}");
+            assert_eq!(ends[1].contested, 1);
+        }
+    }
+
+    /// Exact ties of distance and modulus are broken by index: a line
+    /// equidistant from two equal candidates takes the lower WTMMM index; a
+    /// candidate equidistant from two equal lines goes to the lower line id.
     #[test]
     fn ties_go_to_the_lower_index() {
         let s0 = scale(0, 1.5, &[(50, 50, 1.0)]);
@@ -797,7 +830,7 @@ mod tests {
                 ..Endings::default()
             }
         );
-        // equal distances: the lower line id wins
+        // equal distances and moduli: the lower line id wins
         let s0 = scale(0, 1.5, &[(40, 50, 1.0), (44, 50, 1.0)]);
         let s1 = scale(1, 1.6, &[(42, 50, 1.0)]);
         let (lines, _) = link(LinkParams::default(), &[s0, s1]);
