@@ -761,15 +761,30 @@ fn finish_on<const TORUS: bool>(
                 && n >= 3
                 && adjacent(unpad(s.order[0]), unpad(s.order[n - 1]), period);
             first_walk = false;
-            emit(
-                &mut out,
-                &s.order,
-                closed,
-                pm,
-                &mut s.mvals,
-                &mut s.maxk,
-                keep_chains,
-            );
+            let chain_id = out.n_chains as u32;
+            out.n_chains += 1;
+            if n >= 3 {
+                s.mvals.clear();
+                s.mvals.extend(s.order.iter().map(|p| pm[p[0] as usize]));
+                for_each_chain_max(&s.mvals, closed, |i| {
+                    let p = s.order[i];
+                    let (x, y) = unpad(p);
+                    s.maxk.push(p[0]);
+                    out.wtmmm.push(Wtmmm {
+                        x,
+                        y,
+                        m: pm[p[0] as usize],
+                        arg: 0.0,
+                        chain: chain_id,
+                    });
+                });
+            }
+            if keep_chains {
+                out.chains.push(Chain {
+                    pixels: s.order.iter().map(|&p| unpad(p)).collect(),
+                    closed,
+                });
+            }
         }
     }
     // the arguments, read from `pt` in raster order (random reads of it
@@ -812,7 +827,7 @@ fn collect<I: Iterator<Item = Pix>>(
 /// starts at the faintest one and, stepping to the larger modulus at a
 /// fork, runs along the ridge; the spurs are split off. (Starting at the
 /// largest modulus instead read D(h(0)) = 2.10 on 16 fBm of 512²,
-/// against 1.99 from the faintest end and 1.99 from the raster-first end
+/// against 1.99 from the faintest end and 1.98 from the raster-first end
 /// before the walks were made orientation-free: README, Conventions.)
 fn start_key(c: u32, m: f64, k: u32) -> u128 {
     (c.max(1) as u128) << 96 | (m.to_bits() as u128) << 32 | k as u128
@@ -862,45 +877,6 @@ fn walk<I: Iterator<Item = Pix>>(
             Some((.., q)) => cur = q,
             None => return,
         }
-    }
-}
-
-/// Records the walk `order` as a chain: its WTMMM (chains of 3 pixels or
-/// more), and the chain itself when `keep_chains`.
-#[inline(always)]
-fn emit(
-    out: &mut ScaleMaxima,
-    order: &[Pix],
-    closed: bool,
-    pm: &[f64],
-    mvals: &mut Vec<f64>,
-    maxk: &mut Vec<u32>,
-    keep_chains: bool,
-) {
-    let unpad = |p: Pix| -> (u32, u32) { (p[1] - 1, p[2] - 1) };
-    let chain_id = out.n_chains as u32;
-    out.n_chains += 1;
-    if order.len() >= 3 {
-        mvals.clear();
-        mvals.extend(order.iter().map(|p| pm[p[0] as usize]));
-        for_each_chain_max(mvals, closed, |i| {
-            let p = order[i];
-            let (x, y) = unpad(p);
-            maxk.push(p[0]);
-            out.wtmmm.push(Wtmmm {
-                x,
-                y,
-                m: pm[p[0] as usize],
-                arg: 0.0,
-                chain: chain_id,
-            });
-        });
-    }
-    if keep_chains {
-        out.chains.push(Chain {
-            pixels: order.iter().map(|&p| unpad(p)).collect(),
-            closed,
-        });
     }
 }
 
