@@ -837,10 +837,11 @@ fn start_key(c: u32, m: f64, k: u32) -> u128 {
 /// marking them walked (2) and listing them in `order`: each step goes to
 /// an unwalked 4-neighbour if there is one, else to a diagonal one (so
 /// that the walk follows the curve without cutting corners), and among
-/// those to the largest modulus (raster order for exact ties). Both choices are the
-/// same for a flipped, transposed or rotated image, as the start's is
-/// ([`start_key`]). Keeps `unwalked`, the count of each pixel's unwalked
-/// neighbours.
+/// those to the largest modulus (raster order for exact ties). Both
+/// choices are the same for a flipped, transposed or rotated image, as
+/// the start's is ([`start_key`]). Keeps `unwalked`, the count of each
+/// pixel's unwalked neighbours (each pair is counted down once, when the
+/// first of the two is walked).
 #[inline(always)]
 fn walk<I: Iterator<Item = Pix>>(
     start: Pix,
