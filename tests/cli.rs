@@ -2517,6 +2517,31 @@ fn stats_commands_say_what_they_did() {
     assert!(err.contains("not square"), "{err}");
 }
 
+/// A constant image is refused by every WTMM command as soon as it is
+/// read, by name and as constant (it used to reach the transform and be
+/// refused as too small for the wavelet, or as having no maxima, one of
+/// several possible causes), and nothing is written.
+#[test]
+fn wtmm_commands_refuse_a_constant_image_by_name() {
+    let dir = scratch("constant_refused");
+    let flat = dir.join("level.npy");
+    write_npy(&flat, &Array2::from_elem((48, 40), -2.5)).unwrap();
+    let flat = flat.display().to_string();
+    let out = dir.join("o");
+    let o = out.display().to_string();
+    for cmd in ["analyze", "skeleton", "pdf", "kernel", "correlate"] {
+        let (code, err) = run_bin_stderr(&[cmd, &flat, "--out", &o]);
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(
+            err.contains(&format!(
+                "{flat}: constant image: its wavelet transform is zero"
+            )),
+            "{cmd}: {err}"
+        );
+        assert!(!out.exists(), "{cmd}");
+    }
+}
+
 /// `pdf` and `kernel` name the input and the cause: a 10x10 image (just
 /// wider than the gauss wavelet at 1.5 px, 9.6 px) has no WTMMM on maxima
 /// lines to estimate h0 or the kernel from (it used to say "invalid
@@ -2555,6 +2580,7 @@ fn pdf_and_kernel_name_the_input_and_the_cause() {
         assert!(!out.exists(), "{cmd}");
         let (code, err) = run_bin_stderr(&[&[cmd, &flat][..], &tail].concat());
         assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains("constant image"), "{cmd}: {err}");
         assert!(err.contains("no maxima"), "{cmd}: {err}");
         assert_eq!(err.matches(&flat).count(), 1, "{cmd}: {err}");
         assert!(!out.exists(), "{cmd}");

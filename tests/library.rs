@@ -174,8 +174,9 @@ fn merging_compares_analyses_by_what_they_do() {
     );
 }
 
-/// A constant image has no maxima at all, and the error says so rather
-/// than blaming the counting domain, as soon as its sums are made; one
+/// A constant image has no maxima at all, and the error says it is
+/// constant rather than blaming the counting domain, as soon as its sums
+/// are made; one
 /// whose scattered holes leave no pixel to count says that instead. Sums
 /// without lines made otherwise (from a skeleton) fail at the fit, also
 /// calling the image flat.
@@ -183,7 +184,10 @@ fn merging_compares_analyses_by_what_they_do() {
 fn a_constant_image_is_called_flat() {
     let cfg = torus(2);
     let flat = Field::new(Array2::from_elem((64, 64), 3.0));
-    err(image_sums(&flat, &cfg, &[0.0], "c"), "flat");
+    err(
+        image_sums(&flat, &cfg, &[0.0], "c"),
+        "constant image (every valid pixel is 3)",
+    );
     let sk = wtmm::skeleton::skeleton(&flat, &cfg).unwrap();
     let s = wtmm::spectra::skeleton_sums(&sk, &flat, &cfg, &[0.0], "c");
     err(s.spectra(Rule::Plain, (0.5, 2.0)), "flat");

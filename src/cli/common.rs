@@ -400,6 +400,11 @@ pub fn read_image(path: &Path, nodata: Option<f64>) -> Result<Field> {
     Ok(field)
 }
 
+/// Why a constant image cannot be analysed by the WTMM commands (analyze,
+/// skeleton, pdf, kernel, correlate), for [`refuse_constant`]: said at
+/// once, not as "no maxima" after the transform.
+pub const NO_TRANSFORM: &str = "its wavelet transform is zero, so it has no maxima";
+
 /// An error naming `path` when every valid pixel of `field` has the same
 /// value (`what` says what that makes zero).
 pub fn refuse_constant(field: &Field, path: &Path, what: &str) -> Result<()> {
@@ -499,8 +504,6 @@ pub(crate) fn active_bar() -> Option<ProgressBar> {
     (!bar.is_finished()).then_some(bar)
 }
 
-/// The object every JSON output starts from: `version`, `command`, `params`.
-/// Commands add their result keys to it.
 /// A file's name without its directories, for titles.
 pub fn file_label(p: &std::path::Path) -> String {
     p.file_name()

@@ -409,11 +409,20 @@ impl AnalysisConfig {
         Ok((counted, interior))
     }
 
-    /// Why `field` gave no maxima line at the smallest scale: how much of
+    /// Why `field` gave no maxima line at the smallest scale: that it is
+    /// constant, if it is; how much of
     /// the counting domain its missing pixels leave when it has some
     /// ([`Self::counting_pixels`]: scattered holes can leave none), else
     /// [`NO_MAXIMA`], the causes seen in practice.
     pub fn why_no_maxima(&self, field: &Field) -> String {
+        if let Some((lo, hi)) = field.range()
+            && lo == hi
+        {
+            return format!(
+                "constant image (every valid pixel is {lo}): its wavelet transform is zero, so \
+                 it has no maxima"
+            );
+        }
         let missing = field.missing_count();
         match self.counting_pixels(field) {
             Ok((counted, interior)) if missing > 0 => {
