@@ -126,6 +126,12 @@ pub struct ImagePartial {
     /// [`crate::field::FLAT_SHARE_WARN`], said by [`PartitionSums::spectra`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub flat: Option<FlatRecord>,
+    /// The value read as missing in the image's file besides its declared
+    /// nodata (`--nodata`, [`crate::Field::mask_value`]), when one was
+    /// given; recorded for the provenance of merged sums (set by the
+    /// caller: the library sees only the masked field).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nodata: Option<f64>,
 }
 
 /// [`ImagePartial::flat`]: a value and the share of the valid pixels
@@ -472,6 +478,7 @@ impl PartitionSums {
                 plane_share: None,
                 terrace_width: None,
                 flat: None,
+                nodata: None,
             }],
         }
     }
@@ -533,6 +540,7 @@ impl PartitionSums {
                 plane_share: None,
                 terrace_width: None,
                 flat: None,
+                nodata: None,
             }],
         })
     }
@@ -830,6 +838,7 @@ impl PartitionSums {
                     plane_share: None,
                     terrace_width: None,
                     flat: None,
+                    nodata: None,
                 })
             })
             .collect();
@@ -1443,6 +1452,9 @@ pub struct ImageRecord {
     /// recorded.
     #[serde(default)]
     pub flat: Option<FlatRecord>,
+    /// [`ImagePartial::nodata`]; absent when none was given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nodata: Option<f64>,
 }
 
 impl ImageRecord {
@@ -1454,6 +1466,7 @@ impl ImageRecord {
             plane_share: im.plane_share,
             terrace_width: im.terrace_width,
             flat: im.flat,
+            nodata: im.nodata,
         }
     }
 }
@@ -2914,6 +2927,7 @@ mod tests {
                     plane_share: None,
                     terrace_width: None,
                     flat: None,
+                    nodata: None,
                 })
                 .collect();
             let s = PartitionSums {

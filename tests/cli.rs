@@ -1344,6 +1344,17 @@ fn tm_names_a_flat_area() {
     assert_eq!(a["tau"], b["tau"]);
     assert_eq!(a["params"]["nodata"].as_f64(), Some(level));
     assert!(b["params"]["nodata"].is_null());
+    // ... and with each image's sums, so that a merge still says it
+    let sums = |d: &str| dir.join(d).join("sums.json").display().to_string();
+    let m = dir.join("merged").display().to_string();
+    spectra(&[&pl.display().to_string()], "a_land");
+    let (code, err) = run_bin_stderr(&["merge", &sums("a_nodata"), &sums("a_land"), "--out", &m]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&dir.join("merged/spectra.json"));
+    let rec = v["image_records"].as_array().unwrap();
+    assert_eq!(rec.len(), 2, "{v}");
+    assert_eq!(rec[0]["nodata"].as_f64(), Some(level), "{v}");
+    assert!(rec[1].get("nodata").is_none(), "{v}");
     // a value no pixel holds is said; one that is no number is refused; a
     // command that reads no image has no --nodata
     let (code, out, _) = run_bin_output(&["info", &s, "--octaves", "2", "--nodata", "-9999"], true);

@@ -463,8 +463,10 @@ pub fn analyze_paths(
                 0
             };
             // (an image without maxima lines is an error of the library's)
-            let s = image_sums_tiled(&field, cfg, q, p.display().to_string(), par, side)
+            let mut s = image_sums_tiled(&field, cfg, q, p.display().to_string(), par, side)
                 .map_err(|e| super::common::in_file(p, e))?;
+            // recorded per image, so that merged sums still say it
+            s.images[0].nodata = nodata;
             pb.inc(1);
             Ok(s)
         })
