@@ -206,7 +206,11 @@ impl TileGrid {
 
     /// Rows `[ya, yb)` and columns `[xa, xb)` of tile `k`: the pixels of
     /// the domain that [`Self::index`] puts in it.
+    ///
+    /// **Panics** if `k >= self.len()` (in debug builds; release builds
+    /// return meaningless bounds).
     pub fn bounds(&self, k: usize) -> (usize, usize, usize, usize) {
+        debug_assert!(k < self.len(), "tile {k} of {}", self.len());
         let (ty, tx) = (k / self.ntx, k % self.ntx);
         (
             self.y0 + cut(ty, self.h, self.nty),
@@ -1452,8 +1456,9 @@ pub struct ImageRecord {
     /// recorded.
     #[serde(default)]
     pub flat: Option<FlatRecord>,
-    /// [`ImagePartial::nodata`]; absent when none was given.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// [`ImagePartial::nodata`]; null when none was given or the sums
+    /// were written before it was recorded.
+    #[serde(default)]
     pub nodata: Option<f64>,
 }
 

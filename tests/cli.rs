@@ -1354,7 +1354,7 @@ fn tm_names_a_flat_area() {
     let rec = v["image_records"].as_array().unwrap();
     assert_eq!(rec.len(), 2, "{v}");
     assert_eq!(rec[0]["nodata"].as_f64(), Some(level), "{v}");
-    assert!(rec[1].get("nodata").is_none(), "{v}");
+    assert!(rec[1]["nodata"].is_null(), "{v}");
     // a value no pixel holds is said; one that is no number is refused; a
     // command that reads no image has no --nodata
     let (code, out, _) = run_bin_output(&["info", &s, "--octaves", "2", "--nodata", "-9999"], true);

@@ -181,7 +181,7 @@ fn merging_compares_analyses_by_what_they_do() {
 /// without lines made otherwise (from a skeleton) fail at the fit, also
 /// calling the image flat.
 #[test]
-fn a_constant_image_is_called_flat() {
+fn a_constant_image_is_called_constant() {
     let cfg = torus(2);
     let flat = Field::new(Array2::from_elem((64, 64), 3.0));
     err(

@@ -419,8 +419,8 @@ impl AnalysisConfig {
             && lo == hi
         {
             return format!(
-                "constant image (every valid pixel is {lo}): its wavelet transform is zero, so \
-                 it has no maxima"
+                "constant image (every valid pixel is {}): {CONSTANT}",
+                crate::error::short(lo)
             );
         }
         let missing = field.missing_count();
@@ -441,6 +441,10 @@ impl AnalysisConfig {
         }
     }
 }
+
+/// Why a constant image has no maxima ([`AnalysisConfig::why_no_maxima`];
+/// the CLI says it as soon as such an image is read).
+pub const CONSTANT: &str = "its wavelet transform is zero, so it has no maxima";
 
 /// Why an image gave no maxima at the smallest scale (the causes seen in
 /// practice, not only a constant image); see
