@@ -85,3 +85,44 @@ pub(crate) fn short(x: f64) -> String {
         format!("{x:.3e}")
     }
 }
+
+/// A number for a message that the user may type back (`--nodata VALUE`):
+/// the shortest digits that read back as exactly `x` (both Rust formats
+/// give them), in Rust's plain notation in the usual range and with an
+/// exponent beyond it (`{}` never uses one: 1e-300 would be 300 digits).
+pub(crate) fn exact(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e16).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:?}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::exact;
+
+    /// `exact` reads back as the value, and stays short at the extremes.
+    #[test]
+    fn exact_numbers_read_back() {
+        for x in [
+            0.0,
+            -9999.0,
+            0.1,
+            123.456,
+            -32768.0,
+            1e-300,
+            -5e-5,
+            f64::MIN_POSITIVE,
+            1e20,
+            1.7976931348623157e308,
+            0.30000000000000004,
+        ] {
+            let s = exact(x);
+            assert_eq!(s.parse::<f64>().unwrap(), x, "{s}");
+            assert!(s.len() <= 24, "{s}");
+        }
+        assert_eq!(exact(-9999.0), "-9999");
+        assert_eq!(exact(1e-300), "1e-300");
+    }
+}

@@ -1826,9 +1826,9 @@ pub(crate) fn flat_warning(flats: &[Option<FlatRecord>]) -> Option<String> {
             crate::error::short(most.value)
         )
     };
-    // the value exactly (Display round-trips), for --nodata to match it
+    // the value exactly, for --nodata to match it
     let value = if big.iter().all(|f| f.value == most.value) {
-        format!("{}", most.value)
+        crate::error::exact(most.value)
     } else {
         "VALUE".to_string()
     };

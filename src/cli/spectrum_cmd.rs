@@ -274,11 +274,12 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
                  surface around it (the median difference across its rim is {c:.0} times the \
                  median step between the other neighbours): its rim is a cliff, whose spectrum \
                  swamps the surface's (on Levi Fell, 30 % set 30 m below the coast moved beta \
-                 by -0.26, 100 m by -0.98); if it is no data, give it as missing (--nodata {v}, \
+                 by -0.26, 100 m by -0.98); if it is no data, give it as missing (--nodata {}, \
                  NaN, or the file's nodata value)",
                 p.display(),
                 crate::error::short(v),
-                100.0 * share
+                100.0 * share,
+                crate::error::exact(v)
             ));
         }
     }

@@ -381,11 +381,12 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                 "{}: one value, {}, fills {:.0} % of the valid pixels: a flat area (a sea or a \
                  lake at one level, a fill, a nodata value the file does not declare), whose \
                  flux is about 0 and which the moments read as intermittency (alpha and C1 move: \
-                 README, Conventions); if it is no data, give it as missing (--nodata {v}, NaN, \
+                 README, Conventions); if it is no data, give it as missing (--nodata {}, NaN, \
                  or the file's nodata value)",
                 p.display(),
                 crate::error::short(v),
-                100.0 * share
+                100.0 * share,
+                crate::error::exact(v)
             ));
         }
     }
