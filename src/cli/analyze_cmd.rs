@@ -453,7 +453,7 @@ pub fn analyze_paths(
         .par_iter()
         .map(|p| {
             let field = super::common::read_image(p, nodata)?;
-            super::common::refuse_constant(&field, p, super::common::NO_TRANSFORM)?;
+            super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
             super::common::check_image_memory(p, &field, paths.len() == 1)?;
             // fewer than 3 images: the jackknife runs over tiles
             let side = if paths.len() < 3 {

@@ -400,11 +400,6 @@ pub fn read_image(path: &Path, nodata: Option<f64>) -> Result<Field> {
     Ok(field)
 }
 
-/// Why a constant image cannot be analysed by the WTMM commands (analyze,
-/// skeleton, pdf, kernel, correlate), for [`refuse_constant`]: said at
-/// once, not as "no maxima" after the transform.
-pub const NO_TRANSFORM: &str = crate::skeleton::CONSTANT;
-
 /// An error naming `path` when every valid pixel of `field` has the same
 /// value (`what` says what that makes zero).
 pub fn refuse_constant(field: &Field, path: &Path, what: &str) -> Result<()> {

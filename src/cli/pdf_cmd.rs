@@ -459,7 +459,7 @@ impl Input {
         } else {
             let p = &self.images[i];
             let field = super::common::read_image(p, self.nodata)?;
-            super::common::refuse_constant(&field, p, super::common::NO_TRANSFORM)?;
+            super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
             super::common::check_image_memory(p, &field, self.images.len() == 1)?;
             Ok((field, p.display().to_string()))
         }

@@ -45,7 +45,7 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     );
     let nodata = args.read.value()?;
     let field = super::common::read_image(&args.image, nodata)?;
-    super::common::refuse_constant(&field, &args.image, super::common::NO_TRANSFORM)?;
+    super::common::refuse_constant(&field, &args.image, crate::skeleton::CONSTANT)?;
     super::common::check_image_memory(&args.image, &field, true)?;
     let share: Vec<f64> = field.plane_share().into_iter().collect();
     warnings.extend(cfg.plane_warning(&share, 1));

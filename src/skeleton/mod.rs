@@ -443,7 +443,8 @@ impl AnalysisConfig {
 }
 
 /// Why a constant image has no maxima ([`AnalysisConfig::why_no_maxima`];
-/// the CLI says it as soon as such an image is read).
+/// the WTMM commands of the CLI say it as soon as such an image is read,
+/// not as "no maxima" after the transform).
 pub const CONSTANT: &str = "its wavelet transform is zero, so it has no maxima";
 
 /// Why an image gave no maxima at the smallest scale (the causes seen in
