@@ -176,10 +176,9 @@ fn merging_compares_analyses_by_what_they_do() {
 
 /// A constant image has no maxima at all, and the error says it is
 /// constant rather than blaming the counting domain, as soon as its sums
-/// are made; one
-/// whose scattered holes leave no pixel to count says that instead. Sums
-/// without lines made otherwise (from a skeleton) fail at the fit, also
-/// calling the image flat.
+/// are made; one whose scattered holes leave no pixel to count says that
+/// instead. Sums without lines made otherwise (from a skeleton) fail at
+/// the fit, calling the image flat.
 #[test]
 fn a_constant_image_is_called_constant() {
     let cfg = torus(2);
