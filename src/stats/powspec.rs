@@ -425,7 +425,8 @@ pub fn power_spectrum(img: ArrayView2<f64>, cfg: &PowerSpectrumConfig) -> Result
         return Err(Error::Input(why));
     }
     check_bins(cfg.bins_per_octave)?;
-    let mut f = img.to_owned();
+    // (row-major whatever the view's layout: the rows are read as slices)
+    let mut f = img.as_standard_layout().into_owned();
     detrend(&mut f, cfg.detrend);
     let mut wsum2 = (nx * ny) as f64;
     if cfg.window == Window::Hann {
@@ -447,7 +448,7 @@ pub fn power_spectrum(img: ArrayView2<f64>, cfg: &PowerSpectrumConfig) -> Result
     let mut half = vec![Complex64::default(); ny * nh];
     let mut row = vec![0.0; nx];
     for (y, out) in half.chunks_exact_mut(nh).enumerate() {
-        row.copy_from_slice(f.row(y).as_slice().expect("owned array is contiguous"));
+        row.copy_from_slice(f.row(y).as_slice().expect("standard layout"));
         r2c.process(&mut row, out).expect("lengths from plan");
     }
     let mut t = vec![Complex64::default(); ny * nh];
