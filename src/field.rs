@@ -621,8 +621,9 @@ pub fn amplitude_problem<'a>(values: impl IntoIterator<Item = &'a f64>) -> Optio
     }
 }
 
-/// `a` in row-major (standard) layout: the analyses read rows as slices.
-fn standard<T: Clone>(a: Array2<T>) -> Array2<T> {
+/// `a` in row-major (standard) layout, copied only if it is not: the
+/// analyses and transforms read rows as slices.
+pub(crate) fn standard<T: Clone>(a: Array2<T>) -> Array2<T> {
     if a.is_standard_layout() {
         a
     } else {

@@ -296,9 +296,7 @@ impl Dwt2 {
 /// Owned arrays are normally in standard (row-major, contiguous) layout;
 /// a transposed or sliced one is copied once.
 fn make_standard(a: &mut Array2<f64>) {
-    if !a.is_standard_layout() {
-        *a = a.as_standard_layout().into_owned();
-    }
+    *a = crate::field::standard(std::mem::take(a));
 }
 
 fn copy_block_out(data: &[f64], nx: usize, bh: usize, bw: usize, out: &mut [f64]) {
