@@ -1161,6 +1161,32 @@ impl PartitionSums {
         }
         let (legendre_h, legendre_d) = legendre(&self.q, &est.tau);
         let mut warnings = Vec::new();
+        // The transform is periodic (FFT): a wavelet wider than the image
+        // sees the image's own periodic copies (a torus) or its opposite
+        // edge, not larger structures. The interior margin rules that out;
+        // the whole image (--margin 0, a torus) does not.
+        let side = self
+            .images
+            .iter()
+            .filter_map(|im| im.shape)
+            .map(|[ny, nx]| ny.min(nx))
+            .min();
+        if let (Some(cfg), Some(side)) = (&self.analysis, side) {
+            let r = cfg.wavelet.support_radius();
+            let across = 2.0 * r * self.scales[last_fit];
+            if across > side as f64 {
+                let a_fits = side as f64 / (2.0 * r);
+                warnings.push(format!(
+                    "the wavelet's support at the largest fitted scale, a = {:.2} px, is {across:.0} \
+                     px across, wider than the smallest image side, {side} px: the transform is \
+                     periodic, so there the wavelet sees the image's own copies (or its opposite \
+                     edge), not larger structures; fit only up to a = {a_fits:.1} px, {:.2} octaves \
+                     above the first scale (--fit), or analyse larger images",
+                    self.scales[last_fit],
+                    (a_fits / self.scales[0]).log2()
+                ));
+            }
+        }
         for qi in 0..nq {
             if !est.tau[qi].is_finite() {
                 warnings.push(format!(

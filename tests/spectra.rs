@@ -1698,3 +1698,39 @@ fn flat_areas_are_named_not_taken_for_terraces() {
     bad.images[0].flat.as_mut().unwrap().share = 1.5;
     assert!(bad.check().unwrap_err().contains("flat"));
 }
+
+/// A wavelet wider than the image at a fitted scale is said: the FFT
+/// transform is periodic, so on a small torus the largest scales see the
+/// image's own copies. Gauss (support radius 3.2 a), 3 octaves from 1.5 px,
+/// default fit up to a = 11.2 px, 72 px across: wider than a 64^2 torus,
+/// not than a 96^2 one.
+#[test]
+fn a_wavelet_wider_than_the_image_is_said() {
+    let cfg = AnalysisConfig {
+        octaves: 3,
+        margin: Some(0),
+        ..Default::default()
+    };
+    let q = [0.0, 1.0, 2.0];
+    let warned = |n: usize| {
+        let imgs: Vec<_> = (0..3)
+            .map(|i| wtmm::Field::new(fbm(FbmParams { hurst: 0.5 }, n, n, 4, i).unwrap()))
+            .collect();
+        let sums = wtmm::ensemble_sums(&imgs, &cfg, &q).unwrap();
+        let s = sums
+            .spectra(wtmm::Rule::Plain, sums.default_fit().unwrap())
+            .unwrap();
+        s.warnings
+            .iter()
+            .find(|w| w.contains("wider than the smallest image side"))
+            .cloned()
+    };
+    let w = warned(64).expect("64^2 warned");
+    assert!(
+        w.contains("a = 11.20 px, is 72 px across")
+            && w.contains("64 px")
+            && w.contains("up to a = 10.0 px"),
+        "{w}"
+    );
+    assert!(warned(96).is_none());
+}
