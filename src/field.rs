@@ -733,9 +733,6 @@ fn relax(out: &mut Array2<f64>, mask: &Array2<bool>, tol: f64) {
 mod tests {
     use super::*;
 
-    /// `mask_value` masks the pixels of one value (-0.0 as 0.0), keeps the
-    /// missing ones missing, counts what it masked, and leaves a field
-    /// without such pixels unmasked; `as_stored` rounds to the file's floats.
     /// A field keeps its values row-major whatever the array's layout (a
     /// transposed array made owned is column-major, and the power spectrum
     /// of trace moments panicked on it reading rows as slices), with the
@@ -764,6 +761,9 @@ mod tests {
         assert_eq!(g.data[[4, 2]], 24.0);
     }
 
+    /// `mask_value` masks the pixels of one value (-0.0 as 0.0), keeps the
+    /// missing ones missing, counts what it masked, and leaves a field
+    /// without such pixels unmasked; `as_stored` rounds to the file's floats.
     #[test]
     fn a_value_is_masked_as_the_file_stores_it() {
         let mut f = Field::new(ndarray::array![[0.0, 1.0, -0.0], [f64::NAN, 2.0, 0.0]]);
