@@ -1175,15 +1175,31 @@ impl PartitionSums {
             let r = cfg.wavelet.support_radius();
             let across = 2.0 * r * self.scales[last_fit];
             if across > side as f64 {
+                // the cure names a scale of the grid, since --fit takes
+                // only those (an octave between two is refused above)
                 let a_fits = side as f64 / (2.0 * r);
+                let cure = match self
+                    .scales
+                    .iter()
+                    .rposition(|&a| a <= a_fits * (1.0 + 1e-12))
+                {
+                    Some(j) if log2_a[j] - oct0 > fit.0 + 1e-6 => format!(
+                        "fit only up to a = {:.2} px, the largest scale at most {a_fits:.1} px \
+                         (--fit {}:{}), or analyse larger images",
+                        self.scales[j],
+                        short(fit.0),
+                        short(log2_a[j] - oct0)
+                    ),
+                    _ => {
+                        format!("no fitted scale is at most {a_fits:.1} px: analyse larger images")
+                    }
+                };
                 warnings.push(format!(
                     "the wavelet's support at the largest fitted scale, a = {:.2} px, is {across:.0} \
                      px across, wider than the smallest image side, {side} px: the transform is \
                      periodic, so there the wavelet sees the image's own copies (or its opposite \
-                     edge), not larger structures; fit only up to a = {a_fits:.1} px, {:.2} octaves \
-                     above the first scale (--fit), or analyse larger images",
+                     edge), not larger structures; {cure}",
                     self.scales[last_fit],
-                    (a_fits / self.scales[0]).log2()
                 ));
             }
         }

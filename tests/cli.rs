@@ -1604,8 +1604,15 @@ fn pixel_size_gives_lengths() {
         "and the angle-averaged spectrum, isotropic in pixels, mixes",
     );
     assert!(!s["warnings"].to_string().contains("wavelet"));
-    let (code, err) = run_bin_stderr(&["tm", &img, "--pixel-size", "0.5", "--out", &o("t")]);
+    let (code, out, err) =
+        run_bin_output(&["tm", &img, "--pixel-size", "0.5", "--out", &o("t")], true);
     assert_eq!(code, 0, "{err}");
+    // the lengths close the summary as a whole line (scripts read lines)
+    let last = out.lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("  lengths: boxes 1 units - 64 units") && out.ends_with('\n'),
+        "{out:?}"
+    );
     let t = json(&dir.join("t/tm.json"));
     // fit log2 lambda 1:7 of a 256 px image: boxes 2 .. 128 px
     assert_eq!(

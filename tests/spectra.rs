@@ -1703,7 +1703,8 @@ fn flat_areas_are_named_not_taken_for_terraces() {
 /// transform is periodic, so on a small torus the largest scales see the
 /// image's own copies. Gauss (support radius 3.2 a), 3 octaves from 1.5 px,
 /// default fit up to a = 11.2 px, 72 px across: wider than a 64^2 torus,
-/// not than a 96^2 one.
+/// not than a 96^2 one. The cure it names is a --fit that the spectra
+/// accept: a = 1.5 * 2^2.7 = 9.75 px, the last grid scale within 64 / 6.4 px.
 #[test]
 fn a_wavelet_wider_than_the_image_is_said() {
     let cfg = AnalysisConfig {
@@ -1712,24 +1713,34 @@ fn a_wavelet_wider_than_the_image_is_said() {
         ..Default::default()
     };
     let q = [0.0, 1.0, 2.0];
-    let warned = |n: usize| {
+    let sums = |n: usize| {
         let imgs: Vec<_> = (0..3)
             .map(|i| wtmm::Field::new(fbm(FbmParams { hurst: 0.5 }, n, n, 4, i).unwrap()))
             .collect();
-        let sums = wtmm::ensemble_sums(&imgs, &cfg, &q).unwrap();
-        let s = sums
-            .spectra(wtmm::Rule::Plain, sums.default_fit().unwrap())
-            .unwrap();
+        wtmm::ensemble_sums(&imgs, &cfg, &q).unwrap()
+    };
+    let said = |s: &wtmm::spectra::Spectra| {
         s.warnings
             .iter()
             .find(|w| w.contains("wider than the smallest image side"))
             .cloned()
     };
+    let warned = |n: usize| {
+        let sums = sums(n);
+        said(
+            &sums
+                .spectra(wtmm::Rule::Plain, sums.default_fit().unwrap())
+                .unwrap(),
+        )
+    };
+    // the cure named is accepted, and quiets the warning
+    let small = sums(64);
+    assert!(said(&small.spectra(wtmm::Rule::Plain, (0.5, 2.7)).unwrap()).is_none());
     let w = warned(64).expect("64^2 warned");
     assert!(
         w.contains("a = 11.20 px, is 72 px across")
             && w.contains("64 px")
-            && w.contains("up to a = 10.0 px"),
+            && w.contains("up to a = 9.75 px, the largest scale at most 10.0 px (--fit 0.5:2.7)"),
         "{w}"
     );
     assert!(warned(96).is_none());

@@ -443,7 +443,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     )?;
     show!("{}", summary(&res));
     if let Some(p) = &px {
-        show!("{}", lengths_line(&res, p));
+        show!("{}\n", lengths_line(&res, p));
     }
     for w in res.warnings.iter().chain(&extra) {
         say!("warning: {w}");
