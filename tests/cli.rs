@@ -4845,3 +4845,39 @@ fn file_names_that_are_not_utf8_are_recorded_lossily() {
     assert_eq!(o.status.code(), Some(0));
     assert!(String::from_utf8_lossy(&o.stdout).contains("caf\u{fffd}.npy"));
 }
+
+/// Images read in parallel (analyze, tm, pdf and kernel) say their read
+/// warnings in the order the images were given, not in the order the
+/// threads finish: two runs print the same log. Eight fBm files, none
+/// holding the --nodata value, each warned about once, in order (the
+/// warnings came out shuffled, e.g. 0, 2, 1, 3, before).
+#[test]
+fn read_warnings_come_in_input_order() {
+    let dir = scratch("warning_order");
+    let paths: Vec<String> = (0..8)
+        .map(|i| {
+            let p = dir.join(format!("f{i}.npy"));
+            write_npy(&p, &fbm(FbmParams { hurst: 0.5 }, 128, 128, 5, i).unwrap()).unwrap();
+            p.display().to_string()
+        })
+        .collect();
+    for cmd in ["analyze", "tm", "pdf", "kernel"] {
+        let out = dir.join(cmd).display().to_string();
+        let mut args = vec![cmd];
+        args.extend(paths.iter().map(String::as_str));
+        args.extend(["--nodata", "-9999", "--out", &out]);
+        if cmd != "tm" {
+            args.extend(["--octaves", "2"]);
+        }
+        let (code, _, err) = run_bin_output(&args, true);
+        assert_eq!(code, 0, "{cmd}: {err}");
+        let warned: Vec<&str> = err
+            .lines()
+            .filter(|l| l.contains("no pixel equals --nodata -9999"))
+            .collect();
+        assert_eq!(warned.len(), 8, "{cmd}: {err}");
+        for (w, p) in warned.iter().zip(&paths) {
+            assert!(w.contains(&format!("{p}:")), "{cmd}: {err}");
+        }
+    }
+}

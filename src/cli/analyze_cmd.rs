@@ -449,10 +449,12 @@ pub fn analyze_paths(
     } else {
         Parallelism::Serial
     };
-    let parts: Vec<PartitionSums> = paths
+    let notes = super::common::OrderedNotes::default();
+    let parts: Result<Vec<PartitionSums>> = paths
         .par_iter()
-        .map(|p| {
-            let field = super::common::read_image(p, nodata)?;
+        .enumerate()
+        .map(|(i, p)| {
+            let field = super::common::read_image_noted(p, nodata, i, &notes)?;
             super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
             super::common::check_image_memory(p, &field, paths.len() == 1)?;
             // fewer than 3 images: the jackknife runs over tiles
@@ -470,8 +472,10 @@ pub fn analyze_paths(
             pb.inc(1);
             Ok(s)
         })
-        .collect::<Result<_>>()?;
+        .collect();
     pb.finish_and_clear();
+    notes.say();
+    let parts = parts?;
     Ok(PartitionSums::merge_all(parts)?.expect("at least one image"))
 }
 

@@ -381,12 +381,57 @@ pub fn apply_nodata(field: &mut Field, info: &ReadInfo, nodata: Option<f64>) -> 
 /// none is, and an error naming the file when every pixel is missing (the library accepts such a field; no
 /// command can use it) or the values are beyond f64's squares.
 pub fn read_image(path: &Path, nodata: Option<f64>) -> Result<Field> {
+    read_image_with(path, nodata, &mut |w| say!("{w}"))
+}
+
+/// [`read_image`] of image `i` of several read in parallel: its warnings
+/// go to `notes`, said in input order once all are read.
+pub fn read_image_noted(
+    path: &Path,
+    nodata: Option<f64>,
+    i: usize,
+    notes: &OrderedNotes,
+) -> Result<Field> {
+    read_image_with(path, nodata, &mut |w| notes.push(i, w))
+}
+
+/// Warnings of images read in parallel, held back and said in the order
+/// of the images (not the order the threads happened to finish in), so
+/// that two runs print the same log.
+#[derive(Default)]
+pub struct OrderedNotes(std::sync::Mutex<Vec<(usize, String)>>);
+
+impl OrderedNotes {
+    /// Notes `w` for image `i`.
+    pub fn push(&self, i: usize, w: String) {
+        self.0
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push((i, w));
+    }
+
+    /// Says every note, image by image (each image's in the order noted).
+    pub fn say(self) {
+        let mut v = self.0.into_inner().unwrap_or_else(|e| e.into_inner());
+        v.sort_by_key(|&(i, _)| i);
+        for (_, w) in v {
+            say!("{w}");
+        }
+    }
+}
+
+/// [`read_image`] with its warnings (whole lines) given to `note`.
+fn read_image_with(
+    path: &Path,
+    nodata: Option<f64>,
+    note: &mut dyn FnMut(String),
+) -> Result<Field> {
     let (mut field, info) = read_field_with_info(path)?;
     for w in &info.warnings {
-        say!("warning: {}: {w}", path.display());
+        note(format!("warning: {}: {w}", path.display()));
     }
     if let Some(w) = apply_nodata(&mut field, &info, nodata) {
-        say!("warning: {}: {w}", path.display());
+        note(format!("warning: {}: {w}", path.display()));
     }
     if field.valid_count() == 0 {
         return Err(Error::format(

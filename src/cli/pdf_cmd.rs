@@ -452,13 +452,22 @@ impl Input {
 
     /// Image `i` and its label.
     pub fn load(&self, i: usize) -> Result<(Field, String)> {
+        let notes = super::common::OrderedNotes::default();
+        let r = self.load_noted(i, &notes);
+        notes.say();
+        r
+    }
+
+    /// [`Self::load`] with the read's warnings held in `notes` (images
+    /// loaded in parallel say theirs in input order).
+    fn load_noted(&self, i: usize, notes: &super::common::OrderedNotes) -> Result<(Field, String)> {
         if self.generated() {
             let model = self.model.expect("generated inputs have a model");
             let img = model.synthesize(self.size, self.seed, i as u64)?;
             Ok((Field::new(img), format!("{} image {i}", self.name)))
         } else {
             let p = &self.images[i];
-            let field = super::common::read_image(p, self.nodata)?;
+            let field = super::common::read_image_noted(p, self.nodata, i, notes)?;
             super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
             super::common::check_image_memory(p, &field, self.images.len() == 1)?;
             Ok((field, p.display().to_string()))
@@ -482,10 +491,11 @@ impl Input {
             Parallelism::Serial
         };
         let pb = progress(n as u64, msg, quiet);
+        let notes = super::common::OrderedNotes::default();
         let out = (0..n)
             .into_par_iter()
             .try_fold(&init, |mut acc, i| -> Result<A> {
-                let (field, label) = self.load(i)?;
+                let (field, label) = self.load_noted(i, &notes)?;
                 self.holes.add(&field);
                 self.tally.add(&field);
                 step(&mut acc, &field, &label, par).map_err(|e| {
@@ -498,9 +508,10 @@ impl Input {
                 pb.inc(1);
                 Ok(acc)
             })
-            .try_reduce(&init, &merge)?;
+            .try_reduce(&init, &merge);
         pb.finish_and_clear();
-        Ok(out)
+        notes.say();
+        out
     }
 
     /// The input in a message: the file, the files, or the generated

@@ -547,19 +547,22 @@ pub fn accumulate_paths(
     quiet: bool,
 ) -> Result<(Vec<TraceMomentAccumulator>, Vec<ImageInfo>)> {
     let pb = progress(paths.len() as u64, "tm", quiet);
-    let parts: Vec<(TraceMomentAccumulator, ImageInfo)> = paths
+    let notes = super::common::OrderedNotes::default();
+    let parts: Result<Vec<(TraceMomentAccumulator, ImageInfo)>> = paths
         .par_iter()
-        .map(|p| {
-            let field = super::common::read_image(p, nodata)?;
+        .enumerate()
+        .map(|(i, p)| {
+            let field = super::common::read_image_noted(p, nodata, i, &notes)?;
             let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
             acc.add_field(&field)
                 .map_err(|e| super::common::in_file(p, e))?;
             pb.inc(1);
             Ok((acc, ImageInfo::of(&field)))
         })
-        .collect::<Result<_>>()?;
+        .collect();
     pb.finish_and_clear();
-    Ok(parts.into_iter().unzip())
+    notes.say();
+    Ok(parts?.into_iter().unzip())
 }
 
 /// `τ(q) = qH - K(q) - 2` from the measured K(q) and the spectral H (NaN
