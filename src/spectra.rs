@@ -1203,6 +1203,24 @@ impl PartitionSums {
                 ));
             }
         }
+        // A margin given narrower than the wavelet (0 is the torus, said
+        // above when too small): maxima near the border are counted though
+        // their wavelet reaches past it, and the transform wraps there.
+        if let Some(cfg) = &self.analysis
+            && let Some(m) = cfg.margin.filter(|&m| m > 0)
+        {
+            let reach = cfg.wavelet.support_radius() * self.scales[last_fit];
+            if (m as f64) < reach {
+                warnings.push(format!(
+                    "the margin of {m} px (--margin) is narrower than the wavelet's support at \
+                     the largest fitted scale, {reach:.0} px at a = {:.2} px: maxima counted \
+                     nearer the border see past it, where the periodic transform wraps to the \
+                     opposite edge (the default margin, {} px, keeps them out)",
+                    self.scales[last_fit],
+                    crate::cwt::default_margin(cfg.wavelet, cfg.a_max())
+                ));
+            }
+        }
         for qi in 0..nq {
             if !est.tau[qi].is_finite() {
                 warnings.push(format!(

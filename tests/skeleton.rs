@@ -736,8 +736,25 @@ fn all_nan_image_is_a_clear_error() {
 #[test]
 fn image_smaller_than_the_wavelet_is_a_clear_error() {
     let img = Array2::from_shape_fn((64, 64), |(y, x)| (x * y) as f64);
-    let e = skeleton(&Field::new(img), &AnalysisConfig::default()).unwrap_err();
+    let e = skeleton(&Field::new(img.clone()), &AnalysisConfig::default()).unwrap_err();
     assert!(e.to_string().contains("smaller than the wavelet"), "{e}");
+    // a margin as given is named as the fault, with the largest it can be
+    let cfg = AnalysisConfig {
+        margin: Some(32),
+        ..Default::default()
+    };
+    let e = skeleton(&Field::new(img.clone()), &cfg).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("the margin of 32 px on each side (--margin) leaves no interior in an image of 64x64 (give less than 32 px)"),
+        "{e}"
+    );
+    let ok = AnalysisConfig {
+        margin: Some(31),
+        octaves: 1,
+        ..Default::default()
+    };
+    assert!(skeleton(&Field::new(img), &ok).is_ok());
 }
 
 /// No WTMM whose wavelet support (R a) touches a masked pixel.

@@ -1745,3 +1745,40 @@ fn a_wavelet_wider_than_the_image_is_said() {
     );
     assert!(warned(96).is_none());
 }
+
+/// A margin given narrower than the wavelet at the largest fitted scale
+/// is said (maxima near the border see past it); the default margin, the
+/// torus (0) and a wide enough margin are not. Gauss, 2 octaves of 10
+/// voices from 1.5 px: the last scale a = 1.5 * 2^1.9 = 5.60 px, support
+/// 3.2 a = 17.9 px.
+#[test]
+fn a_margin_narrower_than_the_wavelet_is_said() {
+    let q = [0.0, 1.0, 2.0];
+    let imgs: Vec<_> = (0..3)
+        .map(|i| Field::new(fbm(FbmParams { hurst: 0.5 }, 128, 128, 6, i).unwrap()))
+        .collect();
+    let said = |margin: Option<usize>| {
+        let cfg = AnalysisConfig {
+            octaves: 2,
+            margin,
+            ..Default::default()
+        };
+        let sums = wtmm::ensemble_sums(&imgs, &cfg, &q).unwrap();
+        let s = sums.spectra(Rule::Plain, (0.5, 2.0)).unwrap();
+        s.warnings
+            .iter()
+            .find(|w| w.contains("(--margin) is narrower"))
+            .cloned()
+    };
+    let w = said(Some(5)).expect("5 px warned");
+    assert!(
+        w.contains("the margin of 5 px")
+            && w.contains("18 px at a = 5.60 px")
+            && w.contains("the default margin, 18 px"),
+        "{w}"
+    );
+    assert!(said(Some(17)).is_some());
+    for m in [None, Some(0), Some(18)] {
+        assert!(said(m).is_none(), "{m:?}");
+    }
+}

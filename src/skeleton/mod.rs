@@ -353,6 +353,14 @@ impl AnalysisConfig {
     fn no_interior(&self, ny: usize, nx: usize) -> Error {
         let margin = self.margin_px();
         let a_max = self.scale_list().last().copied().unwrap_or(0.0);
+        if self.margin.is_some() {
+            // a margin as given: the margin is at fault, not the image
+            return Error::Input(format!(
+                "the margin of {margin} px on each side (--margin) leaves no interior in an \
+                 image of {ny}x{nx} (give less than {} px)",
+                (ny.min(nx) + 1) / 2
+            ));
+        }
         Error::Input(format!(
             "image {ny}x{nx} is smaller than the wavelet: the interior margin is {margin} px \
              on each side at the largest scale {a_max:.1} px (use fewer octaves or a smaller margin: --octaves, --margin; a periodic image, such as the W-cascades, FISC and FIF fields of `wtmm synth`, is analysed whole as a torus with --margin 0)"
