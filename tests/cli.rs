@@ -4881,3 +4881,44 @@ fn read_warnings_come_in_input_order() {
         }
     }
 }
+
+/// `skeleton --scales` draws each value at the nearest grid scale (within
+/// half a voice) and says so where the two differ; a value on the grid
+/// draws silently.
+#[test]
+fn skeleton_says_which_grid_scale_it_draws() {
+    let dir = scratch("skeleton_scales");
+    let p = fbm_npy(&dir, "a.npy", 128, 3);
+    let out = dir.join("o").display().to_string();
+    let (code, err) = run_bin_stderr(&[
+        "skeleton",
+        &p,
+        "--octaves",
+        "2",
+        "--scales",
+        "3,3.1",
+        "--out",
+        &out,
+    ]);
+    // 3 px is the grid scale 1.5 * 2^1; 3.1 px rounds to it too
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("of another value"), "{err}");
+    let (code, err) = run_bin_stderr(&[
+        "skeleton",
+        &p,
+        "--octaves",
+        "2",
+        "--scales",
+        "3,3.15",
+        "--out",
+        &out,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    // 3.15 px: 0.07 octave above 3, 0.03 below 1.5 * 2^1.1 = 3.215
+    assert!(
+        err.contains("note: --scales 3.15 px drawn at the grid scale 3.215 px"),
+        "{err}"
+    );
+    assert!(!err.contains("--scales 3 px"), "{err}");
+    assert!(dir.join("o/skeleton_j11_a3.22.png").is_file());
+}

@@ -92,6 +92,13 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
                 ),
             ));
         }
+        // drawn at the grid scale, said when it is not the value given
+        if (grid[j] - a).abs() > 5e-4 * a {
+            say!(
+                "note: --scales {a} px drawn at the grid scale {:.3} px",
+                grid[j]
+            );
+        }
         draw.push(j);
     }
     draw.sort_unstable();
