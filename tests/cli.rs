@@ -3056,7 +3056,7 @@ fn merge_says_which_files_it_reads() {
         "serde's position last: {err}"
     );
     assert!(!m.exists());
-    // not JSON at all: the same guidance, serde's detail last
+    // not JSON at all: said so, the same guidance, serde's detail last
     let junk = dir.join("junk.json");
     std::fs::write(&junk, "<html>").unwrap();
     let js = junk.display().to_string();
@@ -3064,8 +3064,21 @@ fn merge_says_which_files_it_reads() {
     assert_eq!(code, 2, "{err}");
     assert!(
         err.contains(&format!(
-            "{js}: not a partition-sums file: merge reads the sums.json"
+            "{js}: not valid JSON (cut short or damaged?): merge reads the sums.json"
         )) && err.contains("wtmm/; the JSON reader said: expected value at line 1 column 1"),
+        "{err}"
+    );
+    // a sums.json cut short (beside a good one): no pointer to the other
+    let text = std::fs::read_to_string(&ja).unwrap();
+    let cut = dir.join("A/cut.json");
+    std::fs::write(&cut, &text[..text.len() / 2]).unwrap();
+    let cs = cut.display().to_string();
+    let (code, err) = run_bin_stderr(&["merge", &cs, "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains(&format!("{cs}: not valid JSON (cut short or damaged?)"))
+            && err.contains("EOF while parsing")
+            && !err.contains("is beside it"),
         "{err}"
     );
     // a sums file that fails its checks keeps the library's message

@@ -203,11 +203,17 @@ fn read_sums(p: &Path) -> Result<PartitionSums> {
 /// "not a partition-sums file (the spectra.json of `wtmm analyze`): merge
 /// reads ...; DIR/sums.json is beside it; the JSON reader said: DETAIL".
 fn not_sums(path: &Path, detail: &str) -> String {
-    // another output of wtmm carries the command that wrote it
-    let command = std::fs::read_to_string(path)
+    let json = std::fs::read_to_string(path)
         .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .and_then(|v| v["command"].as_str().map(String::from));
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
+    // no JSON at all: a file cut short (a copy interrupted) or damaged
+    let Some(json) = json else {
+        return format!(
+            "not valid JSON (cut short or damaged?): {SUMS_FILES}; the JSON reader said: {detail}"
+        );
+    };
+    // another output of wtmm carries the command that wrote it
+    let command = json["command"].as_str().map(String::from);
     let file = path.file_name().map(|f| f.to_string_lossy().into_owned());
     let what = match (command, file) {
         (Some(c), Some(f)) => format!(" (the {f} of `wtmm {c}`)"),

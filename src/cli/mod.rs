@@ -219,7 +219,7 @@ pub struct CwtOpts {
     /// largest scale; 0, the whole torus, for the periodic models generated
     /// by validate, compare, pdf, kernel and correlate, and for the files
     /// `wtmm synth` wrote from them, listed in the synth.json beside them,
-    /// unless --detrend is given).
+    /// unless --detrend plane is given, in the commands that have it).
     #[arg(long)]
     pub margin: Option<usize>,
 }
