@@ -207,10 +207,10 @@ impl TileGrid {
     /// Rows `[ya, yb)` and columns `[xa, xb)` of tile `k`: the pixels of
     /// the domain that [`Self::index`] puts in it.
     ///
-    /// **Panics** if `k >= self.len()` (in debug builds; release builds
-    /// return meaningless bounds).
+    /// **Panics** if `k >= self.len()`.
     pub fn bounds(&self, k: usize) -> (usize, usize, usize, usize) {
-        debug_assert!(k < self.len(), "tile {k} of {}", self.len());
+        // always checked: past the last tile `cut` would recurse without end
+        assert!(k < self.len(), "tile {k} of {}", self.len());
         let (ty, tx) = (k / self.ntx, k % self.ntx);
         (
             self.y0 + cut(ty, self.h, self.nty),
@@ -2942,6 +2942,14 @@ mod tests {
             }
             assert_eq!(seen, (dom.1 - dom.0) * (dom.3 - dom.2), "{dom:?} {side}");
         }
+    }
+
+    /// A tile past the last is a panic in every build (it recursed until
+    /// the stack overflowed in release builds, an abort no caller can catch).
+    #[test]
+    #[should_panic(expected = "tile 1000 of 100")]
+    fn a_tile_past_the_last_panics() {
+        TileGrid::new((0, 100, 0, 100), 10).unwrap().bounds(1000);
     }
 
     /// The batched leave-one-out ensembles are `ensemble(rule, Some(i))`

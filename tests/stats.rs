@@ -2913,3 +2913,46 @@ fn a_lone_image_reports_believable_correlation_errors() {
         );
     }
 }
+
+/// Correlation sums that do not hold together (built by hand, or a JSON
+/// shard truncated or edited) are an error of `correlation_estimates` and
+/// `merge`, not an index panic: a scale's mean, count or pair missing, a
+/// pair past the scales, bins of another length, a tile short of a scale.
+#[test]
+fn inconsistent_correlation_sums_are_refused() {
+    let cfg = CorrelationConfig {
+        scales: vec![2.0, 4.0],
+        pairs: vec![(0, 1)],
+        periodic: true,
+        ..Default::default()
+    };
+    let plan = CorrelationPlan::new(64, 64, &cfg).unwrap();
+    let good = cwt_correlation(&Field::new(noise_field(64, 64, 5)), &plan, "a").unwrap();
+    assert!(good.check().is_ok());
+    assert!(correlation_estimates(&good).is_ok());
+    let breaks: Vec<(&str, Box<dyn Fn(&mut CorrelationSums)>)> = vec![
+        ("mean", Box::new(|s| drop(s.images[0].mean.pop()))),
+        ("n", Box::new(|s| drop(s.images[0].n.pop()))),
+        ("pair sums", Box::new(|s| drop(s.images[0].pairs.pop()))),
+        ("scale", Box::new(|s| drop(s.scales.pop()))),
+        ("pair index", Box::new(|s| s.pairs[0] = (9, 9))),
+        (
+            "bins",
+            Box::new(|s| drop(s.images[0].pairs[0].lcount.pop())),
+        ),
+        ("scale value", Box::new(|s| s.scales[1] = f64::NAN)),
+    ];
+    for (what, brk) in &breaks {
+        let mut bad = good.clone();
+        brk(&mut bad);
+        assert!(correlation_estimates(&bad).is_err(), "{what}");
+        let mut g = good.clone();
+        assert!(g.merge(&bad).is_err(), "{what}");
+    }
+    // a tile short of a scale (tiles serve lone images)
+    let tiled = cwt_correlation_tiled(&Field::new(noise_field(64, 64, 6)), &plan, "t", 16).unwrap();
+    assert!(correlation_estimates(&tiled).is_ok());
+    let mut bad = tiled.clone();
+    bad.images[0].tiles[1].n.pop();
+    assert!(correlation_estimates(&bad).is_err());
+}

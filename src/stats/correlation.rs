@@ -1485,10 +1485,75 @@ pub struct CorrelationSums {
 }
 
 impl CorrelationSums {
+    /// **Errors** unless the sums are whole: positive finite scales, pairs
+    /// of indices into them, and in each image (and each of its tiles) one
+    /// mean and count per scale and one set of binned sums per pair, all
+    /// with the same number of bins. Sums built by hand or deserialised
+    /// (truncated, edited) are checked before they are merged or read
+    /// ([`Self::merge`], [`correlation_estimates`]).
+    pub fn check(&self) -> Result<()> {
+        let ns = self.scales.len();
+        if ns == 0 || !self.scales.iter().all(|a| a.is_finite() && *a > 0.0) {
+            return Err(Error::param(
+                "scales",
+                "the correlation sums need positive, finite scales",
+            ));
+        }
+        if self.pairs.is_empty() || self.pairs.iter().any(|&(a, b)| a >= ns || b >= ns) {
+            return Err(Error::param(
+                "pairs",
+                format!(
+                    "the correlation sums' pairs {:?} must index their {ns} scales",
+                    self.pairs
+                ),
+            ));
+        }
+        let np = self.pairs.len();
+        let nb = self
+            .images
+            .first()
+            .and_then(|im| im.pairs.first())
+            .map_or(0, |p| p.ww.len());
+        let whole = |p: &PairSums| {
+            [&p.ww, &p.wm, &p.mw, &p.count, &p.lcount]
+                .iter()
+                .all(|v| v.len() == nb)
+        };
+        for (i, im) in self.images.iter().enumerate() {
+            let tiles_ok = im.tiles.iter().all(|t| {
+                t.n.len() == ns
+                    && t.wsum.len() == ns
+                    && t.pairs.len() == np
+                    && t.pairs.iter().all(whole)
+            });
+            if nb == 0
+                || im.mean.len() != ns
+                || im.n.len() != ns
+                || im.pairs.len() != np
+                || !im.pairs.iter().all(whole)
+                || !tiles_ok
+            {
+                return Err(Error::Input(format!(
+                    "correlation sums of image {i} ({}): {} means and {} counts for {ns} scales, \
+                     {} sets of binned sums for {np} pairs, each of {nb} bins (as the first \
+                     image's first pair), tiles whole: {tiles_ok}",
+                    im.label,
+                    im.mean.len(),
+                    im.n.len(),
+                    im.pairs.len()
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// Adds `other`'s images.
     ///
-    /// **Errors** if the two were computed with different settings.
+    /// **Errors** if the two were computed with different settings, or
+    /// either fails [`Self::check`].
     pub fn merge(&mut self, other: &CorrelationSums) -> Result<()> {
+        self.check()?;
+        other.check()?;
         let same = self.source == other.source
             && self.pairs == other.pairs
             && self.bins_per_octave == other.bins_per_octave
@@ -2286,11 +2351,12 @@ impl CorrelationResult {
 /// over images in a canonical order (sorted by label and means, so merging
 /// is order-independent), both centrings, delete-one jackknife errors.
 ///
-/// **Errors** if the sums hold no image.
+/// **Errors** if the sums hold no image or fail [`CorrelationSums::check`].
 pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
     if s.images.is_empty() {
         return Err(Error::Input("no image in the correlation sums".into()));
     }
+    s.check()?;
     let mut order: Vec<usize> = (0..s.images.len()).collect();
     order.sort_by(|&a, &b| {
         let (ia, ib) = (&s.images[a], &s.images[b]);

@@ -1017,9 +1017,12 @@ pub fn octave_on_grid(scales: &[f64], o: f64) -> bool {
 /// 57-58; Figs 25-28). See the module doc for the conventions.
 ///
 /// **Errors** if fewer than 3 scales fall in the fit range, an octave is
-/// outside the scales, or a pair is not `a < a'`. Scales short of WTMMM
-/// drop out of the fits: a warning says so ([`check_wtmmm_counts`], which
-/// a caller that wants them refused calls as well).
+/// outside the scales, or a pair is not `a < a'`. A fitted scale with
+/// fewer than [`MIN_WTMMM`] WTMMM has no cumulants, and the `c_n` are then
+/// NaN (not estimable; a fit that skipped the scale would rest on a
+/// different range in each jackknife replicate); scales short of WTMMM
+/// are said in a warning ([`check_wtmmm_counts`], which a caller that
+/// wants them refused calls as well).
 pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelResult> {
     let ns = s.scales.len();
     if s.images.is_empty() {
@@ -1270,8 +1273,8 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         })
         .collect();
     let mut warnings = Vec::new();
-    // scales short of WTMMM drop out of the fits (NaN cumulants): said in
-    // the result, not only by a check the caller might skip
+    // scales short of WTMMM (NaN cumulants, and NaN c_n if fitted): said
+    // in the result, not only by a check the caller might skip
     if let Err(e) = check_wtmmm_counts(s, opts) {
         let why = match e {
             Error::Input(m) => m,
