@@ -2316,10 +2316,38 @@ impl PartitionSums {
 
     /// [`default_fit`] for the grid of these sums: its whole octaves and
     /// its voices, read from the scales (the last scale is one voice short
-    /// of the grid's octaves).
+    /// of the grid's octaves). Scales off a regular grid (a list given as
+    /// `AnalysisConfig::scales`) get the ends moved onto scales of theirs,
+    /// inwards, as [`Self::spectra`] requires: the first scale at or above
+    /// the low end, the last at or below the high end.
     ///
     /// **Errors** if the scales span less than one octave.
     pub fn default_fit(&self) -> Result<(f64, f64)> {
+        let (lo, hi) = self.grid_default_fit()?;
+        let (top, _) = self.grid_span();
+        let a0 = self.scales[0];
+        let octs: Vec<f64> = self.scales.iter().map(|a| (a / a0).log2()).collect();
+        let near = |a: f64, b: f64| (a - b).abs() <= 1e-6;
+        let lo = octs
+            .iter()
+            .copied()
+            .find(|&o| o >= lo || near(o, lo))
+            .map_or(lo, |o| if near(o, lo) { lo } else { o });
+        let hi = if near(hi, top) {
+            hi
+        } else {
+            octs.iter()
+                .copied()
+                .rev()
+                .find(|&o| o <= hi || near(o, hi))
+                .map_or(hi, |o| if near(o, hi) { hi } else { o })
+        };
+        Ok((lo, hi))
+    }
+
+    /// [`default_fit`] of the regular grid the scales' span and first step
+    /// describe.
+    fn grid_default_fit(&self) -> Result<(f64, f64)> {
         let (span, step) = self.grid_span();
         let octaves = (span + 1e-6).floor();
         if !(octaves >= 1.0) {

@@ -1782,3 +1782,47 @@ fn a_margin_narrower_than_the_wavelet_is_said() {
         assert!(said(m).is_none(), "{m:?}");
     }
 }
+
+/// The default fit of sums on scales given as a list (off a regular grid)
+/// is a range the spectra accept: its ends are moved onto the scales
+/// (inwards); on a regular grid it is the grid's default.
+#[test]
+fn the_default_fit_of_listed_scales_is_accepted() {
+    let q = [0.0, 1.0, 2.0];
+    let imgs: Vec<_> = (0..3)
+        .map(|i| Field::new(fbm(FbmParams { hurst: 0.5 }, 160, 160, 9, i).unwrap()))
+        .collect();
+    for (list, want) in [
+        // octaves 0, 0.585, 1, 1.32, 1.585, 2: grid rule (0.5, 2) -> (0.585, 2)
+        (vec![2.0, 3.0, 4.0, 5.0, 6.0, 8.0], (3f64.log2() - 1.0, 2.0)),
+        // from 1.5 px: 0.415 (2 px) is below 0.5, 0.737 (2.5 px) the first
+        // above; the grid rule's 3 octaves end at the last scale, 2.737
+        (
+            vec![1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0],
+            ((2.5f64 / 1.5).log2(), (10.0f64 / 1.5).log2()),
+        ),
+    ] {
+        let cfg = AnalysisConfig {
+            scales: Some(list.clone()),
+            ..Default::default()
+        };
+        let sums = wtmm::ensemble_sums(&imgs, &cfg, &q).unwrap();
+        let fit = sums.default_fit().unwrap();
+        assert!(
+            (fit.0 - want.0).abs() < 1e-9 && (fit.1 - want.1).abs() < 1e-9,
+            "{list:?}: {fit:?}"
+        );
+        let s = sums.spectra(Rule::Plain, fit).unwrap();
+        assert!(s.tau.iter().all(|t| t.is_finite()), "{list:?}");
+    }
+    // a regular grid keeps its default
+    let cfg = AnalysisConfig {
+        octaves: 2,
+        ..Default::default()
+    };
+    let sums = wtmm::ensemble_sums(&imgs, &cfg, &q).unwrap();
+    assert_eq!(
+        sums.default_fit().unwrap(),
+        wtmm::spectra::default_fit(2, 10)
+    );
+}
