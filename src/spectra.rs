@@ -2694,7 +2694,10 @@ pub fn skeleton_sums(
     skeleton_sums_tiled(sk, field, cfg, q, label, 0)
 }
 
-/// [`skeleton_sums`] split over tiles too ([`image_sums_tiled`]).
+/// [`skeleton_sums`] split over tiles too ([`image_sums_tiled`]). The
+/// side is not checked here: [`image_sums_tiled`] refuses one narrower
+/// than twice the largest scale, which makes tiles that are no
+/// independent samples, and many of them (one set of sums each).
 pub fn skeleton_sums_tiled(
     sk: &crate::skeleton::Skeleton,
     field: &crate::Field,

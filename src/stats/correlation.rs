@@ -1639,12 +1639,33 @@ pub fn cwt_correlation_tiled(
             plan.ny, plan.nx
         )));
     }
+    check_tile_side(&plan.cfg, tile_side)?;
     let img = field.transform_input(plan.cfg.detrend)?;
     let fi = plan.cwt.forward(img.view())?;
     let mut ws = plan.take();
     let out = cwt_correlation_in(field, &fi, plan, &mut ws, label.into(), tile_side);
     plan.give(ws);
     out
+}
+
+/// A jackknife tile narrower than twice the largest scale (as
+/// [`crate::spectra::image_sums_tiled`] refuses): its points' wavelets
+/// span its neighbours, so it is no independent sample, and each tile
+/// costs FFTs of the whole domain (a 1 px tile of a 256² image made 65536).
+fn check_tile_side(cfg: &CorrelationConfig, tile_side: usize) -> Result<()> {
+    let a_max = cfg.scales.iter().copied().fold(0.0, f64::max);
+    let min_side = (2.0 * a_max).ceil() as usize;
+    if tile_side > 0 && tile_side < min_side {
+        return Err(Error::param(
+            "tile_side",
+            format!(
+                "{tile_side} px is narrower than twice the largest scale ({min_side} px at a = \
+                 {} px): give 0 (no tiles) or at least {min_side} (default_tile_side)",
+                crate::error::short(a_max)
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn cwt_correlation_in(
@@ -2055,6 +2076,7 @@ pub fn wtmmm_correlation_tiled(
             ),
         ));
     }
+    check_tile_side(&plan.cfg, tile_side)?;
     let tile_domain = Some((y0 - py0, y1 - py0, x0 - px0, x1 - px0));
     wtmmm_sums(points, plan, label.into(), tile_side, tile_domain)
 }

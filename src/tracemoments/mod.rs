@@ -752,6 +752,11 @@ impl TraceMomentAccumulator {
     /// flux pixel are left out; fewer than 2 tiles give one part, the whole
     /// field.
     ///
+    /// One accumulator per tile: a tile narrower than the largest fitted
+    /// box ([`analyze_tiled`] takes that box, [`tile_side`]) is no
+    /// independent sample, and small tiles are many (a 1 px tile of a 256²
+    /// field makes 65536 accumulators).
+    ///
     /// **Errors** as [`Self::add_field`], or if `tile` is 0.
     pub fn field_tiles(
         config: &TraceMomentConfig,
