@@ -6,6 +6,12 @@ use ndarray::{Array2, Axis};
 use crate::error::{Error, Result};
 
 /// A real 2D field `f[y][x]` with an optional mask (`true` = missing).
+///
+/// The fields are public; [`Field::new`] and [`Field::with_mask`] keep
+/// them consistent. A field assembled by hand with a mask of another
+/// shape is refused by the analyses ([`Field::check`]), but the `Field`
+/// methods assume the shapes agree: **Panics** (or, for counts, wrong
+/// answers) there.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Field {
     /// Values; masked pixels hold NaN.

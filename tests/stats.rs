@@ -2931,14 +2931,36 @@ fn inconsistent_correlation_sums_are_refused() {
     assert!(good.check().is_ok());
     assert!(correlation_estimates(&good).is_ok());
     let breaks: Vec<(&str, Box<dyn Fn(&mut CorrelationSums)>)> = vec![
-        ("mean", Box::new(|s| drop(s.images[0].mean.pop()))),
-        ("n", Box::new(|s| drop(s.images[0].n.pop()))),
-        ("pair sums", Box::new(|s| drop(s.images[0].pairs.pop()))),
-        ("scale", Box::new(|s| drop(s.scales.pop()))),
+        (
+            "mean",
+            Box::new(|s| {
+                s.images[0].mean.pop();
+            }),
+        ),
+        (
+            "n",
+            Box::new(|s| {
+                s.images[0].n.pop();
+            }),
+        ),
+        (
+            "pair sums",
+            Box::new(|s| {
+                s.images[0].pairs.pop();
+            }),
+        ),
+        (
+            "scale",
+            Box::new(|s| {
+                s.scales.pop();
+            }),
+        ),
         ("pair index", Box::new(|s| s.pairs[0] = (9, 9))),
         (
             "bins",
-            Box::new(|s| drop(s.images[0].pairs[0].lcount.pop())),
+            Box::new(|s| {
+                s.images[0].pairs[0].lcount.pop();
+            }),
         ),
         ("scale value", Box::new(|s| s.scales[1] = f64::NAN)),
     ];

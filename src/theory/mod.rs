@@ -624,9 +624,12 @@ impl TheoryTable {
     /// The table of `model` on the grid `q`.
     ///
     /// **Errors** on a model whose parameters are out of range
-    /// ([`Model::validate`]: its closed forms would be NaN or meaningless).
+    /// ([`Model::validate`]: its closed forms would be NaN or meaningless),
+    /// or a q grid the spectra refuse ([`crate::spectra::check_q`]: a
+    /// non-finite or huge q).
     pub fn new(model: &Model, q: &[f64]) -> Result<Self> {
         model.validate()?;
+        crate::spectra::check_q(q)?;
         let (h_min, h_max) = model.h_range();
         // an unbounded support (FIF with α <= 1) is sampled up to h(q = 0.001)
         let h_hi = if h_max.is_finite() {
@@ -708,6 +711,12 @@ mod tests {
         });
         let e = TheoryTable::new(&bad, &[0.0, 1.0]).unwrap_err().to_string();
         assert!(e.contains("`p`") && e.contains("0.7"), "{e}");
+        // a q grid the spectra refuse is refused here too (it gave NaN, -inf)
+        let good = Model::preset("paper-lognormal").unwrap().model;
+        for q in [vec![0.0, f64::NAN], vec![1e308], vec![]] {
+            let e = TheoryTable::new(&good, &q).unwrap_err().to_string();
+            assert!(e.contains("`q`"), "{q:?}: {e}");
+        }
     }
 
     #[test]
