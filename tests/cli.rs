@@ -2868,6 +2868,25 @@ fn merge_refuses_to_count_a_shard_or_an_image_twice() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("a_copy.npy") && err.contains(&ja), "{err}");
     assert!(!m.exists(), "output directory created");
+    // the image flipped left-right: the same maxima, sums equal to rounding
+    let flipped = read_field(Path::new(&a))
+        .unwrap()
+        .data
+        .slice(ndarray::s![.., ..;-1])
+        .to_owned();
+    write_npy(&dir.join("a_flip.npy"), &flipped).unwrap();
+    let jf = merge_shard(
+        &dir.join("a_flip.npy").display().to_string(),
+        &dir.join("F"),
+        &[],
+    );
+    let (code, err) = run_bin_stderr(&["merge", &ja, &jf, "--fit", "0.5:2", "--out", &ms]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("a copy, or the image flipped or transposed") && err.contains(&ja),
+        "{err}"
+    );
+    assert!(!m.exists(), "output directory created");
     // an image and its negative (the same moduli, the same sums) in one
     // shard that analyze wrote: merged, not refused
     let neg = dir.join("neg.npy");

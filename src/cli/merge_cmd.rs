@@ -228,6 +228,25 @@ fn not_sums(path: &Path, detail: &str) -> String {
     format!("not a partition-sums file{what}: {SUMS_FILES}{beside}; the JSON reader said: {detail}")
 }
 
+/// Cells of the same sums to 1e-9 relative: the same image, or the image
+/// flipped or transposed (the same maxima, summed in another order, so
+/// equal only to the FFT's rounding). Distinct images never come so near.
+fn same_cells(a: &[crate::spectra::Cell], b: &[crate::spectra::Cell]) -> bool {
+    let near = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs());
+    a.len() == b.len()
+        && a.iter().zip(b).all(|(c, d)| {
+            if c.z == 0.0 || d.z == 0.0 {
+                return c.z == d.z;
+            }
+            // the exponents of a value near a power of two may differ by one
+            let k = match d.e.checked_sub(c.e) {
+                Some(k) if k.abs() <= 1 => (k as f64).exp2(),
+                _ => return false,
+            };
+            near(c.z, d.z * k) && near(c.zl, d.zl * k) && near(c.z2, d.z2 * k * k)
+        })
+}
+
 /// The same image in two shards (the same line counts and sums, whatever
 /// its label: a copy analysed under another name, as analyze refuses for
 /// files of the same content) would be counted twice: an error naming both
@@ -242,10 +261,9 @@ fn check_duplicate_images(paths: &[PathBuf], owner: &[usize], sums: &PartitionSu
             continue;
         }
         let same = seen.entry(im.lines.as_slice()).or_default();
-        if let Some((g, o)) = same
-            .iter()
-            .find(|(g, o)| *g != f && o.plain == im.plain && o.sup == im.sup)
-        {
+        if let Some((g, o)) = same.iter().find(|(g, o)| {
+            *g != f && same_cells(&o.plain, &im.plain) && same_cells(&o.sup, &im.sup)
+        }) {
             let label = if o.label == im.label {
                 format!("image {:?}", im.label)
             } else {
@@ -255,8 +273,9 @@ fn check_duplicate_images(paths: &[PathBuf], owner: &[usize], sums: &PartitionSu
             return Err(Error::format(
                 &paths[f],
                 format!(
-                    "{label} is {there}, with the same line counts and sums: one image twice \
-                     would pass for two independent samples and shrink the error bars"
+                    "{label} is {there}, with the same line counts and sums (to 1e-9: a copy, \
+                     or the image flipped or transposed): one image twice would pass for two \
+                     independent samples and shrink the error bars"
                 ),
             ));
         }
