@@ -2874,7 +2874,7 @@ fn merge_refuses_to_count_a_shard_or_an_image_twice() {
         .data
         .slice(ndarray::s![.., ..;-1])
         .to_owned();
-    write_npy(&dir.join("a_flip.npy"), &flipped).unwrap();
+    write_npy(dir.join("a_flip.npy"), &flipped).unwrap();
     let jf = merge_shard(
         &dir.join("a_flip.npy").display().to_string(),
         &dir.join("F"),

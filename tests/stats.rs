@@ -2930,7 +2930,8 @@ fn inconsistent_correlation_sums_are_refused() {
     let good = cwt_correlation(&Field::new(noise_field(64, 64, 5)), &plan, "a").unwrap();
     assert!(good.check().is_ok());
     assert!(correlation_estimates(&good).is_ok());
-    let breaks: Vec<(&str, Box<dyn Fn(&mut CorrelationSums)>)> = vec![
+    type Break = Box<dyn Fn(&mut CorrelationSums)>;
+    let breaks: Vec<(&str, Break)> = vec![
         (
             "mean",
             Box::new(|s| {

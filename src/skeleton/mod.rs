@@ -358,7 +358,7 @@ impl AnalysisConfig {
             return Error::Input(format!(
                 "the margin of {margin} px on each side (--margin) leaves no interior in an \
                  image of {ny}x{nx} (give less than {} px)",
-                (ny.min(nx) + 1) / 2
+                ny.min(nx).div_ceil(2)
             ));
         }
         Error::Input(format!(
