@@ -2458,18 +2458,11 @@ pub fn image_sums_tiled(
     check_q(q)?;
     cfg.validate()?;
     field.check()?;
-    let a_max = cfg.a_max();
-    let min_side = (2.0 * a_max).ceil() as usize;
-    if tile_side > 0 && tile_side < min_side {
-        return Err(Error::param(
-            "tile_side",
-            format!(
-                "{tile_side} px is narrower than twice the largest scale ({min_side} px at a = \
-                 {a_max:.1} px): tiles that share their maxima lines are no jackknife groups \
-                 (default_tile_side)"
-            ),
-        ));
-    }
+    check_tile_side(
+        tile_side,
+        cfg.a_max(),
+        "tiles that share their maxima lines are no jackknife groups",
+    )?;
     let sk = crate::skeleton::skeleton_with(field, cfg, par, &[])?;
     let sums = skeleton_sums_tiled(&sk, field, cfg, q, label, tile_side);
     // an image with no line adds nothing to an ensemble: said at once, with
@@ -2692,6 +2685,23 @@ pub fn skeleton_sums(
     label: impl Into<String>,
 ) -> PartitionSums {
     skeleton_sums_tiled(sk, field, cfg, q, label, 0)
+}
+
+/// Refuses a jackknife tile side (0: no tiles) narrower than twice the
+/// largest scale `a_max`, saying `why` such tiles are no groups.
+pub(crate) fn check_tile_side(tile_side: usize, a_max: f64, why: &str) -> Result<()> {
+    let min_side = (2.0 * a_max).ceil() as usize;
+    if tile_side > 0 && tile_side < min_side {
+        return Err(Error::param(
+            "tile_side",
+            format!(
+                "{tile_side} px is narrower than twice the largest scale ({min_side} px at a = \
+                 {a_max:.1} px): {why}; give 0 (no tiles) or at least {min_side} \
+                 (default_tile_side)"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// [`skeleton_sums`] split over tiles too ([`image_sums_tiled`]). The

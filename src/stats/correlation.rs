@@ -1654,18 +1654,11 @@ pub fn cwt_correlation_tiled(
 /// costs FFTs of the whole domain (a 1 px tile of a 256² image made 65536).
 fn check_tile_side(cfg: &CorrelationConfig, tile_side: usize) -> Result<()> {
     let a_max = cfg.scales.iter().copied().fold(0.0, f64::max);
-    let min_side = (2.0 * a_max).ceil() as usize;
-    if tile_side > 0 && tile_side < min_side {
-        return Err(Error::param(
-            "tile_side",
-            format!(
-                "{tile_side} px is narrower than twice the largest scale ({min_side} px at a = \
-                 {} px): give 0 (no tiles) or at least {min_side} (default_tile_side)",
-                crate::error::short(a_max)
-            ),
-        ));
-    }
-    Ok(())
+    crate::spectra::check_tile_side(
+        tile_side,
+        a_max,
+        "a tile's points see its neighbours through their wavelets",
+    )
 }
 
 fn cwt_correlation_in(
