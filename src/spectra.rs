@@ -1175,24 +1175,27 @@ impl PartitionSums {
             let r = cfg.wavelet.support_radius();
             let across = 2.0 * r * self.scales[last_fit];
             if across > side as f64 {
-                // the cure names a scale of the grid, since --fit takes
-                // only those (an octave between two is refused above)
+                // the cure names scales of the grid, since --fit takes
+                // only those (an octave between two is refused above), and
+                // keeps the 3 scales a fit needs
                 let a_fits = side as f64 / (2.0 * r);
+                let first = in_fit[0];
                 let cure = match self
                     .scales
                     .iter()
                     .rposition(|&a| a <= a_fits * (1.0 + 1e-12))
                 {
-                    Some(j) if log2_a[j] - oct0 > fit.0 + 1e-6 => format!(
+                    Some(j) if j >= first + 2 => format!(
                         "fit only up to a = {:.2} px, the largest scale at most {a_fits:.1} px \
                          (--fit {}:{}), or analyse larger images",
                         self.scales[j],
-                        short(fit.0),
-                        short(log2_a[j] - oct0)
+                        octave_arg(log2_a[first] - oct0),
+                        octave_arg(log2_a[j] - oct0)
                     ),
-                    _ => {
-                        format!("no fitted scale is at most {a_fits:.1} px: analyse larger images")
-                    }
+                    _ => format!(
+                        "fewer than 3 fitted scales are at most {a_fits:.1} px: fit from smaller \
+                         scales, or analyse larger images"
+                    ),
                 };
                 warnings.push(format!(
                     "the wavelet's support at the largest fitted scale, a = {:.2} px, is {across:.0} \
@@ -1211,6 +1214,8 @@ impl PartitionSums {
         {
             let reach = cfg.wavelet.support_radius() * self.scales[last_fit];
             if (m as f64) < reach {
+                // in whole pixels as the margins are (31.2 px reads 32)
+                let reach = reach.ceil();
                 warnings.push(format!(
                     "the margin of {m} px (--margin) is narrower than the wavelet's support at \
                      the largest fitted scale, {reach:.0} px at a = {:.2} px: maxima counted \
@@ -2321,7 +2326,8 @@ impl PartitionSums {
     /// inwards, as [`Self::spectra`] requires: the first scale at or above
     /// the low end, the last at or below the high end.
     ///
-    /// **Errors** if the scales span less than one octave.
+    /// **Errors** if the scales span less than one octave, or a sparse
+    /// list holds fewer than 3 scales in the range.
     pub fn default_fit(&self) -> Result<(f64, f64)> {
         let (lo, hi) = self.grid_default_fit()?;
         let (top, _) = self.grid_span();
@@ -2342,6 +2348,22 @@ impl PartitionSums {
                 .find(|&o| o <= hi || near(o, hi))
                 .map_or(hi, |o| if near(o, hi) { hi } else { o })
         };
+        // a sparse list can leave fewer than the 3 scales a fit needs
+        let held = octs
+            .iter()
+            .filter(|&&o| o >= lo - 1e-6 && o <= hi + 1e-6)
+            .count();
+        if held < 3 {
+            return Err(Error::param(
+                "fit",
+                format!(
+                    "the scales hold {held} scale(s) in the default fit range ({}:{} octaves \
+                     above the first), fewer than the 3 a fit needs: give the range",
+                    octave_arg(lo),
+                    octave_arg(hi)
+                ),
+            ));
+        }
         Ok((lo, hi))
     }
 
@@ -2685,6 +2707,14 @@ pub fn skeleton_sums(
     label: impl Into<String>,
 ) -> PartitionSums {
     skeleton_sums_tiled(sk, field, cfg, q, label, 0)
+}
+
+/// An octave for a `--fit` the user may type back: 9 decimals, trailing
+/// zeros trimmed (2/3 octave reads 0.666666667, within the 1e-6 the fit
+/// ends are matched to; [`short`]'s 6 digits are not).
+fn octave_arg(o: f64) -> String {
+    let s = format!("{o:.9}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
 /// Refuses a jackknife tile side (0: no tiles) narrower than twice the

@@ -4878,7 +4878,7 @@ fn file_names_that_are_not_utf8_are_recorded_lossily() {
     assert!(String::from_utf8_lossy(&o.stdout).contains("caf\u{fffd}.npy"));
 }
 
-/// Images read in parallel (analyze, tm, pdf and kernel) say their read
+/// Images read in parallel (analyze, tm, pdf, kernel, correlate) say their read
 /// warnings in the order the images were given, not in the order the
 /// threads finish: two runs print the same log. Eight fBm files, none
 /// holding the --nodata value, each warned about once, in order (the
@@ -4893,7 +4893,7 @@ fn read_warnings_come_in_input_order() {
             p.display().to_string()
         })
         .collect();
-    for cmd in ["analyze", "tm", "pdf", "kernel"] {
+    for cmd in ["analyze", "tm", "pdf", "kernel", "correlate"] {
         let out = dir.join(cmd).display().to_string();
         let mut args = vec![cmd];
         args.extend(paths.iter().map(String::as_str));

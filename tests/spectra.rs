@@ -1736,6 +1736,37 @@ fn a_wavelet_wider_than_the_image_is_said() {
     // the cure named is accepted, and quiets the warning
     let small = sums(64);
     assert!(said(&small.spectra(wtmm::Rule::Plain, (0.5, 2.7)).unwrap()).is_none());
+    // a fit that keeps fewer than 3 scales below 10 px gets no --fit to try
+    let w = said(&small.spectra(wtmm::Rule::Plain, (2.6, 3.0)).unwrap()).unwrap();
+    assert!(
+        w.contains("fewer than 3 fitted scales are at most 10.0 px"),
+        "{w}"
+    );
+    // 6 voices: the octaves named are typed back to within 1e-6 (8/3
+    // octaves printed to 6 digits was refused as between two scales)
+    let cfg3 = AnalysisConfig {
+        octaves: 4,
+        voices: 6,
+        margin: Some(0),
+        ..Default::default()
+    };
+    let imgs: Vec<_> = (0..3)
+        .map(|i| wtmm::Field::new(fbm(FbmParams { hurst: 0.5 }, 64, 64, 4, i).unwrap()))
+        .collect();
+    let s3 = wtmm::ensemble_sums(&imgs, &cfg3, &q).unwrap();
+    let w = said(&s3.spectra(wtmm::Rule::Plain, (1.0, 3.0)).unwrap()).unwrap();
+    let cure = w
+        .split("(--fit ")
+        .nth(1)
+        .and_then(|r| r.split(')').next())
+        .unwrap();
+    let (lo, hi) = cure.split_once(':').unwrap();
+    let fit: (f64, f64) = (lo.parse().unwrap(), hi.parse().unwrap());
+    assert_eq!(cure, "1:2.666666667", "{w}");
+    assert!(
+        said(&s3.spectra(wtmm::Rule::Plain, fit).unwrap()).is_none(),
+        "{w}"
+    );
     let w = warned(64).expect("64^2 warned");
     assert!(
         w.contains("a = 11.20 px, is 72 px across")
@@ -1777,7 +1808,13 @@ fn a_margin_narrower_than_the_wavelet_is_said() {
             && w.contains("the default margin, 18 px"),
         "{w}"
     );
-    assert!(said(Some(17)).is_some());
+    // the support in whole pixels: 17.9 px reads 18, not a margin of 17
+    // "narrower than 17 px"
+    let w = said(Some(17)).expect("17 px warned");
+    assert!(
+        w.contains("the margin of 17 px") && w.contains(", 18 px at a = 5.60 px"),
+        "{w}"
+    );
     for m in [None, Some(0), Some(18)] {
         assert!(said(m).is_none(), "{m:?}");
     }
@@ -1814,6 +1851,16 @@ fn the_default_fit_of_listed_scales_is_accepted() {
         );
         let s = sums.spectra(Rule::Plain, fit).unwrap();
         assert!(s.tau.iter().all(|t| t.is_finite()), "{list:?}");
+    }
+    // a sparse list holding fewer than 3 scales in the range: said
+    for list in [vec![1.5, 1.65, 1.8, 1.95, 9.0], vec![1.5, 1.65, 6.0]] {
+        let cfg = AnalysisConfig {
+            scales: Some(list.clone()),
+            ..Default::default()
+        };
+        let sums = wtmm::ensemble_sums(&imgs, &cfg, &q).unwrap();
+        let e = sums.default_fit().unwrap_err().to_string();
+        assert!(e.contains("fewer than the 3 a fit needs"), "{list:?}: {e}");
     }
     // a regular grid keeps its default
     let cfg = AnalysisConfig {

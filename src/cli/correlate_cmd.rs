@@ -322,7 +322,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let side = if input.generated() {
         input.size as f64
     } else {
-        let (f0, _) = input.load(0)?;
+        let (f0, _) = input.reload(0)?;
         let (ny, nx) = f0.dim();
         ny.min(nx) as f64
     };
@@ -429,7 +429,7 @@ fn cost_ratio(
     ccfg: &CorrelationConfig,
     tiles: bool,
 ) -> Result<(f64, f64, f64, Option<f64>)> {
-    let (field, _) = input.load(0)?;
+    let (field, _) = input.reload(0)?;
     let (ny, nx) = field.dim();
     let plan = CorrelationPlan::new(ny, nx, ccfg)?;
     // thread CPU time per call, minimum over batches: the machine may be shared

@@ -458,6 +458,12 @@ impl Input {
         r
     }
 
+    /// [`Self::load`] of an image already loaded (and warned about) once:
+    /// its read warnings are not said again.
+    pub fn reload(&self, i: usize) -> Result<(Field, String)> {
+        self.load_noted(i, &super::common::OrderedNotes::default())
+    }
+
     /// [`Self::load`] with the read's warnings held in `notes` (images
     /// loaded in parallel say theirs in input order).
     fn load_noted(&self, i: usize, notes: &super::common::OrderedNotes) -> Result<(Field, String)> {

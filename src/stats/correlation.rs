@@ -1623,7 +1623,10 @@ pub fn cwt_correlation(
 /// ([`crate::spectra::TileGrid`]; none when fewer than 2 fit or the side
 /// is 0): the jackknife groups of a lone image
 /// ([`correlation_estimates`]). Each tile costs one FFT per distinct first
-/// scale plus one, and four inverse FFTs per pair.
+/// scale plus one, and four inverse FFTs per pair, so the side is a cost:
+/// [`default_tile_side`] makes 4 x 4 tiles, and a 1 px side on a 256²
+/// image made 65536 (92 s). The side is not bounded by the scales: the
+/// default of a small domain is narrower than twice the largest scale.
 ///
 /// **Errors** as [`cwt_correlation`].
 pub fn cwt_correlation_tiled(
@@ -1639,26 +1642,12 @@ pub fn cwt_correlation_tiled(
             plan.ny, plan.nx
         )));
     }
-    check_tile_side(&plan.cfg, tile_side)?;
     let img = field.transform_input(plan.cfg.detrend)?;
     let fi = plan.cwt.forward(img.view())?;
     let mut ws = plan.take();
     let out = cwt_correlation_in(field, &fi, plan, &mut ws, label.into(), tile_side);
     plan.give(ws);
     out
-}
-
-/// A jackknife tile narrower than twice the largest scale (as
-/// [`crate::spectra::image_sums_tiled`] refuses): its points' wavelets
-/// span its neighbours, so it is no independent sample, and each tile
-/// costs FFTs of the whole domain (a 1 px tile of a 256² image made 65536).
-fn check_tile_side(cfg: &CorrelationConfig, tile_side: usize) -> Result<()> {
-    let a_max = cfg.scales.iter().copied().fold(0.0, f64::max);
-    crate::spectra::check_tile_side(
-        tile_side,
-        a_max,
-        "a tile's points see its neighbours through their wavelets",
-    )
 }
 
 fn cwt_correlation_in(
@@ -2069,7 +2058,6 @@ pub fn wtmmm_correlation_tiled(
             ),
         ));
     }
-    check_tile_side(&plan.cfg, tile_side)?;
     let tile_domain = Some((y0 - py0, y1 - py0, x0 - px0, x1 - px0));
     wtmmm_sums(points, plan, label.into(), tile_side, tile_domain)
 }
