@@ -2327,7 +2327,7 @@ impl PartitionSums {
     /// the low end, the last at or below the high end.
     ///
     /// **Errors** if the scales span less than one octave, or a sparse
-    /// list holds fewer than 3 scales in the range.
+    /// list holds no scale in the range (its ends would cross).
     pub fn default_fit(&self) -> Result<(f64, f64)> {
         let (lo, hi) = self.grid_default_fit()?;
         let (top, _) = self.grid_span();
@@ -2348,17 +2348,14 @@ impl PartitionSums {
                 .find(|&o| o <= hi || near(o, hi))
                 .map_or(hi, |o| if near(o, hi) { hi } else { o })
         };
-        // a sparse list can leave fewer than the 3 scales a fit needs
-        let held = octs
-            .iter()
-            .filter(|&&o| o >= lo - 1e-6 && o <= hi + 1e-6)
-            .count();
-        if held < 3 {
+        // a sparse list can move the ends past each other (an empty range
+        // stays a range, refused by the fit as too few scales, as on a grid)
+        if lo > hi + 1e-6 {
             return Err(Error::param(
                 "fit",
                 format!(
-                    "the scales hold {held} scale(s) in the default fit range ({}:{} octaves \
-                     above the first), fewer than the 3 a fit needs: give the range",
+                    "the scales hold none in the default fit range (moved onto them it reads \
+                     {}:{} octaves above the first): give the range",
                     octave_arg(lo),
                     octave_arg(hi)
                 ),
