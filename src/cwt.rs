@@ -51,12 +51,15 @@ fn gauss_tail_at_3_2() -> f64 {
     Wavelet::Gauss.tail_fraction(3.2)
 }
 
-/// The analysing wavelet (SPEC §1).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+/// The analysing wavelet (SPEC §1). The default is gauss, the paper's
+/// (II §2) and [`crate::AnalysisConfig`]'s; fields with h above 1 (FISC)
+/// need mexican.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Wavelet {
     /// First derivatives of a Gaussian: 1 vanishing moment.
+    #[default]
     Gauss,
     /// First derivatives of the Mexican hat `-∇²gaussian`: 3 vanishing moments.
     Mexican,

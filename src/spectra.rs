@@ -552,6 +552,13 @@ impl PartitionSums {
     /// Adds `other`'s images. The result does not depend on the order of
     /// merges (sums are taken in a canonical order when finalised).
     ///
+    /// Images are not compared: sums merged twice count as two images, and
+    /// their jackknife sees less spread than there is (zero for one image
+    /// merged with itself). An image and its negative, or its mirror
+    /// image, also give equal sums, so equality alone cannot tell a copy
+    /// from a second image; `wtmm merge` refuses equal images from two
+    /// different shard files.
+    ///
     /// **Errors** if the q grids or the scales differ.
     pub fn merge(&mut self, other: &PartitionSums) -> Result<()> {
         if self.q != other.q {

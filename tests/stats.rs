@@ -14,7 +14,9 @@ use wtmm::stats::correlation::{
     cwt_correlation, cwt_correlation_tiled, field_correlation, wtmmm_correlation,
     wtmmm_correlation_tiled,
 };
-use wtmm::stats::kernel::{KernelConfig, KernelOptions, KernelSums, kernel_estimates, reconstruct};
+use wtmm::stats::kernel::{
+    KernelConfig, KernelOptions, KernelSums, ensemble_kernel_sums, kernel_estimates, reconstruct,
+};
 use wtmm::stats::pdf::{
     PdfConfig, PdfOptions, Point, WtmmmHistograms, WtmmmSet, image_wtmmm, wtmmm_pdfs,
 };
@@ -2731,6 +2733,64 @@ fn a_lone_image_reports_believable_kernel_errors() {
         );
         assert!(reg / sd < 0.5, "c{}: {}", k + 1, reg / sd);
     }
+}
+
+/// `ensemble_kernel_sums` is `wtmm kernel`'s recipe in one call: the sums
+/// of the hand-wired steps (each field's WTMMM, tiles below 3 fields, the
+/// merge) to the bit, in both WTMMM sets; the estimates then carry tile
+/// errors; a field with no WTMMM, or no field, is an error that says so.
+#[test]
+fn ensemble_kernel_sums_is_the_kernel_recipe_in_one_call() {
+    let model = Model::preset("paper-lognormal").unwrap().model;
+    let cfg = AnalysisConfig {
+        octaves: 3,
+        ..AnalysisConfig::for_field(true)
+    };
+    assert_eq!(cfg.wavelet, Wavelet::default());
+    let n = 128;
+    let fields: Vec<Field> = (0..2)
+        .map(|i| Field::new(model.synthesize(n, 5, i).unwrap()))
+        .collect();
+    let (kcfg, scales) = (KernelConfig::default(), cfg.scale_list());
+    let side = wtmm::spectra::default_tile_side(&cfg, n, n);
+    for set in [WtmmmSet::Lines, WtmmmSet::All] {
+        let got = ensemble_kernel_sums(&fields, &cfg, kcfg, set).unwrap();
+        let mut want: Option<KernelSums> = None;
+        for (i, f) in fields.iter().enumerate() {
+            let w = image_wtmmm(f, &cfg, Parallelism::Serial, true).unwrap();
+            let s = KernelSums::from_points_tiled(
+                &scales,
+                kcfg,
+                set,
+                w.set(set),
+                format!("image {i}"),
+                w.domain,
+                side,
+            )
+            .unwrap();
+            match want.as_mut() {
+                None => want = Some(s),
+                Some(x) => x.merge(&s).unwrap(),
+            }
+        }
+        assert_eq!(got, want.unwrap(), "{set:?}");
+        assert!(got.images.iter().all(|im| im.tiles.len() >= 2), "{set:?}");
+        let k = kernel_estimates(&got, &KernelOptions::for_scales(&scales, (0.5, 3.0))).unwrap();
+        assert!(k.stderr_method.contains("tiles"), "{}", k.stderr_method);
+        let c = &k.cumulants;
+        for e in [c.c1, c.c2, c.c3] {
+            assert!(e.stderr.is_finite() && e.stderr > 0.0, "{e:?}");
+        }
+    }
+    let flat = Field::new(Array2::from_elem((n, n), 3.0));
+    let e = ensemble_kernel_sums(&[fields[0].clone(), flat], &cfg, kcfg, WtmmmSet::Lines)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("image 1") && e.contains("constant"), "{e}");
+    let e = ensemble_kernel_sums(&[], &cfg, kcfg, WtmmmSet::Lines)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no field"), "{e}");
 }
 
 /// The tiles run in parallel: their sums are the same bits on 1 and 3

@@ -92,7 +92,7 @@ impl Default for AnalysisConfig {
     fn default() -> Self {
         let g = ScaleGrid::default();
         AnalysisConfig {
-            wavelet: Wavelet::Gauss,
+            wavelet: Wavelet::default(),
             a_min: g.a_min,
             octaves: g.octaves,
             voices: g.voices,

@@ -912,6 +912,78 @@ pub struct KernelResult {
 /// take for a measurement, and of none it is NaN, which the fit would skip.
 pub const MIN_WTMMM: u64 = 3;
 
+/// The kernel sums of an ensemble of fields held in memory, made as `wtmm
+/// kernel` makes them from files: each field's WTMMM of `set`
+/// ([`crate::stats::pdf::image_wtmmm`], lines linked only for
+/// [`WtmmmSet::Lines`]), one field at a time in parallel (a lone field's
+/// scales in parallel instead), and with fewer than 3 fields each split
+/// into the tiles of [`crate::spectra::default_tile_side`] so that the
+/// jackknife runs over them ([`KernelSums::from_points_tiled`]). Then
+/// [`kernel_estimates`] with [`KernelOptions::for_scales`]`(&cfg.scale_list(),
+/// fit)` gives c1, c2, c3 with the errors `kernel` reports. Field `i` is
+/// labelled `image i`.
+///
+/// **Errors** with no field, an invalid `cfg` or `kcfg`, or a field that
+/// the skeleton refuses or that keeps no WTMMM (naming the field and the
+/// likely cause).
+pub fn ensemble_kernel_sums(
+    fields: &[crate::Field],
+    cfg: &crate::skeleton::AnalysisConfig,
+    kcfg: KernelConfig,
+    set: WtmmmSet,
+) -> Result<KernelSums> {
+    use rayon::prelude::*;
+    // before sizing tiles from them
+    cfg.validate()?;
+    kcfg.validate()?;
+    let scales = cfg.scale_list();
+    let par = if fields.len() == 1 {
+        crate::skeleton::Parallelism::Scales
+    } else {
+        crate::skeleton::Parallelism::Serial
+    };
+    let named = |i: usize| {
+        move |e: Error| match e {
+            Error::Input(m) => Error::Input(format!("image {i}: {m}")),
+            e => e,
+        }
+    };
+    let parts = fields
+        .par_iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let w = crate::stats::pdf::image_wtmmm(f, cfg, par, set == WtmmmSet::Lines)
+                .map_err(named(i))?;
+            if w.set(set).first().is_none_or(|v| v.is_empty()) {
+                return Err(named(i)(Error::Input(cfg.why_no_maxima(f))));
+            }
+            let side = if fields.len() < 3 {
+                let (ny, nx) = f.dim();
+                crate::spectra::default_tile_side(cfg, ny, nx)
+            } else {
+                0
+            };
+            KernelSums::from_points_tiled(
+                &scales,
+                kcfg,
+                set,
+                w.set(set),
+                format!("image {i}"),
+                w.domain,
+                side,
+            )
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut it = parts.into_iter();
+    let mut acc = it
+        .next()
+        .ok_or_else(|| Error::Input("no field given".into()))?;
+    for p in it {
+        acc.merge(&p)?;
+    }
+    Ok(acc)
+}
+
 /// Grid indices inside the fit range `fit` (octaves above the smallest scale).
 fn fit_indices(oct: &[f64], fit: (f64, f64)) -> Vec<usize> {
     (0..oct.len())
