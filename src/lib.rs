@@ -87,6 +87,32 @@
 //! # }
 //! ```
 //!
+//! The self-similarity kernel's cumulants of the same DEM over the same
+//! tiles, as `wtmm kernel` computes them (an ensemble of fields in memory
+//! works the same way, with errors over the fields from 3 on):
+//!
+//! ```
+//! # use wtmm::Field;
+//! # use wtmm::skeleton::AnalysisConfig;
+//! # use wtmm::synth::fbm::{FbmParams, fbm};
+//! use wtmm::stats::kernel::{KernelConfig, KernelOptions, ensemble_kernel_sums, kernel_estimates};
+//! use wtmm::stats::pdf::WtmmmSet;
+//!
+//! # fn main() -> wtmm::Result<()> {
+//! # let dem = Field::new(fbm(FbmParams { hurst: 0.5 }, 384, 384, 7, 0)?);
+//! # let cfg = AnalysisConfig { octaves: 3, ..Default::default() };
+//! // the WTMMM of the maxima lines (II §4.2)
+//! let sums = ensemble_kernel_sums(&[dem], &cfg, KernelConfig::default(), WtmmmSet::Lines)?;
+//! // the paper's reference scales and pairs that this grid holds
+//! let opts = KernelOptions::for_scales(&cfg.scale_list(), (0.5, 3.0));
+//! let k = kernel_estimates(&sums, &opts)?;
+//! // c1, c2, c3 in natural logs (fBm: c1 = -H, c2 = c3 = 0)
+//! assert!(k.stderr_method.contains("tiles"));
+//! assert!(k.cumulants.c1.value.is_finite() && k.cumulants.c1.stderr > 0.0);
+//! # Ok(())
+//! # }
+//! ```
+//!
 //! Tiles of one cascade are not independent, so those errors understate.
 //! For the trace moments of a DEM,
 //! [`tracemoments::surrogate_errors`] measures the errors instead on

@@ -92,7 +92,7 @@ pub struct ImagePartial {
     /// ([`Skeleton::counts`](crate::skeleton::Skeleton::counts)).
     #[serde(default)]
     pub missing: u64,
-    /// Lines alive per scale.
+    /// Lines counted per scale (as [`Spectra::lines`]).
     pub lines: Vec<u64>,
     /// Cells of the sup rule ([`Rule::Sup`]), `[qi * n_scales + j]`.
     pub sup: Vec<Cell>,
@@ -2241,7 +2241,10 @@ pub struct Spectra {
     /// Effective number of lines `Z^2 / Σ M^2q` per q, per scale.
     #[serde(deserialize_with = "crate::nan_null::vec2")]
     pub n_eff: Vec<Vec<f64>>,
-    /// Maxima lines alive per scale (all images).
+    /// Maxima lines counted per scale (all images): those that reach a
+    /// second scale, at their points inside the counting domain, the lines
+    /// `Z(q, a)` sums over (the skeleton's [`crate::skeleton::ScaleCounts`]
+    /// `lines` counts every line alive, wherever it lies).
     pub lines: Vec<u64>,
     /// Each image's own h(q = 0) and tau(q = 2), from its partition
     /// functions alone, when there are [`UNLIKE_MIN_IMAGES`] or more
@@ -2609,8 +2612,10 @@ fn legendre_warnings(q: &[f64], est: &Estimates, reps: &[Estimates]) -> Vec<Stri
     };
     let mut out = Vec::new();
     // the rise h(q_j) - h(q_i), i < j, largest against its error (a small
-    // rise can be real where a larger one is noise)
+    // rise can be real where a larger one is noise), and the largest of
+    // those beyond their errors (the whole fold the plotted D(h) shows)
     let mut rise: Option<(usize, usize, f64, f64)> = None;
+    let mut widest: Option<(usize, usize, f64, f64)> = None;
     for j in 0..nq {
         for i in 0..j {
             let r = est.h[j] - est.h[i];
@@ -2623,15 +2628,31 @@ fn legendre_warnings(q: &[f64], est: &Estimates, reps: &[Estimates]) -> Vec<Stri
             } else {
                 est.h_se[i] + est.h_se[j]
             };
-            if r > LEGENDRE_NOTE_SE * se && rise.is_none_or(|(_, _, r0, se0)| r / se > r0 / se0) {
+            if !(r > LEGENDRE_NOTE_SE * se) {
+                continue;
+            }
+            if rise.is_none_or(|(_, _, r0, se0)| r / se > r0 / se0) {
                 rise = Some((i, j, r, se));
+            }
+            if widest.is_none_or(|(_, _, r0, _)| r > r0) {
+                widest = Some((i, j, r, se));
             }
         }
     }
-    if let Some((i, j, r, se)) = rise {
-        let dmax = (i..=j).map(|k| est.d[k]).fold(f64::MIN, f64::max);
+    if let (Some((i, j, r, se)), Some((wi, wj, wr, wse))) = (rise, widest) {
+        let all = if (wi, wj) == (i, j) {
+            String::new()
+        } else {
+            format!(
+                "; in all from {:.3} at q = {} to {:.3} at q = {}, {wr:+.3} +- {wse:.3}",
+                est.h[wi], q[wi], est.h[wj], q[wj]
+            )
+        };
+        let dmax = (i.min(wi)..=j.max(wj))
+            .map(|k| est.d[k])
+            .fold(f64::MIN, f64::max);
         out.push(format!(
-            "h(q) rises from {:.3} at q = {} to {:.3} at q = {} ({r:+.3} +- {se:.3}, {}): \
+            "h(q) rises from {:.3} at q = {} to {:.3} at q = {} ({r:+.3} +- {se:.3}, {}{all}): \
              tau(q) is not concave there, so D(h) folds back and is not a Legendre spectrum \
              over those q (D reaches {dmax:.3}); the fit range often mixes two scaling \
              regimes (see the straight-line warnings) or a few lines dominate: narrow --fit \
@@ -2955,6 +2976,30 @@ mod tests {
             "{}",
             w[0]
         );
+        // the whole fold is said too when it is larger than the most
+        // significant rise (and itself beyond its errors), with the D it
+        // reaches: +0.04 +- 0.01 from q = -2 to 0 is the clearest, +0.06
+        // +- 0.025 to q = 1 the largest, +0.08 +- 0.045 to q = 2 within
+        // 2 errors; D reaches 2.2 at q = 1, not 2.1 at q = 0
+        let se = [0.005, 0.005, 0.005, 0.005, 0.005, 0.02, 0.04];
+        let e = Estimates {
+            h: vec![0.5, 0.45, 0.40, 0.42, 0.44, 0.46, 0.48],
+            h_se: se.to_vec(),
+            d: vec![1.9, 1.95, 2.0, 2.05, 2.1, 2.2, 2.3],
+            d_se: vec![0.5; 7],
+            ..e7
+        };
+        let w = legendre_warnings(&q7, &e, &[]);
+        assert!(
+            w[0].starts_with(
+                "h(q) rises from 0.400 at q = -2 to 0.440 at q = 0 (+0.040 +- 0.010, 4.0 \
+                 standard errors; in all from 0.400 at q = -2 to 0.460 at q = 1, +0.060 +- \
+                 0.025)"
+            ),
+            "{}",
+            w[0]
+        );
+        assert!(w[0].contains("(D reaches 2.200)"), "{}", w[0]);
     }
 
     /// A flip maps the tiles onto the tiles (the centre row of an odd side

@@ -4954,3 +4954,50 @@ fn skeleton_says_which_grid_scale_it_draws() {
     assert!(!err.contains("--scales 3 px"), "{err}");
     assert!(dir.join("o/skeleton_j11_a3.22.png").is_file());
 }
+
+/// skeleton.json's `lines_counted` are the lines analyze's spectra sum over
+/// (inside the counting domain, reaching a second scale), fewer than
+/// `per_scale`'s `lines` (every line alive), on the same image: the two
+/// counts an auditor found under one name are both there, each named.
+#[test]
+fn skeleton_counts_the_lines_analyze_counts() {
+    let dir = scratch("skeleton_lines");
+    let p = fbm_npy(&dir, "a.npy", 128, 4);
+    let (sk, an) = (dir.join("sk"), dir.join("an"));
+    let (code, err) = run_bin_stderr(&[
+        "skeleton",
+        &p,
+        "--octaves",
+        "2",
+        "--out",
+        &sk.display().to_string(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, err) = run_bin_stderr(&[
+        "analyze",
+        &p,
+        "--octaves",
+        "2",
+        "--out",
+        &an.display().to_string(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let read = |f: PathBuf| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(f).unwrap()).unwrap()
+    };
+    let (s, a) = (
+        read(sk.join("skeleton.json")),
+        read(an.join("spectra.json")),
+    );
+    assert_eq!(s["lines_counted"], a["lines"]);
+    let alive: Vec<u64> = s["per_scale"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["lines"].as_u64().unwrap())
+        .collect();
+    let counted: Vec<u64> = serde_json::from_value(a["lines"].clone()).unwrap();
+    assert_eq!(alive.len(), counted.len());
+    assert!(alive.iter().zip(&counted).all(|(a, c)| a >= c));
+    assert!(alive[0] > counted[0], "{alive:?} {counted:?}");
+}

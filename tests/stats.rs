@@ -2793,6 +2793,75 @@ fn ensemble_kernel_sums_is_the_kernel_recipe_in_one_call() {
     assert!(e.contains("no field"), "{e}");
 }
 
+/// The pdfs' mean of ln M is the WTMMM's own, not the bin centres': `wtmm
+/// pdf`'s h0 (the slope of <ln M> against ln a) equals the kernel's -c1 on
+/// the same WTMMM (the same regression), where bin centres put it 4e-4 off
+/// on the Jacksboro DEM; merges give the same bits in any order; histograms
+/// written without the sum fall back to the bin centres; an impossible sum
+/// is refused.
+#[test]
+fn the_pdfs_mean_ln_m_is_exact_and_merges_exactly() {
+    let model = Model::preset("paper-lognormal").unwrap().model;
+    let cfg = AnalysisConfig {
+        octaves: 3,
+        ..AnalysisConfig::for_field(true)
+    };
+    let scales = cfg.scale_list();
+    let fit = (0.5, 3.0);
+    let parts: Vec<WtmmmHistograms> = (0..3)
+        .map(|i| {
+            let f = Field::new(model.synthesize(128, 9, i).unwrap());
+            let w = image_wtmmm(&f, &cfg, Parallelism::Serial, true).unwrap();
+            // the exact mean of one image at every scale
+            let h = WtmmmHistograms::from_points(&scales, PdfConfig::default(), &w.lines).unwrap();
+            for (j, pts) in w.lines.iter().enumerate() {
+                let exact = pts.iter().map(|p| p.m.ln()).sum::<f64>() / pts.len() as f64;
+                assert!((h.mean_ln_m(j) - exact).abs() < 1e-7, "scale {j}");
+            }
+            h
+        })
+        .collect();
+    let merged = |order: [usize; 3]| {
+        let mut h = parts[order[0]].clone();
+        h.merge(&parts[order[1]]).unwrap();
+        h.merge(&parts[order[2]]).unwrap();
+        h
+    };
+    let (a, b) = (merged([0, 1, 2]), merged([2, 0, 1]));
+    assert_eq!(a, b);
+    let fields: Vec<Field> = (0..3)
+        .map(|i| Field::new(model.synthesize(128, 9, i).unwrap()))
+        .collect();
+    let k = ensemble_kernel_sums(&fields, &cfg, KernelConfig::default(), WtmmmSet::Lines).unwrap();
+    let c1 = kernel_estimates(&k, &KernelOptions::for_scales(&scales, fit))
+        .unwrap()
+        .cumulants
+        .c1
+        .value;
+    let h0 = a.h0(fit, WtmmmSet::Lines).unwrap();
+    assert!((h0 + c1).abs() < 1e-6, "h0 {h0}, c1 {c1}");
+    // older histograms (no sum): the bin centres, within half a bin
+    let mut v = serde_json::to_value(&a).unwrap();
+    for h in v["hist"].as_array_mut().unwrap() {
+        h.as_object_mut().unwrap().remove("sum_ln_m");
+    }
+    let old: WtmmmHistograms = serde_json::from_value(v).unwrap();
+    let d = PdfConfig::default().dlnm;
+    for j in 0..scales.len() {
+        assert!(old.hist[j].sum_ln_m.is_none());
+        let (e, o) = (a.mean_ln_m(j), old.mean_ln_m(j));
+        assert!(e != o && (e - o).abs() <= d / 2.0, "scale {j}: {e} {o}");
+    }
+    // merging an old shard drops the sum (the mean of both is binned)
+    let mut mixed = parts[0].clone();
+    mixed.merge(&old).unwrap();
+    assert!(mixed.hist.iter().all(|h| h.sum_ln_m.is_none()));
+    let mut bad = a.clone();
+    bad.hist[0].sum_ln_m = Some(i64::MAX);
+    let e = bad.check().unwrap_err().to_string();
+    assert!(e.contains("impossible"), "{e}");
+}
+
 /// The tiles run in parallel: their sums are the same bits on 1 and 3
 /// threads.
 #[test]

@@ -933,9 +933,17 @@ pub fn note_caveats(body: &mut serde_json::Value, model: Option<&crate::theory::
 }
 
 /// `v ± se` with `prec` decimals, or `v` alone when the error is unknown
-/// (a jackknife needs 3 images), for figure titles.
+/// (a jackknife needs 3 images), for figure titles. An error below one
+/// unit of the last decimal gets the decimals for two significant digits
+/// (both numbers), so no error bar reads "± 0.000".
 pub fn plus_minus(v: f64, se: f64, prec: usize) -> String {
     if se.is_finite() {
+        let prec = if se > 0.0 && se < 10f64.powi(-(prec as i32)) {
+            // at most 12: an error of 1e-300 is not worth 300 digits
+            ((-se.log10()).ceil() as usize + 1).clamp(prec, 12)
+        } else {
+            prec
+        };
         format!("{v:.prec$} ± {se:.prec$}")
     } else {
         format!("{v:.prec$}")
@@ -983,6 +991,18 @@ pub fn count_of(n: usize, word: &str) -> String {
 
 #[cfg(test)]
 mod tests {
+    use super::plus_minus;
+
+    /// An error that would round to zero keeps two significant digits.
+    #[test]
+    fn no_error_bar_reads_zero() {
+        assert_eq!(plus_minus(0.0150, 0.000419, 3), "0.01500 ± 0.00042");
+        assert_eq!(plus_minus(1.5, 0.0035, 3), "1.500 ± 0.004");
+        assert_eq!(plus_minus(1.5, 0.001, 3), "1.500 ± 0.001");
+        assert_eq!(plus_minus(-0.37, 0.0, 3), "-0.370 ± 0.000");
+        assert_eq!(plus_minus(0.5, f64::NAN, 2), "0.50");
+    }
+
     use super::*;
 
     /// Figure titles name the first and last files, with their directories

@@ -789,12 +789,13 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                 .with_errors(t.rows.iter().map(|r| r.c_stderr[n]).collect()),
             );
         }
-        // the headline c_n is the slope of kappa_n(ln M) against ln a over
-        // the fit range, not a fit to the points drawn; on a cascade the
-        // two agree, on other data (a DEM) they need not, so both are drawn
+        // the headline c_n is minus the slope of kappa_n(ln M) against ln a
+        // over the fit range (II eq 49: C_n = kappa_n(a) - kappa_n(a')), not
+        // a fit to the points drawn; on a cascade the two agree, on other
+        // data (a DEM) they need not, so both are drawn
         c.series.push(Series::new(
             format!(
-                "c{} = {:.4} (slope of kappa{}(ln M) over ln a; the title's)",
+                "c{} = {:.4} (minus the slope of kappa{}(ln M) over ln a; the title's)",
                 n + 1,
                 est[n],
                 n + 1

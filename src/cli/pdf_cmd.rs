@@ -33,7 +33,6 @@ use crate::error::{Error, Result};
 use crate::field::Field;
 use crate::plot::{Chart, ColorBar, Raster, RasterChart, Series, Style, viridis};
 use crate::skeleton::{AnalysisConfig, Parallelism};
-use crate::stats::fit::line_fit;
 use crate::stats::kernel::{nearest_scale, octave_on_grid};
 use crate::stats::pdf::{
     DensityBins, PdfConfig, PdfOptions, ScalePdf, WtmmmHistograms, WtmmmSet, image_wtmmm,
@@ -781,51 +780,6 @@ pub fn collect_histograms(
     )
 }
 
-/// `h(q=0)` estimate: the slope of `<ln M>` against `ln a` over the fit
-/// range, from the WTMMM of `set`.
-///
-/// **Errors** ([`Error::Input`]) when a scale of the range has no WTMMM
-/// (the fit would skip it unseen, or have nothing to fit).
-pub fn h0_from_histograms(h: &WtmmmHistograms, fit: (f64, f64), set: WtmmmSet) -> Result<f64> {
-    let oct: Vec<f64> = h.scales.iter().map(|a| (a / h.scales[0]).log2()).collect();
-    let in_fit: Vec<usize> = (0..h.scales.len())
-        .filter(|&j| oct[j] >= fit.0 - 1e-9 && oct[j] <= fit.1 + 1e-9)
-        .collect();
-    let empty: Vec<usize> = in_fit
-        .iter()
-        .copied()
-        .filter(|&j| h.hist[j].n == 0)
-        .collect();
-    if let (Some(&lo), Some(&hi)) = (empty.first(), empty.last()) {
-        let set = set.phrase();
-        return Err(Error::Input(format!(
-            "no WTMMM {set} at {} of the {} scales of the fit range {}:{} octaves (a = {:.2} .. \
-             {:.2} px, {} image(s)) to estimate h0 (the slope of <ln M> against ln a): the \
-             counting domain is too small for these scales (use fewer --octaves, a smaller \
-             --margin, or a lower --fit)",
-            empty.len(),
-            in_fit.len(),
-            fit.0,
-            fit.1,
-            h.scales[lo],
-            h.scales[hi],
-            h.images
-        )));
-    }
-    let (x, y): (Vec<f64>, Vec<f64>) = in_fit
-        .iter()
-        .map(|&j| (h.scales[j].ln(), h.mean_ln_m(j)))
-        .unzip();
-    line_fit(&x, &y).map(|l| l.slope).ok_or_else(|| {
-        Error::Input(format!(
-            "h0 cannot be estimated: {} scale(s) in the fit range {}:{} octaves",
-            in_fit.len(),
-            fit.0,
-            fit.1
-        ))
-    })
-}
-
 pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     let input = args.input.resolve(&args.opts)?;
     input.say_pixel(quiet);
@@ -868,7 +822,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         .as_ref()
         .map(|m| m.h_of_q0())
         .filter(|h| h.is_finite());
-    let h_est = match h0_from_histograms(&hist, fit, args.set) {
+    let h_est = match hist.h0(fit, args.set) {
         Ok(h) => h,
         Err(e) if args.h0.is_none() && theory_h0.is_none() => {
             let m = format!("{}, or give --h0", super::common::reason(e));

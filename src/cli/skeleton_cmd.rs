@@ -256,6 +256,12 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
     body["margin"] = json!(sk.margin);
     body["lines"] = json!(sk.lines.len());
     body["per_scale"] = json!(sk.per_scale);
+    // per_scale's `lines` counts every line alive, wherever it lies; the
+    // partition functions (analyze's `lines`) count fewer: those that
+    // reach a second scale, at their points inside the counting domain
+    body["lines_counted"] = json!(
+        crate::spectra::PartitionSums::from_skeleton_tiled(&sk, &[0.0], "", 0).images[0].lines
+    );
     body["pictures"] = json!(pictures);
     body["legend"] = json!(
         "grey: smoothed image phi_a * f (dark = low); red: maxima chains; green dots: WTMMM; blue: arrow of length proportional to M in direction A; yellow: analysis domain; teal: missing pixels"

@@ -343,8 +343,8 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
                 "mixed sizes".into()
             };
             format!(
-                "Angle-averaged power spectrum of {what} ({size}): beta = {:.3} ± {:.3}",
-                fit.beta, beta_se
+                "Angle-averaged power spectrum of {what} ({size}): beta = {}",
+                super::common::plus_minus(fit.beta, beta_se, 3)
             )
         },
         x_label: "log2 |k| (rad/px)".into(),

@@ -476,7 +476,9 @@ pub struct ScaleCounts {
     pub chains: usize,
     /// Number of WTMMM (same rectangle).
     pub wtmmm: usize,
-    /// Maxima lines alive at this scale.
+    /// Maxima lines alive at this scale, wherever they lie (those born
+    /// and ended at `a_min`, and outside the counting domain, included);
+    /// the partition functions count fewer ([`crate::spectra::Spectra::lines`]).
     pub lines: usize,
     /// Why lines ended on the way to this scale.
     pub ended: Endings,

@@ -48,6 +48,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::field::Field;
 use crate::skeleton::{AnalysisConfig, Parallelism, Skeleton, Wtmmm};
+use crate::stats::fit::line_fit;
 
 /// Which WTMMM a statistic is taken over.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -285,9 +286,15 @@ fn check_grid(scales: &[f64], config: PdfConfig) -> Result<()> {
     Ok(())
 }
 
+/// Fixed-point unit of [`ScaleHist::sum_ln_m`], 2^-24 in `ln M`: integers
+/// add exactly in any order, where a float sum would change in its last
+/// bits with the order of the merges (hence with the thread count).
+/// Rounding each `ln M` to it moves a mean by less than 3e-8.
+pub const LN_M_UNIT: f64 = 16_777_216.0;
+
 /// The `(ln M, A)` histogram of one scale: `counts[(k - lo) * arg_bins + b]`
 /// for `ln M` bin `k` and argument bin `b`.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ScaleHist {
     /// Index of the first `ln M` bin held.
     pub lo: i64,
@@ -297,6 +304,27 @@ pub struct ScaleHist {
     pub counts: Vec<u64>,
     /// Number of WTMMM.
     pub n: u64,
+    /// `Σ ln M` in units of [`LN_M_UNIT`] (fixed point, so that merges are
+    /// exact), for the mean of `ln M` unbinned (the slope h0 of `wtmm pdf`
+    /// then agrees with `analyze`'s h(q=0) and `kernel`'s -c1 on the same
+    /// WTMMM). `None` in histograms written before it was kept (0.3.0
+    /// builds up to 2026-11-28) or after an overflow (beyond 5e8 WTMMM of
+    /// `|ln M|` near 1000): the mean then comes from the bin centres.
+    #[serde(default)]
+    pub sum_ln_m: Option<i64>,
+}
+
+impl Default for ScaleHist {
+    /// No WTMMM (and a sum of 0 to add to).
+    fn default() -> Self {
+        ScaleHist {
+            lo: 0,
+            rows: 0,
+            counts: Vec::new(),
+            n: 0,
+            sum_ln_m: Some(0),
+        }
+    }
 }
 
 /// Mergeable `(ln M, A)` histograms of an ensemble, one per scale.
@@ -360,6 +388,16 @@ impl WtmmmHistograms {
                     h.n
                 )));
             }
+            // every ln M of a finite positive f64 lies within ±745, so the
+            // mean must too (a sum edited or of another unit would not)
+            if let Some(s) = h.sum_ln_m
+                && (s as f64).abs() > 745.2 * LN_M_UNIT * h.n as f64
+            {
+                return Err(Error::Input(format!(
+                    "histogram {j}: its sum of ln M ({s} x 2^-24) is impossible for {} WTMMM",
+                    h.n
+                )));
+            }
         }
         Ok(())
     }
@@ -399,6 +437,9 @@ impl WtmmmHistograms {
         grow(h, k, nb);
         h.counts[(k - h.lo) as usize * nb + b] += 1;
         h.n += 1;
+        // |ln M| <= 745 for a finite positive f64: the product fits an i64
+        let u = (m.ln() * LN_M_UNIT).round() as i64;
+        h.sum_ln_m = h.sum_ln_m.and_then(|s| s.checked_add(u));
     }
 
     /// Adds `other`'s counts (exact, order-independent).
@@ -435,18 +476,76 @@ impl WtmmmHistograms {
                 *d += s;
             }
             h.n += o.n;
+            h.sum_ln_m = match (h.sum_ln_m, o.sum_ln_m) {
+                (Some(a), Some(b)) => a.checked_add(b),
+                _ => None,
+            };
         }
         self.images += other.images;
         Ok(())
     }
 
-    /// Mean of `ln M` at scale `j` from the bin centres (NaN if empty).
+    /// `h(q=0)` estimate of `wtmm pdf`: the slope of `<ln M>` against `ln a`
+    /// over the fit range `fit` (octaves above the smallest scale), the WTMMM
+    /// being those of `set` (named in the error). With the exact sums
+    /// ([`ScaleHist::sum_ln_m`]) it is the regression of `analyze`'s h(q=0)
+    /// and of the kernel's -c1 on the same WTMMM.
+    ///
+    /// **Errors** ([`Error::Input`]) when a scale of the range has no WTMMM
+    /// (the fit would skip it unseen, or have nothing to fit).
+    pub fn h0(&self, fit: (f64, f64), set: WtmmmSet) -> Result<f64> {
+        let h = self;
+        let oct: Vec<f64> = h.scales.iter().map(|a| (a / h.scales[0]).log2()).collect();
+        let in_fit: Vec<usize> = (0..h.scales.len())
+            .filter(|&j| oct[j] >= fit.0 - 1e-9 && oct[j] <= fit.1 + 1e-9)
+            .collect();
+        let empty: Vec<usize> = in_fit
+            .iter()
+            .copied()
+            .filter(|&j| h.hist[j].n == 0)
+            .collect();
+        if let (Some(&lo), Some(&hi)) = (empty.first(), empty.last()) {
+            let set = set.phrase();
+            return Err(Error::Input(format!(
+                "no WTMMM {set} at {} of the {} scales of the fit range {}:{} octaves (a = {:.2} .. \
+                 {:.2} px, {} image(s)) to estimate h0 (the slope of <ln M> against ln a): the \
+                 counting domain is too small for these scales (use fewer --octaves, a smaller \
+                 --margin, or a lower --fit)",
+                empty.len(),
+                in_fit.len(),
+                fit.0,
+                fit.1,
+                h.scales[lo],
+                h.scales[hi],
+                h.images
+            )));
+        }
+        let (x, y): (Vec<f64>, Vec<f64>) = in_fit
+            .iter()
+            .map(|&j| (h.scales[j].ln(), h.mean_ln_m(j)))
+            .unzip();
+        line_fit(&x, &y).map(|l| l.slope).ok_or_else(|| {
+            Error::Input(format!(
+                "h0 cannot be estimated: {} scale(s) in the fit range {}:{} octaves",
+                in_fit.len(),
+                fit.0,
+                fit.1
+            ))
+        })
+    }
+
+    /// Mean of `ln M` at scale `j` (NaN if empty): from the exact sum
+    /// ([`ScaleHist::sum_ln_m`], to 3e-8), or from the bin centres when
+    /// the histograms have none.
     ///
     /// **Panics** if `j` is not a scale index of the histograms.
     pub fn mean_ln_m(&self, j: usize) -> f64 {
         let h = &self.hist[j];
         if h.n == 0 {
             return f64::NAN;
+        }
+        if let Some(s) = h.sum_ln_m {
+            return s as f64 / LN_M_UNIT / h.n as f64;
         }
         let nb = self.config.arg_bins;
         let mut s = 0.0;
@@ -1021,6 +1120,7 @@ fn coarsen(h: &ScaleHist, nb: usize, k: usize) -> ScaleHist {
         rows,
         counts,
         n: h.n,
+        sum_ln_m: h.sum_ln_m,
     }
 }
 
