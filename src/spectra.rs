@@ -2648,13 +2648,20 @@ fn legendre_warnings(q: &[f64], est: &Estimates, reps: &[Estimates]) -> Vec<Stri
                 est.h[wi], q[wi], est.h[wj], q[wj]
             )
         };
+        // (a D that is NaN throughout, of a broken fit, is not quoted)
         let dmax = (i.min(wi)..=j.max(wj))
             .map(|k| est.d[k])
-            .fold(f64::MIN, f64::max);
+            .filter(|d| d.is_finite())
+            .fold(f64::NEG_INFINITY, f64::max);
+        let reaches = if dmax.is_finite() {
+            format!(" (D reaches {dmax:.3})")
+        } else {
+            String::new()
+        };
         out.push(format!(
             "h(q) rises from {:.3} at q = {} to {:.3} at q = {} ({r:+.3} +- {se:.3}, {}{all}): \
              tau(q) is not concave there, so D(h) folds back and is not a Legendre spectrum \
-             over those q (D reaches {dmax:.3}); the fit range often mixes two scaling \
+             over those q{reaches}; the fit range often mixes two scaling \
              regimes (see the straight-line warnings) or a few lines dominate: narrow --fit \
              or --q",
             est.h[i],
@@ -3000,6 +3007,13 @@ mod tests {
             w[0]
         );
         assert!(w[0].contains("(D reaches 2.200)"), "{}", w[0]);
+        // a D of NaN throughout is not quoted
+        let e = Estimates {
+            d: vec![f64::NAN; 7],
+            ..e
+        };
+        let w = legendre_warnings(&q7, &e, &[]);
+        assert!(w[0].contains("over those q; the fit range"), "{}", w[0]);
     }
 
     /// A flip maps the tiles onto the tiles (the centre row of an odd side

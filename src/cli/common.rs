@@ -935,12 +935,13 @@ pub fn note_caveats(body: &mut serde_json::Value, model: Option<&crate::theory::
 /// `v ± se` with `prec` decimals, or `v` alone when the error is unknown
 /// (a jackknife needs 3 images), for figure titles. An error below one
 /// unit of the last decimal gets the decimals for two significant digits
-/// (both numbers), so no error bar reads "± 0.000".
+/// (both numbers, up to 12 decimals), so no error bar of 1e-12 or more
+/// reads "± 0.000".
 pub fn plus_minus(v: f64, se: f64, prec: usize) -> String {
     if se.is_finite() {
         let prec = if se > 0.0 && se < 10f64.powi(-(prec as i32)) {
             // at most 12: an error of 1e-300 is not worth 300 digits
-            ((-se.log10()).ceil() as usize + 1).clamp(prec, 12)
+            ((-se.log10()).ceil() as usize + 1).clamp(prec, prec.max(12))
         } else {
             prec
         };
@@ -1001,6 +1002,14 @@ mod tests {
         assert_eq!(plus_minus(1.5, 0.001, 3), "1.500 ± 0.001");
         assert_eq!(plus_minus(-0.37, 0.0, 3), "-0.370 ± 0.000");
         assert_eq!(plus_minus(0.5, f64::NAN, 2), "0.50");
+        assert_eq!(
+            plus_minus(0.5, 1e-13, 3),
+            format!("{:.12} ± {:.12}", 0.5, 1e-13)
+        );
+        assert_eq!(
+            plus_minus(1.0, 1e-20, 13),
+            format!("{:.13} ± {:.13}", 1.0, 1e-20)
+        );
     }
 
     use super::*;

@@ -558,7 +558,7 @@ pub fn skeleton_with(
 }
 
 /// The skeleton and, at the first `wtmmm_scales` scales, every WTMMM of the
-/// counting rectangle (on a line or not; the WTMMM statistics of SPEC §5-§6
+/// counting domain ([`Skeleton::counts`]; on a line or not; the WTMMM statistics of SPEC §5-§6
 /// want both sets), from one transform: `validate` takes the partition sums
 /// and the kernel from the same pass. Without `link` no lines are built
 /// (the statistics of all WTMMM need none).
@@ -615,7 +615,7 @@ fn build(
                 let keep_j = keep.contains(&j);
                 let sm =
                     detect_linkable(&plan, &fi, j, &mut ws, &domain, cfg, keep_j, &mut scratch);
-                asm.push(sm, &domain);
+                asm.push(sm);
             }
         }
         Parallelism::Scales => {
@@ -624,7 +624,7 @@ fn build(
                     detect_linkable(&plan, fi, j, ws, &domain, cfg, keep.contains(&j), s)
                 })?;
             for sm in found {
-                asm.push(sm, &domain);
+                asm.push(sm);
             }
         }
     }
@@ -674,13 +674,13 @@ struct Assembler<'k> {
     linker: Option<Linker>,
     sk: Skeleton,
     keep: &'k [usize],
-    /// The WTMMM of the counting rectangle at the first `wtmmm_scales` scales.
+    /// The WTMMM of the counting domain at the first `wtmmm_scales` scales.
     wtmmm: Vec<Vec<Wtmmm>>,
     wtmmm_scales: usize,
 }
 
 impl Assembler<'_> {
-    fn push(&mut self, (mut sm, chain_m): (ScaleMaxima, Option<Vec<Vec<f64>>>), domain: &Domain) {
+    fn push(&mut self, (mut sm, chain_m): (ScaleMaxima, Option<Vec<Vec<f64>>>)) {
         let ended = match self.linker.as_mut() {
             Some(l) => l.push_with(&sm, chain_m.as_deref()),
             None => Endings::default(),
@@ -698,14 +698,17 @@ impl Assembler<'_> {
         });
         if sm.j < self.wtmmm_scales {
             // chains may be traced in a guard band around the domain; only
-            // the WTMMM inside it count (as in the partition functions)
-            self.wtmmm.push(
-                sm.wtmmm
-                    .iter()
-                    .filter(|w| domain.counts(w.x, w.y))
-                    .copied()
-                    .collect(),
-            );
+            // the WTMMM of the counting domain count, as in the partition
+            // functions (Skeleton::counts: also clear of missing pixels by
+            // the support at the largest scale, not only at this one)
+            let sk = &self.sk;
+            let inside: Vec<Wtmmm> = sm
+                .wtmmm
+                .iter()
+                .filter(|w| sk.counts(w.x, w.y))
+                .copied()
+                .collect();
+            self.wtmmm.push(inside);
         }
         if self.keep.contains(&sm.j) {
             self.sk.kept.push(sm);

@@ -149,16 +149,19 @@ pub fn image_wtmmm(
 
 impl ImageWtmmm {
     /// The two sets from a skeleton and the WTMMM of its first `all.len()`
-    /// scales ([`crate::skeleton::skeleton_and_wtmmm`]); the lines are cut
-    /// to those scales. Only the counting rectangle is tested (the
-    /// detection already keeps the wavelet's support off missing pixels).
+    /// scales ([`crate::skeleton::skeleton_and_wtmmm`], which keeps those of
+    /// the counting domain); the lines are cut to those scales. Both sets
+    /// hold the points of the counting domain ([`Skeleton::counts`]) at
+    /// every scale, as the partition functions do: inside the interior rectangle and, in an image with missing
+    /// pixels, farther from them than the wavelet's support at the largest
+    /// scale (the detection keeps only each scale's own support off them;
+    /// a maximum nearer a hole counts at small scales while its line dies
+    /// into the hole at large ones, which biases a slope over the scales).
+    /// So the pdfs' h0 and the kernel's -c1 are `analyze`'s h(q=0) on the
+    /// same image.
     pub fn from_skeleton(sk: &Skeleton, all: Vec<Vec<Wtmmm>>) -> Self {
         let n = all.len().min(sk.scales.len());
-        let (y0, y1, x0, x1) = sk.domain;
-        let inside = |x: u32, y: u32| {
-            let (x, y) = (x as usize, y as usize);
-            x >= x0 && x < x1 && y >= y0 && y < y1
-        };
+        let inside = |x: u32, y: u32| sk.counts(x, y);
         let mut lines = vec![Vec::new(); n];
         // lines that never link beyond a_min carry no scale information
         // and are left out, as in the partition functions
@@ -308,8 +311,9 @@ pub struct ScaleHist {
     /// exact), for the mean of `ln M` unbinned (the slope h0 of `wtmm pdf`
     /// then agrees with `analyze`'s h(q=0) and `kernel`'s -c1 on the same
     /// WTMMM). `None` in histograms written before it was kept (0.3.0
-    /// builds up to 2026-11-28) or after an overflow (beyond 5e8 WTMMM of
-    /// `|ln M|` near 1000): the mean then comes from the bin centres.
+    /// builds up to 2026-11-28) or after an overflow (not before 7e8
+    /// WTMMM, even at the largest `|ln M|` of an f64, 745): the mean then
+    /// comes from the bin centres.
     #[serde(default)]
     pub sum_ln_m: Option<i64>,
 }
@@ -462,7 +466,14 @@ impl WtmmmHistograms {
             ));
         }
         let nb = self.config.arg_bins;
+        // an empty scale sums to 0 whether or not it was written with sums
+        // (so that merges of older histograms stay order-independent)
+        let sum = |h: &ScaleHist| if h.n == 0 { Some(0) } else { h.sum_ln_m };
         for (h, o) in self.hist.iter_mut().zip(&other.hist) {
+            h.sum_ln_m = match (sum(h), sum(o)) {
+                (Some(a), Some(b)) => a.checked_add(b),
+                _ => None,
+            };
             if o.rows == 0 {
                 continue;
             }
@@ -476,10 +487,6 @@ impl WtmmmHistograms {
                 *d += s;
             }
             h.n += o.n;
-            h.sum_ln_m = match (h.sum_ln_m, o.sum_ln_m) {
-                (Some(a), Some(b)) => a.checked_add(b),
-                _ => None,
-            };
         }
         self.images += other.images;
         Ok(())
