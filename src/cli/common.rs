@@ -992,7 +992,7 @@ pub fn count_of(n: usize, word: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::plus_minus;
+    use super::*;
 
     /// An error that would round to zero keeps two significant digits.
     #[test]
@@ -1011,8 +1011,6 @@ mod tests {
             format!("{:.13} ± {:.13}", 1.0, 1e-20)
         );
     }
-
-    use super::*;
 
     /// Figure titles name the first and last files, with their directories
     /// when there are several; generated labels are not named.

@@ -558,8 +558,8 @@ pub fn skeleton_with(
 }
 
 /// The skeleton and, at the first `wtmmm_scales` scales, every WTMMM of the
-/// counting domain ([`Skeleton::counts`]; on a line or not; the WTMMM statistics of SPEC §5-§6
-/// want both sets), from one transform: `validate` takes the partition sums
+/// counting domain ([`Skeleton::counts`]; on a line or not; the WTMMM
+/// statistics of SPEC §5-§6 want both sets), from one transform: `validate` takes the partition sums
 /// and the kernel from the same pass. Without `link` no lines are built
 /// (the statistics of all WTMMM need none).
 ///

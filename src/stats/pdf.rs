@@ -152,13 +152,13 @@ impl ImageWtmmm {
     /// scales ([`crate::skeleton::skeleton_and_wtmmm`], which keeps those of
     /// the counting domain); the lines are cut to those scales. Both sets
     /// hold the points of the counting domain ([`Skeleton::counts`]) at
-    /// every scale, as the partition functions do: inside the interior rectangle and, in an image with missing
-    /// pixels, farther from them than the wavelet's support at the largest
-    /// scale (the detection keeps only each scale's own support off them;
-    /// a maximum nearer a hole counts at small scales while its line dies
-    /// into the hole at large ones, which biases a slope over the scales).
-    /// So the pdfs' h0 and the kernel's -c1 are `analyze`'s h(q=0) on the
-    /// same image.
+    /// every scale, as the partition functions do: inside the interior
+    /// rectangle and, in an image with missing pixels, farther from them
+    /// than the wavelet's support at the largest scale (the detection keeps
+    /// only each scale's own support off them; a maximum nearer a hole
+    /// counts at small scales while its line dies into the hole at large
+    /// ones, which biases a slope over the scales). So the pdfs' h0 and the
+    /// kernel's -c1 are `analyze`'s h(q=0) on the same image.
     pub fn from_skeleton(sk: &Skeleton, all: Vec<Vec<Wtmmm>>) -> Self {
         let n = all.len().min(sk.scales.len());
         let inside = |x: u32, y: u32| sk.counts(x, y);
@@ -501,15 +501,18 @@ impl WtmmmHistograms {
     /// **Errors** ([`Error::Input`]) when a scale of the range has no WTMMM
     /// (the fit would skip it unseen, or have nothing to fit).
     pub fn h0(&self, fit: (f64, f64), set: WtmmmSet) -> Result<f64> {
-        let h = self;
-        let oct: Vec<f64> = h.scales.iter().map(|a| (a / h.scales[0]).log2()).collect();
-        let in_fit: Vec<usize> = (0..h.scales.len())
+        let oct: Vec<f64> = self
+            .scales
+            .iter()
+            .map(|a| (a / self.scales[0]).log2())
+            .collect();
+        let in_fit: Vec<usize> = (0..self.scales.len())
             .filter(|&j| oct[j] >= fit.0 - 1e-9 && oct[j] <= fit.1 + 1e-9)
             .collect();
         let empty: Vec<usize> = in_fit
             .iter()
             .copied()
-            .filter(|&j| h.hist[j].n == 0)
+            .filter(|&j| self.hist[j].n == 0)
             .collect();
         if let (Some(&lo), Some(&hi)) = (empty.first(), empty.last()) {
             let set = set.phrase();
@@ -522,14 +525,14 @@ impl WtmmmHistograms {
                 in_fit.len(),
                 fit.0,
                 fit.1,
-                h.scales[lo],
-                h.scales[hi],
-                h.images
+                self.scales[lo],
+                self.scales[hi],
+                self.images
             )));
         }
         let (x, y): (Vec<f64>, Vec<f64>) = in_fit
             .iter()
-            .map(|&j| (h.scales[j].ln(), h.mean_ln_m(j)))
+            .map(|&j| (self.scales[j].ln(), self.mean_ln_m(j)))
             .unzip();
         line_fit(&x, &y).map(|l| l.slope).ok_or_else(|| {
             Error::Input(format!(
