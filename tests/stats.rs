@@ -2808,10 +2808,13 @@ fn the_pdfs_mean_ln_m_is_exact_and_merges_exactly() {
     };
     let scales = cfg.scale_list();
     let fit = (0.5, 3.0);
-    let parts: Vec<WtmmmHistograms> = (0..3)
-        .map(|i| {
-            let f = Field::new(model.synthesize(128, 9, i).unwrap());
-            let w = image_wtmmm(&f, &cfg, Parallelism::Serial, true).unwrap();
+    let fields: Vec<Field> = (0..3)
+        .map(|i| Field::new(model.synthesize(128, 9, i).unwrap()))
+        .collect();
+    let parts: Vec<WtmmmHistograms> = fields
+        .iter()
+        .map(|f| {
+            let w = image_wtmmm(f, &cfg, Parallelism::Serial, true).unwrap();
             // the exact mean of one image at every scale
             let h = WtmmmHistograms::from_points(&scales, PdfConfig::default(), &w.lines).unwrap();
             for (j, pts) in w.lines.iter().enumerate() {
@@ -2829,9 +2832,6 @@ fn the_pdfs_mean_ln_m_is_exact_and_merges_exactly() {
     };
     let (a, b) = (merged([0, 1, 2]), merged([2, 0, 1]));
     assert_eq!(a, b);
-    let fields: Vec<Field> = (0..3)
-        .map(|i| Field::new(model.synthesize(128, 9, i).unwrap()))
-        .collect();
     let k = ensemble_kernel_sums(&fields, &cfg, KernelConfig::default(), WtmmmSet::Lines).unwrap();
     let c1 = kernel_estimates(&k, &KernelOptions::for_scales(&scales, fit))
         .unwrap()
