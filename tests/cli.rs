@@ -1242,15 +1242,15 @@ fn fbm_in_units(seed: u64, units: f64) -> (Array2<f64>, Array2<f64>) {
 fn tm_names_a_quantised_dem() {
     let dir = scratch("tm_quantised");
     // a relief of ~40 units in whole units: many equal neighbours
-    let (f, q) = fbm_in_units(4, 40.0);
+    let (f, q_units) = fbm_in_units(4, 40.0);
     let (pq, pf) = (dir.join("q.npy"), dir.join("f.npy"));
-    write_npy(&pq, &q).unwrap();
+    write_npy(&pq, &q_units).unwrap();
     write_npy(&pf, &f).unwrap();
     let o = dir.join("o").display().to_string();
     let said = |args: &[&str]| {
         let (code, err) = run_bin_stderr(args);
         assert_eq!(code, 0, "{err}");
-        err.contains("every value is a whole number")
+        err.contains("are equal: quantised values")
     };
     let (q, f) = (pq.display().to_string(), pf.display().to_string());
     assert!(said(&["tm", &q, "--out", &o]));
@@ -1258,6 +1258,11 @@ fn tm_names_a_quantised_dem() {
     assert_warns(&tm, "--frac-int");
     assert!(!said(&["tm", &q, "--frac-int", "--out", &o]));
     assert!(!said(&["tm", &f, "--out", &o]));
+    // the same DEM in other units (tenths, as a 16-bit PNG's scale would
+    // give it): equal neighbours stay equal, and are said
+    let pk = dir.join("q_tenths.npy");
+    write_npy(&pk, &q_units.mapv(|v| v * 0.1)).unwrap();
+    assert!(said(&["tm", &pk.display().to_string(), "--out", &o]));
 }
 
 /// A DEM in whole units with a relief of 40000 (next to no equal
@@ -1299,7 +1304,7 @@ fn tm_names_a_flat_area() {
         )),
         "{err}"
     );
-    assert!(!err.contains("every value is a whole number"), "{err}");
+    assert!(!err.contains("are equal: quantised values"), "{err}");
     let rec = &v["params"]["flat"][0];
     assert_eq!(rec["value"].as_f64(), Some(level));
     assert!(
@@ -1309,7 +1314,7 @@ fn tm_names_a_flat_area() {
     assert_warns(&v, "give it as missing");
     let (err, v) = tm(&pl);
     assert!(
-        !err.contains("fills") && !err.contains("whole number"),
+        !err.contains("fills") && !err.contains("quantised values"),
         "{err}"
     );
     assert!(v["params"]["flat"][0].is_null());

@@ -2805,3 +2805,64 @@ fn trace_moments_do_not_depend_on_a_transpose() {
     // moves alpha by 0.004-0.03 on the DEMs.
     assert_json_close(&a, &b, 1e-7, "result");
 }
+
+/// Trace moments measure the flux's variability, not its units: a field
+/// multiplied by any factor, or moved by any offset, gives the same K(q),
+/// K(q, η), α, C1 and H. Scale: the field brought to a maximum of 1e99
+/// (inside the documented amplitude limit of 1e100), where the raw φ^η of
+/// the double trace moments overflowed at η = 3.16 and 10 (K(q, η) was
+/// lost, and left out of the DTM fit without a word). Offset: 1e13 on a
+/// field of unit roughness against the same rounded values without it,
+/// `(f + c) - c`: the data's own rounding is then the same, and what is
+/// left is the code's (the FFT of the raw field in the fractional
+/// derivative, the raw sums of the plane fit: 3e-5 in α and 5e-5 in H).
+#[test]
+fn scale_and_offset_leave_trace_moments_alone() {
+    let (f, _) = periodic_fbm(0.4, 128, 77);
+    let mut cfg = TraceMomentConfig::default();
+    cfg.eta.push(10.0);
+    let run = |data: Array2<f64>| {
+        let mut acc = TraceMomentAccumulator::new(cfg.clone()).unwrap();
+        acc.add_field(&Field::new(data)).unwrap();
+        acc.finish(&TraceMomentFitConfig::default()).unwrap()
+    };
+    let close = |what: &str, a: &TraceMomentResult, b: &TraceMomentResult, tol: f64| {
+        let pairs = [
+            ("alpha", a.alpha, b.alpha),
+            ("C1", a.c1, b.c1),
+            ("H", a.h.unwrap(), b.h.unwrap()),
+            ("dtm alpha", a.dtm_alpha, b.dtm_alpha),
+            ("beta", a.beta.unwrap(), b.beta.unwrap()),
+        ];
+        for (name, x, y) in pairs {
+            assert!(
+                x.is_finite() && (x - y).abs() <= tol,
+                "{what}: {name} {x} vs {y}"
+            );
+        }
+        for (x, y) in a.k.iter().zip(&b.k) {
+            assert!((x - y).abs() <= tol, "{what}: K {x} vs {y}");
+        }
+        for (ie, (x, y)) in a.k_eta[0].iter().zip(&b.k_eta[0]).enumerate() {
+            assert!(
+                x.is_finite() && y.is_finite() && (x - y).abs() <= tol,
+                "{what}: K(1.5, η = {}) {x} vs {y}",
+                cfg.eta[ie]
+            );
+        }
+    };
+    let base = run(f.data.clone());
+    let peak = f.data.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    // a power of two: the scaled values are exact, only the code rounds
+    let s = 2f64.powi((1e99 / peak).log2().floor() as i32);
+    close(
+        "x 2^k up to 1e99",
+        &base,
+        &run(f.data.mapv(|v| v * s)),
+        1e-9,
+    );
+    let c = 1e13;
+    let shifted = f.data.mapv(|v| v + c);
+    let back = shifted.mapv(|v| v - c);
+    close("offset 1e13", &run(back), &run(shifted), 1e-11);
+}

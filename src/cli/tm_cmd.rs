@@ -363,8 +363,8 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                     format!(" off the flat value {}", crate::error::short(v))
                 });
                 extra.push(format!(
-                    "{}: every value is a whole number and {:.0} % of horizontal neighbours{off} \
-                     are equal: a quantised DEM, whose zero gradients bias the flux's low moments \
+                    "{}: {:.0} % of horizontal neighbours{off} are equal: quantised values (a DEM \
+                     in whole metres, say), whose zero gradients bias the flux's low moments \
                      (TM §5.2); --frac-int (order 0.1) smooths them (README: Jacksboro's alpha \
                      1.49 -> 1.44)",
                     p.display(),
@@ -496,8 +496,7 @@ pub struct ImageInfo {
     shape: [usize; 2],
     /// Missing pixels.
     missing: usize,
-    /// When every value is a whole number, the fraction of equal
-    /// horizontal neighbours ([`quantised`]).
+    /// The fraction of equal horizontal neighbours ([`quantised`]).
     equal: Option<f64>,
     /// The value filling flat areas and its share of the valid pixels
     /// ([`crate::Field::flat_value`]).
@@ -517,20 +516,15 @@ impl ImageInfo {
     }
 }
 
-/// For a field whose valid values are all whole numbers (a DEM in whole
-/// metres), the fraction of valid horizontal neighbour pairs that are
-/// equal: there the gradient flux is exactly 0 (TM §5.2). Pairs touching
-/// the `flat` value (a sea: [`crate::Field::flat_value`]) are left out,
-/// since no fractional integration mends those (a warning of their own).
+/// The fraction of valid horizontal neighbour pairs that are equal: there
+/// the gradient flux is exactly 0 (TM §5.2), as in a DEM in whole metres.
+/// Equality, not whole numbers, is what counts, so the same DEM in other
+/// units (kilometres, a 16-bit PNG's decimetres through its sidecar's
+/// scale) reads the same; until 2026-11-29 only whole numbers were
+/// looked at, and the DEM in kilometres went unnamed. Pairs touching the
+/// `flat` value (a sea: [`crate::Field::flat_value`]) are left out, since
+/// no fractional integration mends those (a warning of their own).
 fn quantised(f: &crate::Field, flat: Option<f64>) -> Option<f64> {
-    if !f
-        .data
-        .iter()
-        .filter(|v| v.is_finite())
-        .all(|v| v.fract() == 0.0)
-    {
-        return None;
-    }
     // along the rows
     let (pairs, equal) = f.equal_pairs(ndarray::Axis(1), flat);
     (pairs > 0).then(|| equal as f64 / pairs as f64)

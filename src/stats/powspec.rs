@@ -373,22 +373,25 @@ fn detrend(img: &mut Array2<f64>, how: Detrend) {
             img.mapv_inplace(|v| v - m);
         }
         Detrend::Plane => {
-            // centred coordinates make the normal equations diagonal
+            // centred coordinates make the normal equations diagonal; the
+            // mean goes first, so that a large offset does not round the
+            // slopes' sums (1e13 on a field of unit roughness moved beta
+            // by 5e-5)
+            let c0 = img.mean().unwrap_or(0.0);
+            img.mapv_inplace(|v| v - c0);
             let (cx, cy) = ((nx as f64 - 1.0) / 2.0, (ny as f64 - 1.0) / 2.0);
-            let (mut s, mut sx, mut sy, mut sxx, mut syy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            let (mut sx, mut sy, mut sxx, mut syy) = (0.0, 0.0, 0.0, 0.0);
             for ((y, x), &v) in img.indexed_iter() {
                 let (u, w) = (x as f64 - cx, y as f64 - cy);
-                s += v;
                 sx += u * v;
                 sy += w * v;
                 sxx += u * u;
                 syy += w * w;
             }
-            let c0 = s / (nx * ny) as f64;
             let c1 = if sxx > 0.0 { sx / sxx } else { 0.0 };
             let c2 = if syy > 0.0 { sy / syy } else { 0.0 };
             for ((y, x), v) in img.indexed_iter_mut() {
-                *v -= c0 + c1 * (x as f64 - cx) + c2 * (y as f64 - cy);
+                *v -= c1 * (x as f64 - cx) + c2 * (y as f64 - cy);
             }
         }
     }

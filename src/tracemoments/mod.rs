@@ -929,15 +929,33 @@ impl TraceMomentAccumulator {
                     self.tm[iq][k].add_powers(&logs, lmax, q);
                 }
             }
-            // double trace moments
+            // double trace moments. φ^η is raised on φ / max φ and the logs
+            // of the box means shifted back by η ln max φ: the raw φ^η
+            // overflowed (a field of 1e99 at η = 3.16 lost K(q, η), its
+            // fit said nothing), while the ratio is at most 1 for any η
+            let p_max = base.iter().copied().fold(0.0, f64::max);
+            let (inv_max, ln_max) = if p_max > 0.0 {
+                (1.0 / p_max, p_max.ln())
+            } else {
+                (1.0, 0.0)
+            };
             for (ie, &eta) in self.config.eta.iter().enumerate() {
                 let v: Vec<f64> = base
                     .iter()
-                    .map(|&p| if p > 0.0 { p.powf(eta) } else { 0.0 })
+                    .map(|&p| {
+                        if p > 0.0 {
+                            (p * inv_max).powf(eta)
+                        } else {
+                            0.0
+                        }
+                    })
                     .collect();
                 let sums = pyr.sums(v);
                 for (k, sk) in sums.iter().enumerate() {
-                    let logs = pyr.log_means(sk, k, keep(k));
+                    let mut logs = pyr.log_means(sk, k, keep(k));
+                    for l in logs.iter_mut() {
+                        *l += eta * ln_max;
+                    }
                     let lmax = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
                     if k == 0 {
                         self.eta_sum[ie].add_powers(&logs, lmax, 1.0);
