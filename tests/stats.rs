@@ -3199,3 +3199,91 @@ fn inconsistent_correlation_sums_are_refused() {
     bad.images[0].tiles[1].n.pop();
     assert!(correlation_estimates(&bad).is_err());
 }
+
+/// A surface has no orientation, so a flipped image must give the same
+/// WTMMM statistics, mapped: the pdfs of A and the joint density of (T1,
+/// T2) reflected (flip up-down: A -> -A, T2 -> -T2), drawn at the same
+/// resolution, and the CWT-grid kernel sums (a sample of every pixel)
+/// equal. On a non-square fBm with even sides, where each failed before
+/// 2026-11-29: P(A)'s Freedman-Diaconis width took the IQR of A on a cut
+/// circle (8 bins against 16 on the Jacksboro DEM flipped), the joint
+/// density's grid points on the axes and diagonals, edges of the argument
+/// bins, went to the bin on one side, and the grid kernel took every
+/// second row counted from the top (a flip samples the other parity).
+#[test]
+fn flipped_images_give_mapped_pdfs_and_grid_kernel() {
+    let f =
+        wtmm::synth::fbm::fbm(wtmm::synth::fbm::FbmParams { hurst: 0.4 }, 160, 224, 21, 0).unwrap();
+    let flipped = f.slice(ndarray::s![..;-1, ..]).to_owned();
+    let cfg = AnalysisConfig {
+        octaves: 3,
+        ..Default::default()
+    };
+    let scales = cfg.scale_list();
+    let show = vec![0, scales.len() / 2, scales.len() - 1];
+    let pdfs = |data: &Array2<f64>| {
+        let im = image_wtmmm(&Field::new(data.clone()), &cfg, Parallelism::Serial, true).unwrap();
+        let h = WtmmmHistograms::from_points(&scales, PdfConfig::default(), &im.all).unwrap();
+        wtmmm_pdfs(
+            &h,
+            &PdfOptions {
+                show: show.clone(),
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    let (a, b) = (pdfs(&f), pdfs(&flipped));
+    for (pa, pb) in a.iter().zip(&b) {
+        assert_eq!(pa.n, pb.n, "a = {}", pa.a);
+        assert_eq!(pa.arg.len(), pb.arg.len(), "a = {}: P(A) bins", pa.a);
+        // bin centre c of the original lands on -c
+        for (c, p) in pa.arg.iter().zip(&pa.p_arg) {
+            let k = pb
+                .arg
+                .iter()
+                .position(|&d| (d + c).abs() < 1e-9)
+                .unwrap_or_else(|| panic!("a = {}: no bin at {}", pa.a, -c));
+            assert_eq!(*p, pb.p_arg[k], "a = {}: P(A) at {c}", pa.a);
+        }
+        let (ja, jb) = (&pa.joint, &pb.joint);
+        let nc = ja.t.len();
+        assert_eq!(ja.t, jb.t);
+        assert!(ja.t.iter().zip(ja.t.iter().rev()).all(|(x, y)| *x == -*y));
+        let mut differ = 0;
+        for iy in 0..nc {
+            for ix in 0..nc {
+                let (x, y) = (
+                    ja.density[(nc - 1 - iy) * nc + ix],
+                    jb.density[iy * nc + ix],
+                );
+                differ += usize::from((x - y).abs() > 1e-12 * x.abs().max(y.abs()));
+            }
+        }
+        assert_eq!(differ, 0, "a = {}: joint density cells not mapped", pa.a);
+    }
+    let grid = |data: &Array2<f64>| {
+        wtmm::stats::kernel::cwt_grid_sums(
+            &Field::new(data.clone()),
+            &cfg,
+            KernelConfig::default(),
+            2,
+            "grid",
+        )
+        .unwrap()
+    };
+    let (ga, gb) = (grid(&f), grid(&flipped));
+    for (j, (ma, mb)) in ga.images[0]
+        .moments
+        .iter()
+        .zip(&gb.images[0].moments)
+        .enumerate()
+    {
+        assert_eq!(ma.n, mb.n, "scale {j}: grid points");
+        let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(1.0);
+        assert!(
+            close(ma.mean, mb.mean) && close(ma.m2, mb.m2) && close(ma.m3, mb.m3),
+            "scale {j}: grid moments {ma:?} vs {mb:?}"
+        );
+    }
+}

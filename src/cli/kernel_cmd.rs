@@ -66,7 +66,7 @@ pub struct KernelArgs {
     /// [default: 0,1,2,3, those within --octaves].
     #[arg(long)]
     pub reconstruct: Option<String>,
-    /// Also the cumulants of ln M over every CWT pixel (a diagnostic; one more CWT pass).
+    /// Also the cumulants of ln M over every other CWT pixel (a diagnostic; one more CWT pass).
     #[arg(long)]
     pub cwt_grid: bool,
     #[command(flatten)]
@@ -489,7 +489,9 @@ pub fn write_kernel_outputs(
         "kappa": kappa_json(&o.alt), "warnings": o.alt.warnings});
     if let Some(g) = &o.grid {
         body["cwt_grid"] = json!({"cumulants": cumulants_json(g), "kappa": kappa_json(g),
-            "note": "ln M over every other pixel of the CWT grid (no WTMMM selection)"});
+            "note": "ln M over every other pixel of the CWT grid, rows and columns counted \
+                     from the nearer border (the same pixels for a flipped image; no WTMMM \
+                     selection)"});
     }
     let rec = |r: &[Reconstruction]| -> serde_json::Value {
         json!(r

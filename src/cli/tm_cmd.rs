@@ -363,7 +363,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                     format!(" off the flat value {}", crate::error::short(v))
                 });
                 extra.push(format!(
-                    "{}: {:.0} % of horizontal neighbours{off} are equal: quantised values (a DEM \
+                    "{}: {:.0} % of neighbouring pixels{off} are equal: quantised values (a DEM \
                      in whole metres, say), whose zero gradients bias the flux's low moments \
                      (TM §5.2); --frac-int (order 0.1) smooths them (README: Jacksboro's alpha \
                      1.49 -> 1.44)",
@@ -496,7 +496,7 @@ pub struct ImageInfo {
     shape: [usize; 2],
     /// Missing pixels.
     missing: usize,
-    /// The fraction of equal horizontal neighbours ([`quantised`]).
+    /// The fraction of equal neighbours ([`quantised`]).
     equal: Option<f64>,
     /// The value filling flat areas and its share of the valid pixels
     /// ([`crate::Field::flat_value`]).
@@ -516,7 +516,8 @@ impl ImageInfo {
     }
 }
 
-/// The fraction of valid horizontal neighbour pairs that are equal: there
+/// The fraction of valid neighbour pairs (along rows and columns) that are
+/// equal: there
 /// the gradient flux is exactly 0 (TM §5.2), as in a DEM in whole metres.
 /// Equality, not whole numbers, is what counts, so the same DEM in other
 /// units (kilometres, a 16-bit PNG's decimetres through its sidecar's
@@ -525,8 +526,11 @@ impl ImageInfo {
 /// `flat` value (a sea: [`crate::Field::flat_value`]) are left out, since
 /// no fractional integration mends those (a warning of their own).
 fn quantised(f: &crate::Field, flat: Option<f64>) -> Option<f64> {
-    // along the rows
-    let (pairs, equal) = f.equal_pairs(ndarray::Axis(1), flat);
+    // along rows and columns: the rows alone named a field with equal
+    // neighbours down its columns only when transposed
+    let (pr, er) = f.equal_pairs(ndarray::Axis(1), flat);
+    let (pc, ec) = f.equal_pairs(ndarray::Axis(0), flat);
+    let (pairs, equal) = (pr + pc, er + ec);
     (pairs > 0).then(|| equal as f64 / pairs as f64)
 }
 

@@ -925,8 +925,10 @@ fn joint_density(h: &ScaleHist, nb: usize, d: f64, extent: f64, opts: &PdfOption
             arg_bins: nb,
         };
     }
+    // (2i + 1 - nc) / nc: the grid is exactly symmetric about 0, so that
+    // a reflected image samples the mirror points
     let t: Vec<f64> = (0..nc)
-        .map(|i| -extent + (i as f64 + 0.5) * 2.0 * extent / nc as f64)
+        .map(|i| extent * (2.0 * i as f64 + 1.0 - nc as f64) / nc as f64)
         .collect();
     let da = 2.0 * PI / nb as f64;
     let norm = h.n as f64 * d * da;
@@ -941,9 +943,19 @@ fn joint_density(h: &ScaleHist, nb: usize, d: f64, extent: f64, opts: &PdfOption
             if k < h.lo || k >= h.lo + h.rows as i64 {
                 continue;
             }
-            let b = arg_bin(t2.atan2(t1), nb);
-            let c = h.counts[(k - h.lo) as usize * nb + b];
-            density[iy * nc + ix] = c as f64 / norm / m2;
+            // a point on an edge of the argument bins (the grid's axes and
+            // diagonals, for nb a multiple of 8) takes the mean of the two
+            // bins it parts: the half-open bins gave it to one side, so a
+            // reflected image read the other (25-35 % apart there)
+            let row = &h.counts[(k - h.lo) as usize * nb..][..nb];
+            let u = (t2.atan2(t1) + PI) / da;
+            let c = if (u - u.round()).abs() < 1e-9 {
+                let b = (u.round() as usize) % nb;
+                0.5 * (row[b] + row[(b + nb - 1) % nb]) as f64
+            } else {
+                row[arg_bin(t2.atan2(t1), nb)] as f64
+            };
+            density[iy * nc + ix] = c / norm / m2;
         }
     }
     JointDensity {
@@ -963,7 +975,9 @@ fn iqr_ln_m(h: &ScaleHist, nb: usize, d: f64) -> f64 {
 
 /// The interquartile range of counts in unit-width bins, in bins: the
 /// quartiles read from the cumulative counts, linear within a bin (0 below
-/// 2 points).
+/// 2 points). Where the cumulative count rests on a quartile over empty
+/// bins, the quartile is the middle of that run, so that the counts read
+/// backwards give the same range (a reflected image's argument bins).
 fn binned_iqr(counts: &[u64]) -> f64 {
     let n: u64 = counts.iter().sum();
     if n < 2 {
@@ -975,13 +989,35 @@ fn binned_iqr(counts: &[u64]) -> f64 {
         for (b, &c) in counts.iter().enumerate() {
             let next = acc + c as f64;
             if next >= target && c > 0 {
-                return b as f64 + (target - acc) / c as f64;
+                if next > target {
+                    return b as f64 + (target - acc) / c as f64;
+                }
+                // the target ends this bin: the cumulative count stays on
+                // it over the empty bins that follow
+                let empty = counts[b + 1..].iter().take_while(|&&c| c == 0).count();
+                return (b + 1) as f64 + empty as f64 / 2.0;
             }
             acc = next;
         }
         counts.len() as f64
     };
     quantile(0.75) - quantile(0.25)
+}
+
+/// [`binned_iqr`] of counts over the circle (the argument bins over
+/// `[-π, π)`): the smallest over the cuts of the circle at each bin edge.
+/// A linear range depends on where the circle is cut, so that a flipped
+/// image drew its P(A) at another width (the Jacksboro DEM at a = 3 px: 8
+/// bins, flipped left to right 16); every symmetry of the grid maps the
+/// cuts onto one another.
+fn circular_iqr(counts: &[u64]) -> f64 {
+    let mut turned = counts.to_vec();
+    (0..counts.len())
+        .map(|_| {
+            turned.rotate_left(1);
+            binned_iqr(&turned)
+        })
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// The largest power of two `ka` of argument bins (of `nb`, each `2π/nb`
@@ -1032,15 +1068,15 @@ fn joint_factors(h: &ScaleHist, nb: usize, d: f64) -> (usize, usize) {
 
 /// How many neighbouring argument bins (of the `counts.len()` over
 /// `[-π, π)`) one bin of P(A) merges: the Freedman-Diaconis width `2 IQR
-/// n^(-1/3)` of A (quartiles from the cumulative counts, linear within a
-/// bin), rounded down to a power of two that divides the bins and leaves at
-/// least 8 of them.
+/// n^(-1/3)` of A (the IQR over the circle, [`circular_iqr`]), rounded
+/// down to a power of two that divides the bins and leaves at least 8 of
+/// them.
 fn arg_factor(counts: &[u64], n: u64) -> usize {
     if n < 2 {
         return 1;
     }
     let da = 2.0 * PI / counts.len() as f64;
-    let width = 2.0 * binned_iqr(counts) * da * (n as f64).powf(-1.0 / 3.0);
+    let width = 2.0 * circular_iqr(counts) * da * (n as f64).powf(-1.0 / 3.0);
     pow2_arg_merge(width, counts.len())
 }
 
@@ -1137,6 +1173,37 @@ fn coarsen(h: &ScaleHist, nb: usize, k: usize) -> ScaleHist {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The spread of A does not depend on where the circle is cut: a
+    /// distribution across the cut at ±π reads as narrow as the same turned
+    /// to 0 (the linear range read it as the whole circle), and the
+    /// reversed counts (a reflected image) read the same, also where a
+    /// quartile falls on a run of empty bins.
+    #[test]
+    fn the_iqr_of_a_is_read_on_the_circle() {
+        let mut across = vec![0u64; 64];
+        for (b, c) in [(62, 5), (63, 20), (0, 20), (1, 5)] {
+            across[b] = c;
+        }
+        assert!(binned_iqr(&across) > 60.0);
+        let mut centred = vec![0u64; 64];
+        centred[30..34].copy_from_slice(&[5, 20, 20, 5]);
+        assert_eq!(circular_iqr(&across), binned_iqr(&centred));
+        assert!(circular_iqr(&across) < 2.0);
+        // quartiles on empty runs: 4 points over bins 3, 10, 20, 40
+        let mut sparse = vec![0u64; 64];
+        for b in [3, 10, 20, 40] {
+            sparse[b] = 1;
+        }
+        let reversed: Vec<u64> = sparse.iter().rev().copied().collect();
+        assert_eq!(binned_iqr(&sparse), binned_iqr(&reversed));
+        assert_eq!(circular_iqr(&sparse), circular_iqr(&reversed));
+        for r in [1, 16, 33] {
+            let mut turned = sparse.clone();
+            turned.rotate_left(r);
+            assert_eq!(circular_iqr(&turned), circular_iqr(&sparse));
+        }
+    }
 
     /// A fine ln M bin with many argument bins would need gigabytes per
     /// scale (2e-4 x 4096: 226 GB for the moduli 1e-300 and 1e300): refused
