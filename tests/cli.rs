@@ -1263,6 +1263,20 @@ fn tm_names_a_quantised_dem() {
     let pk = dir.join("q_tenths.npy");
     write_npy(&pk, &q_units.mapv(|v| v * 0.1)).unwrap();
     assert!(said(&["tm", &pk.display().to_string(), "--out", &o]));
+    // two lakes at their own levels on the unrounded field: equal
+    // neighbours (4 %), but flat areas, which --frac-int does not mend
+    let mut lakes = fbm_in_units(4, 40.0).0;
+    for ((y, x), v) in lakes.indexed_iter_mut() {
+        let d = |cy: f64, cx: f64| ((y as f64 - cy).powi(2) + (x as f64 - cx).powi(2)).sqrt();
+        if d(60.0, 60.0) < 18.0 {
+            *v = 0.25;
+        } else if d(180.0, 170.0) < 18.0 {
+            *v = -0.5;
+        }
+    }
+    let pl = dir.join("lakes.npy");
+    write_npy(&pl, &lakes).unwrap();
+    assert!(!said(&["tm", &pl.display().to_string(), "--out", &o]));
 }
 
 /// A DEM in whole units with a relief of 40000 (next to no equal

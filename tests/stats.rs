@@ -3204,12 +3204,15 @@ fn inconsistent_correlation_sums_are_refused() {
 /// WTMMM statistics, mapped: the pdfs of A and the joint density of (T1,
 /// T2) reflected (flip up-down: A -> -A, T2 -> -T2), drawn at the same
 /// resolution, and the CWT-grid kernel sums (a sample of every pixel)
-/// equal. On a non-square fBm with even sides, where each failed before
-/// 2026-11-29: P(A)'s Freedman-Diaconis width took the IQR of A on a cut
-/// circle (8 bins against 16 on the Jacksboro DEM flipped), the joint
-/// density's grid points on the axes and diagonals, edges of the argument
-/// bins, went to the bin on one side, and the grid kernel took every
-/// second row counted from the top (a flip samples the other parity).
+/// equal. On a non-square fBm with even sides, where two failed before
+/// 2026-11-29: the joint density's grid points on the axes and diagonals,
+/// edges of the argument bins, went to the bin on one side, and the grid
+/// kernel took every second row counted from the top (a flip samples the
+/// other parity). P(A)'s width (the IQR of A on a cut circle drew the
+/// Jacksboro DEM flipped in 16 bins against 8) agreed on this field; the
+/// unit test `the_iqr_of_a_is_read_on_the_circle` holds it. A transpose
+/// too, on 80 argument bins (whose merges to 10 bins, which no transpose
+/// maps, `merged_argument_bins_stay_a_multiple_of_8` holds).
 #[test]
 fn flipped_images_give_mapped_pdfs_and_grid_kernel() {
     let f =
@@ -3221,9 +3224,13 @@ fn flipped_images_give_mapped_pdfs_and_grid_kernel() {
     };
     let scales = cfg.scale_list();
     let show = vec![0, scales.len() / 2, scales.len() - 1];
-    let pdfs = |data: &Array2<f64>| {
+    let pdfs = |data: &Array2<f64>, arg_bins: usize| {
         let im = image_wtmmm(&Field::new(data.clone()), &cfg, Parallelism::Serial, true).unwrap();
-        let h = WtmmmHistograms::from_points(&scales, PdfConfig::default(), &im.all).unwrap();
+        let pc = PdfConfig {
+            arg_bins,
+            ..Default::default()
+        };
+        let h = WtmmmHistograms::from_points(&scales, pc, &im.all).unwrap();
         wtmmm_pdfs(
             &h,
             &PdfOptions {
@@ -3233,35 +3240,65 @@ fn flipped_images_give_mapped_pdfs_and_grid_kernel() {
         )
         .unwrap()
     };
-    let (a, b) = (pdfs(&f), pdfs(&flipped));
-    for (pa, pb) in a.iter().zip(&b) {
-        assert_eq!(pa.n, pb.n, "a = {}", pa.a);
-        assert_eq!(pa.arg.len(), pb.arg.len(), "a = {}: P(A) bins", pa.a);
-        // bin centre c of the original lands on -c
-        for (c, p) in pa.arg.iter().zip(&pa.p_arg) {
-            let k = pb
-                .arg
-                .iter()
-                .position(|&d| (d + c).abs() < 1e-9)
-                .unwrap_or_else(|| panic!("a = {}: no bin at {}", pa.a, -c));
-            assert_eq!(*p, pb.p_arg[k], "a = {}: P(A) at {c}", pa.a);
-        }
-        let (ja, jb) = (&pa.joint, &pb.joint);
-        let nc = ja.t.len();
-        assert_eq!(ja.t, jb.t);
-        assert!(ja.t.iter().zip(ja.t.iter().rev()).all(|(x, y)| *x == -*y));
-        let mut differ = 0;
-        for iy in 0..nc {
-            for ix in 0..nc {
-                let (x, y) = (
-                    ja.density[(nc - 1 - iy) * nc + ix],
-                    jb.density[iy * nc + ix],
-                );
-                differ += usize::from((x - y).abs() > 1e-12 * x.abs().max(y.abs()));
+    // `turn` maps an angle of the original to the image's, `cell` a joint
+    // density cell (iy, ix) of the image to the original's
+    let mapped = |what: &str,
+                  a: &[wtmm::stats::pdf::ScalePdf],
+                  b: &[wtmm::stats::pdf::ScalePdf],
+                  turn: &dyn Fn(f64) -> f64,
+                  cell: &dyn Fn(usize, usize, usize) -> (usize, usize)| {
+        for (pa, pb) in a.iter().zip(b) {
+            assert_eq!(pa.n, pb.n, "{what}, a = {}", pa.a);
+            assert_eq!(
+                pa.arg.len(),
+                pb.arg.len(),
+                "{what}, a = {}: P(A) bins",
+                pa.a
+            );
+            for (c, p) in pa.arg.iter().zip(&pa.p_arg) {
+                let to = (turn(*c) + PI).rem_euclid(2.0 * PI) - PI;
+                let k = pb
+                    .arg
+                    .iter()
+                    .position(|&d| (d - to).abs() < 1e-9)
+                    .unwrap_or_else(|| panic!("{what}, a = {}: no bin at {to}", pa.a));
+                assert_eq!(*p, pb.p_arg[k], "{what}, a = {}: P(A) at {c}", pa.a);
             }
+            let (ja, jb) = (&pa.joint, &pb.joint);
+            let nc = ja.t.len();
+            assert_eq!(ja.t, jb.t);
+            assert!(ja.t.iter().zip(ja.t.iter().rev()).all(|(x, y)| *x == -*y));
+            let mut differ = 0;
+            for iy in 0..nc {
+                for ix in 0..nc {
+                    let (oy, ox) = cell(nc, iy, ix);
+                    let (x, y) = (ja.density[oy * nc + ox], jb.density[iy * nc + ix]);
+                    differ += usize::from((x - y).abs() > 1e-12 * x.abs().max(y.abs()));
+                }
+            }
+            assert_eq!(
+                differ, 0,
+                "{what}, a = {}: joint density cells not mapped",
+                pa.a
+            );
         }
-        assert_eq!(differ, 0, "a = {}: joint density cells not mapped", pa.a);
-    }
+    };
+    // flip up-down: A -> -A, T2 -> -T2
+    mapped(
+        "flipped",
+        &pdfs(&f, 64),
+        &pdfs(&flipped, 64),
+        &|c| -c,
+        &|nc, iy, ix| (nc - 1 - iy, ix),
+    );
+    // transpose: A -> pi/2 - A, T1 <-> T2, on 80 argument bins
+    mapped(
+        "transposed, 80 bins",
+        &pdfs(&f, 80),
+        &pdfs(&f.t().to_owned(), 80),
+        &|c| PI / 2.0 - c,
+        &|_, iy, ix| (ix, iy),
+    );
     let grid = |data: &Array2<f64>| {
         wtmm::stats::kernel::cwt_grid_sums(
             &Field::new(data.clone()),

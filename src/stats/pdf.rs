@@ -1021,12 +1021,15 @@ fn circular_iqr(counts: &[u64]) -> f64 {
 }
 
 /// The largest power of two `ka` of argument bins (of `nb`, each `2π/nb`
-/// wide) whose merged width stays within `width`, that divides `nb` and
-/// leaves at least 8 bins (the sectors of A need whole bins).
+/// wide) whose merged width stays within `width` and that leaves a
+/// multiple of 8 bins: the sectors of A need whole bins, and only then do
+/// the symmetries of the grid (quarter turns, flips about the axes and
+/// diagonals) map bin edges onto bin edges (`--arg-bins 80` merged to 20
+/// bins drew a transposed image's P(A) on other bins).
 fn pow2_arg_merge(width: f64, nb: usize) -> usize {
     let da = 2.0 * PI / nb as f64;
     let mut ka = 1;
-    while 2 * ka <= nb / 8 && nb.is_multiple_of(2 * ka) && (2 * ka) as f64 * da <= width {
+    while nb.is_multiple_of(16 * ka) && (2 * ka) as f64 * da <= width {
         ka *= 2;
     }
     ka
@@ -1173,6 +1176,24 @@ fn coarsen(h: &ScaleHist, nb: usize, k: usize) -> ScaleHist {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every allowed `--arg-bins` merges to a multiple of 8 bins, whose
+    /// edges the quarter turns and the flips of the grid map onto edges
+    /// (80 merged to 10 before: 36° bins, no edge at ±90°).
+    #[test]
+    fn merged_argument_bins_stay_a_multiple_of_8() {
+        for nb in (16..=4096).step_by(16) {
+            for width in [0.01, 0.3, 1.0, 3.0, 7.0] {
+                let ka = pow2_arg_merge(width, nb);
+                assert!(
+                    nb.is_multiple_of(ka) && (nb / ka).is_multiple_of(8),
+                    "{nb} bins, ka = {ka}"
+                );
+            }
+        }
+        assert_eq!(pow2_arg_merge(7.0, 80), 2);
+        assert_eq!(pow2_arg_merge(7.0, 64), 8);
+    }
 
     /// The spread of A does not depend on where the circle is cut: a
     /// distribution across the cut at ±π reads as narrow as the same turned

@@ -934,21 +934,17 @@ impl TraceMomentAccumulator {
             // overflowed (a field of 1e99 at η = 3.16 lost K(q, η), its
             // fit said nothing), while the ratio is at most 1 for any η
             let p_max = base.iter().copied().fold(0.0, f64::max);
-            let (inv_max, ln_max) = if p_max > 0.0 {
-                (1.0 / p_max, p_max.ln())
+            // (divided, not multiplied by 1 / max: that overflows for a
+            // subnormal max, a flux given through the library)
+            let (div, ln_max) = if p_max > 0.0 {
+                (p_max, p_max.ln())
             } else {
                 (1.0, 0.0)
             };
             for (ie, &eta) in self.config.eta.iter().enumerate() {
                 let v: Vec<f64> = base
                     .iter()
-                    .map(|&p| {
-                        if p > 0.0 {
-                            (p * inv_max).powf(eta)
-                        } else {
-                            0.0
-                        }
-                    })
+                    .map(|&p| if p > 0.0 { (p / div).powf(eta) } else { 0.0 })
                     .collect();
                 let sums = pyr.sums(v);
                 for (k, sk) in sums.iter().enumerate() {
