@@ -621,8 +621,9 @@ fn cf_sums(u: &[f64], dp: f64, re: &mut [f64], im: &mut [f64]) {
 /// Diagnostic: the same sums over the `ln M` of every pixel of the CWT
 /// grid (every `stride`-th row and column of the analysis domain, counted
 /// from the nearer end of each side, so that a flipped or rotated image
-/// samples the same pixels), instead of the WTMMM. It separates what the transform itself carries from what
-/// the selection of WTMMM does (II §4.1 prefers the skeleton because
+/// samples the same pixels), instead of the WTMMM. It separates what the
+/// transform itself carries from what the selection of WTMMM does (II
+/// §4.1 prefers the skeleton because
 /// `C(p, a')` of the grid decays faster with p; the cumulants do not need
 /// large p).
 ///

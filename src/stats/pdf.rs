@@ -1024,8 +1024,9 @@ fn circular_iqr(counts: &[u64]) -> f64 {
 /// wide) whose merged width stays within `width` and that leaves a
 /// multiple of 8 bins: the sectors of A need whole bins, and only then do
 /// the symmetries of the grid (quarter turns, flips about the axes and
-/// diagonals) map bin edges onto bin edges (`--arg-bins 80` merged to 20
-/// bins drew a transposed image's P(A) on other bins).
+/// diagonals) map bin edges onto bin edges (`--arg-bins 80` merged to 10
+/// bins of 36°, with no edge at ±90°, drew a transposed image's P(A) on
+/// other bins).
 fn pow2_arg_merge(width: f64, nb: usize) -> usize {
     let da = 2.0 * PI / nb as f64;
     let mut ka = 1;
@@ -1072,8 +1073,8 @@ fn joint_factors(h: &ScaleHist, nb: usize, d: f64) -> (usize, usize) {
 /// How many neighbouring argument bins (of the `counts.len()` over
 /// `[-π, π)`) one bin of P(A) merges: the Freedman-Diaconis width `2 IQR
 /// n^(-1/3)` of A (the IQR over the circle, [`circular_iqr`]), rounded
-/// down to a power of two that divides the bins and leaves at least 8 of
-/// them.
+/// down to a power of two that leaves a multiple of 8 bins
+/// ([`pow2_arg_merge`]).
 fn arg_factor(counts: &[u64], n: u64) -> usize {
     if n < 2 {
         return 1;
