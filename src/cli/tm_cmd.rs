@@ -531,10 +531,14 @@ impl ImageInfo {
 /// float DEM: Levi Fell's 2 % of equal pairs lie at a few levels), which
 /// `--frac-int` does not mend either.
 fn quantised(f: &crate::Field, flat: Option<f64>) -> Option<f64> {
-    lattice_step(f)?;
     let (pr, er) = f.equal_pairs(ndarray::Axis(1), flat);
     let (pc, ec) = f.equal_pairs(ndarray::Axis(0), flat);
     let (pairs, equal) = (pr + pc, er + ec);
+    // the lattice (a sort of the values) only when some pair is equal: a
+    // continuous field skips it (1.3 s of tm's 20 s on a 2048^2 field)
+    if equal > 0 {
+        lattice_step(f)?;
+    }
     (pairs > 0).then(|| equal as f64 / pairs as f64)
 }
 

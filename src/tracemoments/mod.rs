@@ -929,28 +929,36 @@ impl TraceMomentAccumulator {
                     self.tm[iq][k].add_powers(&logs, lmax, q);
                 }
             }
-            // double trace moments. φ^η is raised on φ / max φ and the logs
-            // of the box means shifted back by η ln max φ: the raw φ^η
-            // overflowed (a field of 1e99 at η = 3.16 lost K(q, η), its
-            // fit said nothing), while the ratio is at most 1 for any η
+            // double trace moments. Where the box sums of φ^η could
+            // overflow (a field of 1e99 at η = 3.16 lost K(q, η), and its
+            // fit said nothing) or underflow, φ / max φ is raised instead
+            // (at most 1 for any η) and the logs of the box means shifted
+            // back by η ln max φ; elsewhere φ itself, as before (the
+            // ratios throughout cost 5 % of tm's time on a 2048^2 field)
             let p_max = base.iter().copied().fold(0.0, f64::max);
-            // (divided, not multiplied by 1 / max: that overflows for a
-            // subnormal max, a flux given through the library)
-            let (div, ln_max) = if p_max > 0.0 {
-                (p_max, p_max.ln())
-            } else {
-                (1.0, 0.0)
-            };
+            let n_px = base.len() as f64;
             for (ie, &eta) in self.config.eta.iter().enumerate() {
-                let v: Vec<f64> = base
-                    .iter()
-                    .map(|&p| if p > 0.0 { (p / div).powf(eta) } else { 0.0 })
-                    .collect();
+                let top = p_max.powf(eta);
+                let scaled = p_max > 0.0 && !(top >= 1e-280 && top * n_px <= 1e280);
+                // (divided, not multiplied by 1 / max: that overflows for a
+                // subnormal max, a flux given through the library)
+                let v: Vec<f64> = if scaled {
+                    base.iter()
+                        .map(|&p| if p > 0.0 { (p / p_max).powf(eta) } else { 0.0 })
+                        .collect()
+                } else {
+                    base.iter()
+                        .map(|&p| if p > 0.0 { p.powf(eta) } else { 0.0 })
+                        .collect()
+                };
+                let shift = if scaled { eta * p_max.ln() } else { 0.0 };
                 let sums = pyr.sums(v);
                 for (k, sk) in sums.iter().enumerate() {
                     let mut logs = pyr.log_means(sk, k, keep(k));
-                    for l in logs.iter_mut() {
-                        *l += eta * ln_max;
+                    if shift != 0.0 {
+                        for l in logs.iter_mut() {
+                            *l += shift;
+                        }
                     }
                     let lmax = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
                     if k == 0 {
