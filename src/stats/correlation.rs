@@ -117,9 +117,9 @@ pub enum Magnitude {
     /// `ln M(x, a)`.
     #[default]
     Lnm,
-    /// `½ ln ε²(x, a)`, `ε²` the box average of `|T|²` over a window of
-    /// side `2 floor(a/2) + 1` px (II eqs 65, 67; SPEC §6's "size a", made
-    /// odd so that the box is centred on its pixel).
+    /// `½ ln ε²(x, a)`, `ε²` the average of `|T|²` over a square of side
+    /// `a` centred on the pixel, pixels cut by its edges weighted by the
+    /// part they cover (II eqs 65, 67; SPEC §6's "window of size a").
     Energy,
 }
 
@@ -270,11 +270,11 @@ impl CorrelationConfig {
     }
 
     /// How far beyond a point its magnitude reads the transform, on top of
-    /// the wavelet's support: the box of the energy magnitude (half its
-    /// side, [`box_energy`]), 0 for `ln M`.
+    /// the wavelet's support: the box of the energy magnitude (the pixels
+    /// it touches, [`box_weights`]), 0 for `ln M`.
     fn box_reach(&self, a: f64) -> usize {
         match self.magnitude {
-            Magnitude::Energy => (a / 2.0).floor() as usize,
+            Magnitude::Energy => box_weights(a).len() / 2,
             Magnitude::Lnm => 0,
         }
     }
@@ -1987,19 +1987,39 @@ fn ln_normal(x: f64) -> f64 {
     e * LN2_HI + (e * LN2_LO + 2.0 * s * p)
 }
 
-/// `ε²` of II eq 65 with a square box of side `2 floor(a/2) + 1`
-/// (periodic); the magnitude is `½ ln ε²`.
+/// The weights of a box of side `a` px centred on a pixel, for the offsets
+/// `-r..=r` of the pixels it touches: the length of `[d - ½, d + ½]`
+/// inside `[-a/2, a/2]`, over `a` (their sum is 1). II eq 65's window
+/// `χ(x/a)` read as the unit square on the pixels' piecewise-constant
+/// `|T|²`: `ε²` then varies continuously with `a`. (A box of whole pixels,
+/// `2 floor(a/2) + 1` on a side, was one pixel, `ln M` itself, for every
+/// `a < 2`, and jumped at each even `a`.)
+fn box_weights(a: f64) -> Vec<f64> {
+    let h = 0.5 * a;
+    let r = (h - 0.5).ceil().max(0.0) as i64;
+    let w: Vec<f64> = (-r..=r)
+        .map(|d| {
+            let d = d as f64;
+            ((d + 0.5).min(h) - (d - 0.5).max(-h)).max(0.0)
+        })
+        .collect();
+    let sum: f64 = w.iter().sum();
+    w.into_iter().map(|v| v / sum).collect()
+}
+
+/// `ε²` of II eq 65 with a square box of side `a` ([`box_weights`],
+/// periodic, separable); the magnitude is `½ ln ε²`.
 fn box_energy(t: &Array2<Complex64>, a: f64) -> Array2<f64> {
     let (ny, nx) = t.dim();
-    let r = (a / 2.0).floor() as usize;
-    let w = (2 * r + 1) as f64;
+    let wts = box_weights(a);
+    let r = wts.len() / 2;
     let e = t.map(|z| z.re * z.re + z.im * z.im);
     let mut h = Array2::<f64>::zeros((ny, nx));
     for y in 0..ny {
         for x in 0..nx {
             let mut s = 0.0;
-            for d in 0..=2 * r {
-                s += e[[y, (x + nx * (r + 1) + d - r) % nx]];
+            for (d, w) in wts.iter().enumerate() {
+                s += w * e[[y, (x + nx * (r + 1) + d - r) % nx]];
             }
             h[[y, x]] = s;
         }
@@ -2008,10 +2028,10 @@ fn box_energy(t: &Array2<Complex64>, a: f64) -> Array2<f64> {
     for y in 0..ny {
         for x in 0..nx {
             let mut s = 0.0;
-            for d in 0..=2 * r {
-                s += h[[(y + ny * (r + 1) + d - r) % ny, x]];
+            for (d, w) in wts.iter().enumerate() {
+                s += w * h[[(y + ny * (r + 1) + d - r) % ny, x]];
             }
-            out[[y, x]] = s / (w * w);
+            out[[y, x]] = s;
         }
     }
     out
@@ -2541,6 +2561,53 @@ pub fn correlation_estimates(s: &CorrelationSums) -> Result<CorrelationResult> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The energy box has side `a`: symmetric weights summing to 1, whole
+    /// pixels for an odd integer side, a spread (second moment) that grows
+    /// with `a` and is not zero for any `a > 1` (the whole-pixel box was one
+    /// pixel up to `a = 2`), continuous in `a` (it jumped at even `a`).
+    #[test]
+    fn the_energy_box_has_side_a() {
+        let close = |a: &[f64], b: &[f64]| {
+            assert_eq!(a.len(), b.len(), "{a:?} vs {b:?}");
+            a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12)
+        };
+        assert!(close(&box_weights(0.5), &[1.0]));
+        assert!(close(&box_weights(1.0), &[1.0]));
+        assert!(close(
+            &box_weights(1.5),
+            &[0.25 / 1.5, 1.0 / 1.5, 0.25 / 1.5]
+        ));
+        assert!(close(&box_weights(3.0), &[1.0 / 3.0; 3]));
+        assert!(close(&box_weights(5.0), &[0.2; 5]));
+        let mut last = 0.0;
+        for a in [1.01, 1.2, 1.5, 2.0, 2.7, 3.9, 4.0, 6.3, 24.0] {
+            let w = box_weights(a);
+            let r = (w.len() / 2) as f64;
+            let sum: f64 = w.iter().sum();
+            assert!((sum - 1.0).abs() < 1e-12, "a = {a}: sum {sum}");
+            assert!(close(&w, &w.iter().rev().cloned().collect::<Vec<_>>()));
+            let m2: f64 = w
+                .iter()
+                .enumerate()
+                .map(|(i, v)| v * (i as f64 - r).powi(2))
+                .sum();
+            assert!(m2 > last, "a = {a}: spread {m2} after {last}");
+            last = m2;
+        }
+        // continuous across an even side, where the whole-pixel box jumped
+        let (lo, hi) = (box_weights(2.0 - 1e-9), box_weights(2.0 + 1e-9));
+        let pad = |w: &[f64], n: usize| {
+            let k = (n - w.len()) / 2;
+            let mut v = vec![0.0; k];
+            v.extend_from_slice(w);
+            v.extend(vec![0.0; k]);
+            v
+        };
+        let n = lo.len().max(hi.len());
+        let (lo, hi) = (pad(&lo, n), pad(&hi, n));
+        assert!(lo.iter().zip(&hi).all(|(x, y)| (x - y).abs() < 1e-8));
+    }
 
     /// The window and both centrings of `compare_theory`, on a result built
     /// from eq 76 itself with known offsets.
