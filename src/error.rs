@@ -86,6 +86,17 @@ pub(crate) fn short(x: f64) -> String {
     }
 }
 
+/// [`short`] for a value refused for lying outside a range: where 6 digits
+/// would round it onto one of the range's `bounds` ("must be in (0, 1/2],
+/// got 0.5" for 0.5000001), its [`exact`] digits instead.
+pub(crate) fn short_outside(x: f64, bounds: &[f64]) -> String {
+    let s = short(x);
+    match s.parse::<f64>() {
+        Ok(r) if bounds.contains(&r) && !bounds.contains(&x) => exact(x),
+        _ => s,
+    }
+}
+
 /// A number for a message that the user may type back (`--nodata VALUE`):
 /// the shortest digits that read back as exactly `x` (both Rust formats
 /// give them), in Rust's plain notation in the usual range and with an

@@ -29,7 +29,7 @@ impl FbmParams {
                 "hurst",
                 format!(
                     "H must be in (0, 1), got {}",
-                    crate::error::short(self.hurst)
+                    crate::error::short_outside(self.hurst, &[0.0, 1.0])
                 ),
             ));
         }

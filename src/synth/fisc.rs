@@ -56,7 +56,7 @@ impl FiscParams {
                 "p",
                 format!(
                     "p must be in (0, 1/2] (two children get p/2, two get (1-p)/2), got {}",
-                    crate::error::short(self.p)
+                    crate::error::short_outside(self.p, &[0.0, 0.5])
                 ),
             ));
         }
@@ -65,7 +65,7 @@ impl FiscParams {
                 "hstar",
                 format!(
                     "H* must be in (0, 1) (II eq 5; A(H*) of eq 7 vanishes at 1), got {}",
-                    crate::error::short(self.hstar)
+                    crate::error::short_outside(self.hstar, &[0.0, 1.0])
                 ),
             ));
         }
@@ -210,11 +210,24 @@ pub fn fisc(params: FiscParams, size: usize, seed: u64, index: u64) -> Result<Ar
         ));
     }
     let mu = fisc_measure(params, size, seed, index)?;
-    Ok(fractional_integration(
-        &mu,
-        params.hstar,
-        params.amplitude(),
-    ))
+    let f = fractional_integration(&mu, params.hstar, params.amplitude());
+    // A(H*) grows like Γ(H*) ~ 1/H*: near H* = 0 the field leaves double
+    // precision, or the amplitudes every analysis reads
+    let top = f.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if !(top <= crate::field::AMPLITUDE_LIMIT) {
+        return Err(Error::param(
+            "hstar",
+            format!(
+                "H* = {} gives values up to {} (beyond the {:e} that the analyses read): the \
+                 normalisation A(H*) of II eq 7 grows like 1/H* (A = {})",
+                crate::error::short(params.hstar),
+                crate::error::short(top),
+                crate::field::AMPLITUDE_LIMIT,
+                crate::error::short(params.amplitude())
+            ),
+        ));
+    }
+    Ok(f)
 }
 
 /// Periodic fractional integration `f̂ = amp μ̂ |k|^-order`, k in rad/px,
@@ -272,6 +285,31 @@ fn fractional_integration(mu: &Array2<f64>, order: f64, amp: f64) -> Array2<f64>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Near H* = 0 the normalisation A(H*) ~ 1/H* leaves double precision:
+    /// an error naming H*, not a field of inf and NaN (before: 60 NaN and
+    /// 92 inf of 4096 pixels at H* = 1e-308, exit 0), nor values no
+    /// analysis reads (beyond 1e100).
+    #[test]
+    fn an_overflowing_hstar_is_refused() {
+        let p = FiscParams {
+            p: 0.32,
+            hstar: 1e-308,
+        };
+        p.validate().unwrap();
+        let e = fisc(p, 64, 1, 0).unwrap_err().to_string();
+        assert!(
+            e.contains("`hstar`") && e.contains("grows like 1/H*"),
+            "{e}"
+        );
+        // finite but beyond what the analyses read (5e300 at 1e-300)
+        let e = fisc(FiscParams { hstar: 1e-300, ..p }, 64, 1, 0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`hstar`") && e.contains("beyond"), "{e}");
+        let f = fisc(FiscParams { hstar: 1e-3, ..p }, 64, 1, 0).unwrap();
+        assert!(f.iter().all(|v| v.is_finite()));
+    }
 
     #[test]
     fn p_one_half_is_refused_by_the_generator() {

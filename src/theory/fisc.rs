@@ -45,7 +45,8 @@ impl FiscParams {
 
     /// `w(q) = p^q / (p^q + (1-p)^q)`, the weight of the small multiplier.
     fn w(&self, q: f64) -> f64 {
-        let t = q * ((1.0 - self.p) / self.p).ln();
+        // the log of the ratio, not of (1-p)/p: that overflows for a subnormal p
+        let t = q * ((1.0 - self.p).ln() - self.p.ln());
         // 1 / (1 + e^t), written to avoid overflow at both ends
         if t > 0.0 {
             let e = (-t).exp();
@@ -175,7 +176,7 @@ impl Multifractal for FiscParams {
     fn cumulants(&self) -> Option<[f64; 3]> {
         let p = self.p;
         let c1 = 1.0 - self.hstar + 0.5 * (p.log2() + (1.0 - p).log2());
-        let c2 = ((1.0 - p) / p).ln().powi(2) / (4.0 * LN_2);
+        let c2 = ((1.0 - p).ln() - p.ln()).powi(2) / (4.0 * LN_2);
         Some([c1, c2, 0.0])
     }
 }
@@ -183,6 +184,29 @@ impl Multifractal for FiscParams {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A subnormal p is a valid model (the generator draws it): the
+    /// weights and c2 use the log of the ratio, since `(1-p)/p` overflows
+    /// (h(0) was NaN, c2 null). h(0) = H* - 1 - ½ log2(p(1-p)), c2 =
+    /// ln²((1-p)/p) / (4 ln 2), here with 1 - p = 1.
+    #[test]
+    fn subnormal_p_gives_finite_spectra() {
+        let prm = FiscParams {
+            p: 1e-310,
+            hstar: 0.5,
+        };
+        prm.validate().unwrap();
+        let m = crate::theory::Model::Fisc(prm);
+        let lp = prm.p.ln();
+        let h0 = m.h_of_q0();
+        let want = prm.hstar - 1.0 - 0.5 * lp / LN_2;
+        assert!((h0 - want).abs() < 1e-9 * want, "{h0} vs {want}");
+        let c = m.cumulants().unwrap();
+        assert!((c[1] - lp * lp / (4.0 * LN_2)).abs() < 1e-9 * c[1], "{c:?}");
+        for q in [-4.0, -1.0, 0.0, 1.0, 4.0] {
+            assert!(m.tau(q).is_finite() && m.h(q).is_finite(), "q = {q}");
+        }
+    }
 
     /// p = 1/2 is the uniform measure: no power off k = 0.
     #[test]
