@@ -2854,8 +2854,8 @@ pub fn fit_indices(scales: &[f64], fit: (f64, f64)) -> Result<Vec<usize>> {
                  {:.2} octaves above the smallest; widen --fit, or give more --voices or \
                  --octaves)",
                 in_fit.len(),
-                fit.0,
-                fit.1,
+                crate::error::short(fit.0),
+                crate::error::short(fit.1),
                 log2_a.last().map_or(0.0, |l| l - oct0)
             ),
         ));

@@ -4181,7 +4181,11 @@ fn missing_pixels_are_counted_and_reported() {
 /// * a `tm --q` list with fewer than 3 orders in 0 < q <= 2, where the
 ///   universal fit starts (alpha and C1 were NaN), and a NaN `--q-fit-max`;
 /// * grids and sizes that were allocated before they were checked
-///   (`--octaves 100000 --voices 100000`, `validate --size 100000`).
+///   (`--octaves 100000 --voices 100000`, `validate --size 100000`), and
+///   a list of 100 001 moment orders;
+/// * `correlate --integral-scale` without a model; `compare --q-fit-max`
+///   leaving fewer than 3 orders for the universal fit (checked by `tm`
+///   alone); a value just outside its range printed as the bound.
 #[test]
 fn hostile_inputs_are_refused_and_nothing_is_written() {
     let dir = scratch("hostile");
@@ -4385,6 +4389,32 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
             "--out",
             &out,
         ],
+        // a list of 100 001 orders took 3.2 GB (and aborted under a memory
+        // limit, leaving a temporary file)
+        vec!["analyze", &ok, "--q=-1000:1000:0.02", "--out", &out],
+        // L of eq 76 without a model changed nothing, said nowhere
+        vec!["correlate", &ok, "--integral-scale", "100", "--out", &out],
+        // compare checked --q-fit-max as tm does not (alpha and C1 came out
+        // "-"); a range starting with a hyphen reaches its own parser
+        vec![
+            "compare",
+            "--preset",
+            "paper-lognormal",
+            "--size",
+            "128",
+            "--count",
+            "2",
+            "--octaves",
+            "3",
+            "--summary-q",
+            "-2:3",
+            "--q-fit-max",
+            "0.1",
+            "--out",
+            &out,
+        ],
+        // a value just outside a range reads as itself, not as the bound
+        vec!["theory", "fisc", "--p", "0.5000001", "--hstar", "0.5"],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -4413,7 +4443,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "only 0 scales in the fit range",
         "holds 1 order(s) in 0 < q <= 2",
         "holds 0 order(s) in 0 < q <= 2",
-        "q-fit-max`: must be > 0, got NaN",
+        "q-fit-max`: must be a finite number > 0, got NaN",
         "octaves`: must be in 1..=20, got 100000",
         "give the target octave first",
         "1.0000000001:2 is given twice",
@@ -4422,6 +4452,10 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "`count`: must be at most 10000, got 1000000",
         "`size`: 128 px is too small for the analysis",
         "`replicates`: must be at most 1000, got 100000",
+        "`-1000:1000:0.02`: 100001 values, at most 2001",
+        "`integral-scale`: sets L of the theory's II eq 76 and has no effect without a model",
+        "`q-fit-max`: the trace-moment orders (the default grid and the q >= 0 of --q) holds 1",
+        "p must be in (0, 1/2] (two children get p/2, two get (1-p)/2), got 0.5000001",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {
@@ -5019,4 +5053,65 @@ fn skeleton_counts_the_lines_analyze_counts() {
     assert_eq!(alive.len(), counted.len());
     assert!(alive.iter().zip(&counted).all(|(a, c)| a >= c));
     assert!(alive[0] > counted[0], "{alive:?} {counted:?}");
+}
+
+/// A correlation window holding no dx bin is no value: `null` in the JSON
+/// and said on stdout (it printed 0.0000 for both centrings, a perfect
+/// agreement, while `validate` called the same case a failure).
+#[test]
+fn correlate_names_an_empty_theory_window() {
+    let dir = scratch("correlate-empty-window");
+    let out = dir.join("c");
+    let o = out.display().to_string();
+    // with a_min 4 px the paper's window 8.3 max(a1, a2) < dx < L/4 of a
+    // 128 px image holds no bin for any of the Fig 30 pairs
+    let (code, stdout, _) = run_bin_output(
+        &[
+            "correlate",
+            "--preset",
+            "paper-lognormal",
+            "--size",
+            "128",
+            "--count",
+            "2",
+            "--a-min",
+            "4",
+            "--octaves",
+            "3",
+            "--out",
+            &o,
+        ],
+        true,
+    );
+    assert_eq!(code, 0);
+    assert!(
+        stdout.contains("none (no dx bin in the window)"),
+        "{stdout}"
+    );
+    let c = json(&out.join("correlation.json"));
+    let paper = &c["checks"]["cwt"]["paper"];
+    assert_eq!(paper["bins"], 0);
+    assert!(paper["max_abs_dev_C"].is_null() && paper["max_abs_dev_C_ensemble"].is_null());
+}
+
+/// The older-files warning leaves out the images read from the output
+/// directory and their sidecars: it told the user to remove the input.
+#[test]
+fn the_stale_warning_spares_the_inputs() {
+    let dir = scratch("stale-inputs");
+    let a = fbm_npy(&dir, "dem.npy", 128, 2);
+    std::fs::write(dir.join("dem.json"), r#"{"units": "m"}"#).unwrap();
+    std::fs::write(dir.join("notes.txt"), "older").unwrap();
+    let d = dir.display().to_string();
+    let (code, err) = run_bin_stderr(&["spectrum", &a, "--out", &d]);
+    assert_eq!(code, 0, "{err}");
+    // the unrelated file is still named, the image and its sidecar are not
+    assert!(
+        err.contains("1 older file(s)") && err.contains("notes.txt"),
+        "{err}"
+    );
+    assert!(
+        !err.contains("dem.npy") && !err.contains("dem.json"),
+        "{err}"
+    );
 }

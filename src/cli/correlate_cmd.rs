@@ -185,13 +185,22 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let grid = cfg.scale_list();
     let pairs_oct = pairs_or_default("pairs", args.pairs.as_deref(), FIG30_PAIRS, &grid)?;
     let (scales, pairs) = pair_scales(cfg.a_min, &pairs_oct);
-    if let Some(l) = args.integral_scale
-        && !(l > 0.0 && l.is_finite())
-    {
-        return Err(Error::param(
-            "integral-scale",
-            "must be a positive number of pixels",
-        ));
+    if let Some(l) = args.integral_scale {
+        if !(l > 0.0 && l.is_finite()) {
+            return Err(Error::param(
+                "integral-scale",
+                "must be a positive number of pixels",
+            ));
+        }
+        // L enters only the theory's eq 76: without a model it would change
+        // nothing, said nowhere (as --ratio without a skeleton is refused)
+        if input.model.is_none() {
+            return Err(Error::param(
+                "integral-scale",
+                "sets L of the theory's II eq 76 and has no effect without a model: add --theory \
+                 MODEL or --preset NAME (or leave it out)",
+            ));
+        }
     }
     let ccfg = CorrelationConfig {
         wavelet: cfg.wavelet,
@@ -353,13 +362,20 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     );
     if let Some(c) = body.get("checks").and_then(|c| c.as_object()) {
         for (src, v) in c {
-            let dev = |w: &str, k: &str| v[w][k].as_f64().unwrap_or(f64::NAN);
+            // a window without a bin has no value (null), said in words
+            let num = |w: &str, k: &str| v[w][k].as_f64();
+            let paper = match (
+                num("paper", "max_abs_dev_C_ensemble"),
+                num("paper", "max_abs_dev_C"),
+            ) {
+                (Some(e), Some(p)) => format!("{e:.4} (ensemble centring), {p:.4} (per image)"),
+                _ => "none (no dx bin in the window)".to_string(),
+            };
+            let literal = num("literal", "max_abs_dev_C_ensemble")
+                .map_or("none (no dx bin)".to_string(), |x| format!("{x:.4}"));
             show!(
                 "  {src}: max |C - theory| (II eq 76; 0 for fBm) for {PAPER_UNIT:.1} max(a1, a2) < dx < L/4: \
-                 {:.4} (ensemble centring), {:.4} (per image); for dx > max(a1, a2): {:.4}\n",
-                dev("paper", "max_abs_dev_C_ensemble"),
-                dev("paper", "max_abs_dev_C"),
-                dev("literal", "max_abs_dev_C_ensemble"),
+                 {paper}; for dx > max(a1, a2): {literal}\n"
             );
         }
     }

@@ -415,6 +415,13 @@ fn prepare_out(dir: &Path) -> Result<()> {
 fn dispatch(cli: Cli) -> Result<Outcome> {
     let _svg = common::also_svg(cli.svg);
     let (inputs, images, out) = io_of(&cli.command);
+    // --svg is global; a command that writes no plot would drop it unsaid
+    if cli.svg && (out.is_none() || matches!(cli.command, Command::Info(_))) {
+        say!(
+            "warning: --svg has no effect here: this command writes no plot (theory writes \
+              its plots with --out)"
+        );
+    }
     if let Command::Pdf(pdf_cmd::PdfArgs { input, .. })
     | Command::Kernel(kernel_cmd::KernelArgs { input, .. })
     | Command::Correlate(correlate_cmd::CorrelateArgs { input, .. }) = &cli.command
@@ -467,8 +474,23 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         }
     };
     // files already there (synth says which of its own are left over)
+    // (not the inputs, their sidecars or the synth.json beside them: the
+    // warning must not tell the user to remove the images read)
+    let read: std::collections::HashSet<PathBuf> = guarded
+        .iter()
+        .map(|p| p.to_path_buf())
+        .chain(
+            inputs
+                .iter()
+                .filter_map(|p| Some(p.parent()?.join("synth.json"))),
+        )
+        .filter_map(|p| p.canonicalize().ok())
+        .collect();
     let before = match (&out, &cli.command) {
-        (Some(dir), c) if !matches!(c, Command::Synth(_)) => files_under(dir),
+        (Some(dir), c) if !matches!(c, Command::Synth(_)) => files_under(dir)
+            .into_iter()
+            .filter(|f| f.canonicalize().map_or(true, |c| !read.contains(&c)))
+            .collect(),
         _ => Vec::new(),
     };
     let quiet = cli.quiet;
@@ -709,15 +731,27 @@ where
 }
 
 /// `cmd` and its subcommands with every value-taking option accepting a
-/// negative number as its value.
+/// negative number as its value, and every option that always takes one
+/// value (not `--out`) any value that starts with a hyphen: ranges, lists
+/// and `-inf` ("-2:3", "-1,2"), which clap's negative numbers do not cover
+/// (it told the user to write `-- -2`, which no option reads). An option
+/// whose value may be left out (`--frac-int`) keeps clap's rule, or it
+/// would swallow the next flag.
 fn negative_values(cmd: clap::Command) -> clap::Command {
-    let ids: Vec<clap::Id> = cmd
+    let ids: Vec<(clap::Id, bool)> = cmd
         .get_arguments()
         .filter(|a| !a.is_positional() && a.get_action().takes_values())
-        .map(|a| a.get_id().clone())
+        .map(|a| {
+            let always_one = a
+                .get_num_args()
+                .is_none_or(|r| r.min_values() == 1 && r.max_values() == 1);
+            (a.get_id().clone(), always_one && a.get_id() != "out")
+        })
         .collect();
-    let cmd = ids.into_iter().fold(cmd, |c, id| {
-        c.mut_arg(id, |a| a.allow_negative_numbers(true))
+    let cmd = ids.into_iter().fold(cmd, |c, (id, hyphen)| {
+        c.mut_arg(id, |a| {
+            a.allow_negative_numbers(true).allow_hyphen_values(hyphen)
+        })
     });
     cmd.mut_subcommands(negative_values)
 }
@@ -1241,6 +1275,15 @@ mod tests {
         assert_eq!(short(123456.789), "123457");
         assert_eq!(short(std::f64::consts::FRAC_PI_4), "0.785398");
         assert_eq!(short(1e-9), "1.000e-9");
+        // a value refused for leaving a range does not read as its bound
+        use crate::error::short_outside;
+        assert_eq!(short_outside(0.5000001, &[0.0, 0.5]), "0.5000001");
+        assert_eq!(short_outside(0.7, &[0.0, 0.5]), "0.7");
+        assert_eq!(short_outside(0.5, &[0.0, 0.5]), "0.5");
+        let e = crate::synth::fbm::FbmParams { hurst: 1.0000001 }
+            .validate()
+            .unwrap_err();
+        assert!(e.to_string().contains("got 1.0000001"), "{e}");
     }
 
     /// Messages wrap at spaces to the width with a 2-space indent, words

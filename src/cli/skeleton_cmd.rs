@@ -77,7 +77,8 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
             return Err(Error::param(
                 "scales",
                 format!(
-                    "{a} px is not on the analysis grid {:.3}-{:.3} px (within half a voice)",
+                    "{} px is not on the analysis grid {:.3}-{:.3} px (within half a voice)",
+                    crate::error::short(a),
                     grid[0],
                     grid[grid.len() - 1]
                 ),

@@ -2247,7 +2247,8 @@ pub struct PairCheck {
     pub dx_max: f64,
     /// Lag bins in the window with a theoretical value.
     pub bins: usize,
-    /// Largest `|C - theory|` there, per-image centring ([`PairCorrelation::c`]).
+    /// Largest `|C - theory|` there, per-image centring
+    /// ([`PairCorrelation::c`]); NaN (`null`) without a bin.
     #[serde(rename = "max_abs_dev_C", deserialize_with = "crate::nan_null::f64")]
     pub max_abs_dev: f64,
     /// The same with ensemble centring ([`PairCorrelation::c_ensemble`]).
@@ -2268,7 +2269,7 @@ pub struct TheoryCheck {
     #[serde(deserialize_with = "crate::nan_null::f64")]
     pub factor: f64,
     /// Lag bins compared, over all pairs; 0 means no value (the maxima
-    /// below are then 0 and mean nothing).
+    /// below are then NaN, `null` in JSON).
     pub bins: usize,
     /// Largest deviation over the pairs, per-image centring.
     #[serde(rename = "max_abs_dev_C", deserialize_with = "crate::nan_null::f64")]
@@ -2318,8 +2319,10 @@ impl CorrelationResult {
         let mut out = TheoryCheck {
             factor,
             bins: 0,
-            max_abs_dev: 0.0,
-            max_abs_dev_ensemble: 0.0,
+            // NaN until a bin is compared (f64::max skips NaN): an empty
+            // window is no value, not a perfect agreement
+            max_abs_dev: f64::NAN,
+            max_abs_dev_ensemble: f64::NAN,
             pairs: Vec::with_capacity(self.pairs.len()),
             worst_ensemble: None,
         };
@@ -2331,8 +2334,8 @@ impl CorrelationResult {
                 dx_min: lo,
                 dx_max: l / 4.0,
                 bins: 0,
-                max_abs_dev: 0.0,
-                max_abs_dev_ensemble: 0.0,
+                max_abs_dev: f64::NAN,
+                max_abs_dev_ensemble: f64::NAN,
             };
             for (i, &dx) in p.dx.iter().enumerate() {
                 // a bin without pairs (NaN) is no comparison: f64::max
@@ -2664,7 +2667,8 @@ mod tests {
         // read literally (dx > sup(a1, a2) px) the 10 px bin counts
         assert!((r.compare_theory(&m, l, 1.0).max_abs_dev - 1.0).abs() < 1e-12);
         // a bin without pairs (NaN) in the window is neither compared nor
-        // counted; with none left, bins = 0 says the maxima mean nothing
+        // counted; with none left, bins = 0 and the maxima are NaN (no
+        // value, not a perfect 0)
         let mut gap = r.clone();
         gap.pairs[0].c[2] = f64::NAN;
         gap.pairs[0].c_ensemble[2] = f64::NAN;
@@ -2677,6 +2681,8 @@ mod tests {
         }
         let c = gap.compare_theory(&m, l, PAPER_UNIT);
         assert_eq!((c.bins, c.worst_ensemble), (0, None));
+        assert!(c.max_abs_dev.is_nan() && c.max_abs_dev_ensemble.is_nan());
+        assert!(c.pairs.iter().all(|p| p.max_abs_dev.is_nan()));
     }
 
     #[test]

@@ -157,11 +157,15 @@ impl KernelConfig {
             ));
         }
         if !(self.dp > 0.0 && self.dp <= self.p_max) || self.p_max / self.dp > 20_000.0 {
+            // both values, so that a p-max below the default dp (the one
+            // given) is not blamed on dp alone
             return Err(Error::param(
                 "dp",
                 format!(
-                    "must be in (0, p-max] with at most 20000 steps, got {}",
-                    crate::error::short(self.dp)
+                    "must be in (0, p-max] with at most 20000 steps, got dp = {} for p-max = {} \
+                     (--dp, --p-max)",
+                    crate::error::short(self.dp),
+                    crate::error::short(self.p_max)
                 ),
             ));
         }
@@ -1125,8 +1129,8 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
                  {top:.2} octaves above the smallest; widen --fit, or give more --voices or \
                  --octaves)",
                 in_fit.len(),
-                opts.fit.0,
-                opts.fit.1
+                crate::error::short(opts.fit.0),
+                crate::error::short(opts.fit.1)
             ),
         ));
     }

@@ -498,7 +498,10 @@ impl TraceMomentFitConfig {
         {
             return Err(Error::param(
                 "q-fit-max",
-                format!("must be > 0, got {q_s}", q_s = crate::error::short(q)),
+                format!(
+                    "must be a finite number > 0, got {q_s}",
+                    q_s = crate::error::short(q)
+                ),
             ));
         }
         Ok(())
