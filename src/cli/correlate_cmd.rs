@@ -925,7 +925,9 @@ impl ValidationExtras {
             return Ok((None, None));
         };
         let size = self.input.size;
-        let levels = crate::synth::wcascade::wcascade_moduli(&p, size, self.input.seed, i as u64)?;
+        // ln d, finite where d underflows (a log-Poisson beta of 1e-200)
+        let levels =
+            crate::synth::wcascade::wcascade_ln_moduli(&p, size, self.input.seed, i as u64)?;
         let n = levels.len() as i64; // the finest level, n - 1, has 2 px cells
         let own_label = format!("{label} (own cascade)");
         let corr = if self.has_corr {
@@ -937,9 +939,7 @@ impl ValidationExtras {
                     let side = (a.log2().round() as i64).clamp(1, n);
                     let lev = &levels[(n - side) as usize];
                     let sh = side as usize;
-                    ndarray::Array2::from_shape_fn((size, size), |(y, x)| {
-                        lev[[y >> sh, x >> sh]].ln()
-                    })
+                    ndarray::Array2::from_shape_fn((size, size), |(y, x)| lev[[y >> sh, x >> sh]])
                 })
                 .collect();
             Some(field_correlation(
@@ -961,7 +961,7 @@ impl ValidationExtras {
             let scales: Vec<f64> = lv.clone().rev().map(|s| (size >> s) as f64).collect();
             let vals: Vec<Vec<f64>> = lv
                 .rev()
-                .map(|s| levels[s].iter().map(|d| d.ln()).collect())
+                .map(|s| levels[s].iter().copied().collect())
                 .collect();
             let one_p = KernelConfig {
                 p_max: 1.0,
