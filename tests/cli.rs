@@ -5065,24 +5065,9 @@ fn correlate_names_an_empty_theory_window() {
     let o = out.display().to_string();
     // with a_min 4 px the paper's window 8.3 max(a1, a2) < dx < L/4 of a
     // 128 px image holds no bin for any of the Fig 30 pairs
-    let (code, stdout, _) = run_bin_output(
-        &[
-            "correlate",
-            "--preset",
-            "paper-lognormal",
-            "--size",
-            "128",
-            "--count",
-            "2",
-            "--a-min",
-            "4",
-            "--octaves",
-            "3",
-            "--out",
-            &o,
-        ],
-        true,
-    );
+    let args = "correlate --preset paper-lognormal --size 128 --count 2 --a-min 4 --octaves 3";
+    let args: Vec<&str> = args.split(' ').chain(["--out", &o]).collect();
+    let (code, stdout, _) = run_bin_output(&args, true);
     assert_eq!(code, 0);
     assert!(
         stdout.contains("none (no dx bin in the window)"),

@@ -503,16 +503,7 @@ pub fn wcascade_moduli(
     seed: u64,
     index: u64,
 ) -> Result<Vec<Array2<f64>>> {
-    params.validate()?;
-    let steps = steps_for_size(size)?;
-    let mut levels: Vec<Array2<f64>> = (0..steps)
-        .map(|s| Array2::zeros((1 << s, 1 << s)))
-        .collect();
-    let mut rng = rng_for(seed, index);
-    run_cascade(params, steps, &mut rng, |s, ty, tx, d, _, _| {
-        levels[s][[ty, tx]] = d;
-    });
-    Ok(levels)
+    tree_levels(params, size, seed, index, |d, _| d)
 }
 
 /// [`wcascade_moduli`] as `ln d`: finite where a product of multipliers
@@ -526,6 +517,19 @@ pub fn wcascade_ln_moduli(
     seed: u64,
     index: u64,
 ) -> Result<Vec<Array2<f64>>> {
+    tree_levels(params, size, seed, index, |d, ln_d| {
+        if d.is_normal() { d.ln() } else { ln_d }
+    })
+}
+
+/// One `2^s x 2^s` array per level of `value(d, ln d)`, in tree order.
+fn tree_levels(
+    params: &WCascadeParams,
+    size: usize,
+    seed: u64,
+    index: u64,
+    value: impl Fn(f64, f64) -> f64,
+) -> Result<Vec<Array2<f64>>> {
     params.validate()?;
     let steps = steps_for_size(size)?;
     let mut levels: Vec<Array2<f64>> = (0..steps)
@@ -533,7 +537,7 @@ pub fn wcascade_ln_moduli(
         .collect();
     let mut rng = rng_for(seed, index);
     run_cascade(params, steps, &mut rng, |s, ty, tx, d, ln_d, _| {
-        levels[s][[ty, tx]] = if d.is_normal() { d.ln() } else { ln_d };
+        levels[s][[ty, tx]] = value(d, ln_d);
     });
     Ok(levels)
 }
