@@ -1695,6 +1695,10 @@ fn a_plane_is_removed_before_the_moments() {
     let (u, r) = (lone(&f, &raw), lone(&t, &raw));
     let (hu, hr) = (u.h_sf.unwrap(), r.h_sf.unwrap());
     let se = u.h_sf_stderr.unwrap();
+    // xi(1) is H_sf, and its error in the result is the same jackknife's
+    // (it was the regression's: NaN for a fit of 2 lags)
+    let i1 = u.sf_q.iter().position(|&q| q == 1.0).unwrap();
+    assert_eq!((u.xi[i1], u.xi_stderr[i1]), (hu, se));
     println!(
         "H_sf untilted {hu:.3} +- {se:.3}, tilted {hr:.3}, detrended {:.3}; spectral H tilted {:.3} +- {:.3}",
         a.h_sf.unwrap(),

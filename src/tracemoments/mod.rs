@@ -1656,7 +1656,9 @@ pub struct TraceMomentResult {
     /// Structure-function exponents `ξ(q) = qH - K(q)`.
     #[serde(deserialize_with = "crate::nan_null::vec")]
     pub xi: Vec<f64>,
-    /// Regression standard errors of ξ(q).
+    /// Standard errors of ξ(q): jackknife over the images or tiles where
+    /// [`Self::stderr_method`] says so ([`finish_jackknife`]), else the
+    /// regression's.
     #[serde(deserialize_with = "crate::nan_null::vec")]
     pub xi_stderr: Vec<f64>,
     /// Intercepts of the ξ(q) fits (`log2 <|Δf(l)|^q> = ξ log2 l + b`),
@@ -1725,7 +1727,7 @@ fn nan_default() -> f64 {
 /// almost perfectly correlated and share the sampling fluctuations of the
 /// ensemble: on 4 independent 16 x 1024² topo-fif ensembles α scattered by
 /// 0.1 for a stated fit error of 0.003. The jackknife sees that scatter.
-/// Replaced: `alpha_stderr`, `C1_stderr`, `K_stderr`, `dtm_alpha_stderr`
+/// Replaced: `alpha_stderr`, `C1_stderr`, `K_stderr`, `xi_stderr`, `dtm_alpha_stderr`
 /// (and the first DTM fit's), `beta_stderr`; added `H_stderr`,
 /// `H_sf_stderr`. With one part the regression errors are kept and
 /// `stderr_method` says so.
@@ -1813,6 +1815,11 @@ pub fn finish_jackknife(
     }
     for (iq, se) in res.k_stderr.iter_mut().enumerate() {
         *se = jk(&|r| r.k[iq]);
+    }
+    // the structure functions' exponents likewise (a fit of 2 lags has no
+    // regression error, and the printed H_sf had its jackknife one)
+    for (iq, se) in res.xi_stderr.iter_mut().enumerate() {
+        *se = jk(&|r| r.xi[iq]);
     }
     let opt = |f: &dyn Fn(&TraceMomentResult) -> Option<f64>| {
         let s = jk(&|r| f(r).unwrap_or(f64::NAN));
