@@ -507,7 +507,7 @@ pub fn wcascade_moduli(
 }
 
 /// [`wcascade_moduli`] as `ln d`: finite where a product of multipliers
-/// underflows `d` to 0 (the log is carried as a sum, [`run_cascade`]), and
+/// underflows `d` to 0 (the log is carried as a sum beside `d`), and
 /// `d.ln()` itself wherever `d` is a normal number.
 ///
 /// **Errors** on invalid parameters or a size that is not a power of two.
