@@ -4415,6 +4415,11 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         ],
         // a value just outside a range reads as itself, not as the bound
         vec!["theory", "fisc", "--p", "0.5000001", "--hstar", "0.5"],
+        // a named value left out: not taken from the next flag (options
+        // with free values accept a leading hyphen, named ones do not)
+        vec![
+            "synth", "wcascade", "--law", "--basis", "db4", "--size", "64", "--out", &out,
+        ],
     ];
     // what each message must say (the file is named where there is one)
     let why = [
@@ -4456,6 +4461,7 @@ fn hostile_inputs_are_refused_and_nothing_is_written() {
         "`integral-scale`: sets L of the theory's II eq 76 and has no effect without a model",
         "`q-fit-max`: the trace-moment orders (the default grid and the q >= 0 of --q) holds 1",
         "p must be in (0, 1/2] (two children get p/2, two get (1-p)/2), got 0.5000001",
+        "a value is required for '--law <LAW>'",
     ];
     assert_eq!(why.len(), cases.len());
     for (args, why) in cases.iter().zip(why) {

@@ -416,10 +416,10 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
     let _svg = common::also_svg(cli.svg);
     let (inputs, images, out) = io_of(&cli.command);
     // --svg is global; a command that writes no plot would drop it unsaid
-    if cli.svg && (out.is_none() || matches!(cli.command, Command::Info(_))) {
+    if cli.svg && (out.is_none() || matches!(cli.command, Command::Info(_) | Command::Synth(_))) {
         say!(
-            "warning: --svg has no effect here: this command writes no plot (theory writes \
-              its plots with --out)"
+            "warning: --svg has no effect here: this command writes no plot (theory writes its \
+             plots with --out)"
         );
     }
     if let Command::Pdf(pdf_cmd::PdfArgs { input, .. })
@@ -476,7 +476,7 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
     // files already there (synth says which of its own are left over)
     // (not the inputs, their sidecars or the synth.json beside them: the
     // warning must not tell the user to remove the images read)
-    let read: std::collections::HashSet<PathBuf> = guarded
+    let read: Vec<PathBuf> = guarded
         .iter()
         .map(|p| p.to_path_buf())
         .chain(
@@ -486,10 +486,17 @@ fn dispatch(cli: Cli) -> Result<Outcome> {
         )
         .filter_map(|p| p.canonicalize().ok())
         .collect();
+    // (only the files of those names are resolved: a large --out stays cheap)
+    let names: std::collections::HashSet<&std::ffi::OsStr> =
+        read.iter().filter_map(|p| p.file_name()).collect();
+    let is_read = |f: &Path| {
+        f.file_name().is_some_and(|n| names.contains(n))
+            && f.canonicalize().is_ok_and(|c| read.contains(&c))
+    };
     let before = match (&out, &cli.command) {
         (Some(dir), c) if !matches!(c, Command::Synth(_)) => files_under(dir)
             .into_iter()
-            .filter(|f| f.canonicalize().map_or(true, |c| !read.contains(&c)))
+            .filter(|f| !is_read(f))
             .collect(),
         _ => Vec::new(),
     };
@@ -745,7 +752,13 @@ fn negative_values(cmd: clap::Command) -> clap::Command {
             let always_one = a
                 .get_num_args()
                 .is_none_or(|r| r.min_values() == 1 && r.max_values() == 1);
-            (a.get_id().clone(), always_one && a.get_id() != "out")
+            // a named value (--wavelet gauss) never starts with a hyphen:
+            // `--law --basis db4` keeps clap's "a value is required"
+            let named = !a.get_possible_values().is_empty();
+            (
+                a.get_id().clone(),
+                always_one && !named && a.get_id() != "out",
+            )
         })
         .collect();
     let cmd = ids.into_iter().fold(cmd, |c, (id, hyphen)| {

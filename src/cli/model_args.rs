@@ -272,12 +272,10 @@ impl ModelOpts {
 /// model resolves it, some more than once (`validate --replicates`).
 fn warn_caveats(model: &Model) {
     static ONCE: std::sync::Once = std::sync::Once::new();
-    let caveats = model.caveats();
-    if !caveats.is_empty() {
-        ONCE.call_once(|| {
-            for w in &caveats {
-                say!("warning: {w}");
-            }
-        });
-    }
+    // the caveats only once too (a W-cascade's cost a spectrum)
+    ONCE.call_once(|| {
+        for w in &model.caveats() {
+            say!("warning: {w}");
+        }
+    });
 }

@@ -440,7 +440,15 @@ fn generator(
         *v = kernel.c * *v + kernel.drift;
     }
     if !(rounding <= MAX_ROUNDING) || gamma.iter().any(|v| !v.is_finite()) {
-        return Err(too_heavy(alpha, ny, nx, rounding));
+        return Err(too_heavy(
+            alpha,
+            ny,
+            nx,
+            format!(
+                "its rounding reaches {} in ln φ, estimated; at most {MAX_ROUNDING} is accepted",
+                crate::error::short(rounding)
+            ),
+        ));
     }
     // α < 1: Y <= 1/(1 - α) and g >= 0, so Γ <= c S_1/(1 - α) + d exactly;
     // a value above is rounding however small the estimate above says it is
@@ -449,18 +457,27 @@ fn generator(
         let slack = 10.0 * rounding + 1e-12 * (1.0 + bound.abs());
         let top = gamma.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
         if top > bound + slack {
-            return Err(too_heavy(alpha, ny, nx, top - bound));
+            return Err(too_heavy(
+                alpha,
+                ny,
+                nx,
+                format!(
+                    "Γ reaches {} above its exact bound c S_1/(1 - α) + d, by rounding",
+                    crate::error::short(top - bound)
+                ),
+            ));
         }
     }
     Ok(gamma)
 }
 
 /// How often [`too_heavy`] strikes, measured (C1 = 0.1, seeds 1-8 of one
-/// image each, `wtmm synth fif`).
-const TOO_HEAVY_MEASURED: &str = "of 8 single fields with C1 = 0.1: α = 0.1 fails at every \
-     size from 16x16; α = 0.2 in 3 at 16x16 and in all from 256x256; α = 0.3 in 1 at 64x64, 3 at \
-     256x256, all at 1024x1024; α = 0.4 in 1 at 256x256, 2 at 1024x1024; α >= 0.5 in none up to \
-     1024x1024";
+/// image each, `wtmm synth fif`; helper-59 for larger C1).
+const TOO_HEAVY_MEASURED: &str = "the rounding grows like (C1/2π)^(1/α); of 8 single fields \
+     with C1 = 0.1: α = 0.1 fails at every size from 16x16; α = 0.2 in 3 at 16x16 and in all from \
+     256x256; α = 0.3 in 1 at 64x64, 3 at 256x256, all at 1024x1024; α = 0.4 in 1 at 256x256, 2 \
+     at 1024x1024; α = 0.5 in none up to 1024x1024 (with C1 = 1, 1.5 or 1.9: 1 in 8 at \
+     1024x1024, and at 512x512 with 1.9)";
 
 /// The largest rounding estimate of the generator `Γ` accepted: an upper
 /// bound, 8-20 times the rms error measured and 2-5 times the largest of 64
@@ -470,17 +487,15 @@ const MAX_ROUNDING: f64 = 1e-2;
 
 /// The noise's tail falls like `x^-α`: for small α a field draws a value so
 /// large that the FFT convolution's rounding (1e-16 of it, spread over every
-/// pixel) swamps the generator `Γ` (`err`: the rounding estimate, or how far
-/// `Γ` rose above its bound).
-fn too_heavy(alpha: f64, ny: usize, nx: usize, err: f64) -> Error {
+/// pixel) swamps the generator `Γ` (`what`: by how much).
+fn too_heavy(alpha: f64, ny: usize, nx: usize, what: String) -> Error {
     Error::param(
         "alpha",
         format!(
             "α = {alpha} is too small for this {ny}x{nx} field: the extremal Lévy noise, whose \
              tail falls only like x^-α, drew a value so large that the generator's FFT \
-             convolution cannot carry it (its rounding reaches {} in ln φ, estimated; at most \
-             {MAX_ROUNDING} is accepted); use a larger α, another seed or a smaller field ({TOO_HEAVY_MEASURED})",
-            crate::error::short(err)
+             convolution cannot carry it ({what}); use a larger α, another seed or a smaller \
+             field ({TOO_HEAVY_MEASURED})"
         ),
     )
 }
@@ -508,7 +523,12 @@ pub fn fif_flux(
     let gamma = generator(&kernel, params.alpha, ny, nx, seed, index)?;
     let phi: Vec<f64> = gamma.into_iter().map(f64::exp).collect();
     if phi.iter().any(|v| !v.is_finite()) || phi.iter().all(|&v| v == 0.0) {
-        return Err(too_heavy(params.alpha, ny, nx, f64::INFINITY));
+        return Err(too_heavy(
+            params.alpha,
+            ny,
+            nx,
+            "the flux exp(Γ) overflows, or is 0 everywhere".to_string(),
+        ));
     }
     // a valid but tiny C1 or alpha: the noise's factor (C1/2 pi)^(1/alpha)
     // underflows and the flux is as constant as with C1 = 0
