@@ -301,11 +301,6 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     tm_q.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
     let tm_cfg = args.tm.config(tm_q.clone(), model.is_periodic())?;
     let tm_fit = args.tm.fit()?;
-    super::tm_cmd::check_first_window(
-        &tm_q,
-        "the trace-moment orders (the default grid and the q >= 0 of --q)",
-        args.tm.q_fit_max,
-    )?;
     let shapes = vec![[args.size; 2]; args.count];
     crate::tracemoments::check_ensemble_fit(&tm_fit, &shapes)?;
     crate::tracemoments::check_fit_selectors(&tm_cfg, &tm_fit, &shapes)?;

@@ -208,38 +208,12 @@ pub fn fit_record(fc: &TraceMomentFitConfig, used: &str) -> serde_json::Value {
     v
 }
 
-/// alpha and C1 come from a fit over the orders `0 < q <= 2` first, then
-/// over `0 < q <= q_s/2` (tracemoments module docs): fewer than 3 of the
-/// orders `q` (`what` names them) in the first window, cut by
-/// `--q-fit-max`, give no fit, alpha and C1 NaN without an error. (The
-/// data-dependent `q_s/2` bound is checked, with a warning, after the
-/// moments.) Shared by `tm` and `compare`.
-pub fn check_first_window(q: &[f64], what: &str, q_fit_max: Option<f64>) -> Result<()> {
-    let cap = q_fit_max.unwrap_or(f64::INFINITY);
-    let first = cap.min(crate::tracemoments::FIRST_UNIVERSAL_Q_MAX);
-    let usable = q.iter().filter(|&&v| v > 0.0 && v <= first).count();
-    if usable >= 3 {
-        return Ok(());
-    }
-    let capped = cap < crate::tracemoments::FIRST_UNIVERSAL_Q_MAX;
-    Err(Error::param(
-        if capped { "q-fit-max" } else { "q" },
-        format!(
-            "{what} holds {usable} order(s) in 0 < q <= {}{}: the universal fit of alpha and C1 \
-             starts there and needs 3 or more",
-            crate::error::short(first),
-            if capped { " (--q-fit-max)" } else { "" }
-        ),
-    ))
-}
-
 pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let q = parse_q("q", &args.q)?;
     let nodata = args.read.value()?;
     let (px, px_warnings) = args.pixel.resolve(&args.images)?;
     // the fit settings first, so that a bad --q-fit-max is named as such
     let mut fc = args.tm.fit()?;
-    check_first_window(&q, &format!("`{}`", args.q), args.tm.q_fit_max)?;
     // files `synth` wrote from a periodic model: the spectrum settings
     // compare takes for the model (no taper, only the mean removed)
     let origin = match args.detrend {

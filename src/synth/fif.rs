@@ -421,15 +421,7 @@ fn generator(
     if kernel.c == 0.0 {
         return Ok(vec![0.0; ny * nx]);
     }
-    // The FFT convolution's rounding: in the L2 norm over the n pixels at
-    // most about ε log2(n) max|ĝ| ||Y||₂ (the usual bound of an FFT
-    // convolution; max|ĝ| = S_1 since g >= 0), i.e. an rms error per pixel
-    // of that over √n, absolute in Γ and so relative in φ = e^Γ. The
-    // noise's tail falls like x^-α: for a small α one draw can be so large
-    // that this error is not small, and the field would be noise of the FFT.
-    let n = (ny * nx) as f64;
-    let norm_y = noise.iter().map(|v| v * v).sum::<f64>().sqrt();
-    let rounding = f64::EPSILON * n.log2().max(1.0) * kernel.c * kernel.s_one * norm_y / n.sqrt();
+    let rounding = rounding_estimate(&noise, kernel);
     let fft = Fft2::new(ny, nx);
     let mut t = fft.forward(noise);
     for (v, g) in t.iter_mut().zip(&kernel.spectrum) {
@@ -478,6 +470,18 @@ const TOO_HEAVY_MEASURED: &str = "the rounding grows like (C1/2π)^(1/α); of 8 
      256x256; α = 0.3 in 1 at 64x64, 3 at 256x256, all at 1024x1024; α = 0.4 in 1 at 256x256, 2 \
      at 1024x1024; α = 0.5 in none up to 1024x1024 (with C1 = 1, 1.5 or 1.9: 1 in 8 at \
      1024x1024, and at 512x512 with 1.9)";
+
+/// The FFT convolution's rounding in `Γ`: in the L2 norm over the n pixels
+/// at most about `ε log2(n) max|ĝ| ||Y||₂` (the usual bound of an FFT
+/// convolution; `max|ĝ| = S_1` since g >= 0), i.e. an rms error per pixel
+/// of that over √n, absolute in `Γ` and so relative in `φ = e^Γ`. The
+/// noise's tail falls like `x^-α`: for a small α one draw can be so large
+/// that this error is not small, and the field would be noise of the FFT.
+fn rounding_estimate(noise: &[f64], kernel: &FifKernel) -> f64 {
+    let n = noise.len() as f64;
+    let norm_y = noise.iter().map(|v| v * v).sum::<f64>().sqrt();
+    f64::EPSILON * n.log2().max(1.0) * kernel.c * kernel.s_one * norm_y / n.sqrt()
+}
 
 /// The largest rounding estimate of the generator `Γ` accepted: an upper
 /// bound, 8-20 times the rms error measured and 2-5 times the largest of 64
@@ -770,9 +774,7 @@ mod experiment_rounding {
                 let levy = ExtremalLevy::new(alpha).unwrap();
                 let mut rng = rng_for(seed, 0);
                 let noise: Vec<f64> = (0..n * n).map(|_| levy.sample(&mut rng)).collect();
-                let nn = (n * n) as f64;
-                let norm_y = noise.iter().map(|v| v * v).sum::<f64>().sqrt();
-                let est = f64::EPSILON * nn.log2() * k.c * k.s_one * norm_y / nn.sqrt();
+                let est = rounding_estimate(&noise, &k);
                 let fft = Fft2::new(n, n);
                 let mut t = fft.forward(noise.clone());
                 for (v, g) in t.iter_mut().zip(&k.spectrum) {

@@ -2658,7 +2658,10 @@ pub fn check_ensemble_fit(fc: &TraceMomentFitConfig, shapes: &[[usize; 2]]) -> R
 }
 
 /// Refuses, before any image is read, fit selectors that select too little
-/// to fit: none of `cfg.eta` in the DTM's η range (when there is a DTM; one
+/// to fit: fewer than 3 of `cfg.q` in the first window of the universal fit,
+/// `0 < q <= 2` cut by `fc.q_fit_max` (alpha and C1 would be NaN; the
+/// data-dependent `q_s/2` bound is checked, with a warning, after the
+/// moments), none of `cfg.eta` in the DTM's η range (when there is a DTM; one
 /// or two are a choice, `--eta 1` to skip the DTM's cost, and the result's
 /// warnings say what the DTM lacks), or a `k_range` holding fewer than 3
 /// spectrum bins in the largest of `shapes` (the `spectrum` command refuses
@@ -2671,6 +2674,29 @@ pub fn check_fit_selectors(
     fc: &TraceMomentFitConfig,
     shapes: &[[usize; 2]],
 ) -> Result<()> {
+    let num = crate::error::short;
+    let list_of = |v: &[f64]| match v {
+        [first, .., last] if v.len() > 6 => {
+            format!("{} values, {} .. {}", v.len(), num(*first), num(*last))
+        }
+        v => v.iter().map(|&e| num(e)).collect::<Vec<_>>().join(", "),
+    };
+    let cap = fc.q_fit_max.unwrap_or(f64::INFINITY);
+    let first = cap.min(FIRST_UNIVERSAL_Q_MAX);
+    let usable = cfg.q.iter().filter(|&&v| v > 0.0 && v <= first).count();
+    if usable < 3 {
+        let capped = cap < FIRST_UNIVERSAL_Q_MAX;
+        return Err(Error::param(
+            if capped { "q-fit-max" } else { "q" },
+            format!(
+                "the trace-moment orders ({}) hold {usable} order(s) in 0 < q <= {}{}: the \
+                 universal fit of alpha and C1 starts there and needs 3 or more",
+                list_of(&cfg.q),
+                num(first),
+                if capped { " (--q-fit-max)" } else { "" }
+            ),
+        ));
+    }
     let (lo, hi) = fc.eta;
     let in_fit = cfg
         .eta
@@ -2678,18 +2704,7 @@ pub fn check_fit_selectors(
         .filter(|&&e| e >= lo - 1e-12 && e <= hi + 1e-12)
         .count();
     if !cfg.dtm_q.is_empty() && in_fit == 0 {
-        let num = crate::error::short;
-        let list = match cfg.eta.as_slice() {
-            [first, .., last] if cfg.eta.len() > 6 => {
-                format!(
-                    "{} values, {} .. {}",
-                    cfg.eta.len(),
-                    num(*first),
-                    num(*last)
-                )
-            }
-            v => v.iter().map(|&e| num(e)).collect::<Vec<_>>().join(", "),
-        };
+        let list = list_of(&cfg.eta);
         return Err(Error::param(
             "eta-fit",
             format!(
