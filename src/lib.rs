@@ -170,6 +170,7 @@ pub mod field;
 pub mod fourier;
 pub mod io;
 mod nan_null;
+mod par;
 #[cfg(feature = "plot")]
 pub mod plot;
 pub mod skeleton;

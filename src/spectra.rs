@@ -2515,7 +2515,6 @@ pub fn ensemble_sums(
     cfg: &crate::skeleton::AnalysisConfig,
     q: &[f64],
 ) -> Result<PartitionSums> {
-    use rayon::prelude::*;
     check_q(q)?;
     // before sizing tiles from it
     cfg.validate()?;
@@ -2524,22 +2523,20 @@ pub fn ensemble_sums(
     } else {
         crate::skeleton::Parallelism::Serial
     };
-    let parts = fields
-        .par_iter()
-        .enumerate()
-        .map(|(i, f)| {
-            let side = if fields.len() < 3 {
-                let (ny, nx) = f.dim();
-                default_tile_side(cfg, ny, nx)
-            } else {
-                0
-            };
-            image_sums_tiled(f, cfg, q, format!("image {i}"), par, side).map_err(|e| match e {
-                Error::Input(m) => Error::Input(format!("image {i}: {m}")),
-                e => e,
-            })
+    // the first bad field in order is named, whatever the scheduling
+    let parts = crate::par::try_map(fields.len(), |i| {
+        let f = &fields[i];
+        let side = if fields.len() < 3 {
+            let (ny, nx) = f.dim();
+            default_tile_side(cfg, ny, nx)
+        } else {
+            0
+        };
+        image_sums_tiled(f, cfg, q, format!("image {i}"), par, side).map_err(|e| match e {
+            Error::Input(m) => Error::Input(format!("image {i}: {m}")),
+            e => e,
         })
-        .collect::<Result<Vec<_>>>()?;
+    })?;
     PartitionSums::merge_all(parts)?.ok_or_else(|| Error::Input("no field given".into()))
 }
 

@@ -4,7 +4,6 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::{PeriodicSynth, save_chart};
@@ -450,29 +449,27 @@ pub fn analyze_paths(
         Parallelism::Serial
     };
     let notes = super::common::OrderedNotes::default();
-    let parts: Result<Vec<PartitionSums>> = paths
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let field = super::common::read_image_noted(p, nodata, i, &notes)?;
-            super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
-            super::common::check_image_memory(p, &field, paths.len() == 1)?;
-            // fewer than 3 images: the jackknife runs over tiles
-            let side = if paths.len() < 3 {
-                let (ny, nx) = field.dim();
-                default_tile_side(cfg, ny, nx)
-            } else {
-                0
-            };
-            // (an image without maxima lines is an error of the library's)
-            let mut s = image_sums_tiled(&field, cfg, q, p.display().to_string(), par, side)
-                .map_err(|e| super::common::in_file(p, e))?;
-            // recorded per image, so that merged sums still say it
-            s.images[0].nodata = nodata;
-            pb.inc(1);
-            Ok(s)
-        })
-        .collect();
+    // the first bad image in input order is named, whatever the scheduling
+    let parts: Result<Vec<PartitionSums>> = crate::par::try_map(paths.len(), |i| {
+        let p = &paths[i];
+        let field = super::common::read_image_noted(p, nodata, i, &notes)?;
+        super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
+        super::common::check_image_memory(p, &field, paths.len() == 1)?;
+        // fewer than 3 images: the jackknife runs over tiles
+        let side = if paths.len() < 3 {
+            let (ny, nx) = field.dim();
+            default_tile_side(cfg, ny, nx)
+        } else {
+            0
+        };
+        // (an image without maxima lines is an error of the library's)
+        let mut s = image_sums_tiled(&field, cfg, q, p.display().to_string(), par, side)
+            .map_err(|e| super::common::in_file(p, e))?;
+        // recorded per image, so that merged sums still say it
+        s.images[0].nodata = nodata;
+        pb.inc(1);
+        Ok(s)
+    });
     pb.finish_and_clear();
     notes.say();
     let parts = parts?;

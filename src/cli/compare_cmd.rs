@@ -40,7 +40,6 @@ use std::path::Path;
 use std::time::Instant;
 
 use clap::Args;
-use rayon::prelude::*;
 use serde::Serialize;
 use serde_json::json;
 
@@ -309,43 +308,41 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     // library: stream the ensemble through both methods
     let t0 = Instant::now();
     let pb = progress(args.count as u64, "compare", quiet);
-    let parts: Vec<ImageOut> = (0..args.count)
-        .into_par_iter()
-        .map(|i| {
-            let t = Instant::now();
-            let field = Field::new(model.synthesize(args.size, args.seed, i as u64)?);
-            let t_gen = t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            // fewer than 3 images: the jackknife runs over tiles
-            let side = if args.count < 3 {
-                let (ny, nx) = field.dim();
-                default_tile_side(&cfg, ny, nx)
-            } else {
-                0
-            };
-            let sums = image_sums_tiled(
-                &field,
-                &cfg,
-                &q,
-                format!("{name} image {i}"),
-                Parallelism::Serial,
-                side,
-            )?;
-            let t_wtmm = t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let mut acc = TraceMomentAccumulator::new(tm_cfg.clone())?;
-            acc.add_field(&field)?;
-            let t_tm = t.elapsed().as_secs_f64();
-            pb.inc(1);
-            Ok(ImageOut {
-                sums,
-                acc,
-                t_gen,
-                t_wtmm,
-                t_tm,
-            })
+    // a refused draw is named by its index in order, whatever the scheduling
+    let parts: Vec<ImageOut> = crate::par::try_map(args.count, |i| {
+        let t = Instant::now();
+        let field = Field::new(model.synthesize(args.size, args.seed, i as u64)?);
+        let t_gen = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        // fewer than 3 images: the jackknife runs over tiles
+        let side = if args.count < 3 {
+            let (ny, nx) = field.dim();
+            default_tile_side(&cfg, ny, nx)
+        } else {
+            0
+        };
+        let sums = image_sums_tiled(
+            &field,
+            &cfg,
+            &q,
+            format!("{name} image {i}"),
+            Parallelism::Serial,
+            side,
+        )?;
+        let t_wtmm = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let mut acc = TraceMomentAccumulator::new(tm_cfg.clone())?;
+        acc.add_field(&field)?;
+        let t_tm = t.elapsed().as_secs_f64();
+        pb.inc(1);
+        Ok(ImageOut {
+            sums,
+            acc,
+            t_gen,
+            t_wtmm,
+            t_tm,
         })
-        .collect::<Result<_>>()?;
+    })?;
     pb.finish_and_clear();
     let wall = t0.elapsed().as_secs_f64();
     let member = |i: usize| i * args.groups() / args.count;

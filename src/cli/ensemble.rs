@@ -3,7 +3,6 @@
 //! worker is alive whatever the count.
 
 use ndarray::Array2;
-use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::field::Field;
@@ -41,27 +40,24 @@ where
     X: Send,
     F: Fn(usize, &Field, &Skeleton, Vec<Vec<Wtmmm>>) -> Result<X> + Sync,
 {
-    let parts: Vec<(PartitionSums, PowerSpectrum, X)> = (0..count)
-        .into_par_iter()
-        .map(|i| {
-            let img = make(i)?;
-            let ps = power_spectrum(img.view(), ps_cfg)?;
-            let field = Field::new(img);
-            let (sk, wtmmm) =
-                skeleton_and_wtmmm(&field, cfg, Parallelism::Serial, wtmmm_scales, true)?;
-            // fewer than 3 images: the jackknife runs over tiles
-            let side = if count < 3 {
-                let (ny, nx) = field.dim();
-                default_tile_side(cfg, ny, nx)
-            } else {
-                0
-            };
-            let sums = skeleton_sums_tiled(&sk, &field, cfg, q, format!("image {i}"), side);
-            let x = extra(i, &field, &sk, wtmmm)?;
-            tick();
-            Ok((sums, ps, x))
-        })
-        .collect::<Result<_>>()?;
+    // a refused draw is named by its index in order, whatever the scheduling
+    let parts: Vec<(PartitionSums, PowerSpectrum, X)> = crate::par::try_map(count, |i| {
+        let img = make(i)?;
+        let ps = power_spectrum(img.view(), ps_cfg)?;
+        let field = Field::new(img);
+        let (sk, wtmmm) = skeleton_and_wtmmm(&field, cfg, Parallelism::Serial, wtmmm_scales, true)?;
+        // fewer than 3 images: the jackknife runs over tiles
+        let side = if count < 3 {
+            let (ny, nx) = field.dim();
+            default_tile_side(cfg, ny, nx)
+        } else {
+            0
+        };
+        let sums = skeleton_sums_tiled(&sk, &field, cfg, q, format!("image {i}"), side);
+        let x = extra(i, &field, &sk, wtmmm)?;
+        tick();
+        Ok((sums, ps, x))
+    })?;
     let mut spectrum = PowerSpectrum::default();
     let mut spectra = Vec::with_capacity(count);
     let mut sums = Vec::with_capacity(count);

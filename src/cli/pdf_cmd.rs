@@ -20,7 +20,6 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use clap::{Args, ValueEnum};
-use rayon::prelude::*;
 use serde_json::json;
 
 use super::analyze_cmd::{LineOpts, fit_range};
@@ -497,13 +496,15 @@ impl Input {
         };
         let pb = progress(n as u64, msg, quiet);
         let notes = super::common::OrderedNotes::default();
-        let out = (0..n)
-            .into_par_iter()
-            .try_fold(&init, |mut acc, i| -> Result<A> {
+        // the first bad image in input order is named, whatever the scheduling
+        let out = crate::par::try_fold(
+            n,
+            &init,
+            |acc, i| -> Result<()> {
                 let (field, label) = self.load_noted(i, &notes)?;
                 self.holes.add(&field);
                 self.tally.add(&field);
-                step(&mut acc, &field, &label, par).map_err(|e| {
+                step(acc, &field, &label, par).map_err(|e| {
                     if self.generated() {
                         e
                     } else {
@@ -511,9 +512,10 @@ impl Input {
                     }
                 })?;
                 pb.inc(1);
-                Ok(acc)
-            })
-            .try_reduce(&init, &merge);
+                Ok(())
+            },
+            &merge,
+        );
         pb.finish_and_clear();
         notes.say();
         out

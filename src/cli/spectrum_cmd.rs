@@ -4,7 +4,6 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::save_chart;
@@ -164,11 +163,10 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
             r
         }
     };
-    let spectra: Vec<PowerSpectrum> = fields
-        .par_iter()
-        .zip(&args.images)
-        .map(|(fl, p)| field_power_spectrum(fl, &cfg).map_err(|e| super::common::in_file(p, e)))
-        .collect::<Result<_>>()?;
+    let spectra: Vec<PowerSpectrum> = crate::par::try_map(fields.len(), |i| {
+        field_power_spectrum(&fields[i], &cfg)
+            .map_err(|e| super::common::in_file(&args.images[i], e))
+    })?;
     let mut ens = PowerSpectrum::default();
     for s in &spectra {
         ens.merge(s)?;

@@ -4,7 +4,6 @@
 use std::path::Path;
 
 use clap::{Args, ValueEnum};
-use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::{header, make_out_dir, progress, write_json};
@@ -125,16 +124,14 @@ where
 {
     make_out_dir(&c.out.out)?;
     let pb = progress(c.count as u64, "synth", quiet);
-    let names: Vec<String> = (0..c.count)
-        .into_par_iter()
-        .map(|i| {
-            let img = make(i)?;
-            let name = format!("{stem}_{i:04}.{}", c.format.ext());
-            write_image(&c.out.out.join(&name), &img, c.format)?;
-            pb.inc(1);
-            Ok(name)
-        })
-        .collect::<Result<Vec<_>>>()?;
+    // a refused draw is named by its index in order, whatever the scheduling
+    let names: Vec<String> = crate::par::try_map(c.count, |i| {
+        let img = make(i)?;
+        let name = format!("{stem}_{i:04}.{}", c.format.ext());
+        write_image(&c.out.out.join(&name), &img, c.format)?;
+        pb.inc(1);
+        Ok(name)
+    })?;
     pb.finish_and_clear();
     let mut p = params;
     p["size"] = json!(c.size);

@@ -6,7 +6,6 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use rayon::prelude::*;
 use serde_json::json;
 
 use super::common::save_chart;
@@ -562,18 +561,16 @@ pub fn accumulate_paths(
 ) -> Result<(Vec<TraceMomentAccumulator>, Vec<ImageInfo>)> {
     let pb = progress(paths.len() as u64, "tm", quiet);
     let notes = super::common::OrderedNotes::default();
-    let parts: Result<Vec<(TraceMomentAccumulator, ImageInfo)>> = paths
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
+    let parts: Result<Vec<(TraceMomentAccumulator, ImageInfo)>> =
+        crate::par::try_map(paths.len(), |i| {
+            let p = &paths[i];
             let field = super::common::read_image_noted(p, nodata, i, &notes)?;
             let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
             acc.add_field(&field)
                 .map_err(|e| super::common::in_file(p, e))?;
             pb.inc(1);
             Ok((acc, ImageInfo::of(&field)))
-        })
-        .collect();
+        });
     pb.finish_and_clear();
     notes.say();
     Ok(parts?.into_iter().unzip())

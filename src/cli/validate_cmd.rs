@@ -170,12 +170,9 @@ fn sample_spectra(
     q: &[f64],
     (a_lo, a_hi): (f64, f64),
 ) -> Result<Option<crate::spectra::Spectra>> {
-    use rayon::prelude::*;
     let range = Model::sample_range((a_lo, a_hi));
-    let parts: Vec<Option<crate::spectra::PartitionSums>> = (0..count)
-        .into_par_iter()
-        .map(|i| model.sample_sums(size, seed, i as u64, q, range))
-        .collect::<Result<_>>()?;
+    let parts: Vec<Option<crate::spectra::PartitionSums>> =
+        crate::par::try_map(count, |i| model.sample_sums(size, seed, i as u64, q, range))?;
     let Some(parts) = parts.into_iter().collect::<Option<Vec<_>>>() else {
         return Ok(None);
     };

@@ -948,7 +948,6 @@ pub fn ensemble_kernel_sums(
     kcfg: KernelConfig,
     set: WtmmmSet,
 ) -> Result<KernelSums> {
-    use rayon::prelude::*;
     // before sizing tiles from them
     cfg.validate()?;
     kcfg.validate()?;
@@ -964,32 +963,30 @@ pub fn ensemble_kernel_sums(
             e => e,
         }
     };
-    let parts = fields
-        .par_iter()
-        .enumerate()
-        .map(|(i, f)| {
-            let w = crate::stats::pdf::image_wtmmm(f, cfg, par, set == WtmmmSet::Lines)
-                .map_err(named(i))?;
-            if w.set(set).first().is_none_or(|v| v.is_empty()) {
-                return Err(named(i)(Error::Input(cfg.why_no_maxima(f))));
-            }
-            let side = if fields.len() < 3 {
-                let (ny, nx) = f.dim();
-                crate::spectra::default_tile_side(cfg, ny, nx)
-            } else {
-                0
-            };
-            KernelSums::from_points_tiled(
-                &scales,
-                kcfg,
-                set,
-                w.set(set),
-                format!("image {i}"),
-                w.domain,
-                side,
-            )
-        })
-        .collect::<Result<Vec<_>>>()?;
+    // the first bad field in order is named, whatever the scheduling
+    let parts = crate::par::try_map(fields.len(), |i| {
+        let f = &fields[i];
+        let w = crate::stats::pdf::image_wtmmm(f, cfg, par, set == WtmmmSet::Lines)
+            .map_err(named(i))?;
+        if w.set(set).first().is_none_or(|v| v.is_empty()) {
+            return Err(named(i)(Error::Input(cfg.why_no_maxima(f))));
+        }
+        let side = if fields.len() < 3 {
+            let (ny, nx) = f.dim();
+            crate::spectra::default_tile_side(cfg, ny, nx)
+        } else {
+            0
+        };
+        KernelSums::from_points_tiled(
+            &scales,
+            kcfg,
+            set,
+            w.set(set),
+            format!("image {i}"),
+            w.domain,
+            side,
+        )
+    })?;
     let mut it = parts.into_iter();
     let mut acc = it
         .next()

@@ -2566,10 +2566,9 @@ pub fn analyze_tiled(
         fc.lambda_range(box_levels(side))?;
     }
     let tile = tile_side(side, fc);
-    let per_image = fields
-        .par_iter()
-        .map(|f| TraceMomentAccumulator::field_tiles(config, f, tile))
-        .collect::<Result<Vec<_>>>()?;
+    let per_image = crate::par::try_map(fields.len(), |i| {
+        TraceMomentAccumulator::field_tiles(config, &fields[i], tile)
+    })?;
     let bounds: Vec<_> = fields
         .iter()
         .flat_map(|f| tile_bounds(f.dim().0, f.dim().1, tile))

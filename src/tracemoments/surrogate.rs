@@ -185,14 +185,11 @@ pub fn analyze_fields(
     if fields.len() < 3 {
         return analyze_tiled(fields, config, fc).map(|r| r.1);
     }
-    let parts = fields
-        .par_iter()
-        .map(|f| {
-            let mut a = TraceMomentAccumulator::new(config.clone())?;
-            a.add_field(f)?;
-            Ok(a)
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let parts = crate::par::try_map(fields.len(), |i| {
+        let mut a = TraceMomentAccumulator::new(config.clone())?;
+        a.add_field(&fields[i])?;
+        Ok(a)
+    })?;
     finish_ensemble(&parts, fc).map(|r| r.1)
 }
 
