@@ -141,8 +141,9 @@ fn synth_fif_then_tm() {
 
     // the settings of the runs below as library settings: default --q
     // 0.1:4:0.1 (the decimal grid, i/10 correctly rounded), --eta as given,
-    // --dtm-q 1.5, --sf-q 0.5,...,3, and the spectrum of a periodic field
-    // (tm reads the synth.json beside the files: a FIF is a torus)
+    // --dtm-q 1.5, --sf-q 0.5,...,3, the spectrum and the fractional filter of
+    // a periodic field (tm reads the synth.json beside the files: a FIF is a
+    // torus)
     let config = |diff: FluxDiff, eta: Vec<f64>| TraceMomentConfig {
         flux: FluxKind::Gradient,
         diff,
@@ -153,6 +154,7 @@ fn synth_fif_then_tm() {
         sf_q: vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0],
         spectrum: PowerSpectrumConfig::for_field(true),
         detrend: wtmm::field::Trend::None,
+        periodic: true,
     };
     let accumulate = |cfg: &TraceMomentConfig, fs: &[wtmm::Field]| -> Vec<TraceMomentAccumulator> {
         fs.iter()

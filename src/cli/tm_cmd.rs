@@ -126,6 +126,8 @@ impl TmOpts {
                 }
             },
             detrend: crate::field::Trend::None,
+            // a torus is filtered as one (no mirror) before the flux
+            periodic,
         };
         // (the library's checks: --frac-int |order| < 1 among them)
         cfg.validate()?;
@@ -232,9 +234,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     };
     if let Some(o) = &origin {
         say!(
-            "note: {}: the spectrum (H from beta) with window {} and only the mean removed, as \
-             compare takes the model's (a torus needs no taper, and a plane removed from it is \
-             a sawtooth across its edges); --window to choose the taper",
+            "note: {}: the spectrum (H from beta) with window {} and only the mean removed, and \
+             the fractional derivative before the flux taken on the torus (no mirror \
+             extension), as compare takes the model's (a torus needs no taper, and a plane \
+             removed from it is a sawtooth across its edges); --window to choose the taper",
             o.describe(args.images.len()),
             format!("{:?}", cfg.spectrum.window).to_lowercase()
         );

@@ -121,18 +121,22 @@ fn mirror(f: ArrayView2<f64>) -> Array2<f64> {
     })
 }
 
-/// Fractional integration of order `order` of a non-periodic field: masked
-/// pixels filled harmonically ([`Field::filled_harmonic`]; a mean fill
-/// puts a step along every hole's rim, which the filter spreads far into
-/// the valid flux), mirror extension to twice the size (no
-/// border jump for the periodic FFT filter), filter `|k|^-order`, crop.
-pub(crate) fn smooth(field: &Field, order: f64) -> Result<Array2<f64>> {
+/// Fractional integration of order `order` of a field: masked pixels
+/// filled harmonically ([`Field::filled_harmonic`]; a mean fill puts a
+/// step along every hole's rim, which the filter spreads far into the
+/// valid flux), then filter `|k|^-order`, on the field itself when it is
+/// `periodic`, otherwise on its mirror extension to twice the size (no
+/// border jump for the periodic FFT filter), cropped.
+pub(crate) fn smooth(field: &Field, order: f64, periodic: bool) -> Result<Array2<f64>> {
     let mut filled = field.filled_harmonic()?;
     // the filter drops the mean (k = 0), so removing it first changes
     // nothing but the rounding: an offset of 1e13 on a field of unit
     // roughness moved alpha by 3e-5 through the FFT of the raw values
     let mean = filled.mean().unwrap_or(0.0);
     filled.mapv_inplace(|v| v - mean);
+    if periodic {
+        return fractional_integrate(filled.view(), order);
+    }
     let (ny, nx) = filled.dim();
     let ext = mirror(filled.view());
     let out = fractional_integrate(ext.view(), order)?;
@@ -313,7 +317,7 @@ mod tests {
         }
         let hole = |y: usize, x: usize| (100..140).contains(&y) && (90..150).contains(&x);
         let mask = Array2::from_shape_fn((n, n), |(y, x)| hole(y, x));
-        let whole = smooth(&Field::new(f.clone()), -0.5).unwrap();
+        let whole = smooth(&Field::new(f.clone()), -0.5, false).unwrap();
         let holed = Field::with_mask(f.clone(), mask).unwrap();
         let far = |y: usize, x: usize| !((96..144).contains(&y) && (86..154).contains(&x));
         let rms = |g: &Array2<f64>| {
@@ -326,7 +330,7 @@ mod tests {
             }
             (s / k).sqrt() / whole.std(0.0)
         };
-        let harmonic = rms(&smooth(&holed, -0.5).unwrap());
+        let harmonic = rms(&smooth(&holed, -0.5, false).unwrap());
         let mean_fill = {
             let ext = mirror(holed.filled().unwrap().view());
             let out = fractional_integrate(ext.view(), -0.5).unwrap();
