@@ -2878,6 +2878,7 @@ fn scale_and_offset_leave_trace_moments_alone() {
 /// fields generated with H = 0 (the same noise). The mirror extension a
 /// non-periodic field needs does not: at alpha = 0.5 it fills the flux's
 /// holes and moves K(q) (8 x 512^2: C1 0.069 mirrored, 0.081 periodic).
+/// On the torus the gradient wraps, so the flux is conserved exactly.
 #[test]
 fn a_torus_is_differentiated_as_one() {
     let (n, n_img, seed) = (128, 4, 11);
@@ -2930,6 +2931,14 @@ fn a_torus_is_differentiated_as_one() {
         "periodic derivative: K off the flux's by {torus}, mirrored by {mirrored}"
     );
     assert!(mirrored > 1e-3, "mirrored: K off by only {mirrored}");
+    // on the torus every box is whole (the last row's forward neighbour is
+    // the first), so the flux's mean is the same at every scale: K(1) = 0
+    // to rounding; the plane's last row and column have no flux, and the
+    // boxes along them weigh as whole ones
+    let plane = k(&flux, 0.0, false);
+    println!("K(1): torus {:.1e}, plane {:.1e}", exact[9], plane[9]);
+    assert!(exact[9].abs() < 1e-12, "K(1) on the torus {}", exact[9]);
+    assert!(kt[9].abs() < 1e-12, "K(1) on the torus {}", kt[9]);
     // a periodic accumulator does not merge with a mirrored one, and a
     // stored config without the key was mirrored
     let cfg = TraceMomentConfig {

@@ -235,8 +235,8 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     if let Some(o) = &origin {
         say!(
             "note: {}: the spectrum (H from beta) with window {} and only the mean removed, and \
-             the fractional derivative before the flux taken on the torus (no mirror \
-             extension), as compare takes the model's (a torus needs no taper, and a plane \
+             the fractional derivative and the gradient of the flux taken on the torus (no \
+             mirror extension; the last row's neighbour is the first), as compare takes the model's (a torus needs no taper, and a plane \
              removed from it is a sawtooth across its edges); --window to choose the taper",
             o.describe(args.images.len()),
             format!("{:?}", cfg.spectrum.window).to_lowercase()

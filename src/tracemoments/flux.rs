@@ -144,12 +144,16 @@ pub(crate) fn smooth(field: &Field, order: f64, periodic: bool) -> Result<Array2
 }
 
 /// The flux of `f` on the `ny x nx` grid with its validity (`true` = valid).
-/// The last row and column (no forward neighbour) and every cell touching a
-/// masked pixel are invalid.
+/// Every cell touching a masked pixel is invalid, and so are the last row
+/// and column (no forward neighbour) unless the field is `periodic`: on a
+/// torus the forward neighbour of the last row is the first, every box of
+/// the pyramid is whole, and the flux's mean is the same at every scale
+/// (K(1) = 0 to rounding).
 pub(crate) fn flux(
     f: ArrayView2<f64>,
     mask: Option<ArrayView2<bool>>,
     kind: FluxKind,
+    periodic: bool,
 ) -> Result<(Array2<f64>, Array2<bool>)> {
     let (ny, nx) = f.dim();
     if ny < 2 || nx < 2 {
@@ -160,16 +164,18 @@ pub(crate) fn flux(
     let bad = |y: usize, x: usize| mask.as_ref().is_some_and(|m| m[[y, x]]);
     let mut phi = Array2::<f64>::zeros((ny, nx));
     let mut ok = Array2::<bool>::from_elem((ny, nx), false);
-    for y in 0..ny - 1 {
-        for x in 0..nx - 1 {
+    let (ey, ex) = if periodic { (ny, nx) } else { (ny - 1, nx - 1) };
+    for y in 0..ey {
+        // forward neighbours, wrapped on a torus
+        let y1 = (y + 1) % ny;
+        for x in 0..ex {
+            let x1 = (x + 1) % nx;
             let a = f[[y, x]];
-            let b = f[[y, x + 1]];
-            let c = f[[y + 1, x]];
+            let b = f[[y, x1]];
+            let c = f[[y1, x]];
             let valid = match kind {
-                FluxKind::Gradient => !(bad(y, x) || bad(y, x + 1) || bad(y + 1, x)),
-                FluxKind::Wavelet => {
-                    !(bad(y, x) || bad(y, x + 1) || bad(y + 1, x) || bad(y + 1, x + 1))
-                }
+                FluxKind::Gradient => !(bad(y, x) || bad(y, x1) || bad(y1, x)),
+                FluxKind::Wavelet => !(bad(y, x) || bad(y, x1) || bad(y1, x) || bad(y1, x1)),
             };
             if !valid {
                 continue;
@@ -177,7 +183,7 @@ pub(crate) fn flux(
             let v = match kind {
                 FluxKind::Gradient => ((b - a).powi(2) + (c - a).powi(2)).sqrt(),
                 FluxKind::Wavelet => {
-                    let d = f[[y + 1, x + 1]];
+                    let d = f[[y1, x1]];
                     let h = 0.5 * (b - a + d - c);
                     let v = 0.5 * (c - a + d - b);
                     let g = 0.5 * (a - b - c + d);
@@ -345,7 +351,7 @@ mod tests {
         // f = 3x + 4y: |grad| = 5 everywhere valid; Haar: (3, 4, 0) -> 5
         let f = Array2::from_shape_fn((5, 6), |(y, x)| 3.0 * x as f64 + 4.0 * y as f64);
         for kind in [FluxKind::Gradient, FluxKind::Wavelet] {
-            let (phi, ok) = flux(f.view(), None, kind).unwrap();
+            let (phi, ok) = flux(f.view(), None, kind, false).unwrap();
             for ((y, x), &v) in ok.indexed_iter() {
                 assert_eq!(v, y < 4 && x < 5);
                 if v {
@@ -353,6 +359,21 @@ mod tests {
                 }
             }
         }
+        // on a torus the last row and column take the first as their
+        // forward neighbour: every cell is valid, the wrap a jump
+        let (phi, ok) = flux(f.view(), None, FluxKind::Gradient, true).unwrap();
+        assert!(ok.iter().all(|&v| v));
+        assert_eq!(phi[[1, 2]], 5.0);
+        assert_eq!(phi[[0, 5]], (15f64.powi(2) + 4f64.powi(2)).sqrt());
+        assert_eq!(phi[[4, 0]], (3f64.powi(2) + 16f64.powi(2)).sqrt());
+        // a masked pixel invalidates the cells that reach it across the wrap
+        let mut m = Array2::from_elem((5, 6), false);
+        m[[0, 0]] = true;
+        let (_, ok) = flux(f.view(), Some(m.view()), FluxKind::Gradient, true).unwrap();
+        for (y, x) in [(0, 0), (0, 5), (4, 0)] {
+            assert!(!ok[[y, x]], "({y}, {x})");
+        }
+        assert_eq!(ok.iter().filter(|&&v| !v).count(), 3);
     }
 
     #[test]

@@ -232,12 +232,14 @@ pub struct TraceMomentConfig {
     /// The fields are tori (the generators' W-cascades, FISC, FIF; the CLI
     /// sets it for `compare` and for `tm` on periodic `synth` files): the
     /// fractional filter before the flux (`diff`, `frac_int`) acts on the
-    /// field as it is, not on its mirror extension. The mirror, which a
-    /// non-periodic field needs against its border jump, fills a
+    /// field as it is, not on its mirror extension, and the last row and
+    /// column take the first as their forward neighbour, so every box is
+    /// whole and the flux's mean is the same at every scale. The mirror,
+    /// which a non-periodic field needs against its border jump, fills a
     /// small-alpha flux's holes far from the border (8 FIF fields of 512^2,
     /// alpha 0.5, C1 0.1, order 0.5: C1 read 0.069 mirrored, 0.081
     /// periodic). Default false; stored configs without the key were
-    /// mirrored.
+    /// mirrored, without the wrap.
     #[serde(default)]
     pub periodic: bool,
 }
@@ -749,7 +751,7 @@ impl TraceMomentAccumulator {
         } else {
             field.data.view()
         };
-        let (phi, ok) = flux::flux(f, mask, self.config.flux)?;
+        let (phi, ok) = flux::flux(f, mask, self.config.flux, self.config.periodic)?;
         Ok((phi, ok, diff))
     }
 
