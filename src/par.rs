@@ -21,6 +21,16 @@ where
     R: Send,
     F: Fn(usize) -> Result<R> + Sync + Send,
 {
+    try_map_at(n, f).map_err(|(_, e)| e)
+}
+
+/// [`try_map`] with the failing index beside its error (what was noted
+/// about later items depends on the scheduling: a caller drops it).
+pub(crate) fn try_map_at<R, F>(n: usize, f: F) -> std::result::Result<Vec<R>, (usize, Error)>
+where
+    R: Send,
+    F: Fn(usize) -> Result<R> + Sync + Send,
+{
     let first = AtomicUsize::new(usize::MAX);
     let out: Vec<Option<Result<R>>> = (0..n)
         .into_par_iter()
@@ -38,16 +48,26 @@ where
         .collect();
     // an index is skipped only above a failure, whose error comes first in
     // this ordered pass and ends it
-    out.into_iter()
-        .map(|r| r.expect("a skipped index follows a failure"))
-        .collect()
+    let mut v = Vec::with_capacity(n);
+    for (i, r) in out.into_iter().enumerate() {
+        match r.expect("a skipped index follows a failure") {
+            Ok(x) => v.push(x),
+            Err(e) => return Err((i, e)),
+        }
+    }
+    Ok(v)
 }
 
 /// Folds `0..n` in parallel into accumulators (`init`, then `step` on each
 /// index of a contiguous run, in order) merged with `merge`; on failure the
 /// error of the lowest failing index (a failed `merge`, a defect rather
 /// than an input's fault, counts after every index).
-pub(crate) fn try_fold<A, I, S, M>(n: usize, init: I, step: S, merge: M) -> Result<A>
+pub(crate) fn try_fold<A, I, S, M>(
+    n: usize,
+    init: I,
+    step: S,
+    merge: M,
+) -> std::result::Result<A, (usize, Error)>
 where
     A: Send,
     I: Fn() -> A + Sync + Send,
@@ -94,7 +114,7 @@ where
             },
         );
     match failed {
-        Some((_, e)) => Err(e),
+        Some(f) => Err(f),
         None => Ok(acc),
     }
 }
@@ -130,6 +150,7 @@ mod tests {
             pool(threads).install(|| {
                 let e = try_map(40, slow_three).unwrap_err();
                 assert_eq!(e.to_string(), Error::Input("image 3".into()).to_string());
+                assert_eq!(try_map_at(40, slow_three).unwrap_err().0, 3);
                 let e = try_fold(
                     40,
                     || 0usize,
@@ -140,7 +161,8 @@ mod tests {
                     |a, b| Ok(a + b),
                 )
                 .unwrap_err();
-                assert_eq!(e.to_string(), Error::Input("image 3".into()).to_string());
+                assert_eq!(e.0, 3);
+                assert_eq!(e.1.to_string(), Error::Input("image 3".into()).to_string());
             });
         }
     }
@@ -172,10 +194,9 @@ mod tests {
                 |_, _| Ok(()),
                 |_, _| Err(Error::Input("merge".into())),
             );
-            assert_eq!(
-                e.unwrap_err().to_string(),
-                Error::Input("merge".into()).to_string()
-            );
+            let e = e.unwrap_err();
+            assert_eq!(e.0, usize::MAX);
+            assert_eq!(e.1.to_string(), Error::Input("merge".into()).to_string());
         });
     }
 }

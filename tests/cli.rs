@@ -5108,3 +5108,67 @@ fn the_stale_warning_spares_the_inputs() {
         "{err}"
     );
 }
+
+/// `tm --torus` takes periodic images from anywhere as `tm` takes the
+/// files `synth` wrote from a periodic model: FIF files copied away from
+/// their synth.json read as data without it (mirror extension, taper) and
+/// as tori with it, to the bit; it refuses `--detrend plane` beside it.
+#[test]
+fn tm_torus_reads_tori_from_anywhere() {
+    let dir = scratch("tm_torus");
+    let (made, bare) = (dir.join("made"), dir.join("bare"));
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    assert_eq!(
+        run(&[
+            "synth",
+            "fif",
+            "--alpha",
+            "1.5",
+            "--c1",
+            "0.1",
+            "--hurst",
+            "0.5",
+            "--size",
+            "128",
+            "--count",
+            "3",
+            "--seed",
+            "3",
+            "--out",
+            &s(&made)
+        ]),
+        0
+    );
+    std::fs::create_dir_all(&bare).unwrap();
+    for f in npy_files(&made) {
+        let f = Path::new(&f);
+        std::fs::copy(f, bare.join(f.file_name().unwrap())).unwrap();
+    }
+    let tm = |files: Vec<String>, extra: &[&str], out: &str| -> Value {
+        let o = s(&dir.join(out));
+        let mut args = vec!["tm".to_string()];
+        args.extend(files);
+        args.extend(extra.iter().map(|a| a.to_string()));
+        args.extend(["--out".to_string(), o.clone()]);
+        let a: Vec<&str> = args.iter().map(String::as_str).collect();
+        assert_eq!(run(&a), 0, "{a:?}");
+        json(&Path::new(&o).join("tm.json"))
+    };
+    let synth = tm(npy_files(&made), &[], "o_synth");
+    let torus = tm(npy_files(&bare), &["--torus"], "o_torus");
+    let plane = tm(npy_files(&bare), &[], "o_plane");
+    assert_eq!(synth["params"]["config"]["periodic"], true);
+    assert_eq!(torus["params"]["config"]["periodic"], true);
+    assert_eq!(plane["params"]["config"]["periodic"], false);
+    for key in ["K", "alpha", "C1", "beta", "H"] {
+        assert_eq!(synth[key], torus[key], "{key}");
+    }
+    assert_ne!(synth["K"], plane["K"]);
+    let mut args = vec!["tm"];
+    let files = npy_files(&bare);
+    args.extend(files.iter().map(String::as_str));
+    let o = s(&dir.join("o_refused"));
+    args.extend(["--torus", "--detrend", "plane", "--out", &o]);
+    assert_eq!(run(&args), 2);
+    assert!(!Path::new(&o).exists());
+}

@@ -450,7 +450,7 @@ pub fn analyze_paths(
     };
     let notes = super::common::OrderedNotes::default();
     // the first bad image in input order is named, whatever the scheduling
-    let parts: Result<Vec<PartitionSums>> = crate::par::try_map(paths.len(), |i| {
+    let parts = crate::par::try_map_at(paths.len(), |i| {
         let p = &paths[i];
         let field = super::common::read_image_noted(p, nodata, i, &notes)?;
         super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
@@ -471,8 +471,8 @@ pub fn analyze_paths(
         Ok(s)
     });
     pb.finish_and_clear();
-    notes.say();
-    let parts = parts?;
+    notes.say_upto(parts.as_ref().err().map(|f| f.0));
+    let parts = parts.map_err(|f| f.1)?;
     Ok(PartitionSums::merge_all(parts)?.expect("at least one image"))
 }
 

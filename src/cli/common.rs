@@ -427,9 +427,16 @@ impl OrderedNotes {
 
     /// Says every note, image by image (each image's in the order noted).
     pub fn say(self) {
+        self.say_upto(None)
+    }
+
+    /// Says the notes of images up to `last` (all with `None`): after a
+    /// failure at `last`, whether later images ran, and so noted, depends
+    /// on the scheduling.
+    pub fn say_upto(self, last: Option<usize>) {
         let mut v = self.0.into_inner().unwrap_or_else(|e| e.into_inner());
         v.sort_by_key(|&(i, _)| i);
-        for (_, w) in v {
+        for (_, w) in v.into_iter().filter(|(i, _)| last.is_none_or(|l| *i <= l)) {
             say!("{w}");
         }
     }

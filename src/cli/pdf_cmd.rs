@@ -517,8 +517,8 @@ impl Input {
             &merge,
         );
         pb.finish_and_clear();
-        notes.say();
-        out
+        notes.say_upto(out.as_ref().err().map(|f| f.0));
+        out.map_err(|f| f.1)
     }
 
     /// The input in a message: the file, the files, or the generated

@@ -171,6 +171,14 @@ pub struct TmArgs {
     /// loses part of its own large scales with it (H_sf a little lower).
     #[arg(long, value_enum, default_value_t = crate::field::Trend::None)]
     pub detrend: crate::field::Trend,
+    /// The images are periodic (tori, e.g. cascades or simulations with
+    /// periodic borders): the spectrum without taper (unless --window) and
+    /// with only the mean removed, the flux's fractional derivative on the
+    /// torus (no mirror extension) and its gradient wrapped. Automatic for
+    /// the files `wtmm synth` wrote from a periodic model (listed in the
+    /// synth.json beside them).
+    #[arg(long)]
+    pub torus: bool,
     /// For one or two images: also draw this many surrogates (universal
     /// multifractal FIF fields with the estimated alpha, C1 and H, the
     /// images' shapes and missing pixels), analyse them the same way, and
@@ -215,14 +223,29 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     let (px, px_warnings) = args.pixel.resolve(&args.images)?;
     // the fit settings first, so that a bad --q-fit-max is named as such
     let mut fc = args.tm.fit()?;
-    // files `synth` wrote from a periodic model: the spectrum settings
-    // compare takes for the model (no taper, only the mean removed)
+    // files `synth` wrote from a periodic model: the settings compare takes
+    // for the model (spectrum: no taper, only the mean removed; flux: its
+    // derivative and gradient on the torus)
+    if args.torus && args.detrend != crate::field::Trend::None {
+        return Err(Error::param(
+            "torus",
+            "a plane removed from a torus leaves a sawtooth across its edges: give --torus or \
+             --detrend, not both",
+        ));
+    }
     let origin = match args.detrend {
+        _ if args.torus => None,
         crate::field::Trend::None => super::common::periodic_synth(
             &args.images,
             Some(match args.tm.window {
-                None => "their power spectrum tapered and a plane removed",
-                Some(_) => "a plane removed from their power spectrum",
+                None => {
+                    "their power spectrum tapered and a plane removed, and the flux's derivative \
+                     taken on a mirror extension"
+                }
+                Some(_) => {
+                    "a plane removed from their power spectrum, and the flux's derivative taken \
+                     on a mirror extension"
+                }
             }),
             false,
         ),
@@ -230,7 +253,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     };
     let cfg = TraceMomentConfig {
         detrend: args.detrend,
-        ..args.tm.config(q, origin.is_some())?
+        ..args.tm.config(q, args.torus || origin.is_some())?
     };
     if let Some(o) = &origin {
         say!(
@@ -564,19 +587,18 @@ pub fn accumulate_paths(
 ) -> Result<(Vec<TraceMomentAccumulator>, Vec<ImageInfo>)> {
     let pb = progress(paths.len() as u64, "tm", quiet);
     let notes = super::common::OrderedNotes::default();
-    let parts: Result<Vec<(TraceMomentAccumulator, ImageInfo)>> =
-        crate::par::try_map(paths.len(), |i| {
-            let p = &paths[i];
-            let field = super::common::read_image_noted(p, nodata, i, &notes)?;
-            let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
-            acc.add_field(&field)
-                .map_err(|e| super::common::in_file(p, e))?;
-            pb.inc(1);
-            Ok((acc, ImageInfo::of(&field)))
-        });
+    let parts = crate::par::try_map_at(paths.len(), |i| {
+        let p = &paths[i];
+        let field = super::common::read_image_noted(p, nodata, i, &notes)?;
+        let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
+        acc.add_field(&field)
+            .map_err(|e| super::common::in_file(p, e))?;
+        pb.inc(1);
+        Ok((acc, ImageInfo::of(&field)))
+    });
     pb.finish_and_clear();
-    notes.say();
-    Ok(parts?.into_iter().unzip())
+    notes.say_upto(parts.as_ref().err().map(|f| f.0));
+    Ok(parts.map_err(|f| f.1)?.into_iter().unzip())
 }
 
 /// `τ(q) = qH - K(q) - 2` from the measured K(q) and the spectral H (NaN

@@ -39,7 +39,9 @@
 //! fractional differentiation of [`FluxDiff`] and an optional fractional
 //! integration of order 0.1 (TM §5.2 technical note: it removes the
 //! spurious zero gradients of quantised DEMs), both in one Fourier filter
-//! on the mirror-extended field. It is normalised
+//! on the mirror-extended field (on the field itself, and the gradient
+//! wrapped, when it is a torus: [`TraceMomentConfig::periodic`]). It is
+//! normalised
 //! so that the **ensemble** mean of `φ` at the finest resolution is 1, then
 //! averaged over boxes of side `l = 2^k` px; `λ = L/l` with `L` the largest
 //! box (`2^floor(log2 min(ny, nx))`). Every level is averaged over the same
