@@ -94,7 +94,8 @@ impl TmOpts {
     ///
     /// **Errors** naming the flag on a malformed list or an invalid value.
     /// `periodic` fields get the spectrum settings of
-    /// [`PowerSpectrumConfig::for_field`]; `--window` overrides the taper.
+    /// [`PowerSpectrumConfig::for_field`] (`--window` overrides the taper)
+    /// and the torus flux ([`TraceMomentConfig::periodic`]).
     pub fn config(&self, q: Vec<f64>, periodic: bool) -> Result<TraceMomentConfig> {
         let d = TraceMomentConfig::default();
         let diff = match self.diff_order.trim() {
@@ -126,7 +127,7 @@ impl TmOpts {
                 }
             },
             detrend: crate::field::Trend::None,
-            // a torus is filtered as one (no mirror) before the flux
+            // a torus is filtered (no mirror) and differenced (wrapped) as one
             periodic,
         };
         // (the library's checks: --frac-int |order| < 1 among them)
