@@ -789,6 +789,14 @@ fn rejects_bad_input() {
     };
     let e = TraceMomentAccumulator::new(bad).unwrap_err().to_string();
     assert!(e.contains("dtm-q") && e.contains("conserved"), "{e}");
+    // a plane removed from a torus is a sawtooth across its edges
+    let bad = TraceMomentConfig {
+        periodic: true,
+        detrend: wtmm::field::Trend::Plane,
+        ..Default::default()
+    };
+    let e = TraceMomentAccumulator::new(bad).unwrap_err().to_string();
+    assert!(e.contains("detrend") && e.contains("sawtooth"), "{e}");
     let flat = Field::new(Array2::from_elem((32, 32), 3.0));
     // a constant field has no H = ξ(1) to differentiate by (default flux) ...
     let mut acc = TraceMomentAccumulator::new(TraceMomentConfig::default()).unwrap();

@@ -296,7 +296,8 @@ impl TraceMomentConfig {
     }
 
     /// **Errors** on negative, non-finite, unsorted or repeated q, non-positive η or
-    /// structure-function orders, or a non-finite fractional-integration order.
+    /// structure-function orders, a non-finite fractional-integration order,
+    /// or a plane removed from a periodic field.
     pub fn validate(&self) -> Result<()> {
         if self.q.is_empty()
             || self.q.iter().any(|q| !(q.is_finite() && *q >= 0.0))
@@ -332,6 +333,13 @@ impl TraceMomentConfig {
             return Err(Error::param(
                 "sf-q",
                 "structure-function orders must be > 0",
+            ));
+        }
+        if self.periodic && self.detrend == Trend::Plane {
+            return Err(Error::param(
+                "detrend",
+                "a plane removed from a torus (periodic) leaves a sawtooth across its edges: \
+                 detrend a torus by its mean only",
             ));
         }
         if let Some(h) = self.frac_int
