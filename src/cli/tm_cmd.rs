@@ -227,13 +227,6 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     // files `synth` wrote from a periodic model: the settings compare takes
     // for the model (spectrum: no taper, only the mean removed; flux: its
     // derivative and gradient on the torus)
-    if args.torus && args.detrend != crate::field::Trend::None {
-        return Err(Error::param(
-            "torus",
-            "a plane removed from a torus leaves a sawtooth across its edges: give --torus or \
-             --detrend, not both",
-        ));
-    }
     let origin = match args.detrend {
         _ if args.torus => None,
         crate::field::Trend::None => super::common::periodic_synth(
@@ -256,12 +249,16 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         detrend: args.detrend,
         ..args.tm.config(q, args.torus || origin.is_some())?
     };
+    // before any image is read: the library refuses --torus with
+    // --detrend plane (a sawtooth across the torus's edges)
+    cfg.validate()?;
     if let Some(o) = &origin {
         say!(
             "note: {}: the spectrum (H from beta) with window {} and only the mean removed, and \
              the fractional derivative and the gradient of the flux taken on the torus (no \
-             mirror extension; the last row's neighbour is the first), as compare takes the model's (a torus needs no taper, and a plane \
-             removed from it is a sawtooth across its edges); --window to choose the taper",
+             mirror extension; the last row's neighbour is the first), as compare takes the \
+             model's (a torus needs no taper, and a plane removed from it is a sawtooth across \
+             its edges); --window to choose the taper",
             o.describe(args.images.len()),
             format!("{:?}", cfg.spectrum.window).to_lowercase()
         );
