@@ -305,7 +305,10 @@ pub fn spd_inverse(a: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
 /// `f' w K / f' w f`. α is searched in `[0.02, 3]` as in [`fit_universal`].
 /// Standard errors from `(J' w J)⁻¹` (w in absolute units: the errors of the
 /// covariance model, not rescaled by the residuals). `None` with fewer than
-/// 3 points, a size mismatch or a non-finite value.
+/// 3 points, a size mismatch or a non-finite value. Leave q = 1 out of the
+/// points: `f` and its derivatives vanish there, so it could move the fit
+/// only through its correlations with the other K (as
+/// [`super::finish_jackknife`] does).
 pub fn fit_universal_gls(q: &[f64], k: &[f64], w: &[Vec<f64>]) -> Option<UniversalFit> {
     let n = q.len();
     if n < 3

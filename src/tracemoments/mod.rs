@@ -125,12 +125,15 @@
 //! ~25 fitted q), so its correlations are shrunk toward 0 by the analytic
 //! Schäfer-Strimmer intensity ([`jackknife_covariance_shrunk`]; about 0.2-0.5
 //! on 16 topo-fif images) — no tuned constant. The q range and `q_s` are
-//! those of the OLS iteration. The jackknife error of the GLS α is nested
+//! those of the OLS iteration, less q = 1, where the universal K and its
+//! derivatives vanish (its residual would enter only through the
+//! covariance, a control variate on rounding or on edge drift; test
+//! `gls_does_not_follow_rounding_at_q_1`). The jackknife error of the GLS α is nested
 //! (weights re-estimated inside every leave-one-out sample). Measured
 //! (truth α = 1.8, C1 = 0.12): on 11 ensembles of 16 x 1024² topo-fif
-//! (seeds 2-12) OLS α 1.829 ± 0.081 (sd over ensembles), GLS 1.832 ±
-//! 0.043, mean nested-jackknife error 0.047; on 8 ensembles of 16
-//! log-normal cascades of 128² (α = 2) OLS 1.965 ± 0.103, GLS 1.993 ±
+//! (seeds 2-12) OLS α 1.827 ± 0.081 (sd over ensembles), GLS 1.821 ±
+//! 0.039, mean nested-jackknife error 0.041; on 8 ensembles of 16
+//! log-normal cascades of 128² (α = 2) OLS 1.965 ± 0.103, GLS 1.992 ±
 //! 0.018. [`TraceMomentAccumulator::finish`] alone has no parts and is OLS.
 //!
 //! # Outer scale
@@ -2195,11 +2198,13 @@ pub fn diagnostics(
     // 4. the GLS and OLS universal fits apart: both fit C1/(α-1) (q^α - q)
     // to the same K(q), so they part beyond their paired error when K(q)
     // departs from that form and the weighting picks which q it follows
-    // (Jacksboro DEM, 6 tiles: 16 errors; two-point cascades: 4.5-7.6).
+    // (Jacksboro DEM, 6 tiles: 10 errors; two-point cascades: 5.0-9.5).
     // On universal fields the difference read -0.6..1.6 errors (6 topo-fif
     // ensembles of 16 x 256^2) and -0.6..2.7 (8 log-normal cascade
     // ensembles, mean +0.8: the two fits' small biases differ, which a very
-    // large ensemble would resolve; hence the message's second reading)
+    // large ensemble would resolve; hence the message's second reading),
+    // those with q = 1 still in the GLS fit; after, none of 12 topo-fif
+    // ensembles of 16 x 1024^2 reached 3
     if let Some((l, _)) = loo
         && r.universal_fit.starts_with("gls")
         && r.alpha.is_finite()
@@ -2421,7 +2426,8 @@ fn gls_weights(
 /// leave-one-out samples (a nested jackknife, n(n-1) finishes): held fixed,
 /// they would be tuned to the very fluctuations the jackknife should see
 /// (on 11 topo-fif ensembles the fixed-weight error was 0.027 against a
-/// scatter of 0.043; nested 0.047). Keeps the OLS fit (and says why in
+/// scatter of 0.043, nested 0.047, with q = 1 still in the fit and the
+/// mirrored flux; now nested 0.041 against 0.039). Keeps the OLS fit (and says why in
 /// `universal_fit`) with fewer than 5 parts, fewer than 3 q values, or a
 /// covariance that cannot be inverted.
 fn gls_refit(
@@ -2434,8 +2440,16 @@ fn gls_refit(
     what: &str,
 ) -> Result<()> {
     let n = parts.len();
+    // q = 1 is left out: the universal K and both its derivatives vanish
+    // there (TM eq 8), so its only effect would be through the covariance,
+    // as a control variate on K(1) - 0. That residual is no fluctuation of
+    // the fitted parameters: rounding on a torus, where K(1) = 0 in every
+    // sample (its variance ~1e-33 got weights ~1e33; alpha moved by 0.009
+    // when the fields were scaled), and the edge boxes' drift on a plane.
+    // OLS is unchanged by the point (zero Jacobian).
     let idx: Vec<usize> = universal_indices(&res.q, res.universal_q_max, fc)
         .into_iter()
+        .filter(|&i| (res.q[i] - 1.0).abs() > 1e-9)
         .filter(|&i| res.k[i].is_finite() && loo.iter().all(|r| r.k[i].is_finite()))
         .collect();
     let fallback = |res: &mut TraceMomentResult, why: &str| {
@@ -2508,7 +2522,7 @@ fn gls_refit(
         apply_universal(r, x);
     }
     res.universal_fit = format!(
-        "gls (jackknife covariance of K(q) over {n} {what}, {} q values, correlations shrunk by lambda = {lambda:.3}; errors by a nested jackknife)",
+        "gls (jackknife covariance of K(q) over {n} {what}, {} q values, q = 1 left out, correlations shrunk by lambda = {lambda:.3}; errors by a nested jackknife)",
         idx.len(),
     );
     res.universal_shrinkage = Some(lambda);
