@@ -2428,7 +2428,7 @@ fn gls_weights(
 /// (on 11 topo-fif ensembles the fixed-weight error was 0.027 against a
 /// scatter of 0.043, nested 0.047, with q = 1 still in the fit and the
 /// mirrored flux; now nested 0.041 against 0.039). Keeps the OLS fit (and says why in
-/// `universal_fit`) with fewer than 5 parts, fewer than 3 q values, or a
+/// `universal_fit`) with fewer than 5 parts, fewer than 3 q values besides q = 1, or a
 /// covariance that cannot be inverted.
 fn gls_refit(
     res: &mut TraceMomentResult,
@@ -2460,7 +2460,7 @@ fn gls_refit(
         return fallback(res, "fewer than 5 jackknife parts");
     }
     if idx.len() < 3 {
-        return fallback(res, "fewer than 3 q values");
+        return fallback(res, "fewer than 3 fitted q values besides q = 1");
     }
     let q: Vec<f64> = idx.iter().map(|&i| res.q[i]).collect();
     let fit = |r: &TraceMomentResult, w: &[Vec<f64>]| {
