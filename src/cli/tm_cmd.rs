@@ -74,8 +74,8 @@ pub struct TmOpts {
     #[arg(long)]
     pub q_fit_max: Option<f64>,
     /// Universal fit of (alpha, C1): `gls` = generalised least squares with
-    /// the jackknife covariance of K(q) across q (correlations shrunk by the
-    /// Schäfer-Strimmer intensity; needs >= 5 images or tiles), `ols` =
+    /// the jackknife covariance of K(q) across q, q = 1 left out (correlations
+    /// shrunk by the Schäfer-Strimmer intensity; needs >= 5 images or tiles), `ols` =
     /// unweighted least squares in K (the estimator before GLS) [default:
     /// gls for an ensemble of 5 or more images (fewer fall back to ols,
     /// recorded in tm.json), ols for fewer than 3 images, whose jackknife

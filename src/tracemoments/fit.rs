@@ -167,8 +167,9 @@ pub fn fit_universal(q: &[f64], k: &[f64]) -> Option<UniversalFit> {
 #[serde(rename_all = "lowercase")]
 pub enum UniversalWeighting {
     /// Generalised least squares with the jackknife covariance of K(q)
-    /// across q, its correlations shrunk toward 0 by the Schäfer-Strimmer
-    /// intensity (needs at least 5 jackknife parts; otherwise `ols`).
+    /// across q (q = 1 left out), its correlations shrunk toward 0 by the
+    /// Schäfer-Strimmer intensity (needs at least 5 jackknife parts;
+    /// otherwise `ols`).
     #[default]
     Gls,
     /// Unweighted least squares in K (the estimator before GLS).
