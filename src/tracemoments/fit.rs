@@ -62,6 +62,84 @@ impl LogSum {
     }
 }
 
+/// The largest multiple of the step [`power_sums`] raises by repeated
+/// multiplication.
+const MAX_POWER_STEPS: usize = 64;
+
+/// `(q l_max, Σ_i exp(q (l_i - l_max)))` for every `q` of `qs`: the terms
+/// [`LogSum::add`] takes to add `Σ_i exp(q l_i)`, as [`LogSum::add_powers`]
+/// would for one `q` at a time (`q = 0`: `(0, n)`; empty `logs` or an
+/// infinite `lmax`: a zero sum). When the positive `q` are whole multiples
+/// `k δ` of the smallest, `δ`, with `k <= 64` (tm's grids 0.1:4:0.1 and
+/// 0.5:3:0.5), each term costs one `exp` and `k` multiplications: `x^k`
+/// with `x = exp(δ (l - l_max))`. The product's error, k ulp (4e-15 at
+/// k = 40), is that of `exp` itself, whose argument `q (l - l_max)` is
+/// already rounded to `|q (l - l_max)|` ulp; the exps, one per term and
+/// q, were half of tm's time. Otherwise one `exp` per term and q.
+pub fn power_sums(logs: &[f64], lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
+    let mut out: Vec<(f64, f64)> = qs
+        .iter()
+        .map(|&q| {
+            if q == 0.0 {
+                (0.0, logs.len() as f64)
+            } else {
+                (q * lmax, 0.0)
+            }
+        })
+        .collect();
+    if logs.is_empty() || !lmax.is_finite() {
+        return out;
+    }
+    let delta = qs
+        .iter()
+        .copied()
+        .filter(|&q| q > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let steps: Option<Vec<usize>> = qs
+        .iter()
+        .map(|&q| {
+            if q == 0.0 {
+                return Some(0);
+            }
+            let k = (q / delta).round();
+            ((1.0..=MAX_POWER_STEPS as f64).contains(&k) && (q - k * delta).abs() <= 1e-13 * q)
+                .then_some(k as usize)
+        })
+        .collect();
+    match steps {
+        Some(ks) if delta.is_finite() => {
+            let kmax = ks.iter().copied().max().unwrap_or(0);
+            let mut acc = vec![0.0; kmax + 1];
+            for &l in logs {
+                let x = (delta * (l - lmax)).exp();
+                let mut p = 1.0;
+                for a in acc[1..].iter_mut() {
+                    p *= x;
+                    // the largest term is 1: what is below 1e-300 of it
+                    // (and every higher power) cannot move the sum
+                    if p < 1e-300 {
+                        break;
+                    }
+                    *a += p;
+                }
+            }
+            for (o, &k) in out.iter_mut().zip(&ks) {
+                if k > 0 {
+                    o.1 = acc[k];
+                }
+            }
+        }
+        _ => {
+            for (o, &q) in out.iter_mut().zip(qs) {
+                if q != 0.0 {
+                    o.1 = logs.iter().map(|&l| (q * (l - lmax)).exp()).sum();
+                }
+            }
+        }
+    }
+    out
+}
+
 /// `(q^α - q)/(α - 1)` (`q ln q` at α = 1): the universal K(q) at C1 = 1.
 pub fn universal_shape(alpha: f64, q: f64) -> f64 {
     if q <= 0.0 {
@@ -402,6 +480,42 @@ fn minimise_alpha(obj: impl Fn(f64) -> f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The repeated products of `power_sums` against one `exp` per term and
+    /// q: tm's grids (products) and an irregular one (exps), with q = 0,
+    /// logs spanning 700 (terms down to e^-2800) and the edge cases.
+    #[test]
+    fn power_sums_match_one_exp_per_q() {
+        // a deterministic spread of logs: holes to the maximum
+        let logs: Vec<f64> = (0..2000)
+            .map(|i| -700.0 * ((i as f64 * 0.618_033_988_75).fract()).powi(3) + 3.0)
+            .collect();
+        let lmax = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let grids: [Vec<f64>; 4] = [
+            (1..=40).map(|i| i as f64 / 10.0).collect(),
+            vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0],
+            vec![0.0, 0.3, 1.0, 2.2],
+            vec![1.5],
+        ];
+        for qs in &grids {
+            let got = power_sums(&logs, lmax, qs);
+            for (&q, &(m, s)) in qs.iter().zip(&got) {
+                let mut want = LogSum::default();
+                want.add_powers(&logs, lmax, q);
+                let mut have = LogSum::default();
+                have.add(m, s);
+                let rel = (have.ln() - want.ln()).abs();
+                assert!(rel < 1e-13, "q {q}: ln {} vs {}", have.ln(), want.ln());
+            }
+        }
+        assert_eq!(
+            power_sums(&[], 0.0, &[0.0, 1.0]),
+            vec![(0.0, 0.0), (0.0, 0.0)]
+        );
+        let lost = power_sums(&[f64::NEG_INFINITY; 3], f64::NEG_INFINITY, &[0.0, 2.0]);
+        assert_eq!(lost[0], (0.0, 3.0));
+        assert_eq!(lost[1].1, 0.0);
+    }
 
     #[test]
     fn logsum_matches_plain_sum() {
