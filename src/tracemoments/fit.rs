@@ -66,6 +66,51 @@ impl LogSum {
 /// multiplication.
 const MAX_POWER_STEPS: usize = 64;
 
+/// The step `δ` (the smallest positive q) and each q's multiple `k` of it
+/// (0 for q = 0), when every positive q is a whole multiple `k δ`,
+/// `k <= 64`, to 1e-13 of q; `None` otherwise.
+fn grid_steps(qs: &[f64]) -> Option<(f64, Vec<usize>)> {
+    let delta = qs
+        .iter()
+        .copied()
+        .filter(|&q| q > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    if !delta.is_finite() {
+        return None;
+    }
+    let ks = qs
+        .iter()
+        .map(|&q| {
+            if q == 0.0 {
+                return Some(0);
+            }
+            let k = (q / delta).round();
+            ((1.0..=MAX_POWER_STEPS as f64).contains(&k) && (q - k * delta).abs() <= 1e-13 * q)
+                .then_some(k as usize)
+        })
+        .collect::<Option<Vec<usize>>>()?;
+    Some((delta, ks))
+}
+
+/// `Σ x^k` for k = 1..=`kmax` (index k; 0 unused) over `xs` in [0, 1],
+/// by repeated multiplication.
+fn sum_products(xs: impl Iterator<Item = f64>, kmax: usize) -> Vec<f64> {
+    let mut acc = vec![0.0; kmax + 1];
+    for x in xs {
+        let mut p = 1.0;
+        for a in acc[1..].iter_mut() {
+            p *= x;
+            // the largest term is 1: what is below 1e-300 of it (and
+            // every higher power) cannot move the sum
+            if p < 1e-300 {
+                break;
+            }
+            *a += p;
+        }
+    }
+    acc
+}
+
 /// `(q l_max, Σ_i exp(q (l_i - l_max)))` for every `q` of `qs`: the terms
 /// [`LogSum::add`] takes to add `Σ_i exp(q l_i)`, as [`LogSum::add_powers`]
 /// would for one `q` at a time (`q = 0`: `(0, n)`; empty `logs` or an
@@ -77,59 +122,17 @@ const MAX_POWER_STEPS: usize = 64;
 /// already rounded to `|q (l - l_max)|` ulp; the exps, one per term and
 /// q, were half of tm's time. Otherwise one `exp` per term and q.
 pub fn power_sums(logs: &[f64], lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
-    let mut out: Vec<(f64, f64)> = qs
-        .iter()
-        .map(|&q| {
-            if q == 0.0 {
-                (0.0, logs.len() as f64)
-            } else {
-                (q * lmax, 0.0)
-            }
-        })
-        .collect();
+    let mut out = empty_sums(logs.len(), lmax, qs);
     if logs.is_empty() || !lmax.is_finite() {
         return out;
     }
-    let delta = qs
-        .iter()
-        .copied()
-        .filter(|&q| q > 0.0)
-        .fold(f64::INFINITY, f64::min);
-    let steps: Option<Vec<usize>> = qs
-        .iter()
-        .map(|&q| {
-            if q == 0.0 {
-                return Some(0);
-            }
-            let k = (q / delta).round();
-            ((1.0..=MAX_POWER_STEPS as f64).contains(&k) && (q - k * delta).abs() <= 1e-13 * q)
-                .then_some(k as usize)
-        })
-        .collect();
-    match steps {
-        Some(ks) if delta.is_finite() => {
+    match grid_steps(qs) {
+        Some((delta, ks)) => {
             let kmax = ks.iter().copied().max().unwrap_or(0);
-            let mut acc = vec![0.0; kmax + 1];
-            for &l in logs {
-                let x = (delta * (l - lmax)).exp();
-                let mut p = 1.0;
-                for a in acc[1..].iter_mut() {
-                    p *= x;
-                    // the largest term is 1: what is below 1e-300 of it
-                    // (and every higher power) cannot move the sum
-                    if p < 1e-300 {
-                        break;
-                    }
-                    *a += p;
-                }
-            }
-            for (o, &k) in out.iter_mut().zip(&ks) {
-                if k > 0 {
-                    o.1 = acc[k];
-                }
-            }
+            let acc = sum_products(logs.iter().map(|&l| (delta * (l - lmax)).exp()), kmax);
+            fill(&mut out, &ks, &acc);
         }
-        _ => {
+        None => {
             for (o, &q) in out.iter_mut().zip(qs) {
                 if q != 0.0 {
                     o.1 = logs.iter().map(|&l| (q * (l - lmax)).exp()).sum();
@@ -138,6 +141,62 @@ pub fn power_sums(logs: &[f64], lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
         }
     }
     out
+}
+
+/// [`power_sums`] of values `v >= 0` given as they are, not as logs: the
+/// terms for `Σ_i v_i^q`, `(q ln v_max, Σ_i (v_i / v_max)^q)`. On a grid of
+/// step 1/2 (the structure functions' 0.5:3:0.5) or 1 no transcendental
+/// call is left: `x = sqrt(v / v_max)` (correctly rounded) or `v / v_max`.
+pub fn power_sums_of_values(vals: &[f64], qs: &[f64]) -> Vec<(f64, f64)> {
+    let vmax = vals.iter().copied().fold(0.0, f64::max);
+    let mut out = empty_sums(vals.len(), vmax.ln(), qs);
+    if vals.is_empty() || !(vmax > 0.0 && vmax.is_finite()) {
+        return out;
+    }
+    match grid_steps(qs) {
+        Some((delta, ks)) => {
+            let kmax = ks.iter().copied().max().unwrap_or(0);
+            let rel = vals.iter().map(|&v| v / vmax);
+            let acc = if delta == 0.5 {
+                sum_products(rel.map(f64::sqrt), kmax)
+            } else if delta == 1.0 {
+                sum_products(rel, kmax)
+            } else {
+                sum_products(rel.map(|r| r.powf(delta)), kmax)
+            };
+            fill(&mut out, &ks, &acc);
+        }
+        None => {
+            for (o, &q) in out.iter_mut().zip(qs) {
+                if q != 0.0 {
+                    o.1 = vals.iter().map(|&v| (v / vmax).powf(q)).sum();
+                }
+            }
+        }
+    }
+    out
+}
+
+/// `(0, n)` for q = 0 and `(q lmax, 0)` otherwise.
+fn empty_sums(n: usize, lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
+    qs.iter()
+        .map(|&q| {
+            if q == 0.0 {
+                (0.0, n as f64)
+            } else {
+                (q * lmax, 0.0)
+            }
+        })
+        .collect()
+}
+
+/// Puts `acc[k]` into the sum of each q of multiple `k > 0`.
+fn fill(out: &mut [(f64, f64)], ks: &[usize], acc: &[f64]) {
+    for (o, &k) in out.iter_mut().zip(ks) {
+        if k > 0 {
+            o.1 = acc[k];
+        }
+    }
 }
 
 /// `(q^α - q)/(α - 1)` (`q ln q` at α = 1): the universal K(q) at C1 = 1.
@@ -508,6 +567,33 @@ mod tests {
                 assert!(rel < 1e-13, "q {q}: ln {} vs {}", have.ln(), want.ln());
             }
         }
+        // the same sums from the values themselves (no logs): grids of step
+        // 1/2 (sqrt), 1, 0.1 (powf) and an irregular one
+        let vals: Vec<f64> = logs.iter().map(|l| l.exp()).collect();
+        let grids_v: [Vec<f64>; 4] = [
+            vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0],
+            vec![0.0, 1.0, 2.0, 3.0],
+            (1..=40).map(|i| i as f64 / 10.0).collect(),
+            vec![0.3, 1.0, 2.2],
+        ];
+        for qs in &grids_v {
+            for (&q, &(m, s)) in qs.iter().zip(&power_sums_of_values(&vals, qs)) {
+                let mut want = LogSum::default();
+                want.add_powers(&logs, lmax, q);
+                let mut have = LogSum::default();
+                have.add(m, s);
+                let rel = (have.ln() - want.ln()).abs();
+                assert!(
+                    rel < 1e-13,
+                    "values, q {q}: ln {} vs {}",
+                    have.ln(),
+                    want.ln()
+                );
+            }
+        }
+        let zeros = power_sums_of_values(&[0.0, 0.0], &[0.0, 0.5]);
+        assert_eq!(zeros[0], (0.0, 2.0));
+        assert_eq!(zeros[1].1, 0.0);
         assert_eq!(
             power_sums(&[], 0.0, &[0.0, 1.0]),
             vec![(0.0, 0.0), (0.0, 0.0)]

@@ -163,7 +163,7 @@ mod surrogate;
 
 pub use fit::{
     LogSum, ShrunkCovariance, UniversalFit, UniversalWeighting, fit_universal, fit_universal_gls,
-    jackknife_covariance_shrunk, power_sums, spd_inverse, universal_shape,
+    jackknife_covariance_shrunk, power_sums, power_sums_of_values, spd_inverse, universal_shape,
 };
 pub use flux::{FluxDiff, FluxKind};
 pub use surrogate::{
@@ -1035,17 +1035,17 @@ impl TraceMomentAccumulator {
         };
         for j in 0..sf_lags(ny.min(nx)) {
             let l = 1usize << j;
-            let mut logs = Vec::with_capacity(2 * ny * nx);
+            let mut incs = Vec::with_capacity(2 * ny * nx);
             for y in 0..ny {
                 for x in 0..nx {
                     if !ok(y, x) {
                         continue;
                     }
                     if x + l < nx && ok(y, x + l) && in_tile(y, x + l / 2) {
-                        logs.push((f[[y, x + l]] - f[[y, x]]).abs().ln());
+                        incs.push((f[[y, x + l]] - f[[y, x]]).abs());
                     }
                     if y + l < ny && ok(y + l, x) && in_tile(y + l / 2, x) {
-                        logs.push((f[[y + l, x]] - f[[y, x]]).abs().ln());
+                        incs.push((f[[y + l, x]] - f[[y, x]]).abs());
                     }
                 }
             }
@@ -1055,9 +1055,8 @@ impl TraceMomentAccumulator {
                     v.resize(j + 1, LogSum::default());
                 }
             }
-            self.sf_count[j] += logs.len() as u64;
-            let lmax = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            for (iq, (m, s)) in power_sums(&logs, lmax, &self.config.sf_q)
+            self.sf_count[j] += incs.len() as u64;
+            for (iq, (m, s)) in power_sums_of_values(&incs, &self.config.sf_q)
                 .into_iter()
                 .enumerate()
             {
