@@ -100,9 +100,9 @@ fn sum_products(xs: impl Iterator<Item = f64>, kmax: usize) -> Vec<f64> {
         let mut p = 1.0;
         for a in acc[1..].iter_mut() {
             p *= x;
-            // the largest term is 1: what is below 1e-300 of it (and
-            // every higher power) cannot move the sum
-            if p < 1e-300 {
+            // every higher power underflows too (x <= 1); no other
+            // cut-off, so that a sum of small terms alone is kept
+            if p == 0.0 {
                 break;
             }
             *a += p;
@@ -144,9 +144,11 @@ pub fn power_sums(logs: &[f64], lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
 }
 
 /// [`power_sums`] of values `v >= 0` given as they are, not as logs: the
-/// terms for `Σ_i v_i^q`, `(q ln v_max, Σ_i (v_i / v_max)^q)`. On a grid of
-/// step 1/2 (the structure functions' 0.5:3:0.5) or 1 no transcendental
-/// call is left: `x = sqrt(v / v_max)` (correctly rounded) or `v / v_max`.
+/// terms for `Σ_i v_i^q`, `(q ln v_max, Σ_i (v_i / v_max)^q)`. On a grid
+/// whose step is 1 or a multiple n/2 of 1/2, n <= 8 (the structure
+/// functions' 0.5:3:0.5, the DTM's 1.5) no transcendental call is left:
+/// `x = v / v_max`, or `x = sqrt(v / v_max)^n` (a correctly rounded sqrt
+/// and n - 1 products); another step takes one `powf` per value.
 pub fn power_sums_of_values(vals: &[f64], qs: &[f64]) -> Vec<(f64, f64)> {
     let vmax = vals.iter().copied().fold(0.0, f64::max);
     let mut out = empty_sums(vals.len(), vmax.ln(), qs);
@@ -157,10 +159,16 @@ pub fn power_sums_of_values(vals: &[f64], qs: &[f64]) -> Vec<(f64, f64)> {
         Some((delta, ks)) => {
             let kmax = ks.iter().copied().max().unwrap_or(0);
             let rel = vals.iter().map(|&v| v / vmax);
-            let acc = if delta == 0.5 {
-                sum_products(rel.map(f64::sqrt), kmax)
-            } else if delta == 1.0 {
+            let halves = 2.0 * delta;
+            let acc = if delta == 1.0 {
                 sum_products(rel, kmax)
+            } else if halves == halves.round() && halves <= 8.0 {
+                let n = halves as usize;
+                let root_power = |r: f64| {
+                    let y = r.sqrt();
+                    (1..n).fold(y, |p, _| p * y)
+                };
+                sum_products(rel.map(root_power), kmax)
             } else {
                 sum_products(rel.map(|r| r.powf(delta)), kmax)
             };
@@ -570,11 +578,14 @@ mod tests {
         // the same sums from the values themselves (no logs): grids of step
         // 1/2 (sqrt), 1, 0.1 (powf) and an irregular one
         let vals: Vec<f64> = logs.iter().map(|l| l.exp()).collect();
-        let grids_v: [Vec<f64>; 4] = [
+        let grids_v: [Vec<f64>; 7] = [
             vec![0.5, 1.0, 1.5, 2.0, 2.5, 3.0],
             vec![0.0, 1.0, 2.0, 3.0],
             (1..=40).map(|i| i as f64 / 10.0).collect(),
             vec![0.3, 1.0, 2.2],
+            vec![1.5],
+            vec![0.5, 1.5],
+            vec![2.5, 5.0],
         ];
         for qs in &grids_v {
             for (&q, &(m, s)) in qs.iter().zip(&power_sums_of_values(&vals, qs)) {
@@ -594,6 +605,19 @@ mod tests {
         let zeros = power_sums_of_values(&[0.0, 0.0], &[0.0, 0.5]);
         assert_eq!(zeros[0], (0.0, 2.0));
         assert_eq!(zeros[1].1, 0.0);
+        // an lmax above every log (not their maximum) still sums them
+        let q40: Vec<f64> = (1..=40).map(|i| i as f64 / 10.0).collect();
+        let small = power_sums(&[-800.0; 10], 0.0, &q40);
+        let mut want = LogSum::default();
+        want.add_powers(&[-800.0; 10], 0.0, 0.9);
+        let mut have = LogSum::default();
+        have.add(small[8].0, small[8].1);
+        assert!(
+            (have.ln() - want.ln()).abs() < 1e-12,
+            "{} vs {}",
+            have.ln(),
+            want.ln()
+        );
         assert_eq!(
             power_sums(&[], 0.0, &[0.0, 1.0]),
             vec![(0.0, 0.0), (0.0, 0.0)]

@@ -280,10 +280,10 @@ impl Pyramid {
         out
     }
 
-    /// Natural logs of the box averages at level `k` for the boxes that are
-    /// at least half valid (the others are dropped) and whose `(row,
-    /// column)` of boxes passes `keep`.
-    pub(crate) fn log_means(
+    /// The box averages at level `k` for the boxes that are at least half
+    /// valid (the others are dropped) and whose `(row, column)` of boxes
+    /// passes `keep`.
+    pub(crate) fn means(
         &self,
         sums: &[f64],
         k: usize,
@@ -295,8 +295,22 @@ impl Pyramid {
             .zip(&self.counts[k])
             .enumerate()
             .filter(|(i, (_, c))| 2 * (**c as u64) >= full && **c > 0 && keep(i / cx, i % cx))
-            .map(|(_, (s, c))| (s / *c as f64).ln())
+            .map(|(_, (s, c))| s / *c as f64)
             .collect()
+    }
+
+    /// Natural logs of [`Self::means`].
+    pub(crate) fn log_means(
+        &self,
+        sums: &[f64],
+        k: usize,
+        keep: impl Fn(usize, usize) -> bool,
+    ) -> Vec<f64> {
+        let mut m = self.means(sums, k, keep);
+        for v in m.iter_mut() {
+            *v = v.ln();
+        }
+        m
     }
 }
 

@@ -973,11 +973,12 @@ impl TraceMomentAccumulator {
             let p_max = base.iter().copied().fold(0.0, f64::max);
             let n_px = base.len() as f64;
             // ln(φ / max φ) once per pixel, then one exp per pixel and η
-            // (a powf per pixel and η was a fifth of tm's time; the error,
-            // |η ln(φ / max φ)| ulp, is that of powf's own argument
-            // reduction at these orders). Divided, not multiplied by
-            // 1 / max: that overflows for a subnormal max, a flux given
-            // through the library.
+            // (a powf per pixel and η was a fifth of tm's time). The
+            // error is |η ln φ| ulp (the offset η ln max φ included):
+            // 1.5e-14 against powf at max φ = 1, 1e-13 at 1e300 or 1e-310
+            // (review, 2026-11-29). Divided, not multiplied by 1 / max:
+            // that overflows for a subnormal max, a flux given through the
+            // library.
             let ln_rel: Vec<f64> = base
                 .iter()
                 .map(|&p| {
@@ -997,22 +998,21 @@ impl TraceMomentAccumulator {
                 let v: Vec<f64> = ln_rel.iter().map(|&l| (eta * l + offset).exp()).collect();
                 let shift = if scaled { eta * p_max.ln() } else { 0.0 };
                 let sums = pyr.sums(v);
+                // the box means as values, not logs: for the orders of
+                // the DTM (1.5 by default) no ln or exp per box is left
+                // (power_sums_of_values); the logs shift by `shift`
                 for (k, sk) in sums.iter().enumerate() {
-                    let mut logs = pyr.log_means(sk, k, keep(k));
-                    if shift != 0.0 {
-                        for l in logs.iter_mut() {
-                            *l += shift;
-                        }
-                    }
-                    let lmax = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                    let means = pyr.means(sk, k, keep(k));
                     if k == 0 {
-                        self.eta_sum[ie].add_powers(&logs, lmax, 1.0);
+                        let (m, s) = power_sums_of_values(&means, &[1.0])[0];
+                        self.eta_sum[ie].add(m + shift, s);
                     }
-                    for (iq, (m, s)) in power_sums(&logs, lmax, &self.config.dtm_q)
+                    for (iq, ((m, s), &q)) in power_sums_of_values(&means, &self.config.dtm_q)
                         .into_iter()
+                        .zip(&self.config.dtm_q)
                         .enumerate()
                     {
-                        self.dtm[ie][iq][k].add(m, s);
+                        self.dtm[ie][iq][k].add(m + q * shift, s);
                     }
                 }
             }
@@ -2473,9 +2473,16 @@ fn gls_refit(
     // sample (its variance ~1e-33 got weights ~1e33; alpha moved by 0.009
     // when the fields were scaled), and the edge boxes' drift on a plane.
     // OLS is unchanged by the point (zero Jacobian).
-    let idx: Vec<usize> = universal_indices(&res.q, res.universal_q_max, fc)
+    let fitted = universal_indices(&res.q, res.universal_q_max, fc);
+    let is_one = |i: usize| (res.q[i] - 1.0).abs() <= 1e-9;
+    let without_one = if fitted.iter().any(|&i| is_one(i)) {
+        ", q = 1 left out"
+    } else {
+        ""
+    };
+    let idx: Vec<usize> = fitted
         .into_iter()
-        .filter(|&i| (res.q[i] - 1.0).abs() > 1e-9)
+        .filter(|&i| !is_one(i))
         .filter(|&i| res.k[i].is_finite() && loo.iter().all(|r| r.k[i].is_finite()))
         .collect();
     let fallback = |res: &mut TraceMomentResult, why: &str| {
@@ -2486,7 +2493,7 @@ fn gls_refit(
         return fallback(res, "fewer than 5 jackknife parts");
     }
     if idx.len() < 3 {
-        return fallback(res, "fewer than 3 fitted q values besides q = 1");
+        return fallback(res, &format!("fewer than 3 fitted q values{without_one}"));
     }
     let q: Vec<f64> = idx.iter().map(|&i| res.q[i]).collect();
     let fit = |r: &TraceMomentResult, w: &[Vec<f64>]| {
@@ -2548,7 +2555,7 @@ fn gls_refit(
         apply_universal(r, x);
     }
     res.universal_fit = format!(
-        "gls (jackknife covariance of K(q) over {n} {what}, {} q values, q = 1 left out, correlations shrunk by lambda = {lambda:.3}; errors by a nested jackknife)",
+        "gls (jackknife covariance of K(q) over {n} {what}, {} q values{without_one}, correlations shrunk by lambda = {lambda:.3}; errors by a nested jackknife)",
         idx.len(),
     );
     res.universal_shrinkage = Some(lambda);
