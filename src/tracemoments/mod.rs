@@ -996,7 +996,7 @@ impl TraceMomentAccumulator {
                 // φ^η itself, or (φ / max φ)^η where φ^η could overflow
                 let offset = if scaled { 0.0 } else { eta * ln_max };
                 let v: Vec<f64> = ln_rel.iter().map(|&l| (eta * l + offset).exp()).collect();
-                let shift = if scaled { eta * p_max.ln() } else { 0.0 };
+                let shift = if scaled { eta * ln_max } else { 0.0 };
                 let sums = pyr.sums(v);
                 // the box means as values, not logs: for the orders of
                 // the DTM (1.5 by default) no ln or exp per box is left
