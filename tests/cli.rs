@@ -104,9 +104,9 @@ fn num(v: &Value, key: &str) -> f64 {
 fn synth_fif_then_tm() {
     use wtmm::stats::powspec::PowerSpectrumConfig;
     use wtmm::tracemoments::{
-        FluxDiff, FluxKind, TraceMomentAccumulator, TraceMomentConfig, TraceMomentFitConfig,
-        TraceMomentResult, UniversalWeighting, finish_ensemble, finish_jackknife, pool_tiles,
-        universal_shape,
+        BoxWeights, FluxDiff, FluxKind, TraceMomentAccumulator, TraceMomentConfig,
+        TraceMomentFitConfig, TraceMomentResult, UniversalWeighting, finish_ensemble,
+        finish_jackknife, pool_tiles, universal_shape,
     };
     let dir = scratch("synth_fif_then_tm");
     let syn = dir.join("synth");
@@ -143,7 +143,7 @@ fn synth_fif_then_tm() {
     // 0.1:4:0.1 (the decimal grid, i/10 correctly rounded), --eta as given,
     // --dtm-q 1.5, --sf-q 0.5,...,3, the spectrum and the fractional filter of
     // a periodic field (tm reads the synth.json beside the files: a FIF is a
-    // torus)
+    // torus), count box weights
     let config = |diff: FluxDiff, eta: Vec<f64>| TraceMomentConfig {
         flux: FluxKind::Gradient,
         diff,
@@ -155,6 +155,7 @@ fn synth_fif_then_tm() {
         spectrum: PowerSpectrumConfig::for_field(true),
         detrend: wtmm::field::Trend::None,
         periodic: true,
+        box_weights: BoxWeights::Count,
     };
     let accumulate = |cfg: &TraceMomentConfig, fs: &[wtmm::Field]| -> Vec<TraceMomentAccumulator> {
         fs.iter()

@@ -18,7 +18,7 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style};
 use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
-    FluxDiff, FluxKind, SurrogateErrors, TraceMomentAccumulator, TraceMomentConfig,
+    BoxWeights, FluxDiff, FluxKind, SurrogateErrors, TraceMomentAccumulator, TraceMomentConfig,
     TraceMomentFitConfig, TraceMomentResult, UniversalWeighting, analyze_tiled, check_ensemble_fit,
     check_surrogate_count, finish_ensemble, surrogate_errors_with_progress, tile_side,
     universal_shape,
@@ -87,6 +87,14 @@ pub struct TmOpts {
     /// beside them); none for the periodic models of `compare`, hann for fbm].
     #[arg(long, value_enum)]
     pub window: Option<Window>,
+    /// How the boxes of one scale are weighted in the trace moments:
+    /// `count` = every box with a valid pixel, by its share of valid pixels
+    /// (each valid pixel weighs the same at every scale: the moments of all
+    /// scales average over the same region, whatever the holes and
+    /// borders); `equal` = the boxes at least half valid, each as a whole
+    /// one (the estimator before count weights).
+    #[arg(long, value_enum, default_value_t = BoxWeights::Count)]
+    pub box_weights: BoxWeights,
 }
 
 impl TmOpts {
@@ -129,6 +137,7 @@ impl TmOpts {
             detrend: crate::field::Trend::None,
             // a torus is filtered (no mirror) and differenced (wrapped) as one
             periodic,
+            box_weights: self.box_weights,
         };
         // (the library's checks: --frac-int |order| < 1 among them)
         cfg.validate()?;

@@ -92,12 +92,13 @@ fn grid_steps(qs: &[f64]) -> Option<(f64, Vec<usize>)> {
     Some((delta, ks))
 }
 
-/// `Σ x^k` for k = 1..=`kmax` (index k; 0 unused) over `xs` in [0, 1],
-/// by repeated multiplication.
-fn sum_products(xs: impl Iterator<Item = f64>, kmax: usize) -> Vec<f64> {
+/// `Σ w x^k` for k = 1..=`kmax` (index k; 0 unused) over pairs `(x, w)`,
+/// `x` in [0, 1] and `w > 0`, by repeated multiplication (`w = 1`: the
+/// plain powers, bit for bit).
+fn sum_products(xs: impl Iterator<Item = (f64, f64)>, kmax: usize) -> Vec<f64> {
     let mut acc = vec![0.0; kmax + 1];
-    for x in xs {
-        let mut p = 1.0;
+    for (x, w) in xs {
+        let mut p = w;
         for a in acc[1..].iter_mut() {
             p *= x;
             // every higher power underflows too (x <= 1); no other
@@ -122,20 +123,44 @@ fn sum_products(xs: impl Iterator<Item = f64>, kmax: usize) -> Vec<f64> {
 /// already rounded to `|q (l - l_max)|` ulp; the exps, one per term and
 /// q, were half of tm's time. Otherwise one `exp` per term and q.
 pub fn power_sums(logs: &[f64], lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
-    let mut out = empty_sums(logs.len(), lmax, qs);
+    weighted_power_sums(logs, None, lmax, qs)
+}
+
+/// [`power_sums`] of the weighted terms `w_i exp(q l_i)` (`w_i > 0`, one
+/// per log; `None`: all 1, and `q = 0` gives `Σ w_i`): the box moments
+/// weighted by the boxes' valid pixels ([`BoxWeights::Count`]).
+///
+/// [`BoxWeights::Count`]: super::BoxWeights::Count
+pub fn weighted_power_sums(
+    logs: &[f64],
+    weights: Option<&[f64]>,
+    lmax: f64,
+    qs: &[f64],
+) -> Vec<(f64, f64)> {
+    debug_assert!(weights.is_none_or(|w| w.len() == logs.len()));
+    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
+    let mut out = empty_sums(total_weight(logs.len(), weights), lmax, qs);
     if logs.is_empty() || !lmax.is_finite() {
         return out;
     }
     match grid_steps(qs) {
         Some((delta, ks)) => {
             let kmax = ks.iter().copied().max().unwrap_or(0);
-            let acc = sum_products(logs.iter().map(|&l| (delta * (l - lmax)).exp()), kmax);
+            let xs = logs
+                .iter()
+                .enumerate()
+                .map(|(i, &l)| ((delta * (l - lmax)).exp(), w(i)));
+            let acc = sum_products(xs, kmax);
             fill(&mut out, &ks, &acc);
         }
         None => {
             for (o, &q) in out.iter_mut().zip(qs) {
                 if q != 0.0 {
-                    o.1 = logs.iter().map(|&l| (q * (l - lmax)).exp()).sum();
+                    o.1 = logs
+                        .iter()
+                        .enumerate()
+                        .map(|(i, &l)| w(i) * (q * (l - lmax)).exp())
+                        .sum();
                 }
             }
         }
@@ -150,8 +175,20 @@ pub fn power_sums(logs: &[f64], lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
 /// `x = v / v_max`, or `x = sqrt(v / v_max)^n` (a correctly rounded sqrt
 /// and n - 1 products); another step takes one `powf` per value.
 pub fn power_sums_of_values(vals: &[f64], qs: &[f64]) -> Vec<(f64, f64)> {
+    weighted_power_sums_of_values(vals, None, qs)
+}
+
+/// [`power_sums_of_values`] of the weighted terms `w_i v_i^q`, as
+/// [`weighted_power_sums`].
+pub fn weighted_power_sums_of_values(
+    vals: &[f64],
+    weights: Option<&[f64]>,
+    qs: &[f64],
+) -> Vec<(f64, f64)> {
+    debug_assert!(weights.is_none_or(|w| w.len() == vals.len()));
+    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
     let vmax = vals.iter().copied().fold(0.0, f64::max);
-    let mut out = empty_sums(vals.len(), vmax.ln(), qs);
+    let mut out = empty_sums(total_weight(vals.len(), weights), vmax.ln(), qs);
     if vals.is_empty() || !(vmax > 0.0 && vmax.is_finite()) {
         return out;
     }
@@ -160,24 +197,29 @@ pub fn power_sums_of_values(vals: &[f64], qs: &[f64]) -> Vec<(f64, f64)> {
             let kmax = ks.iter().copied().max().unwrap_or(0);
             let rel = vals.iter().map(|&v| v / vmax);
             let halves = 2.0 * delta;
+            let paired = |x: f64, i: usize| (x, w(i));
             let acc = if delta == 1.0 {
-                sum_products(rel, kmax)
+                sum_products(rel.enumerate().map(|(i, x)| paired(x, i)), kmax)
             } else if halves == halves.round() && halves <= 8.0 {
                 let n = halves as usize;
                 let root_power = |r: f64| {
                     let y = r.sqrt();
                     (1..n).fold(y, |p, _| p * y)
                 };
-                sum_products(rel.map(root_power), kmax)
+                sum_products(rel.enumerate().map(|(i, r)| paired(root_power(r), i)), kmax)
             } else {
-                sum_products(rel.map(|r| r.powf(delta)), kmax)
+                sum_products(rel.enumerate().map(|(i, r)| paired(r.powf(delta), i)), kmax)
             };
             fill(&mut out, &ks, &acc);
         }
         None => {
             for (o, &q) in out.iter_mut().zip(qs) {
                 if q != 0.0 {
-                    o.1 = vals.iter().map(|&v| (v / vmax).powf(q)).sum();
+                    o.1 = vals
+                        .iter()
+                        .enumerate()
+                        .map(|(i, &v)| w(i) * (v / vmax).powf(q))
+                        .sum();
                 }
             }
         }
@@ -185,16 +227,15 @@ pub fn power_sums_of_values(vals: &[f64], qs: &[f64]) -> Vec<(f64, f64)> {
     out
 }
 
+/// `n`, or the sum of the weights.
+fn total_weight(n: usize, weights: Option<&[f64]>) -> f64 {
+    weights.map_or(n as f64, |w| w.iter().sum())
+}
+
 /// `(0, n)` for q = 0 and `(q lmax, 0)` otherwise.
-fn empty_sums(n: usize, lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
+fn empty_sums(n: f64, lmax: f64, qs: &[f64]) -> Vec<(f64, f64)> {
     qs.iter()
-        .map(|&q| {
-            if q == 0.0 {
-                (0.0, n as f64)
-            } else {
-                (q * lmax, 0.0)
-            }
-        })
+        .map(|&q| if q == 0.0 { (0.0, n) } else { (q * lmax, 0.0) })
         .collect()
 }
 
@@ -625,6 +666,61 @@ mod tests {
         let lost = power_sums(&[f64::NEG_INFINITY; 3], f64::NEG_INFINITY, &[0.0, 2.0]);
         assert_eq!(lost[0], (0.0, 3.0));
         assert_eq!(lost[1].1, 0.0);
+    }
+
+    /// The weighted sums `Σ w exp(q l)` (count box weights) against one
+    /// `exp` per term and q with `ln w` added to the log, from logs and from
+    /// values, on tm's grids and an irregular one; unit weights give the
+    /// unweighted sums bit for bit, and q = 0 the sum of the weights.
+    #[test]
+    fn weighted_power_sums_match_one_exp_per_term() {
+        let logs: Vec<f64> = (0..1500)
+            .map(|i| -300.0 * ((i as f64 * 0.618_033_988_75).fract()).powi(3) + 1.0)
+            .collect();
+        // shares of valid pixels c / 4^k, 1/64 .. 1
+        let w: Vec<f64> = (0..logs.len())
+            .map(|i| (1 + (i * 37) % 64) as f64 / 64.0)
+            .collect();
+        let lmax = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let vals: Vec<f64> = logs.iter().map(|l| l.exp()).collect();
+        let grids: [Vec<f64>; 4] = [
+            (1..=40).map(|i| i as f64 / 10.0).collect(),
+            vec![0.0, 0.5, 1.0, 1.5, 2.0],
+            vec![0.0, 0.3, 1.0, 2.2],
+            vec![1.5],
+        ];
+        for qs in &grids {
+            let from_logs = weighted_power_sums(&logs, Some(&w), lmax, qs);
+            let from_vals = weighted_power_sums_of_values(&vals, Some(&w), qs);
+            for (iq, &q) in qs.iter().enumerate() {
+                let want: f64 = if q == 0.0 {
+                    w.iter().sum::<f64>().ln()
+                } else {
+                    let terms: Vec<f64> =
+                        logs.iter().zip(&w).map(|(l, w)| q * l + w.ln()).collect();
+                    let top = terms.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                    top + terms.iter().map(|t| (t - top).exp()).sum::<f64>().ln()
+                };
+                for (what, (m, s)) in [("logs", from_logs[iq]), ("values", from_vals[iq])] {
+                    let mut have = LogSum::default();
+                    have.add(m, s);
+                    assert!(
+                        (have.ln() - want).abs() < 1e-13 * want.abs().max(1.0),
+                        "{what}, q {q}: ln {} vs {want}",
+                        have.ln()
+                    );
+                }
+            }
+            let ones = vec![1.0; logs.len()];
+            assert_eq!(
+                weighted_power_sums(&logs, Some(&ones), lmax, qs),
+                power_sums(&logs, lmax, qs)
+            );
+            assert_eq!(
+                weighted_power_sums_of_values(&vals, Some(&ones), qs),
+                power_sums_of_values(&vals, qs)
+            );
+        }
     }
 
     #[test]

@@ -34,6 +34,40 @@ impl FluxKind {
     }
 }
 
+/// How the box means of the flux are averaged over the boxes of one scale
+/// into the trace moment `<φ_λ^q>` (module docs of
+/// [`crate::tracemoments`], "Boxes with missing pixels").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum BoxWeights {
+    /// Every box with a valid pixel, weighted by its share of valid pixels:
+    /// every valid pixel weighs the same at every scale, so the moments of
+    /// all scales average over the same region and the flux's mean is the
+    /// same at every scale (K(1) = 0) whatever the holes and borders.
+    Count,
+    /// Every box at least half valid, each weighted as a whole one (the
+    /// estimator before count weights): boxes along holes and the borders
+    /// weigh more than their pixels.
+    Equal,
+}
+
+impl BoxWeights {
+    /// For `serde(default)`: accumulators saved before this option existed
+    /// weighted their boxes equally.
+    pub(crate) fn equal() -> Self {
+        BoxWeights::Equal
+    }
+
+    /// The name the command line and the JSON use.
+    pub fn name(self) -> &'static str {
+        match self {
+            BoxWeights::Count => "count",
+            BoxWeights::Equal => "equal",
+        }
+    }
+}
+
 /// Fractional differentiation applied to the field before the modulus
 /// (TM §5.2: inverting the fractional integration of order H needs "a
 /// fractional differentiation of order H or greater"). The total order of the
@@ -280,23 +314,69 @@ impl Pyramid {
         out
     }
 
-    /// The box averages at level `k` for the boxes that are at least half
-    /// valid (the others are dropped) and whose `(row, column)` of boxes
-    /// passes `keep`.
+    /// The box averages at level `k` for the boxes `rule` keeps (with
+    /// [`BoxWeights::Equal`] those at least half valid, with
+    /// [`BoxWeights::Count`] those with a valid pixel) and whose `(row,
+    /// column)` of boxes passes `keep`.
     pub(crate) fn means(
         &self,
         sums: &[f64],
         k: usize,
         keep: impl Fn(usize, usize) -> bool,
+        rule: BoxWeights,
     ) -> Vec<f64> {
-        let full = 1u64 << (2 * k);
-        let cx = self.dims[k].1.max(1);
-        sums.iter()
-            .zip(&self.counts[k])
-            .enumerate()
-            .filter(|(i, (_, c))| 2 * (**c as u64) >= full && **c > 0 && keep(i / cx, i % cx))
-            .map(|(_, (s, c))| s / *c as f64)
+        self.kept(k, keep, rule)
+            .map(|(i, c)| sums[i] / c as f64)
             .collect()
+    }
+
+    /// The indices and valid counts of the boxes [`Self::means`] keeps.
+    fn kept<'a>(
+        &'a self,
+        k: usize,
+        keep: impl Fn(usize, usize) -> bool + 'a,
+        rule: BoxWeights,
+    ) -> impl Iterator<Item = (usize, u32)> + 'a {
+        // a box with a valid pixel has a mean; the equal rule also wants
+        // half of it valid, lest one pixel weigh as a whole box
+        let least = match rule {
+            BoxWeights::Count => 1,
+            BoxWeights::Equal => (1u64 << (2 * k)).div_ceil(2).max(1),
+        };
+        let cx = self.dims[k].1.max(1);
+        self.counts[k]
+            .iter()
+            .enumerate()
+            .filter(move |&(i, &c)| c as u64 >= least && keep(i / cx, i % cx))
+            .map(|(i, &c)| (i, c))
+    }
+
+    /// The weights of the boxes [`Self::means`] keeps, in their order,
+    /// under `rule`: `None` for [`BoxWeights::Equal`] (all 1), the share
+    /// of valid pixels `c / 4^k` for [`BoxWeights::Count`] (exact: a power
+    /// of 2 divides; whole boxes weigh 1). With their sum in valid pixels
+    /// (`Σ c`), or the number of boxes.
+    pub(crate) fn weights(
+        &self,
+        k: usize,
+        keep: impl Fn(usize, usize) -> bool,
+        rule: BoxWeights,
+    ) -> (Option<Vec<f64>>, u64) {
+        match rule {
+            BoxWeights::Equal => (None, self.kept(k, keep, rule).count() as u64),
+            BoxWeights::Count => {
+                let full = (1u64 << (2 * k)) as f64;
+                let mut total = 0u64;
+                let w = self
+                    .kept(k, keep, rule)
+                    .map(|(_, c)| {
+                        total += u64::from(c);
+                        c as f64 / full
+                    })
+                    .collect();
+                (Some(w), total)
+            }
+        }
     }
 
     /// Natural logs of [`Self::means`].
@@ -305,8 +385,9 @@ impl Pyramid {
         sums: &[f64],
         k: usize,
         keep: impl Fn(usize, usize) -> bool,
+        rule: BoxWeights,
     ) -> Vec<f64> {
-        let mut m = self.means(sums, k, keep);
+        let mut m = self.means(sums, k, keep, rule);
         for v in m.iter_mut() {
             *v = v.ln();
         }
@@ -391,7 +472,7 @@ mod tests {
     }
 
     #[test]
-    fn pyramid_drops_half_empty_boxes() {
+    fn pyramid_keeps_and_weights_boxes_by_rule() {
         let mut valid = Array2::from_elem((4, 4), true);
         for y in 0..4 {
             valid[[y, 0]] = false;
@@ -402,8 +483,34 @@ mod tests {
         assert_eq!(p.levels(), 3);
         let s = p.sums(valid.iter().map(|&v| v as u8 as f64).collect());
         // level 1: left boxes empty (dropped), right boxes half valid (kept)
-        assert_eq!(p.log_means(&s[1], 1, |_, _| true).len(), 2);
+        assert_eq!(
+            p.log_means(&s[1], 1, |_, _| true, BoxWeights::Equal).len(),
+            2
+        );
         // level 2: 4 of 16 valid: dropped
-        assert_eq!(p.log_means(&s[2], 2, |_, _| true).len(), 0);
+        assert_eq!(
+            p.log_means(&s[2], 2, |_, _| true, BoxWeights::Equal).len(),
+            0
+        );
+        // count weights keep every box with a valid pixel, weighted by its
+        // share of them: the 4 valid pixels weigh 4 at level 0, 2 x 2/4 at
+        // level 1 and 4/16 at level 2, the same 4 pixels throughout
+        let all = |_: usize, _: usize| true;
+        assert_eq!(
+            p.weights(0, all, BoxWeights::Count),
+            (Some(vec![1.0; 4]), 4)
+        );
+        assert_eq!(
+            p.weights(1, all, BoxWeights::Count),
+            (Some(vec![0.5, 0.5]), 4)
+        );
+        assert_eq!(p.weights(2, all, BoxWeights::Count), (Some(vec![0.25]), 4));
+        assert_eq!(p.means(&s[2], 2, all, BoxWeights::Count), vec![1.0]);
+        // equal weights count the boxes they keep
+        assert_eq!(p.weights(1, all, BoxWeights::Equal), (None, 2));
+        assert_eq!(p.weights(2, all, BoxWeights::Equal), (None, 0));
+        // `keep` selects boxes by (row, column) under either rule
+        let top = |by: usize, _: usize| by == 0;
+        assert_eq!(p.weights(1, top, BoxWeights::Count), (Some(vec![0.5]), 2));
     }
 }
