@@ -7,8 +7,8 @@ use rayon::prelude::*;
 use wtmm::fourier::angular_freq;
 use wtmm::stats::fit::mean_std;
 use wtmm::stats::powspec::{
-    Detrend, PowerSpectrum, PowerSpectrumConfig, Window, default_k_range, jackknife_beta_se,
-    power_spectrum,
+    Detrend, HoleFill, PowerSpectrum, PowerSpectrumConfig, Window, default_k_range,
+    jackknife_beta_se, power_spectrum,
 };
 use wtmm::synth::fbm::{FbmParams, fbm};
 
@@ -126,6 +126,7 @@ const HANN_MEAN: PowerSpectrumConfig = PowerSpectrumConfig {
     window: Window::Hann,
     detrend: Detrend::Mean,
     bins_per_octave: 4,
+    fill: HoleFill::Harmonic,
 };
 
 /// In-place 2D DFT (rows, then columns), unnormalised.

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use rustfft::FftPlanner;
 
 use wtmm::stats::powspec::{
-    Detrend, PowerSpectrum, PowerSpectrumConfig, Window, default_k_range, power_spectrum,
+    Detrend, HoleFill, PowerSpectrum, PowerSpectrumConfig, Window, default_k_range, power_spectrum,
 };
 use wtmm::synth::dwt::{Dwt2, detail_block, max_levels};
 use wtmm::synth::fbm::FbmParams;
@@ -141,6 +141,7 @@ const PERIODIC: PowerSpectrumConfig = PowerSpectrumConfig {
     window: Window::None,
     detrend: Detrend::Mean,
     bins_per_octave: 4,
+    fill: HoleFill::Harmonic,
 };
 
 /// The exact expected spectrum of the `n x n` FISC, binned like an image's.

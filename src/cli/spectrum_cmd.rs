@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style};
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
-    CONVENTION, Detrend, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,
+    CONVENTION, Detrend, HoleFill, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,
     default_k_range, field_power_spectrum, jackknife_beta_se,
 };
 
@@ -39,6 +39,12 @@ pub struct SpectrumArgs {
     /// Log-spaced bins per octave of |k|.
     #[arg(long, default_value_t = 4)]
     pub bins_per_octave: usize,
+    /// How missing pixels are filled before the FFT: `harmonic` (Laplace's
+    /// equation inside each hole, its rim as the boundary: no edge along
+    /// the rim) or `mean` (the image mean: a step along every rim, whose
+    /// power flattens the spectrum; the estimator before harmonic fills).
+    #[arg(long, value_enum, default_value_t = HoleFill::Harmonic)]
+    pub fill: HoleFill,
     /// Theoretical beta to draw (angle-averaged), if known.
     #[arg(long)]
     pub theory_beta: Option<f64>,
@@ -124,6 +130,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         window: args.window.unwrap_or(base.window),
         detrend: args.detrend.unwrap_or(base.detrend),
         bins_per_octave: args.bins_per_octave,
+        fill: args.fill,
     };
     if let Some(o) = &origin {
         say!(
@@ -192,7 +199,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     let pts = ens.points();
     let mut body = header(
         "spectrum",
-        json!({"images": super::common::paths_json(&args.images), "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave,
+        json!({"images": super::common::paths_json(&args.images), "window": cfg.window, "detrend": cfg.detrend, "bins_per_octave": cfg.bins_per_octave, "fill": cfg.fill,
             "pixel_size": px.as_ref().map(PixelSize::json),
             "origin": origin.as_ref().map(super::common::PeriodicSynth::json), "nodata": nodata}),
     );
@@ -233,7 +240,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         body["wavelength_range"] = json!(wavelengths_px.map(|l| l * side));
     }
     body["convention"] = json!(CONVENTION);
-    // missing pixels were filled with the image mean before the FFT: say so
+    // missing pixels were filled before the FFT: say how
     let missing: Vec<usize> = fields
         .iter()
         .map(|f| f.dim().0 * f.dim().1 - f.valid_count())
@@ -248,9 +255,13 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     for (n, p) in missing.iter().zip(&args.images) {
         if *n > 0 {
             warnings.push(format!(
-                "{}: {n} missing pixels filled with the image mean before the FFT \
-                 (large gaps bias the spectrum)",
-                p.display()
+                "{}: {n} missing pixels filled {} before the FFT (large gaps bias the \
+                 spectrum: README \"Spectra of images with holes\")",
+                p.display(),
+                match cfg.fill {
+                    HoleFill::Harmonic => "harmonically (--fill)",
+                    HoleFill::Mean => "with the image mean (--fill)",
+                }
             ));
         }
     }

@@ -16,7 +16,7 @@ use super::common::{
 use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style};
-use crate::stats::powspec::{PowerSpectrum, PowerSpectrumConfig, Window};
+use crate::stats::powspec::{HoleFill, PowerSpectrum, PowerSpectrumConfig, Window};
 use crate::tracemoments::{
     BoxWeights, FluxDiff, FluxKind, SurrogateErrors, TraceMomentAccumulator, TraceMomentConfig,
     TraceMomentFitConfig, TraceMomentResult, UniversalWeighting, analyze_tiled, check_ensemble_fit,
@@ -95,6 +95,14 @@ pub struct TmOpts {
     /// one (the estimator before count weights).
     #[arg(long, value_enum, default_value_t = BoxWeights::Count)]
     pub box_weights: BoxWeights,
+    /// How the spectrum (beta, hence H) fills missing pixels before the
+    /// FFT: `harmonic` (Laplace's equation inside each hole, its rim as the
+    /// boundary: no edge along the rim) or `mean` (the image mean: a step
+    /// along every rim, whose power flattens the spectrum; the estimator
+    /// before harmonic fills). The flux's fractional derivative always
+    /// fills harmonically.
+    #[arg(long, value_enum, default_value_t = HoleFill::Harmonic)]
+    pub spectrum_fill: HoleFill,
 }
 
 impl TmOpts {
@@ -131,6 +139,7 @@ impl TmOpts {
                 let s = PowerSpectrumConfig::for_field(periodic);
                 PowerSpectrumConfig {
                     window: self.window.unwrap_or(s.window),
+                    fill: self.spectrum_fill,
                     ..s
                 }
             },
@@ -403,8 +412,12 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         if *n > 0 {
             extra.push(format!(
                 "{}: {n} missing pixels: left out of the flux (filled harmonically before a \
-                 fractional derivative), filled with the image mean for the spectrum (beta, H)",
-                p.display()
+                 fractional derivative), filled {} for the spectrum (beta, H)",
+                p.display(),
+                match cfg.spectrum.fill {
+                    HoleFill::Harmonic => "harmonically",
+                    HoleFill::Mean => "with the image mean (--spectrum-fill mean)",
+                }
             ));
         }
     }

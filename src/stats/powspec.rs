@@ -50,7 +50,38 @@ pub enum Detrend {
     Plane,
 }
 
-/// Options of [`power_spectrum`].
+/// How [`field_power_spectrum`] fills missing pixels before the FFT.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum HoleFill {
+    /// Laplace's equation inside each hole, its valid rim as the boundary
+    /// ([`crate::Field::filled_harmonic`]): continuous across the rim, so a
+    /// hole adds no edge to the spectrum; smoother than the surface inside.
+    Harmonic,
+    /// The mean of the valid pixels: a step along every hole's rim, whose
+    /// `|k|^-3` power flattens steep spectra (the estimator before
+    /// harmonic fills).
+    Mean,
+}
+
+impl HoleFill {
+    /// For `serde(default)`: configurations saved before this option
+    /// existed filled with the mean.
+    pub(crate) fn mean() -> Self {
+        HoleFill::Mean
+    }
+
+    /// The name the command line and the JSON use.
+    pub fn name(self) -> &'static str {
+        match self {
+            HoleFill::Harmonic => "harmonic",
+            HoleFill::Mean => "mean",
+        }
+    }
+}
+
+/// Options of [`power_spectrum`] and [`field_power_spectrum`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PowerSpectrumConfig {
     /// Taper before the FFT (default Hann).
@@ -59,6 +90,13 @@ pub struct PowerSpectrumConfig {
     pub detrend: Detrend,
     /// Log-spaced bins per octave of |k|.
     pub bins_per_octave: usize,
+    /// How [`field_power_spectrum`] fills missing pixels (default
+    /// harmonic: on 32 topo-fif planes of 512^2 with 5 % isolated pixels
+    /// missing, beta moved by +0.006 +- 0.003 harmonic, -0.34 +- 0.22
+    /// with the mean; README "Spectra of images with holes"). Stored
+    /// configurations without the key filled with the mean.
+    #[serde(default = "HoleFill::mean")]
+    pub fill: HoleFill,
 }
 
 impl PowerSpectrumConfig {
@@ -85,6 +123,7 @@ impl Default for PowerSpectrumConfig {
             window: Window::Hann,
             detrend: Detrend::Plane,
             bins_per_octave: 4,
+            fill: HoleFill::Harmonic,
         }
     }
 }
@@ -397,16 +436,21 @@ fn detrend(img: &mut Array2<f64>, how: Detrend) {
     }
 }
 
-/// The power spectrum of a field, its missing pixels filled with the
-/// image mean ([`crate::Field::filled`]), as `wtmm spectrum` and the trace
-/// moments compute it.
+/// The power spectrum of a field, its missing pixels filled as `cfg.fill`
+/// says ([`HoleFill`]), as `wtmm spectrum` and the trace moments compute
+/// it.
 ///
 /// **Errors** as [`crate::Field::filled`] and [`power_spectrum`].
 pub fn field_power_spectrum(
     field: &crate::Field,
     cfg: &PowerSpectrumConfig,
 ) -> Result<PowerSpectrum> {
-    power_spectrum(field.filled()?.view(), cfg)
+    // (the mean fill also checks the field: every pixel missing, ...)
+    let mean_filled = field.filled()?;
+    match (cfg.fill, field.mask.is_some()) {
+        (HoleFill::Harmonic, true) => power_spectrum(field.filled_harmonic()?.view(), cfg),
+        _ => power_spectrum(mean_filled.view(), cfg),
+    }
 }
 
 /// Angle-averaged power spectrum of one image (finite values only; fill masked
@@ -537,6 +581,7 @@ mod tests {
             window: Window::None,
             detrend: Detrend::Mean,
             bins_per_octave: 4,
+            ..Default::default()
         };
         let ps = power_spectrum(f.view(), &cfg).unwrap();
         let fit = ps.fit(0.1, 1.5).unwrap();
@@ -660,6 +705,7 @@ mod tests {
             window: Window::None,
             detrend: Detrend::None,
             bins_per_octave: 4,
+            ..Default::default()
         };
         let a = power_spectrum(f.view(), &cfg).unwrap().points();
         let b = PowerSpectrum::from_density(s.view(), 4).unwrap().points();

@@ -64,10 +64,13 @@
 //! the Jacksboro DEM with a 40 x 60 lake cut out, alpha read 2.27 against
 //! 1.61 for the whole DEM; 1.66 with the harmonic fill; measured with boxes
 //! tiled from one corner, before the windows below: now 1.53 with the
-//! harmonic fill against 1.49 whole). The spectrum
-//! (beta, hence H) still sees holes filled with the mean: a harmonic fill
-//! is smoother than the terrain and steepened beta there (3.50 against
-//! 3.38 whole, 3.40 mean-filled). A tilted field's plane can be removed
+//! harmonic fill against 1.49 whole). The spectrum (beta, hence H) fills
+//! holes harmonically too ([`crate::stats::powspec::HoleFill`]; the image
+//! mean before 2026-11-29, whose step along every rim added `|k|^-3`
+//! power: on 6 ensembles of 16 topo-fif planes of 512² with 5 % isolated
+//! pixels missing, H moved by -0.127 ± 0.021 with the mean fill and
+//! +0.004 ± 0.0003 with the harmonic one; on Levi Fell with 10 % of
+//! rectangles -0.37 ± 0.22 and +0.03 ± 0.03). A tilted field's plane can be removed
 //! first (`--detrend plane`, [`TraceMomentConfig::detrend`]): it adds `c l`
 //! to every increment at lag `l`, pulling `H_sf` (and the automatic
 //! derivative order) toward 1; without it, [`diagnostics`] gives `H_sf`
@@ -118,8 +121,8 @@
 //! (stated 0.003 against a scatter of 0.1 for α on 16 x 1024² topo-fif).
 //! Tiles ([`tile_bounds`]) treat neighbours as independent and understate:
 //! on 24 single topo-fif fields the rms jackknife error over the scatter
-//! between fields was 0.56 (α), 0.38 (C1), 0.51 (DTM α), 0.36 (H) at 512²,
-//! 0.87, 0.67, 0.86, 0.59 at 400², 0.63, 1.17, 0.67, 0.66 at 256²
+//! between fields was 0.56 (α), 0.38 (C1), 0.50 (DTM α), 0.36 (H) at 512²,
+//! 0.87, 0.67, 0.86, 0.59 at 400², 0.62, 1.16, 0.73, 0.66 at 256²
 //! (`experiment_lone_image_tiles` in tests/tracemoments.rs).
 //!
 //! # Diagnostics
@@ -2053,7 +2056,7 @@ pub const TILE_ERROR_FACTOR: f64 = 2.0;
 /// without a fit by their ranges.
 ///
 /// Measured (`experiment_lone_image_tiles` in tests/tracemoments.rs): on 24
-/// single topo-fif fields, 3, 1 and 1 of them got a straightness warning at
+/// single topo-fif fields, 1, 1 and 2 of them got a straightness warning at
 /// 256², 400² and 512², 1, 0 and 1 an H disagreement, none the first; an
 /// fBm gets the straightness warning, rightly (its flux is no cascade: box
 /// averages converge like sums of nearly independent values, no power law).
@@ -2663,7 +2666,7 @@ pub fn tiles_label(bounds: &[(usize, usize, usize, usize)], tile: usize) -> Stri
 pub const TILE_CAVEAT: &str = "the tiles are treated as independent, which fields correlated \
      over long distances (cascades) are not: on single 256^2-512^2 universal multifractal \
      fields these errors were, in rms, 0.56-0.87 of the scatter between fields for alpha, \
-     0.38-1.17 for C1, 0.36-0.66 for H, so they may understate up to 3x; surrogates \
+     0.38-1.16 for C1, 0.36-0.66 for H, so they may understate up to 3x; surrogates \
      (tm --surrogates K, surrogate_errors) measure the error under the fitted model";
 
 /// Trace moments of one or two fields (a DEM) with errors from a jackknife
