@@ -163,6 +163,22 @@ impl Field {
     ///
     /// **Errors** if no pixel is valid.
     pub fn filled_harmonic(&self) -> Result<Array2<f64>> {
+        self.filled_harmonic_on(false)
+    }
+
+    /// [`Self::filled_harmonic`] on a torus: the last row's neighbour is the
+    /// first, and so for the columns, so a hole across the border is filled
+    /// from both sides, continuously across it (a periodic field's
+    /// fractional derivative and untapered spectrum see it so). Without the
+    /// wrap such a hole has a zero gradient at the border on each side and
+    /// a step across it.
+    ///
+    /// **Errors** if no pixel is valid.
+    pub fn filled_harmonic_torus(&self) -> Result<Array2<f64>> {
+        self.filled_harmonic_on(true)
+    }
+
+    fn filled_harmonic_on(&self, wrap: bool) -> Result<Array2<f64>> {
         let Some(mask) = &self.mask else {
             return Ok(self.data.clone());
         };
@@ -176,7 +192,7 @@ impl Field {
             .map(|(lo, hi)| hi - lo)
             .filter(|s| *s > 0.0)
             .unwrap_or(1.0);
-        Ok(harmonic_fill(&self.data, mask, 1e-9 * span))
+        Ok(harmonic_fill(&self.data, mask, 1e-9 * span, wrap))
     }
 
     /// The values with masked pixels replaced by the mean of the valid ones,
@@ -646,8 +662,10 @@ pub fn finite_range<'a>(values: impl IntoIterator<Item = &'a f64>) -> Option<(f6
 
 /// [`Field::filled_harmonic`] at one level of the pyramid: the masked
 /// pixels start from the filled 2x2-mean image one level coarser, then are
-/// relaxed to `tol`; valid pixels keep their values.
-fn harmonic_fill(data: &Array2<f64>, mask: &Array2<bool>, tol: f64) -> Array2<f64> {
+/// relaxed to `tol`; valid pixels keep their values. `wrap`: on a torus
+/// (the coarse levels of an odd side wrap unevenly, but they only give the
+/// first guess; the finest level's relaxation wraps exactly).
+fn harmonic_fill(data: &Array2<f64>, mask: &Array2<bool>, tol: f64, wrap: bool) -> Array2<f64> {
     let (ny, nx) = data.dim();
     let mut out = data.clone();
     if !mask.iter().any(|&m| m) {
@@ -667,12 +685,18 @@ fn harmonic_fill(data: &Array2<f64>, mask: &Array2<bool>, tol: f64) -> Array2<f6
     let filled = if ny == 1 && nx == 1 {
         coarse // a single valid pixel: nothing is masked at this level
     } else {
-        harmonic_fill(&coarse, &coarse_mask, tol)
+        harmonic_fill(&coarse, &coarse_mask, tol, wrap)
     };
     // bilinear prolongation: piecewise-constant blocks would leave steps
     // for the relaxation to smooth
     let at = |i: usize, n: usize| -> (usize, usize, f64) {
-        let c = ((i as f64 + 0.5) / 2.0 - 0.5).clamp(0.0, (n - 1) as f64);
+        let c = (i as f64 + 0.5) / 2.0 - 0.5;
+        if wrap {
+            let lo = c.floor();
+            let l = (lo as isize).rem_euclid(n as isize) as usize;
+            return (l, (l + 1) % n, c - lo);
+        }
+        let c = c.clamp(0.0, (n - 1) as f64);
         let lo = c.floor() as usize;
         (lo, (lo + 1).min(n - 1), c - lo as f64)
     };
@@ -685,15 +709,16 @@ fn harmonic_fill(data: &Array2<f64>, mask: &Array2<bool>, tol: f64) -> Array2<f6
             *v = top * (1.0 - wy) + bottom * wy;
         }
     }
-    relax(&mut out, mask, tol);
+    relax(&mut out, mask, tol, wrap);
     out
 }
 
 /// Successive over-relaxation of Laplace's equation on the masked pixels
 /// (4 neighbours; at the image border the missing neighbours are left out,
-/// a zero-gradient edge) until the largest update is below `tol` or 50
-/// sweeps have run (the level below gave a smooth first guess).
-fn relax(out: &mut Array2<f64>, mask: &Array2<bool>, tol: f64) {
+/// a zero-gradient edge, or wrapped with `wrap`) until the largest update
+/// is below `tol` or 50 sweeps have run (the level below gave a smooth
+/// first guess).
+fn relax(out: &mut Array2<f64>, mask: &Array2<bool>, tol: f64, wrap: bool) {
     let (ny, nx) = out.dim();
     let holes: Vec<(usize, usize)> = mask
         .indexed_iter()
@@ -707,21 +732,31 @@ fn relax(out: &mut Array2<f64>, mask: &Array2<bool>, tol: f64) {
         let mut worst = 0.0f64;
         for &(y, x) in &holes {
             let (mut s, mut n) = (0.0, 0.0);
-            if y > 0 {
-                s += out[[y - 1, x]];
-                n += 1.0;
-            }
-            if y + 1 < ny {
-                s += out[[y + 1, x]];
-                n += 1.0;
-            }
-            if x > 0 {
-                s += out[[y, x - 1]];
-                n += 1.0;
-            }
-            if x + 1 < nx {
-                s += out[[y, x + 1]];
-                n += 1.0;
+            if wrap {
+                // (a side of 1 or 2 px counts a neighbour twice: still a
+                // mean of the values around)
+                s = out[[(y + ny - 1) % ny, x]]
+                    + out[[(y + 1) % ny, x]]
+                    + out[[y, (x + nx - 1) % nx]]
+                    + out[[y, (x + 1) % nx]];
+                n = 4.0;
+            } else {
+                if y > 0 {
+                    s += out[[y - 1, x]];
+                    n += 1.0;
+                }
+                if y + 1 < ny {
+                    s += out[[y + 1, x]];
+                    n += 1.0;
+                }
+                if x > 0 {
+                    s += out[[y, x - 1]];
+                    n += 1.0;
+                }
+                if x + 1 < nx {
+                    s += out[[y, x + 1]];
+                    n += 1.0;
+                }
             }
             if n > 0.0 {
                 let d = omega * (s / n - out[[y, x]]);
@@ -854,6 +889,57 @@ mod tests {
         let none =
             Field::with_mask(Array2::zeros((3, 3)), Array2::from_elem((3, 3), true)).unwrap();
         assert!(none.filled_harmonic().is_err());
+    }
+
+    /// On a torus a hole across the border is filled from both sides: a
+    /// band of 10 columns straddling the seam (rows 20-39) of a field that
+    /// is linear across the seam, `x` for `x < 32` and `x - 64` beyond
+    /// (harmonic there; its jump at x = 32 lies far off), is filled as the
+    /// plane of `harmonic_fill_restores_a_plane`, to 1e-6 of the range;
+    /// the fill without the wrap is flat on each side (zero gradient at the
+    /// border) and steps across the seam.
+    #[test]
+    fn torus_fill_wraps_across_the_border() {
+        let n = 64;
+        let f = Array2::from_shape_fn((n, n), |(_, x)| {
+            if x < n / 2 {
+                x as f64
+            } else {
+                x as f64 - n as f64
+            }
+        });
+        let mask = Array2::from_shape_fn((n, n), |(y, x)| {
+            (20..40).contains(&y) && !(5..n - 5).contains(&x)
+        });
+        let field = Field::with_mask(f.clone(), mask.clone()).unwrap();
+        let err = |g: &Array2<f64>| {
+            g.iter()
+                .zip(&f)
+                .zip(&mask)
+                .filter(|(_, m)| **m)
+                .map(|((a, b), _)| (a - b).abs())
+                .fold(0.0, f64::max)
+        };
+        let (wrapped, flat) = (
+            err(&field.filled_harmonic_torus().unwrap()),
+            err(&field.filled_harmonic().unwrap()),
+        );
+        println!("torus fill off by {wrapped:.2e}, plane fill by {flat:.3} (range 63)");
+        assert!(wrapped < 1e-6 * 63.0, "wrapped fill off by {wrapped}");
+        assert!(flat > 2.0, "the plane's fill off by only {flat}");
+        // valid pixels untouched; odd sides too
+        let g = Field::with_mask(f.slice(ndarray::s![..63, ..61]).to_owned(), {
+            mask.slice(ndarray::s![..63, ..61]).to_owned()
+        })
+        .unwrap();
+        let filled = g.filled_harmonic_torus().unwrap();
+        for ((p, &m), v) in g.mask.as_ref().unwrap().indexed_iter().zip(&filled) {
+            if !m {
+                assert_eq!(*v, g.data[p]);
+            } else {
+                assert!(v.abs() <= 5.0, "{p:?}: {v}");
+            }
+        }
     }
 
     fn corner_rim_range(a: &Array2<f64>, rim: impl Fn(usize, usize) -> bool) -> (f64, f64) {

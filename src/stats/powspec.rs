@@ -437,8 +437,9 @@ fn detrend(img: &mut Array2<f64>, how: Detrend) {
 }
 
 /// The power spectrum of a field, its missing pixels filled as `cfg.fill`
-/// says ([`HoleFill`]), as `wtmm spectrum` and the trace moments compute
-/// it.
+/// says ([`HoleFill`]; the harmonic fill wraps around the borders without
+/// a taper, [`Window::None`], whose FFT takes the field for a torus), as
+/// `wtmm spectrum` and the trace moments compute it.
 ///
 /// **Errors** as [`crate::Field::filled`] and [`power_spectrum`].
 pub fn field_power_spectrum(
@@ -448,6 +449,10 @@ pub fn field_power_spectrum(
     // (the mean fill also checks the field: every pixel missing, ...)
     let mean_filled = field.filled()?;
     match (cfg.fill, field.mask.is_some()) {
+        // an untapered FFT takes the field for a torus: so does the fill
+        (HoleFill::Harmonic, true) if cfg.window == Window::None => {
+            power_spectrum(field.filled_harmonic_torus()?.view(), cfg)
+        }
         (HoleFill::Harmonic, true) => power_spectrum(field.filled_harmonic()?.view(), cfg),
         _ => power_spectrum(mean_filled.view(), cfg),
     }

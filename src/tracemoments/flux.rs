@@ -162,7 +162,12 @@ fn mirror(f: ArrayView2<f64>) -> Array2<f64> {
 /// `periodic`, otherwise on its mirror extension to twice the size (no
 /// border jump for the periodic FFT filter), cropped.
 pub(crate) fn smooth(field: &Field, order: f64, periodic: bool) -> Result<Array2<f64>> {
-    let mut filled = field.filled_harmonic()?;
+    // a torus's holes are filled across its borders too
+    let mut filled = if periodic {
+        field.filled_harmonic_torus()?
+    } else {
+        field.filled_harmonic()?
+    };
     // the filter drops the mean (k = 0), so removing it first changes
     // nothing but the rounding: an offset of 1e13 on a field of unit
     // roughness moved alpha by 3e-5 through the FFT of the raw values

@@ -274,7 +274,10 @@ pub struct TraceMomentConfig {
     /// fractional filter before the flux (`diff`, `frac_int`) acts on the
     /// field as it is, not on its mirror extension, and the last row and
     /// column take the first as their forward neighbour, so every box is
-    /// whole and the flux's mean is the same at every scale. The mirror,
+    /// whole and the flux's mean is the same at every scale; missing
+    /// pixels are filled across the borders before the filter
+    /// ([`Field::filled_harmonic_torus`]; before 2026-11-29 the fill
+    /// stopped at them). The mirror,
     /// which a non-periodic field needs against its border jump, fills a
     /// small-alpha flux's holes far from the border (8 FIF fields of 512^2,
     /// alpha 0.5, C1 0.1, order 0.5: C1 read 0.069 mirrored, 0.081
