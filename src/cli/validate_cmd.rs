@@ -427,16 +427,16 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
     for c in &summary {
         let _ = writeln!(
             t,
-            "{:<52} {:>9.4} {:>8.4} {:>9.4} {:>9} {:>3}/{:<3}  {:<15} {:>8}",
+            "{:<52} {:>9} {:>8} {:>9.4} {:>9} {:>3}/{:<3}  {:<15} {:>8}",
             c.name,
-            c.mean,
-            c.stderr,
+            fixed4(c.mean),
+            fixed4(c.stderr),
             c.target,
             tolerance_text(c.below, c.tolerance),
             c.passes,
             n,
             verdict(c.informational, c.pass_mean),
-            c.sample_mean.map_or("-".into(), |v| format!("{v:.4}"))
+            c.sample_mean.map_or("-".into(), fixed4)
         );
     }
     if summary.iter().any(|c| c.sample_mean.is_some()) {
@@ -887,13 +887,15 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
         "{:<52} {:>9} {:>7} {:>9} {:>9}  {:<15} {:>8}",
         "criterion", "value", "se", "target", "tol", "result", "own"
     );
-    let opt = |x: Option<f64>, w: usize| x.map_or(format!("{:>w$}", "-"), |v| format!("{v:>w$.4}"));
+    let opt = |x: Option<f64>, w: usize| {
+        x.map_or(format!("{:>w$}", "-"), |v| format!("{:>w$}", fixed4(v)))
+    };
     for c in &crit {
         let _ = writeln!(
             t,
-            "{:<52} {:>9.4} {} {:>9.4} {:>9}  {:<15} {}",
+            "{:<52} {:>9} {} {:>9.4} {:>9}  {:<15} {}",
             c.name,
-            c.value,
+            fixed4(c.value),
             opt(c.stderr, 7),
             c.target,
             c.tolerance_text(),
@@ -975,9 +977,19 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     })
 }
 
+/// `v` with 4 decimals, or in scientific notation when it is not 0 but
+/// rounds to it there (a kernel c3 of -2e-5 printed as "-0.0000").
+fn fixed4(v: f64) -> String {
+    if v != 0.0 && v.abs() < 5e-5 {
+        format!("{v:.1e}")
+    } else {
+        format!("{v:.4}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{Criterion, criterion, max_dev};
+    use super::{Criterion, criterion, fixed4, max_dev};
 
     #[test]
     fn max_dev_finds_the_worst_q_and_fails_on_a_missing_value() {
@@ -1018,5 +1030,15 @@ mod tests {
         // no tolerance is written for it
         let j = serde_json::to_value(&one).unwrap();
         assert!(j["tolerance"].is_null() && j["below"] == 0.0);
+    }
+
+    /// A value that rounds to 0 at 4 decimals but is not 0 is printed in
+    /// scientific notation, not as "-0.0000".
+    #[test]
+    fn tiny_values_keep_their_sign_and_size() {
+        assert_eq!(fixed4(-2.1e-5), "-2.1e-5");
+        assert_eq!(fixed4(0.0), "0.0000");
+        assert_eq!(fixed4(-0.0256), "-0.0256");
+        assert_eq!(fixed4(5e-5), "0.0001");
     }
 }
