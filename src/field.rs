@@ -133,6 +133,14 @@ impl Field {
         self.data.len() - self.valid_count()
     }
 
+    /// The number of pixels of the largest hole (4-connected masked
+    /// pixels; 0 without a mask).
+    pub fn largest_hole(&self) -> usize {
+        self.mask.as_ref().map_or(0, |m| {
+            hole_sizes(m, false).iter().copied().max().unwrap_or(0)
+        })
+    }
+
     /// True if pixel `(y, x)` is masked.
     pub fn is_masked(&self, y: usize, x: usize) -> bool {
         self.mask.as_ref().is_some_and(|m| m[[y, x]])
@@ -144,8 +152,8 @@ impl Field {
     /// filters with long tails: a fractional derivative sees a mean-filled
     /// hole as a step along its rim, whose response decays only like a
     /// power of the distance and so reaches far into the valid data (the
-    /// trace moments' flux uses it; a power spectrum does not, the fill
-    /// being smoother than the field around it). The harmonic fill is continuous at the rim and
+    /// trace moments' flux uses it, and the power spectrum by default,
+    /// [`crate::stats::powspec::HoleFill`]). The harmonic fill is continuous at the rim and
     /// smooth inside; a hole away from the image border is filled exactly
     /// where the field is a plane, and where a hole meets the border the
     /// fill has zero gradient across it (nothing is known beyond).
@@ -720,17 +728,26 @@ fn harmonic_fill(data: &Array2<f64>, mask: &Array2<bool>, tol: f64, wrap: bool) 
 /// first guess).
 fn relax(out: &mut Array2<f64>, mask: &Array2<bool>, tol: f64, wrap: bool) {
     let (ny, nx) = out.dim();
-    let holes: Vec<(usize, usize)> = mask
+    // the optimal factor for a square of side n is 2 / (1 + sin(pi / n)),
+    // per hole: one factor for all holes, from their total count, left a
+    // lone pixel (whose error is multiplied by 1 - omega each sweep) 26 %
+    // off its solution after 50 sweeps with 5 % of 1024^2 missing as
+    // isolated pixels (review 2026-11-29); omega = 1 solves it in one
+    let holes: Vec<(usize, usize, f64)> = hole_sizes(mask, wrap)
         .indexed_iter()
-        .filter(|(_, m)| **m)
-        .map(|(p, _)| p)
+        .filter(|(_, c)| **c > 0)
+        .map(|((y, x), &c)| {
+            let side = (c as f64).sqrt();
+            (
+                y,
+                x,
+                2.0 / (1.0 + (std::f64::consts::PI / (side + 1.0)).sin()),
+            )
+        })
         .collect();
-    // the optimal factor for a square of side n is 2 / (1 + sin(pi / n))
-    let side = (holes.len() as f64).sqrt().max(1.0);
-    let omega = 2.0 / (1.0 + (std::f64::consts::PI / (side + 1.0)).sin());
     for _ in 0..50 {
         let mut worst = 0.0f64;
-        for &(y, x) in &holes {
+        for &(y, x, omega) in &holes {
             let (mut s, mut n) = (0.0, 0.0);
             if wrap {
                 // (a side of 1 or 2 px counts a neighbour twice: still a
@@ -768,6 +785,47 @@ fn relax(out: &mut Array2<f64>, mask: &Array2<bool>, tol: f64, wrap: bool) {
             break;
         }
     }
+}
+
+/// Per pixel, the size (in pixels) of the 4-connected hole of `mask` it
+/// belongs to, 0 for valid pixels; `wrap`: connected across the borders.
+fn hole_sizes(mask: &Array2<bool>, wrap: bool) -> Array2<usize> {
+    let (ny, nx) = mask.dim();
+    let mut label = Array2::<usize>::zeros((ny, nx));
+    let mut sizes = vec![0usize];
+    let mut stack = Vec::new();
+    for ((y0, x0), &m) in mask.indexed_iter() {
+        if !m || label[[y0, x0]] != 0 {
+            continue;
+        }
+        let id = sizes.len();
+        let mut n = 0;
+        label[[y0, x0]] = id;
+        stack.push((y0, x0));
+        while let Some((y, x)) = stack.pop() {
+            n += 1;
+            let mut visit = |yy: usize, xx: usize| {
+                if mask[[yy, xx]] && label[[yy, xx]] == 0 {
+                    label[[yy, xx]] = id;
+                    stack.push((yy, xx));
+                }
+            };
+            if y > 0 || wrap {
+                visit((y + ny - 1) % ny, x);
+            }
+            if y + 1 < ny || wrap {
+                visit((y + 1) % ny, x);
+            }
+            if x > 0 || wrap {
+                visit(y, (x + nx - 1) % nx);
+            }
+            if x + 1 < nx || wrap {
+                visit(y, (x + 1) % nx);
+            }
+        }
+        sizes.push(n);
+    }
+    label.mapv(|l| sizes[l])
 }
 
 #[cfg(test)]
@@ -940,6 +998,53 @@ mod tests {
                 assert!(v.abs() <= 5.0, "{p:?}: {v}");
             }
         }
+    }
+
+    /// Isolated missing pixels (every 23rd, none adjacent, 4 % of the
+    /// image) beside a large hole: each is filled with the mean of its 4
+    /// neighbours, its exact harmonic value, to rounding. With one
+    /// over-relaxation factor for all holes, from their total count, they
+    /// were left 26 % off it (the error times 1 - omega = -0.97 per sweep,
+    /// 50 sweeps).
+    #[test]
+    fn isolated_holes_are_filled_exactly() {
+        let (ny, nx) = (96, 128);
+        let f = Array2::from_shape_fn((ny, nx), |(y, x)| {
+            ((y * 37 + x * 101) % 53) as f64 + 0.1 * (x as f64 * 0.3).sin()
+        });
+        let lone = |y: usize, x: usize| {
+            y > 0 && x > 0 && y + 1 < ny && x + 1 < nx && (y * nx + x).is_multiple_of(23) && x < 60
+        };
+        let mask = Array2::from_shape_fn((ny, nx), |(y, x)| {
+            lone(y, x) || (x >= 70 && (20..80).contains(&y))
+        });
+        let g = Field::with_mask(f.clone(), mask)
+            .unwrap()
+            .filled_harmonic()
+            .unwrap();
+        let mut n = 0;
+        for y in 0..ny {
+            for x in 0..nx {
+                if lone(y, x) {
+                    let want =
+                        (f[[y - 1, x]] + f[[y + 1, x]] + f[[y, x - 1]] + f[[y, x + 1]]) / 4.0;
+                    assert!(
+                        (g[[y, x]] - want).abs() < 1e-9,
+                        "{y} {x}: {} vs {want}",
+                        g[[y, x]]
+                    );
+                    n += 1;
+                }
+            }
+        }
+        assert!(n > 200, "{n}");
+        assert_eq!(
+            hole_sizes(&Array2::from_elem((3, 3), true), false)[[1, 1]],
+            9
+        );
+        let ring = Array2::from_shape_fn((4, 4), |(_, x)| x == 0 || x == 3);
+        assert_eq!(hole_sizes(&ring, false)[[0, 0]], 4);
+        assert_eq!(hole_sizes(&ring, true)[[0, 0]], 8);
     }
 
     fn corner_rim_range(a: &Array2<f64>, rim: impl Fn(usize, usize) -> bool) -> (f64, f64) {

@@ -3102,6 +3102,12 @@ fn count_weights_conserve_the_flux_over_holes_and_borders() {
     let (a, b) = (torus(BoxWeights::Count), torus(BoxWeights::Equal));
     assert_eq!(a.log2_moments, b.log2_moments);
     assert_eq!(a.dtm_alpha.to_bits(), b.dtm_alpha.to_bits());
+    // the two rules never merge, and the refusal names what differs
+    let mut e = TraceMomentAccumulator::new(equal.clone()).unwrap();
+    let c = TraceMomentAccumulator::new(count).unwrap();
+    let msg = e.merge(&c).unwrap_err().to_string();
+    assert!(msg.contains("box_weights: equal vs count"), "{msg}");
+    assert_eq!(equal.differences(&equal), Vec::<String>::new());
 }
 
 /// A hole mask of `kind` for image `index` of an `n x n` ensemble: `rect`

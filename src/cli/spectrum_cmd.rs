@@ -13,8 +13,8 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style};
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
-    CONVENTION, Detrend, HoleFill, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,
-    default_k_range, field_power_spectrum, jackknife_beta_se,
+    CONVENTION, Detrend, HoleFill, LARGE_HOLE_SHARE, PowerSpectrum, PowerSpectrumConfig, Window,
+    bins_in_range, default_k_range, field_power_spectrum, jackknife_beta_se, large_hole_warning,
 };
 
 #[derive(Args, Debug)]
@@ -252,15 +252,22 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
         .chain(px_warnings)
         .collect();
     PixelSize::say_note(px.as_ref(), quiet);
-    for (n, p) in missing.iter().zip(&args.images) {
+    for ((n, p), fl) in missing.iter().zip(&args.images).zip(&fields) {
         if *n > 0 {
+            let (ny, nx) = fl.dim();
+            let share = fl.largest_hole() as f64 / (ny * nx) as f64;
             warnings.push(format!(
-                "{}: {n} missing pixels filled {} before the FFT (large gaps bias the \
-                 spectrum: README \"Spectra of images with holes\")",
+                "{}: {n} missing pixels filled {} before the FFT{} (README \"Spectra of images \
+                 with holes\")",
                 p.display(),
                 match cfg.fill {
                     HoleFill::Harmonic => "harmonically (--fill)",
                     HoleFill::Mean => "with the image mean (--fill)",
+                },
+                if share > LARGE_HOLE_SHARE {
+                    format!("; {}", large_hole_warning(share))
+                } else {
+                    String::new()
                 }
             ));
         }

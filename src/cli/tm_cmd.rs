@@ -356,8 +356,12 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         (acc, res, shapes)
     };
     // the flux skips missing pixels; the spectrum (beta, H) sees them filled
-    // with the image mean
+    // (harmonically by default)
     let missing: Vec<usize> = shapes.iter().map(|s| s.missing).collect();
+    let hole_share: Vec<f64> = shapes
+        .iter()
+        .map(|s| s.largest_hole as f64 / (s.shape[0] * s.shape[1]) as f64)
+        .collect();
     let quant: Vec<Option<f64>> = shapes.iter().map(|s| s.equal).collect();
     let flats: Vec<Option<(f64, f64)>> = shapes.iter().map(|s| s.flat).collect();
     let shapes: Vec<[usize; 2]> = shapes.iter().map(|s| s.shape).collect();
@@ -408,15 +412,20 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
             ));
         }
     }
-    for (n, p) in missing.iter().zip(&args.images) {
+    for ((n, p), share) in missing.iter().zip(&args.images).zip(&hole_share) {
         if *n > 0 {
             extra.push(format!(
                 "{}: {n} missing pixels: left out of the flux (filled harmonically before a \
-                 fractional derivative), filled {} for the spectrum (beta, H)",
+                 fractional derivative), filled {} for the spectrum (beta, H){}",
                 p.display(),
                 match cfg.spectrum.fill {
                     HoleFill::Harmonic => "harmonically",
                     HoleFill::Mean => "with the image mean (--spectrum-fill mean)",
+                },
+                if *share > crate::stats::powspec::LARGE_HOLE_SHARE {
+                    format!("; {}", crate::stats::powspec::large_hole_warning(*share))
+                } else {
+                    String::new()
                 }
             ));
         }
@@ -518,6 +527,8 @@ pub struct ImageInfo {
     shape: [usize; 2],
     /// Missing pixels.
     missing: usize,
+    /// The largest hole's pixels.
+    largest_hole: usize,
     /// On a lattice of values, the fraction of equal neighbours
     /// ([`quantised`]).
     equal: Option<f64>,
@@ -533,6 +544,7 @@ impl ImageInfo {
         ImageInfo {
             shape: [ny, nx],
             missing: ny * nx - f.valid_count(),
+            largest_hole: f.largest_hole(),
             equal: quantised(f, flat.map(|(v, _)| v)),
             flat,
         }

@@ -317,30 +317,87 @@ impl TraceMomentConfig {
     /// Equality up to a relative 1e-12 on the grids (a JSON round trip may
     /// move a float by one ulp).
     pub fn same_settings(&self, o: &TraceMomentConfig) -> bool {
+        self.differences(o).is_empty()
+    }
+
+    /// The settings in which `self` and `o` differ, each as `name: self's
+    /// vs o's` (empty when [`Self::same_settings`]), for the message that
+    /// refuses a merge.
+    pub fn differences(&self, o: &TraceMomentConfig) -> Vec<String> {
         let close = |a: &[f64], b: &[f64]| {
             a.len() == b.len()
                 && a.iter()
                     .zip(b)
                     .all(|(x, y)| (x - y).abs() <= 1e-12 * x.abs().max(y.abs()))
         };
-        self.flux == o.flux
-            && match (self.diff, o.diff) {
+        let mut d = Vec::new();
+        let mut say = |same: bool, name: &str, a: String, b: String| {
+            if !same {
+                d.push(format!("{name}: {a} vs {b}"));
+            }
+        };
+        say(
+            self.flux == o.flux,
+            "flux",
+            self.flux.name().into(),
+            o.flux.name().into(),
+        );
+        say(
+            match (self.diff, o.diff) {
                 (FluxDiff::Order(a), FluxDiff::Order(b)) => close(&[a], &[b]),
                 (a, b) => a == b,
-            }
-            && match (self.frac_int, o.frac_int) {
+            },
+            "diff",
+            format!("{:?}", self.diff),
+            format!("{:?}", o.diff),
+        );
+        say(
+            match (self.frac_int, o.frac_int) {
                 (Some(a), Some(b)) => close(&[a], &[b]),
-                (None, None) => true,
-                _ => false,
-            }
-            && close(&self.q, &o.q)
-            && close(&self.eta, &o.eta)
-            && close(&self.dtm_q, &o.dtm_q)
-            && close(&self.sf_q, &o.sf_q)
-            && self.spectrum == o.spectrum
-            && self.detrend == o.detrend
-            && self.periodic == o.periodic
-            && self.box_weights == o.box_weights
+                (a, b) => a == b,
+            },
+            "frac_int",
+            format!("{:?}", self.frac_int),
+            format!("{:?}", o.frac_int),
+        );
+        for (name, a, b) in [
+            ("q", &self.q, &o.q),
+            ("eta", &self.eta, &o.eta),
+            ("dtm_q", &self.dtm_q, &o.dtm_q),
+            ("sf_q", &self.sf_q, &o.sf_q),
+        ] {
+            let list = |v: &[f64]| match v {
+                [] => "[]".to_string(),
+                [x] => format!("[{x}]"),
+                [x, .., y] => format!("{} values {x}..{y}", v.len()),
+            };
+            say(close(a, b), name, list(a), list(b));
+        }
+        say(
+            self.spectrum == o.spectrum,
+            "spectrum",
+            format!("{:?}", self.spectrum),
+            format!("{:?}", o.spectrum),
+        );
+        say(
+            self.detrend == o.detrend,
+            "detrend",
+            format!("{:?}", self.detrend),
+            format!("{:?}", o.detrend),
+        );
+        say(
+            self.periodic == o.periodic,
+            "periodic",
+            self.periodic.to_string(),
+            o.periodic.to_string(),
+        );
+        say(
+            self.box_weights == o.box_weights,
+            "box_weights",
+            self.box_weights.name().into(),
+            o.box_weights.name().into(),
+        );
+        d
     }
 
     /// **Errors** on negative, non-finite, unsorted or repeated q, non-positive η or
@@ -1129,10 +1186,16 @@ impl TraceMomentAccumulator {
     pub fn merge(&mut self, o: &TraceMomentAccumulator) -> Result<()> {
         self.check()?;
         o.check()?;
-        if !self.config.same_settings(&o.config) {
+        let differ = self.config.differences(&o.config);
+        if !differ.is_empty() {
             return Err(Error::param(
                 "config",
-                "cannot merge trace moments accumulated with different settings",
+                format!(
+                    "cannot merge trace moments accumulated with different settings ({}; \
+                     settings stored before 2026-11-29 read as box_weights equal and \
+                     spectrum fill mean)",
+                    differ.join("; ")
+                ),
             ));
         }
         // accumulators saved before the planes were recorded have none: pad
