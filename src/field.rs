@@ -1018,10 +1018,11 @@ mod tests {
         let mask = Array2::from_shape_fn((ny, nx), |(y, x)| {
             lone(y, x) || (x >= 70 && (20..80).contains(&y))
         });
-        let g = Field::with_mask(f.clone(), mask)
-            .unwrap()
-            .filled_harmonic()
-            .unwrap();
+        let holed = Field::with_mask(f.clone(), mask).unwrap();
+        // the block: 58 columns by 60 rows
+        assert_eq!(holed.largest_hole(), 58 * 60);
+        assert_eq!(Field::new(f.clone()).largest_hole(), 0);
+        let g = holed.filled_harmonic().unwrap();
         let mut n = 0;
         for y in 0..ny {
             for x in 0..nx {

@@ -13,8 +13,8 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style};
 use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
-    CONVENTION, Detrend, HoleFill, LARGE_HOLE_SHARE, PowerSpectrum, PowerSpectrumConfig, Window,
-    bins_in_range, default_k_range, field_power_spectrum, jackknife_beta_se, large_hole_warning,
+    CONVENTION, Detrend, HoleFill, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,
+    default_k_range, field_power_spectrum, jackknife_beta_se, large_hole_warning,
 };
 
 #[derive(Args, Debug)]
@@ -264,11 +264,9 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
                     HoleFill::Harmonic => "harmonically (--fill)",
                     HoleFill::Mean => "with the image mean (--fill)",
                 },
-                if share > LARGE_HOLE_SHARE {
-                    format!("; {}", large_hole_warning(share))
-                } else {
-                    String::new()
-                }
+                large_hole_warning(share)
+                    .map(|w| format!("; {w}"))
+                    .unwrap_or_default()
             ));
         }
     }

@@ -422,11 +422,9 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                     HoleFill::Harmonic => "harmonically",
                     HoleFill::Mean => "with the image mean (--spectrum-fill mean)",
                 },
-                if *share > crate::stats::powspec::LARGE_HOLE_SHARE {
-                    format!("; {}", crate::stats::powspec::large_hole_warning(*share))
-                } else {
-                    String::new()
-                }
+                crate::stats::powspec::large_hole_warning(*share)
+                    .map(|w| format!("; {w}"))
+                    .unwrap_or_default()
             ));
         }
     }

@@ -86,10 +86,11 @@ impl HoleFill {
 /// ([`large_hole_warning`]).
 pub const LARGE_HOLE_SHARE: f64 = 0.05;
 
-/// What a hole covering `share` (> [`LARGE_HOLE_SHARE`]) of an image does
-/// to its spectrum, measured, for the warnings of `spectrum` and `tm`.
-pub fn large_hole_warning(share: f64) -> String {
-    format!(
+/// What a hole covering `share` of an image does to its spectrum,
+/// measured, for the warnings of `spectrum` and `tm`: `None` up to
+/// [`LARGE_HOLE_SHARE`].
+pub fn large_hole_warning(share: f64) -> Option<String> {
+    (share > LARGE_HOLE_SHARE).then(|| format!(
         "one hole covers {:.0} % of it: inside, a harmonic fill is smoother than the surface and \
          a mean fill a step along the rim, so beta is uncertain beyond its error whatever the fill \
          (topo-fif fields of 1024^2, beta 3.26 +- 0.04, with one disc or irregular hole of 5, \
@@ -97,7 +98,7 @@ pub fn large_hole_warning(share: f64) -> String {
          harmonic +0.05, -0.03 to +0.15, +0.10 to +0.22; mean -0.03, -0.18 to -0.41, -0.21 to \
          -0.58); crop to a region without it if you can",
         100.0 * share
-    )
+    ))
 }
 
 /// Options of [`power_spectrum`] and [`field_power_spectrum`].
@@ -561,6 +562,18 @@ fn check_bins(b: usize) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The large-hole warning speaks above 5 % of the image only, and
+    /// gives the share.
+    #[test]
+    fn large_holes_are_said() {
+        assert!(large_hole_warning(0.05).is_none());
+        assert!(
+            large_hole_warning(0.16)
+                .unwrap()
+                .starts_with("one hole covers 16 %")
+        );
+    }
 
     /// A view of any layout (here a transposed one, column-major) gives the
     /// spectrum of its values: the rows used to be read as slices of the
