@@ -1875,3 +1875,90 @@ fn the_default_fit_of_listed_scales_is_accepted() {
         wtmm::spectra::default_fit(2, 10)
     );
 }
+
+/// Whether the WTMM could analyse images with scattered missing pixels by
+/// filling them (not a check; `cargo test --release --test spectra
+/// experiment_filled_dropout -- --ignored --nocapture`, env N images
+/// (default 16) of SIZE² (384), H (0.5), DROP (0.05), SEED (91)): the
+/// counting domain excludes everything within the wavelet's support of a
+/// hole, so 5 % of isolated missing pixels leave nothing to count; here
+/// they are filled (harmonically, and with the image mean) and analysed as
+/// data. Printed: τ(q) of the filled images less that of the full ones,
+/// paired, with its jackknife error over the images (fBm, 3 octaves, fit
+/// 0.5-3, plain rule, as `missing_pixels_do_not_bend_tau`).
+#[test]
+#[ignore]
+fn experiment_filled_dropout() {
+    use wtmm::skeleton::skeleton;
+    let env = |k: &str, d: f64| std::env::var(k).map_or(d, |s| s.parse().unwrap());
+    let (n_img, n, h, drop, seed) = (
+        env("N", 16.0) as u64,
+        env("SIZE", 384.0) as usize,
+        env("H", 0.5),
+        env("DROP", 0.05),
+        env("SEED", 91.0) as u64,
+    );
+    let q = [-2.0, -1.0, 0.0, 1.0, 2.0, 3.0];
+    let cfg = AnalysisConfig {
+        octaves: 3,
+        ..Default::default()
+    };
+    let parts: Vec<[PartitionSums; 3]> = (0..n_img)
+        .into_par_iter()
+        .map(|i| {
+            let img = fbm(FbmParams { hurst: h }, n, n, seed, i).unwrap();
+            // isolated pixels: a deterministic pseudo-random pick
+            let mask = ndarray::Array2::from_shape_fn((n, n), |(y, x)| {
+                let z = wtmm::synth::splitmix64(seed ^ (i << 40) ^ ((y * n + x) as u64));
+                ((z >> 11) as f64 / (1u64 << 53) as f64) < drop
+            });
+            let holed = Field::with_mask(img.clone(), mask).unwrap();
+            let harmonic = Field::new(holed.filled_harmonic().unwrap());
+            let mean = Field::new(holed.filled().unwrap().into_owned());
+            [Field::new(img), harmonic, mean].map(|f| {
+                PartitionSums::from_skeleton(&skeleton(&f, &cfg).unwrap(), &q, format!("{i}"))
+            })
+        })
+        .collect();
+    let tau = |k: usize, skip: Option<usize>| {
+        let s = PartitionSums::merge_all(
+            parts
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| Some(*i) != skip)
+                .map(|(_, p)| p[k].clone()),
+        )
+        .unwrap()
+        .unwrap();
+        s.spectra(Rule::Plain, (0.5, 3.0)).unwrap().tau
+    };
+    println!(
+        "{n_img} fBm (H = {h}) of {n}^2, {:.0} % isolated pixels missing, seed {seed}",
+        100.0 * drop
+    );
+    let full = tau(0, None);
+    for (k, name) in [(1, "harmonic"), (2, "mean")] {
+        let d = |skip: Option<usize>| -> Vec<f64> {
+            tau(k, skip)
+                .iter()
+                .zip(tau(0, skip))
+                .map(|(a, b)| a - b)
+                .collect()
+        };
+        let all = d(None);
+        let loo: Vec<Vec<f64>> = (0..parts.len()).map(|i| d(Some(i))).collect();
+        let line: Vec<String> = (0..q.len())
+            .map(|qi| {
+                let reps: Vec<f64> = loo.iter().map(|v| v[qi]).collect();
+                format!(
+                    "q {}: {:+.4} +- {:.4}",
+                    q[qi],
+                    all[qi],
+                    wtmm::stats::jackknife_se(&reps)
+                )
+            })
+            .collect();
+        println!("  {name:8} filled - full: {}", line.join("; "));
+    }
+    println!("  full tau: {full:.4?} (theory q H - 2)");
+}
