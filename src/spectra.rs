@@ -132,6 +132,10 @@ pub struct ImagePartial {
     /// caller: the library sees only the masked field).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nodata: Option<f64>,
+    /// Missing pixels filled harmonically and counted as data
+    /// (`analyze --fill-holes`; set by the caller, as `nodata`).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub filled: usize,
 }
 
 /// [`ImagePartial::flat`]: a value and the share of the valid pixels
@@ -483,6 +487,7 @@ impl PartitionSums {
                 terrace_width: None,
                 flat: None,
                 nodata: None,
+                filled: 0,
             }],
         }
     }
@@ -545,6 +550,7 @@ impl PartitionSums {
                 terrace_width: None,
                 flat: None,
                 nodata: None,
+                filled: 0,
             }],
         })
     }
@@ -850,6 +856,7 @@ impl PartitionSums {
                     terrace_width: None,
                     flat: None,
                     nodata: None,
+                    filled: 0,
                 })
             })
             .collect();
@@ -1532,6 +1539,10 @@ pub struct ImageRecord {
     /// were written before it was recorded.
     #[serde(default)]
     pub nodata: Option<f64>,
+    /// [`ImagePartial::filled`]: missing pixels filled and counted as data
+    /// (`missing` then counts those left missing: none).
+    #[serde(default)]
+    pub filled: usize,
 }
 
 impl ImageRecord {
@@ -1544,6 +1555,7 @@ impl ImageRecord {
             terrace_width: im.terrace_width,
             flat: im.flat,
             nodata: im.nodata,
+            filled: im.filled,
         }
     }
 }
@@ -3132,6 +3144,7 @@ mod tests {
                     terrace_width: None,
                     flat: None,
                     nodata: None,
+                    filled: 0,
                 })
                 .collect();
             let s = PartitionSums {

@@ -205,6 +205,15 @@ pub struct AnalyzeArgs {
     pub pixel: PixelOpts,
     #[command(flatten)]
     pub read: super::ReadOpts,
+    /// Fill missing pixels harmonically (Laplace's equation inside each
+    /// hole, its rim as the boundary) and count them as data. Without it
+    /// maxima count only farther from a hole than the wavelet's support, so
+    /// scattered voids leave nothing to count; filled isolated pixels kept
+    /// the tau(q) of the full images within 0.003-0.010 (fBm H 0.3-0.7, 5-15
+    /// % missing; the mean fill biased it by up to -0.13). A large hole
+    /// becomes a smooth patch, of high h: crop such holes instead.
+    #[arg(long)]
+    pub fill_holes: bool,
     #[command(flatten)]
     pub out: OutDir,
 }
@@ -271,7 +280,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         }
         None => (None, None),
     };
-    let mut sums = analyze_paths(&args.images, nodata, &cfg, &q, quiet)?;
+    let mut sums = analyze_paths(&args.images, nodata, args.fill_holes, &cfg, &q, quiet)?;
     // recorded in sums.json, for merge
     sums.pixel = px.as_ref().map(PixelSize::record);
     let mut spectra = sums.spectra(args.opts.rule(), fit).map_err(|e| match e {
@@ -298,6 +307,7 @@ pub fn run(args: AnalyzeArgs, quiet: bool) -> Result<Outcome> {
         "rule": args.opts.rule(), "theory": theory_model,
         "pixel_size": px.as_ref().map(PixelSize::json),
         "origin": origin.as_ref().map(PeriodicSynth::json), "nodata": nodata,
+        "fill_holes": args.fill_holes,
     });
     write_outputs(
         &args.out.out,
@@ -430,12 +440,20 @@ pub(super) fn summary(
     out
 }
 
+/// The pixels one filled hole may hold before `--fill-holes` says that it
+/// puts a smooth patch in the data: what was measured
+/// (`experiment_filled_dropout`: 15 % of pixels missing at random, whose
+/// largest 4-connected clusters hold about 11 px); larger holes were not.
+const LARGE_FILLED_HOLE: usize = 16;
+
 /// Reads and analyses every image (in parallel over images; `nodata` as
-/// [`super::common::read_image`]); a bad or constant image stops everything
-/// before any output is written.
+/// [`super::common::read_image`]; `fill`: missing pixels filled
+/// harmonically and analysed as data, `--fill-holes`); a bad or constant
+/// image stops everything before any output is written.
 pub fn analyze_paths(
     paths: &[PathBuf],
     nodata: Option<f64>,
+    fill: bool,
     cfg: &AnalysisConfig,
     q: &[f64],
     quiet: bool,
@@ -452,7 +470,33 @@ pub fn analyze_paths(
     // the first bad image in input order is named, whatever the scheduling
     let parts = crate::par::try_map_at(paths.len(), |i| {
         let p = &paths[i];
-        let field = super::common::read_image_noted(p, nodata, i, &notes)?;
+        let mut field = super::common::read_image_noted(p, nodata, i, &notes)?;
+        let filled = if fill { field.missing_count() } else { 0 };
+        if filled > 0 {
+            let largest = field.largest_hole();
+            notes.push(
+                i,
+                format!(
+                    "warning: {}: {filled} missing pixels filled harmonically and counted as \
+                     data (--fill-holes; the largest hole holds {largest} px{})",
+                    p.display(),
+                    if largest > LARGE_FILLED_HOLE {
+                        format!(
+                            ", more than the {LARGE_FILLED_HOLE} px of the holes measured \
+                             (scattered pixels): its fill is a smooth patch, of high h; crop it \
+                             out if you can"
+                        )
+                    } else {
+                        String::new()
+                    }
+                ),
+            );
+            field = crate::Field::new(
+                field
+                    .filled_harmonic()
+                    .map_err(|e| super::common::in_file(p, e))?,
+            );
+        }
         super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
         super::common::check_image_memory(p, &field, paths.len() == 1)?;
         // fewer than 3 images: the jackknife runs over tiles
@@ -467,6 +511,7 @@ pub fn analyze_paths(
             .map_err(|e| super::common::in_file(p, e))?;
         // recorded per image, so that merged sums still say it
         s.images[0].nodata = nodata;
+        s.images[0].filled = filled;
         pb.inc(1);
         Ok(s)
     });
