@@ -967,33 +967,7 @@ fn missing_pixels_do_not_bend_tau() {
             [&full, &sk, &per_scale].map(|s| PartitionSums::from_skeleton(s, &q, format!("{i}")))
         })
         .collect();
-    let tau = |k: usize, skip: Option<usize>| {
-        let s = PartitionSums::merge_all(
-            parts
-                .iter()
-                .enumerate()
-                .filter(|(i, _)| Some(*i) != skip)
-                .map(|(_, p)| p[k].clone()),
-        )
-        .unwrap()
-        .unwrap();
-        s.spectra(Rule::Plain, (0.5, 3.0)).unwrap().tau
-    };
-    // paired difference against the full images, with its jackknife error
-    let diff = |k: usize| -> Vec<(f64, f64)> {
-        let d = |skip: Option<usize>| -> Vec<f64> {
-            let (a, b) = (tau(k, skip), tau(0, skip));
-            a.iter().zip(&b).map(|(x, y)| x - y).collect()
-        };
-        let all = d(None);
-        let loo: Vec<Vec<f64>> = (0..parts.len()).map(|i| d(Some(i))).collect();
-        (0..q.len())
-            .map(|qi| {
-                let reps: Vec<f64> = loo.iter().map(|v| v[qi]).collect();
-                (all[qi], wtmm::stats::jackknife_se(&reps))
-            })
-            .collect()
-    };
+    let diff = |k: usize| paired_tau_difference(&parts, k);
     for (qi, ((dn, sn), (dold, sold))) in diff(1).into_iter().zip(diff(2)).enumerate() {
         eprintln!(
             "q = {}: holed - full {dn:+.4} +- {sn:.4}; with the clearance R a {dold:+.4} +- {sold:.4}",
@@ -1920,45 +1894,58 @@ fn experiment_filled_dropout() {
             })
         })
         .collect();
-    let tau = |k: usize, skip: Option<usize>| {
-        let s = PartitionSums::merge_all(
-            parts
-                .iter()
-                .enumerate()
-                .filter(|(i, _)| Some(*i) != skip)
-                .map(|(_, p)| p[k].clone()),
-        )
-        .unwrap()
-        .unwrap();
-        s.spectra(Rule::Plain, (0.5, 3.0)).unwrap().tau
-    };
     println!(
         "{n_img} fBm (H = {h}) of {n}^2, {:.0} % isolated pixels missing, seed {seed}",
         100.0 * drop
     );
-    let full = tau(0, None);
+    let full = merged_tau(&parts, 0, None);
     for (k, name) in [(1, "harmonic"), (2, "mean")] {
-        let d = |skip: Option<usize>| -> Vec<f64> {
-            tau(k, skip)
-                .iter()
-                .zip(tau(0, skip))
-                .map(|(a, b)| a - b)
-                .collect()
-        };
-        let all = d(None);
-        let loo: Vec<Vec<f64>> = (0..parts.len()).map(|i| d(Some(i))).collect();
-        let line: Vec<String> = (0..q.len())
-            .map(|qi| {
-                let reps: Vec<f64> = loo.iter().map(|v| v[qi]).collect();
-                format!(
-                    "q {}: {:+.4} +- {:.4}",
-                    q[qi],
-                    all[qi],
-                    wtmm::stats::jackknife_se(&reps)
-                )
-            })
+        let line: Vec<String> = paired_tau_difference(&parts, k)
+            .iter()
+            .zip(q)
+            .map(|((d, se), qi)| format!("q {qi}: {d:+.4} +- {se:.4}"))
             .collect();
         println!("  {name:8} filled - full: {}", line.join("; "));
     }
     println!("  full tau: {full:.4?} (theory q H - 2)");
+}
+
+/// τ(q) (fit 0.5-3 octaves, plain rule) of variant `k` of every image's
+/// sums, merged over the images but `skip`.
+fn merged_tau<const K: usize>(
+    parts: &[[PartitionSums; K]],
+    k: usize,
+    skip: Option<usize>,
+) -> Vec<f64> {
+    let s = PartitionSums::merge_all(
+        parts
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| Some(*i) != skip)
+            .map(|(_, p)| p[k].clone()),
+    )
+    .unwrap()
+    .unwrap();
+    s.spectra(Rule::Plain, (0.5, 3.0)).unwrap().tau
+}
+
+/// τ(q) of variant `k` less that of variant 0 (the full images), paired
+/// image by image, per q with its delete-one jackknife error over the
+/// images.
+fn paired_tau_difference<const K: usize>(
+    parts: &[[PartitionSums; K]],
+    k: usize,
+) -> Vec<(f64, f64)> {
+    let d = |skip: Option<usize>| -> Vec<f64> {
+        let (a, b) = (merged_tau(parts, k, skip), merged_tau(parts, 0, skip));
+        a.iter().zip(&b).map(|(x, y)| x - y).collect()
+    };
+    let all = d(None);
+    let loo: Vec<Vec<f64>> = (0..parts.len()).map(|i| d(Some(i))).collect();
+    (0..all.len())
+        .map(|qi| {
+            let reps: Vec<f64> = loo.iter().map(|v| v[qi]).collect();
+            (all[qi], wtmm::stats::jackknife_se(&reps))
+        })
+        .collect()
 }
