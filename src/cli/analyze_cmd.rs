@@ -209,9 +209,10 @@ pub struct AnalyzeArgs {
     /// hole, its rim as the boundary) and count them as data. Without it
     /// maxima count only farther from a hole than the wavelet's support, so
     /// scattered voids leave nothing to count; filled isolated pixels kept
-    /// the tau(q) of the full images within 0.003-0.010 (fBm H 0.3-0.7, 5-15
+    /// the tau(q) of the full images within 0.003-0.012 (fBm H 0.3-0.7, 5-15
     /// % missing; the mean fill biased it by up to -0.13). A large hole
-    /// becomes a smooth patch, of high h: crop such holes instead.
+    /// becomes a smooth patch, of high h: crop such holes instead. The fill
+    /// stops at the image's borders, also on tori.
     #[arg(long)]
     pub fill_holes: bool,
     #[command(flatten)]
