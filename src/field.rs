@@ -136,9 +136,19 @@ impl Field {
     /// The number of pixels of the largest hole (4-connected masked
     /// pixels; 0 without a mask).
     pub fn largest_hole(&self) -> usize {
-        self.mask.as_ref().map_or(0, |m| {
-            hole_labels(m, false).1.into_iter().max().unwrap_or(0)
-        })
+        self.largest_hole_on(false)
+    }
+
+    /// [`Self::largest_hole`] on a torus: a hole across a border is one
+    /// with its other side (as [`Self::filled_harmonic_torus`] fills it).
+    pub fn largest_hole_torus(&self) -> usize {
+        self.largest_hole_on(true)
+    }
+
+    fn largest_hole_on(&self, wrap: bool) -> usize {
+        self.mask
+            .as_ref()
+            .map_or(0, |m| hole_labels(m, wrap).1.into_iter().max().unwrap_or(0))
     }
 
     /// True if pixel `(y, x)` is masked.
@@ -987,6 +997,10 @@ mod tests {
         println!("torus fill off by {wrapped:.2e}, plane fill by {flat:.3} (range 63)");
         assert!(wrapped < 1e-6 * 63.0, "wrapped fill off by {wrapped}");
         assert!(flat > 2.0, "the plane's fill off by only {flat}");
+        // one hole of 20 rows by 10 columns across the border, two of 5
+        // columns on a plane
+        assert_eq!(field.largest_hole_torus(), 20 * 10);
+        assert_eq!(field.largest_hole(), 20 * 5);
         // valid pixels untouched; odd sides too
         let g = Field::with_mask(f.slice(ndarray::s![..63, ..61]).to_owned(), {
             mask.slice(ndarray::s![..63, ..61]).to_owned()

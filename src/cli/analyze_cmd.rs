@@ -212,7 +212,8 @@ pub struct AnalyzeArgs {
     /// the tau(q) of the full images within 0.003-0.012 (fBm H 0.3-0.7, 5-15
     /// % missing; the mean fill biased it by up to -0.13). A large hole
     /// becomes a smooth patch, of high h: crop such holes instead. The fill
-    /// stops at the image's borders, also on tori.
+    /// stops at the image's borders, except on a torus (--margin 0), where
+    /// a hole across a border is filled from both sides.
     #[arg(long)]
     pub fill_holes: bool,
     #[command(flatten)]
@@ -441,15 +442,10 @@ pub(super) fn summary(
     out
 }
 
-/// The pixels one filled hole may hold before `--fill-holes` says that it
-/// puts a smooth patch in the data: what was measured
-/// (`experiment_filled_dropout`: 15 % of pixels missing at random, whose
-/// largest 4-connected clusters hold about 11 px); larger holes were not.
-const LARGE_FILLED_HOLE: usize = 16;
-
 /// Reads and analyses every image (in parallel over images; `nodata` as
 /// [`super::common::read_image`]; `fill`: missing pixels filled
-/// harmonically and analysed as data, `--fill-holes`); a bad or constant
+/// harmonically and analysed as data, `--fill-holes`,
+/// [`super::common::fill_holes_noted`]); a bad or constant
 /// image stops everything before any output is written.
 pub fn analyze_paths(
     paths: &[PathBuf],
@@ -468,36 +464,17 @@ pub fn analyze_paths(
         Parallelism::Serial
     };
     let notes = super::common::OrderedNotes::default();
+    // margin 0: the images are tori, and so is their fill
+    let torus = cfg.margin == Some(0);
     // the first bad image in input order is named, whatever the scheduling
     let parts = crate::par::try_map_at(paths.len(), |i| {
         let p = &paths[i];
-        let mut field = super::common::read_image_noted(p, nodata, i, &notes)?;
-        let filled = if fill { field.missing_count() } else { 0 };
-        if filled > 0 {
-            let largest = field.largest_hole();
-            notes.push(
-                i,
-                format!(
-                    "warning: {}: {filled} missing pixels filled harmonically and counted as \
-                     data (--fill-holes; the largest hole holds {largest} px{})",
-                    p.display(),
-                    if largest > LARGE_FILLED_HOLE {
-                        format!(
-                            ", more than the {LARGE_FILLED_HOLE} px of the holes measured \
-                             (scattered pixels): its fill is a smooth patch, of high h; crop it \
-                             out if you can"
-                        )
-                    } else {
-                        String::new()
-                    }
-                ),
-            );
-            field = crate::Field::new(
-                field
-                    .filled_harmonic()
-                    .map_err(|e| super::common::in_file(p, e))?,
-            );
-        }
+        let field = super::common::read_image_noted(p, nodata, i, &notes)?;
+        let (field, filled) = if fill {
+            super::common::fill_holes_noted(field, p, torus, i, &notes)?
+        } else {
+            (field, 0)
+        };
         super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
         super::common::check_image_memory(p, &field, paths.len() == 1)?;
         // fewer than 3 images: the jackknife runs over tiles

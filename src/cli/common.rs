@@ -410,6 +410,71 @@ pub fn read_image_noted(
     read_image_with(path, nodata, &mut |w| notes.push(i, w))
 }
 
+/// The pixels one filled hole may hold before `--fill-holes` says that it
+/// puts a smooth patch in the data: what was measured
+/// (`experiment_filled_dropout`: 15 % of pixels missing at random, whose
+/// largest 4-connected clusters hold about 11 px); larger holes were not.
+pub const LARGE_FILLED_HOLE: usize = 16;
+
+/// `--fill-holes` (analyze, pdf, kernel, correlate): `field` with its
+/// missing pixels filled harmonically ([`Field::filled_harmonic`]; across
+/// the borders on a `torus`, [`Field::filled_harmonic_torus`]) and the
+/// number filled, with a warning for image `i` in `notes` naming `path`,
+/// the count and the largest hole (and what a hole larger than
+/// [`LARGE_FILLED_HOLE`] does). A field without holes passes unchanged.
+///
+/// **Errors** naming the file if no pixel is valid.
+pub fn fill_holes_noted(
+    field: Field,
+    path: &Path,
+    torus: bool,
+    i: usize,
+    notes: &OrderedNotes,
+) -> Result<(Field, usize)> {
+    let filled = field.missing_count();
+    if filled == 0 {
+        return Ok((field, 0));
+    }
+    let largest = if torus {
+        field.largest_hole_torus()
+    } else {
+        field.largest_hole()
+    };
+    notes.push(
+        i,
+        format!(
+            "warning: {}: {filled} missing pixels filled harmonically{} and counted as data \
+             (--fill-holes; the largest hole holds {largest} px{})",
+            path.display(),
+            if torus {
+                " across the borders (a torus)"
+            } else {
+                ""
+            },
+            large_filled_hole_caveat(largest)
+        ),
+    );
+    let data = if torus {
+        field.filled_harmonic_torus()
+    } else {
+        field.filled_harmonic()
+    };
+    Ok((Field::new(data.map_err(|e| in_file(path, e))?), filled))
+}
+
+/// What `--fill-holes` adds to its warning when a hole holds `largest`
+/// pixels (empty up to [`LARGE_FILLED_HOLE`]).
+pub fn large_filled_hole_caveat(largest: usize) -> String {
+    if largest > LARGE_FILLED_HOLE {
+        format!(
+            ", more than the {LARGE_FILLED_HOLE} px of the holes measured (scattered pixels): \
+             its fill is a smooth patch, of high h; crop it out if you can"
+        )
+    } else {
+        String::new()
+    }
+}
+
 /// Warnings of images read in parallel, held back and said in the order
 /// of the images (not the order the threads happened to finish in), so
 /// that two runs print the same log.

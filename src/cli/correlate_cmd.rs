@@ -835,6 +835,7 @@ impl ValidationExtras {
             pixel: None,
             pixel_warnings: Vec::new(),
             nodata: None,
+            fill_holes: false,
         };
         Ok(Some(ValidationExtras {
             model: *model,

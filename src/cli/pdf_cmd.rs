@@ -84,6 +84,14 @@ pub struct StatsInput {
     pub pixel: super::PixelOpts,
     #[command(flatten)]
     pub read: super::ReadOpts,
+    /// Fill missing pixels harmonically and count them as data, as `analyze
+    /// --fill-holes` (across the borders under --domain torus). Without it
+    /// the WTMMM and the correlations leave out every point whose wavelet
+    /// reaches a missing pixel, so scattered voids leave little to count. A
+    /// large hole becomes a smooth patch, of high h: crop such holes
+    /// instead.
+    #[arg(long)]
+    pub fill_holes: bool,
 }
 
 /// A resolved input.
@@ -117,39 +125,74 @@ pub struct Input {
     pub pixel_warnings: Vec<String>,
     /// `--nodata`: a value read as missing ([`super::common::read_image`]).
     pub nodata: Option<f64>,
+    /// `--fill-holes`: missing pixels filled harmonically and counted as
+    /// data ([`super::common::fill_holes_noted`]).
+    pub fill_holes: bool,
 }
 
-/// Images with missing pixels (NaN, inf, nodata) and their pixel count,
-/// tallied while folding (shared across the rayon workers).
+/// Images with missing pixels (NaN, inf, nodata), their pixel count and
+/// largest hole, tallied while folding (shared across the rayon workers);
+/// `filled` when `--fill-holes` filled them.
 #[derive(Debug, Default)]
 pub struct HoleTally {
     images: AtomicUsize,
     pixels: AtomicUsize,
+    largest: AtomicUsize,
+    filled: bool,
 }
 
 impl HoleTally {
-    fn add(&self, field: &Field) {
+    /// An empty tally; `filled`: the holes are filled (`--fill-holes`).
+    pub fn new(filled: bool) -> Self {
+        HoleTally {
+            filled,
+            ..Default::default()
+        }
+    }
+
+    /// Tallies `field`'s holes, counted across the borders on a `torus`.
+    fn add(&self, field: &Field, torus: bool) {
         let n = field.missing_count();
         if n > 0 {
             self.images.fetch_add(1, Ordering::Relaxed);
             self.pixels.fetch_add(n, Ordering::Relaxed);
+            let largest = if torus {
+                field.largest_hole_torus()
+            } else {
+                field.largest_hole()
+            };
+            self.largest.fetch_max(largest, Ordering::Relaxed);
         }
     }
 
-    /// `{images, pixels}`: the images with missing pixels and their count
-    /// (recorded with the inputs; zeros when there were none).
+    /// `{images, pixels, largest_hole, filled}`: the images with missing
+    /// pixels, their count, the largest hole's pixels and whether they were
+    /// filled (recorded with the inputs; zeros when there were none).
     pub fn json(&self) -> serde_json::Value {
         json!({"images": self.images.load(Ordering::Relaxed),
-            "pixels": self.pixels.load(Ordering::Relaxed)})
+            "pixels": self.pixels.load(Ordering::Relaxed),
+            "largest_hole": self.largest.load(Ordering::Relaxed), "filled": self.filled})
     }
 
     /// A warning saying how many images had missing pixels, which leave out
-    /// of `what` every point the wavelet reaches from them; `None` without.
+    /// of `what` every point the wavelet reaches from them, or which were
+    /// filled and counted as data; `None` without.
     pub fn warning(&self, of: usize, what: &str) -> Option<String> {
-        let (k, n) = (
+        let (k, n, l) = (
             self.images.load(Ordering::Relaxed),
             self.pixels.load(Ordering::Relaxed),
+            self.largest.load(Ordering::Relaxed),
         );
+        if self.filled {
+            return (k > 0).then(|| {
+                format!(
+                    "{k} of the {of} image(s) have missing pixels (NaN, inf or nodata; {n} in \
+                     all): filled harmonically and counted as data (--fill-holes; the largest \
+                     hole holds {l} px{})",
+                    super::common::large_filled_hole_caveat(l)
+                )
+            });
+        }
         (k > 0).then(|| {
             format!(
                 "{k} of the {of} image(s) have missing pixels (NaN, inf or nodata; {n} in all): \
@@ -158,18 +201,19 @@ impl HoleTally {
         })
     }
 
-    /// What to add to a "too few maxima" message when images had holes.
+    /// What to add to a "too few maxima" message when images had holes
+    /// (not filled).
     pub fn note(&self, of: usize) -> Option<String> {
         let (k, n) = (
             self.images.load(Ordering::Relaxed),
             self.pixels.load(Ordering::Relaxed),
         );
-        (k > 0).then(|| {
+        (k > 0 && !self.filled).then(|| {
             format!(
                 "; {k} of the {of} image(s) have missing pixels (NaN, inf or nodata; {n} in \
                  all), and maxima count only farther from them than the wavelet's support at \
                  each scale, so scattered gaps leave few maxima at the larger scales: fill the \
-                 gaps before the analysis or crop to a gap-free region"
+                 gaps (--fill-holes) or crop to a gap-free region"
             )
         })
     }
@@ -280,11 +324,16 @@ impl StatsInput {
             ));
         }
         let nodata = self.read.value()?;
-        if self.images.is_empty() && nodata.is_some() {
-            return Err(Error::param(
-                "nodata",
-                "applies to image files, not to a generated ensemble",
-            ));
+        for (set, flag) in [
+            (nodata.is_some(), "nodata"),
+            (self.fill_holes, "fill-holes"),
+        ] {
+            if self.images.is_empty() && set {
+                return Err(Error::param(
+                    flag,
+                    "applies to image files, not to a generated ensemble",
+                ));
+            }
         }
         if !self.images.is_empty() {
             // generator options with files would be dropped without a word
@@ -391,11 +440,12 @@ impl StatsInput {
             seed,
             periodic,
             origin,
-            holes: HoleTally::default(),
+            holes: HoleTally::new(self.fill_holes),
             tally: FieldTally::default(),
             pixel,
             pixel_warnings,
             nodata,
+            fill_holes: self.fill_holes,
         })
     }
 }
@@ -451,7 +501,7 @@ impl Input {
     /// Image `i` and its label.
     pub fn load(&self, i: usize) -> Result<(Field, String)> {
         let notes = super::common::OrderedNotes::default();
-        let r = self.load_noted(i, &notes);
+        let r = self.load_noted(i, &notes, None);
         notes.say();
         r
     }
@@ -459,12 +509,18 @@ impl Input {
     /// [`Self::load`] of an image already loaded (and warned about) once:
     /// its read warnings are not said again.
     pub fn reload(&self, i: usize) -> Result<(Field, String)> {
-        self.load_noted(i, &super::common::OrderedNotes::default())
+        self.load_noted(i, &super::common::OrderedNotes::default(), None)
     }
 
     /// [`Self::load`] with the read's warnings held in `notes` (images
-    /// loaded in parallel say theirs in input order).
-    fn load_noted(&self, i: usize, notes: &super::common::OrderedNotes) -> Result<(Field, String)> {
+    /// loaded in parallel say theirs in input order), the holes tallied in
+    /// `holes` when given (before `--fill-holes` fills them).
+    fn load_noted(
+        &self,
+        i: usize,
+        notes: &super::common::OrderedNotes,
+        holes: Option<&HoleTally>,
+    ) -> Result<(Field, String)> {
         if self.generated() {
             let model = self.model.expect("generated inputs have a model");
             let img = model.synthesize(self.size, self.seed, i as u64)?;
@@ -472,6 +528,14 @@ impl Input {
         } else {
             let p = &self.images[i];
             let field = super::common::read_image_noted(p, self.nodata, i, notes)?;
+            if let Some(h) = holes {
+                h.add(&field, self.periodic);
+            }
+            let field = if self.fill_holes {
+                super::common::fill_holes_noted(field, p, self.periodic, i, notes)?.0
+            } else {
+                field
+            };
             super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
             super::common::check_image_memory(p, &field, self.images.len() == 1)?;
             Ok((field, p.display().to_string()))
@@ -501,8 +565,7 @@ impl Input {
             n,
             &init,
             |acc, i| -> Result<()> {
-                let (field, label) = self.load_noted(i, &notes)?;
-                self.holes.add(&field);
+                let (field, label) = self.load_noted(i, &notes, Some(&self.holes))?;
                 self.tally.add(&field);
                 step(acc, &field, &label, par).map_err(|e| {
                     if self.generated() {

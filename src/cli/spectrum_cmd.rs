@@ -15,6 +15,7 @@ use crate::stats::fit::mean_std;
 use crate::stats::powspec::{
     CONVENTION, Detrend, HoleFill, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range,
     default_k_range, field_power_spectrum, jackknife_beta_se, large_hole_warning,
+    largest_filled_hole,
 };
 
 #[derive(Args, Debug)]
@@ -255,7 +256,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
     for ((n, p), fl) in missing.iter().zip(&args.images).zip(&fields) {
         if *n > 0 {
             let (ny, nx) = fl.dim();
-            let share = fl.largest_hole() as f64 / (ny * nx) as f64;
+            let share = largest_filled_hole(fl, &cfg) as f64 / (ny * nx) as f64;
             warnings.push(format!(
                 "{}: {n} missing pixels filled {} before the FFT{} (README \"Spectra of images \
                  with holes\")",

@@ -335,7 +335,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                 })
                 .unwrap_or(e)
         })?;
-        let shapes = fields.iter().map(ImageInfo::of).collect();
+        let shapes = fields
+            .iter()
+            .map(|f| ImageInfo::of(f, &cfg.spectrum))
+            .collect();
         let mut res = res;
         if let Some(k) = args.surrogates {
             // the data's result stands when no model can be drawn from it
@@ -536,13 +539,14 @@ pub struct ImageInfo {
 }
 
 impl ImageInfo {
-    fn of(f: &crate::Field) -> Self {
+    /// `f`'s record, its largest hole as the spectrum of `cfg` fills it.
+    fn of(f: &crate::Field, cfg: &PowerSpectrumConfig) -> Self {
         let (ny, nx) = f.dim();
         let flat = f.flat_value();
         ImageInfo {
             shape: [ny, nx],
             missing: ny * nx - f.valid_count(),
-            largest_hole: f.largest_hole(),
+            largest_hole: crate::stats::powspec::largest_filled_hole(f, cfg),
             equal: quantised(f, flat.map(|(v, _)| v)),
             flat,
         }
@@ -624,7 +628,7 @@ pub fn accumulate_paths(
         acc.add_field(&field)
             .map_err(|e| super::common::in_file(p, e))?;
         pb.inc(1);
-        Ok((acc, ImageInfo::of(&field)))
+        Ok((acc, ImageInfo::of(&field, &cfg.spectrum)))
     });
     pb.finish_and_clear();
     notes.say_upto(parts.as_ref().err().map(|f| f.0));

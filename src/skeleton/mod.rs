@@ -441,7 +441,7 @@ impl AnalysisConfig {
                      nodata), and maxima count only farther from them than the wavelet's \
                      support at the largest scale ({clearance:.0} px at a = {a_max:.1} px), \
                      which leaves {counted} of the {interior} pixels of the counting domain; \
-                     fill scattered gaps (analyze --fill-holes), crop to a gap-free region, or \
+                     fill scattered gaps (--fill-holes), crop to a gap-free region, or \
                      use fewer --octaves"
                 )
             }

@@ -1684,8 +1684,8 @@ fn cwt_correlation_in(
                 "no valid point for the correlation: the image has {missing} missing pixels \
                  (NaN, inf or nodata), and points count only farther from them than the \
                  wavelet's support at the largest scale ({r:.0} px at a = {a_max:.1} px), \
-                 which leaves none of the {dy}x{dx} domain; fill the gaps or crop to a \
-                 gap-free region"
+                 which leaves none of the {dy}x{dx} domain; fill scattered gaps \
+                 (--fill-holes) or crop to a gap-free region"
             )));
         }
     }

@@ -477,6 +477,17 @@ pub fn field_power_spectrum(
     }
 }
 
+/// The pixels of `field`'s largest hole as [`field_power_spectrum`] fills
+/// it: across the borders without a taper (a torus), for
+/// [`large_hole_warning`].
+pub fn largest_filled_hole(field: &crate::Field, cfg: &PowerSpectrumConfig) -> usize {
+    if cfg.window == Window::None {
+        field.largest_hole_torus()
+    } else {
+        field.largest_hole()
+    }
+}
+
 /// Angle-averaged power spectrum of one image (finite values only; fill masked
 /// pixels first, or use [`field_power_spectrum`]).
 ///
