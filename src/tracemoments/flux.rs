@@ -162,12 +162,24 @@ fn mirror(f: ArrayView2<f64>) -> Array2<f64> {
 /// `periodic`, otherwise on its mirror extension to twice the size (no
 /// border jump for the periodic FFT filter), cropped.
 pub(crate) fn smooth(field: &Field, order: f64, periodic: bool) -> Result<Array2<f64>> {
-    // a torus's holes are filled across its borders too
-    let mut filled = if periodic {
-        field.filled_harmonic_torus()?
+    smooth_filled(harmonic_fill(field, periodic)?, order, periodic)
+}
+
+/// The harmonic fill [`smooth`] takes: across the borders of a torus too.
+pub(crate) fn harmonic_fill(field: &Field, periodic: bool) -> Result<Array2<f64>> {
+    if periodic {
+        field.filled_harmonic_torus()
     } else {
-        field.filled_harmonic()?
-    };
+        field.filled_harmonic()
+    }
+}
+
+/// [`smooth`] of a field already filled by [`harmonic_fill`].
+pub(crate) fn smooth_filled(
+    mut filled: Array2<f64>,
+    order: f64,
+    periodic: bool,
+) -> Result<Array2<f64>> {
     // the filter drops the mean (k = 0), so removing it first changes
     // nothing but the rounding: an offset of 1e13 on a field of unit
     // roughness moved alpha by 3e-5 through the FFT of the raw values

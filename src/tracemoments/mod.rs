@@ -216,7 +216,8 @@ use crate::error::{Error, Result};
 use crate::field::{Field, Trend};
 use crate::stats::fit::{line_fit, mean_std};
 use crate::stats::powspec::{
-    PowerSpectrum, PowerSpectrumConfig, bins_in_range, default_k_range, field_power_spectrum,
+    HoleFill, PowerSpectrum, PowerSpectrumConfig, Window, bins_in_range, default_k_range,
+    field_power_spectrum, power_spectrum,
 };
 use crate::theory::fif::UniversalK;
 
@@ -808,8 +809,12 @@ impl TraceMomentAccumulator {
         }
         let plane = FieldPlane::of(field, &self.config);
         let field = &*field.detrended(self.config.detrend)?;
-        let ps = field_power_spectrum(field, &self.config.spectrum)?;
-        let (phi, ok, diff) = self.field_flux(field)?;
+        let fill = self.shared_fill(field)?;
+        let ps = match &fill {
+            Some(f) => power_spectrum(f.view(), &self.config.spectrum)?,
+            None => field_power_spectrum(field, &self.config.spectrum)?,
+        };
+        let (phi, ok, diff) = self.field_flux(field, fill)?;
         self.accumulate_flux(&phi, &ok, None)?;
         self.diff_orders.push(diff);
         self.planes.push(plane);
@@ -821,8 +826,32 @@ impl TraceMomentAccumulator {
         Ok(())
     }
 
-    /// The flux of a field, its validity and the differentiation order used.
-    fn field_flux(&self, field: &Field) -> Result<(Array2<f64>, Array2<bool>, f64)> {
+    /// The harmonic fill of `field`'s holes when the spectrum and the flux's
+    /// fractional derivative both take the same one (a harmonic spectrum
+    /// fill, wrapped across the borders exactly when the flux is periodic:
+    /// [`field_power_spectrum`], [`flux::smooth`]), to be computed once
+    /// (on 2048^2 with 30 % missing the fill is about a tenth of `tm`);
+    /// `None` otherwise.
+    fn shared_fill(&self, field: &Field) -> Result<Option<Array2<f64>>> {
+        let s = &self.config.spectrum;
+        if field.mask.is_none()
+            || s.fill != HoleFill::Harmonic
+            || (s.window == Window::None) != self.config.periodic
+        {
+            return Ok(None);
+        }
+        field.check()?;
+        flux::harmonic_fill(field, self.config.periodic).map(Some)
+    }
+
+    /// The flux of a field, its validity and the differentiation order
+    /// used; `fill`: the field's harmonic fill when already computed
+    /// ([`Self::shared_fill`]).
+    fn field_flux(
+        &self,
+        field: &Field,
+        fill: Option<Array2<f64>>,
+    ) -> Result<(Array2<f64>, Array2<bool>, f64)> {
         let (ny, nx) = field.dim();
         if ny < MIN_SIDE || nx < MIN_SIDE {
             return Err(Error::Input(format!(
@@ -863,7 +892,10 @@ impl TraceMomentAccumulator {
         let order = self.config.frac_int.unwrap_or(0.0) - diff;
         let smoothed;
         let f = if order != 0.0 {
-            smoothed = flux::smooth(field, order, self.config.periodic)?;
+            smoothed = match fill {
+                Some(f) => flux::smooth_filled(f, order, self.config.periodic)?,
+                None => flux::smooth(field, order, self.config.periodic)?,
+            };
             smoothed.view()
         } else {
             field.data.view()
@@ -908,12 +940,21 @@ impl TraceMomentAccumulator {
         let plane = FieldPlane::of(field, config);
         let field = &*field.detrended(config.detrend)?;
         let mut whole = TraceMomentAccumulator::new(config.clone())?;
-        let (phi, ok, diff) = whole.field_flux(field)?;
+        let fill = whole.shared_fill(field)?;
+        // the spectrum of a shared fill first: the flux takes the fill
+        let shared_ps = fill
+            .as_ref()
+            .map(|f| power_spectrum(f.view(), &config.spectrum))
+            .transpose()?;
+        let (phi, ok, diff) = whole.field_flux(field, fill)?;
         whole.accumulate_flux(&phi, &ok, None)?;
         whole.diff_orders.push(diff);
         whole.planes.push(plane);
         whole.accumulate_sf(field, None);
-        whole.spectrum = Some(field_power_spectrum(field, &config.spectrum)?);
+        whole.spectrum = Some(match shared_ps {
+            Some(ps) => ps,
+            None => field_power_spectrum(field, &config.spectrum)?,
+        });
         let (ny, nx) = field.dim();
         let bounds = tile_bounds(ny, nx, tile);
         if bounds.len() < 2 {
