@@ -136,19 +136,20 @@ impl Field {
     /// The number of pixels of the largest hole (4-connected masked
     /// pixels; 0 without a mask).
     pub fn largest_hole(&self) -> usize {
-        self.largest_hole_on(false)
+        self.hole_sizes(false).into_iter().max().unwrap_or(0)
     }
 
-    /// [`Self::largest_hole`] on a torus: a hole across a border is one
-    /// with its other side (as [`Self::filled_harmonic_torus`] fills it).
-    pub fn largest_hole_torus(&self) -> usize {
-        self.largest_hole_on(true)
-    }
-
-    fn largest_hole_on(&self, wrap: bool) -> usize {
-        self.mask
-            .as_ref()
-            .map_or(0, |m| hole_labels(m, wrap).1.into_iter().max().unwrap_or(0))
+    /// The pixels of each hole (4-connected masked pixels; on a `torus` a
+    /// hole across a border is one with its other side, as
+    /// [`Self::filled_harmonic_torus`] fills it), in no particular order;
+    /// empty without a mask.
+    pub fn hole_sizes(&self, torus: bool) -> Vec<usize> {
+        self.mask.as_ref().map_or(Vec::new(), |m| {
+            let mut sizes = hole_labels(m, torus).1;
+            // label 0 is the valid pixels' (size 0)
+            sizes.remove(0);
+            sizes
+        })
     }
 
     /// True if pixel `(y, x)` is masked.
@@ -999,8 +1000,8 @@ mod tests {
         assert!(flat > 2.0, "the plane's fill off by only {flat}");
         // one hole of 20 rows by 10 columns across the border, two of 5
         // columns on a plane
-        assert_eq!(field.largest_hole_torus(), 20 * 10);
-        assert_eq!(field.largest_hole(), 20 * 5);
+        assert_eq!(field.hole_sizes(true), [20 * 10]);
+        assert_eq!(field.hole_sizes(false), [20 * 5, 20 * 5]);
         // valid pixels untouched; odd sides too
         let g = Field::with_mask(f.slice(ndarray::s![..63, ..61]).to_owned(), {
             mask.slice(ndarray::s![..63, ..61]).to_owned()

@@ -1853,7 +1853,9 @@ fn the_default_fit_of_listed_scales_is_accepted() {
 /// Whether the WTMM could analyse images with scattered missing pixels by
 /// filling them (not a check; `cargo test --release --test spectra
 /// experiment_filled_dropout -- --ignored --nocapture`, env N images
-/// (default 16) of SIZE² (384), H (0.5), DROP (0.05), SEED (91)): the
+/// (default 16) of SIZE² (384), H (0.5), DROP (0.05), SEED (91), RADIUS
+/// (0: isolated pixels; r > 0: discs of radius r px, centred at random,
+/// about DROP of the pixels in all)): the
 /// counting domain excludes everything within the wavelet's support of a
 /// hole, so 5 % of isolated missing pixels leave nothing to count; here
 /// they are filled (harmonically, and with the image mean) and analysed as
@@ -1865,38 +1867,64 @@ fn the_default_fit_of_listed_scales_is_accepted() {
 fn experiment_filled_dropout() {
     use wtmm::skeleton::skeleton;
     let env = |k: &str, d: f64| std::env::var(k).map_or(d, |s| s.parse().unwrap());
-    let (n_img, n, h, drop, seed) = (
+    let (n_img, n, h, drop, seed, radius) = (
         env("N", 16.0) as u64,
         env("SIZE", 384.0) as usize,
         env("H", 0.5),
         env("DROP", 0.05),
         env("SEED", 91.0) as u64,
+        env("RADIUS", 0.0),
     );
     let q = [-2.0, -1.0, 0.0, 1.0, 2.0, 3.0];
     let cfg = AnalysisConfig {
         octaves: 3,
         ..Default::default()
     };
-    let parts: Vec<[PartitionSums; 3]> = (0..n_img)
+    let parts: Vec<([PartitionSums; 3], (usize, usize))> = (0..n_img)
         .into_par_iter()
         .map(|i| {
             let img = fbm(FbmParams { hurst: h }, n, n, seed, i).unwrap();
-            // isolated pixels: a deterministic pseudo-random pick
-            let mask = ndarray::Array2::from_shape_fn((n, n), |(y, x)| {
+            // isolated pixels, or disc centres: a deterministic
+            // pseudo-random pick
+            let area = (std::f64::consts::PI * radius * radius).max(1.0);
+            let pick = ndarray::Array2::from_shape_fn((n, n), |(y, x)| {
                 let z = wtmm::synth::splitmix64(seed ^ (i << 40) ^ ((y * n + x) as u64));
-                ((z >> 11) as f64 / (1u64 << 53) as f64) < drop
+                ((z >> 11) as f64 / (1u64 << 53) as f64) < drop / area
             });
+            let r = radius.ceil() as isize;
+            let mut mask = pick.clone();
+            for ((y, x), _) in pick.indexed_iter().filter(|(_, p)| **p) {
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let (yy, xx) = (y as isize + dy, x as isize + dx);
+                        let inside = (0..n as isize).contains(&yy) && (0..n as isize).contains(&xx);
+                        if inside && ((dy * dy + dx * dx) as f64) <= radius * radius {
+                            mask[[yy as usize, xx as usize]] = true;
+                        }
+                    }
+                }
+            }
             let holed = Field::with_mask(img.clone(), mask).unwrap();
+            let (missing, largest) = (holed.missing_count(), holed.largest_hole());
             let harmonic = Field::new(holed.filled_harmonic().unwrap());
             let mean = Field::new(holed.filled().unwrap().into_owned());
-            [Field::new(img), harmonic, mean].map(|f| {
+            let sums = [Field::new(img), harmonic, mean].map(|f| {
                 PartitionSums::from_skeleton(&skeleton(&f, &cfg).unwrap(), &q, format!("{i}"))
-            })
+            });
+            (sums, (missing, largest))
         })
         .collect();
+    let (parts, holes): (Vec<[PartitionSums; 3]>, Vec<(usize, usize)>) = parts.into_iter().unzip();
+    let missing = holes.iter().map(|h| h.0).sum::<usize>() as f64 / (n_img as usize * n * n) as f64;
+    let largest = holes.iter().map(|h| h.1).max().unwrap_or(0);
     println!(
-        "{n_img} fBm (H = {h}) of {n}^2, {:.0} % isolated pixels missing, seed {seed}",
-        100.0 * drop
+        "{n_img} fBm (H = {h}) of {n}^2, {:.1} % missing ({}), largest hole {largest} px, seed {seed}",
+        100.0 * missing,
+        if radius > 0.0 {
+            format!("discs of radius {radius} px")
+        } else {
+            "isolated pixels".to_string()
+        }
     );
     let full = merged_tau(&parts, 0, None);
     for (k, name) in [(1, "harmonic"), (2, "mean")] {
@@ -1907,7 +1935,14 @@ fn experiment_filled_dropout() {
             .collect();
         println!("  {name:8} filled - full: {}", line.join("; "));
     }
-    println!("  full tau: {full:.4?} (theory q H - 2)");
+    // the full ensemble's own error, for scale
+    let loo: Vec<Vec<f64>> = (0..parts.len())
+        .map(|i| merged_tau(&parts, 0, Some(i)))
+        .collect();
+    let se: Vec<f64> = (0..q.len())
+        .map(|j| wtmm::stats::jackknife_se(&loo.iter().map(|t| t[j]).collect::<Vec<_>>()))
+        .collect();
+    println!("  full tau: {full:.4?} (theory q H - 2), jackknife errors {se:.4?}");
 }
 
 /// τ(q) (fit 0.5-3 octaves, plain rule) of variant `k` of every image's

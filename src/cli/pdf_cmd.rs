@@ -130,14 +130,17 @@ pub struct Input {
     pub fill_holes: bool,
 }
 
-/// Images with missing pixels (NaN, inf, nodata), their pixel count and
-/// largest hole, tallied while folding (shared across the rayon workers);
-/// `filled` when `--fill-holes` filled them.
+/// Images with missing pixels (NaN, inf, nodata) and their holes, tallied
+/// while folding (shared across the rayon workers); `filled` when
+/// `--fill-holes` filled them.
 #[derive(Debug, Default)]
 pub struct HoleTally {
     images: AtomicUsize,
     pixels: AtomicUsize,
     largest: AtomicUsize,
+    in_large: AtomicUsize,
+    /// Every image's pixels, with holes or not.
+    area: AtomicUsize,
     filled: bool,
 }
 
@@ -152,44 +155,51 @@ impl HoleTally {
 
     /// Tallies `field`'s holes, counted across the borders on a `torus`.
     fn add(&self, field: &Field, torus: bool) {
-        let n = field.missing_count();
-        if n > 0 {
+        let h = super::common::HoleSizes::of(field, torus);
+        self.area.fetch_add(h.area, Ordering::Relaxed);
+        if h.missing > 0 {
             self.images.fetch_add(1, Ordering::Relaxed);
-            self.pixels.fetch_add(n, Ordering::Relaxed);
-            let largest = if torus {
-                field.largest_hole_torus()
-            } else {
-                field.largest_hole()
-            };
-            self.largest.fetch_max(largest, Ordering::Relaxed);
+            self.pixels.fetch_add(h.missing, Ordering::Relaxed);
+            self.largest.fetch_max(h.largest, Ordering::Relaxed);
+            self.in_large.fetch_add(h.in_large, Ordering::Relaxed);
         }
     }
 
-    /// `{images, pixels, largest_hole, filled}`: the images with missing
-    /// pixels, their count, the largest hole's pixels and whether they were
-    /// filled (recorded with the inputs; zeros when there were none).
+    /// The tally as one [`super::common::HoleSizes`] of all the images.
+    fn sizes(&self) -> super::common::HoleSizes {
+        super::common::HoleSizes {
+            missing: self.pixels.load(Ordering::Relaxed),
+            largest: self.largest.load(Ordering::Relaxed),
+            in_large: self.in_large.load(Ordering::Relaxed),
+            area: self.area.load(Ordering::Relaxed),
+        }
+    }
+
+    /// `{images, pixels, largest_hole, in_large_holes, filled}`: the
+    /// images with missing pixels, their count, the largest hole's pixels,
+    /// the pixels in holes larger than
+    /// [`super::common::LARGE_FILLED_HOLE`] and whether they were filled
+    /// (recorded with the inputs; zeros when there were none).
     pub fn json(&self) -> serde_json::Value {
-        json!({"images": self.images.load(Ordering::Relaxed),
-            "pixels": self.pixels.load(Ordering::Relaxed),
-            "largest_hole": self.largest.load(Ordering::Relaxed), "filled": self.filled})
+        let h = self.sizes();
+        json!({"images": self.images.load(Ordering::Relaxed), "pixels": h.missing,
+            "largest_hole": h.largest, "in_large_holes": h.in_large, "filled": self.filled})
     }
 
     /// A warning saying how many images had missing pixels, which leave out
     /// of `what` every point the wavelet reaches from them, or which were
     /// filled and counted as data; `None` without.
     pub fn warning(&self, of: usize, what: &str) -> Option<String> {
-        let (k, n, l) = (
+        let (k, n) = (
             self.images.load(Ordering::Relaxed),
             self.pixels.load(Ordering::Relaxed),
-            self.largest.load(Ordering::Relaxed),
         );
         if self.filled {
             return (k > 0).then(|| {
                 format!(
                     "{k} of the {of} image(s) have missing pixels (NaN, inf or nodata; {n} in \
-                     all): filled harmonically and counted as data (--fill-holes; the largest \
-                     hole holds {l} px{})",
-                    super::common::large_filled_hole_caveat(l)
+                     all): filled harmonically and counted as data (--fill-holes; {})",
+                    self.sizes().describe()
                 )
             });
         }

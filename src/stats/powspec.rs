@@ -481,11 +481,8 @@ pub fn field_power_spectrum(
 /// it: across the borders without a taper (a torus), for
 /// [`large_hole_warning`].
 pub fn largest_filled_hole(field: &crate::Field, cfg: &PowerSpectrumConfig) -> usize {
-    if cfg.window == Window::None {
-        field.largest_hole_torus()
-    } else {
-        field.largest_hole()
-    }
+    let torus = cfg.window == Window::None;
+    field.hole_sizes(torus).into_iter().max().unwrap_or(0)
 }
 
 /// Angle-averaged power spectrum of one image (finite values only; fill masked
