@@ -331,29 +331,18 @@ impl Pyramid {
         out
     }
 
-    /// The box averages at level `k` for the boxes `rule` keeps (with
-    /// [`BoxWeights::Equal`] those at least half valid, with
-    /// [`BoxWeights::Count`] those with a valid pixel) and whose `(row,
-    /// column)` of boxes passes `keep`.
-    pub(crate) fn means(
+    /// The boxes of level `k` that `rule` keeps (with [`BoxWeights::Equal`]
+    /// those at least half valid, with [`BoxWeights::Count`] those with a
+    /// valid pixel), as `(index, valid pixels)` in raster order, bucketed
+    /// into `n` groups by `group` of their `(row, column)` of boxes (the
+    /// tiles of a jackknife; one group for the whole image).
+    pub(crate) fn kept_by(
         &self,
-        sums: &[f64],
         k: usize,
-        keep: impl Fn(usize, usize) -> bool,
+        group: impl Fn(usize, usize) -> usize,
         rule: BoxWeights,
-    ) -> Vec<f64> {
-        self.kept(k, keep, rule)
-            .map(|(i, c)| sums[i] / c as f64)
-            .collect()
-    }
-
-    /// The indices and valid counts of the boxes [`Self::means`] keeps.
-    fn kept<'a>(
-        &'a self,
-        k: usize,
-        keep: impl Fn(usize, usize) -> bool + 'a,
-        rule: BoxWeights,
-    ) -> impl Iterator<Item = (usize, u32)> + 'a {
+        n: usize,
+    ) -> Vec<Vec<(usize, u32)>> {
         // a box with a valid pixel has a mean; the equal rule also wants
         // half of it valid, lest one pixel weigh as a whole box
         let least = match rule {
@@ -361,54 +350,48 @@ impl Pyramid {
             BoxWeights::Equal => (1u64 << (2 * k)).div_ceil(2).max(1),
         };
         let cx = self.dims[k].1.max(1);
-        self.counts[k]
-            .iter()
-            .enumerate()
-            .filter(move |&(i, &c)| c as u64 >= least && keep(i / cx, i % cx))
-            .map(|(i, &c)| (i, c))
-    }
-
-    /// The weights of the boxes [`Self::means`] keeps, in their order,
-    /// under `rule`: `None` for [`BoxWeights::Equal`] (all 1), the share
-    /// of valid pixels `c / 4^k` for [`BoxWeights::Count`] (exact: a power
-    /// of 2 divides; whole boxes weigh 1). With their sum in valid pixels
-    /// (`Σ c`), or the number of boxes.
-    pub(crate) fn weights(
-        &self,
-        k: usize,
-        keep: impl Fn(usize, usize) -> bool,
-        rule: BoxWeights,
-    ) -> (Option<Vec<f64>>, u64) {
-        match rule {
-            BoxWeights::Equal => (None, self.kept(k, keep, rule).count() as u64),
-            BoxWeights::Count => {
-                let full = (1u64 << (2 * k)) as f64;
-                let mut total = 0u64;
-                let w = self
-                    .kept(k, keep, rule)
-                    .map(|(_, c)| {
-                        total += u64::from(c);
-                        c as f64 / full
-                    })
-                    .collect();
-                (Some(w), total)
+        let mut out = vec![Vec::new(); n];
+        for (i, &c) in self.counts[k].iter().enumerate() {
+            if c as u64 >= least {
+                out[group(i / cx, i % cx)].push((i, c));
             }
         }
+        out
     }
 
-    /// Natural logs of [`Self::means`].
-    pub(crate) fn log_means(
-        &self,
-        sums: &[f64],
-        k: usize,
-        keep: impl Fn(usize, usize) -> bool,
-        rule: BoxWeights,
-    ) -> Vec<f64> {
-        let mut m = self.means(sums, k, keep, rule);
+    /// The box averages of `boxes` ([`Self::kept_by`]) from their `sums`.
+    pub(crate) fn means_of(sums: &[f64], boxes: &[(usize, u32)]) -> Vec<f64> {
+        boxes.iter().map(|&(i, c)| sums[i] / c as f64).collect()
+    }
+
+    /// Natural logs of [`Self::means_of`].
+    pub(crate) fn log_means_of(sums: &[f64], boxes: &[(usize, u32)]) -> Vec<f64> {
+        let mut m = Self::means_of(sums, boxes);
         for v in m.iter_mut() {
             *v = v.ln();
         }
         m
+    }
+
+    /// The weights of `boxes` of level `k` ([`Self::kept_by`]), in their
+    /// order, under `rule`: `None` for [`BoxWeights::Equal`] (all 1), the
+    /// share of valid pixels `c / 4^k` for [`BoxWeights::Count`] (exact: a
+    /// power of 2 divides; whole boxes weigh 1). With their sum in valid
+    /// pixels (`Σ c`), or the number of boxes.
+    pub(crate) fn weights_of(
+        boxes: &[(usize, u32)],
+        k: usize,
+        rule: BoxWeights,
+    ) -> (Option<Vec<f64>>, u64) {
+        match rule {
+            BoxWeights::Equal => (None, boxes.len() as u64),
+            BoxWeights::Count => {
+                let full = (1u64 << (2 * k)) as f64;
+                let total = boxes.iter().map(|&(_, c)| u64::from(c)).sum();
+                let w = boxes.iter().map(|&(_, c)| c as f64 / full).collect();
+                (Some(w), total)
+            }
+        }
     }
 }
 
@@ -499,35 +482,35 @@ mod tests {
         let p = Pyramid::new(valid.view());
         assert_eq!(p.levels(), 3);
         let s = p.sums(valid.iter().map(|&v| v as u8 as f64).collect());
+        let all = |k: usize, rule: BoxWeights| p.kept_by(k, |_, _| 0, rule, 1).remove(0);
         // level 1: left boxes empty (dropped), right boxes half valid (kept)
         assert_eq!(
-            p.log_means(&s[1], 1, |_, _| true, BoxWeights::Equal).len(),
+            Pyramid::log_means_of(&s[1], &all(1, BoxWeights::Equal)).len(),
             2
         );
         // level 2: 4 of 16 valid: dropped
-        assert_eq!(
-            p.log_means(&s[2], 2, |_, _| true, BoxWeights::Equal).len(),
-            0
-        );
+        assert!(all(2, BoxWeights::Equal).is_empty());
         // count weights keep every box with a valid pixel, weighted by its
         // share of them: the 4 valid pixels weigh 4 at level 0, 2 x 2/4 at
         // level 1 and 4/16 at level 2, the same 4 pixels throughout
-        let all = |_: usize, _: usize| true;
+        let weights = |k: usize, rule: BoxWeights| Pyramid::weights_of(&all(k, rule), k, rule);
+        assert_eq!(weights(0, BoxWeights::Count), (Some(vec![1.0; 4]), 4));
+        assert_eq!(weights(1, BoxWeights::Count), (Some(vec![0.5, 0.5]), 4));
+        assert_eq!(weights(2, BoxWeights::Count), (Some(vec![0.25]), 4));
         assert_eq!(
-            p.weights(0, all, BoxWeights::Count),
-            (Some(vec![1.0; 4]), 4)
+            Pyramid::means_of(&s[2], &all(2, BoxWeights::Count)),
+            vec![1.0]
         );
-        assert_eq!(
-            p.weights(1, all, BoxWeights::Count),
-            (Some(vec![0.5, 0.5]), 4)
-        );
-        assert_eq!(p.weights(2, all, BoxWeights::Count), (Some(vec![0.25]), 4));
-        assert_eq!(p.means(&s[2], 2, all, BoxWeights::Count), vec![1.0]);
         // equal weights count the boxes they keep
-        assert_eq!(p.weights(1, all, BoxWeights::Equal), (None, 2));
-        assert_eq!(p.weights(2, all, BoxWeights::Equal), (None, 0));
-        // `keep` selects boxes by (row, column) under either rule
-        let top = |by: usize, _: usize| by == 0;
-        assert_eq!(p.weights(1, top, BoxWeights::Count), (Some(vec![0.5]), 2));
+        assert_eq!(weights(1, BoxWeights::Equal), (None, 2));
+        assert_eq!(weights(2, BoxWeights::Equal), (None, 0));
+        // `group` buckets boxes by (row, column), in raster order, under
+        // either rule
+        let rows = p.kept_by(1, |by, _| by, BoxWeights::Count, 2);
+        assert_eq!(rows, vec![vec![(1, 2)], vec![(3, 2)]]);
+        assert_eq!(
+            Pyramid::weights_of(&rows[0], 1, BoxWeights::Count),
+            (Some(vec![0.5]), 2)
+        );
     }
 }

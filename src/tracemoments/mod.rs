@@ -815,10 +815,10 @@ impl TraceMomentAccumulator {
             None => field_power_spectrum(field, &self.config.spectrum)?,
         };
         let (phi, ok, diff) = self.field_flux(field, fill)?;
-        self.accumulate_flux(&phi, &ok, None)?;
+        self.accumulate_flux(&phi, &ok)?;
         self.diff_orders.push(diff);
         self.planes.push(plane);
-        self.accumulate_sf(field, None);
+        self.accumulate_sf(field);
         match &mut self.spectrum {
             Some(s) => s.merge(&ps)?,
             None => self.spectrum = Some(ps),
@@ -947,35 +947,53 @@ impl TraceMomentAccumulator {
             .map(|f| power_spectrum(f.view(), &config.spectrum))
             .transpose()?;
         let (phi, ok, diff) = whole.field_flux(field, fill)?;
-        whole.accumulate_flux(&phi, &ok, None)?;
+        let (ny, nx) = field.dim();
+        // the tiles of tile_bounds; blocks: the largest power of two <=
+        // tile (Self::accumulate_flux_groups)
+        let grid = crate::spectra::TileGrid::new((0, ny, 0, nx), tile);
+        let kb = tile.ilog2() as usize;
+        let tile_of = |y: usize, x: usize| grid.map_or(0, |g| g.index(x as u32, y as u32));
+        let mut parts = (0..grid.map_or(0, |g| g.len()))
+            .map(|_| TraceMomentAccumulator::new(config.clone()))
+            .collect::<Result<Vec<_>>>()?;
+        // the whole and the tiles side by side: a lone image (the reason
+        // for tiles) leaves the other cores idle otherwise
+        let (done, valid) = rayon::join(
+            || -> Result<()> {
+                whole.accumulate_flux(&phi, &ok)?;
+                whole.accumulate_sf(field);
+                whole.spectrum = Some(match shared_ps {
+                    Some(ps) => ps,
+                    None => field_power_spectrum(field, &config.spectrum)?,
+                });
+                Ok(())
+            },
+            || {
+                if parts.is_empty() {
+                    return Vec::new();
+                }
+                let valid = Self::accumulate_flux_groups(&mut parts, &phi, &ok, kb, tile_of);
+                Self::accumulate_sf_groups(&mut parts, field, tile_of);
+                valid
+            },
+        );
+        done?;
         whole.diff_orders.push(diff);
         whole.planes.push(plane);
-        whole.accumulate_sf(field, None);
-        whole.spectrum = Some(match shared_ps {
-            Some(ps) => ps,
-            None => field_power_spectrum(field, &config.spectrum)?,
-        });
-        let (ny, nx) = field.dim();
-        let bounds = tile_bounds(ny, nx, tile);
-        if bounds.len() < 2 {
+        if parts.is_empty() {
             return Ok((whole.clone(), vec![whole]));
         }
-        // blocks: the largest power of two <= tile (Self::accumulate_flux)
-        let kb = tile.ilog2() as usize;
-        let mut parts = Vec::new();
-        for b in bounds {
-            let mut p = TraceMomentAccumulator::new(config.clone())?;
-            match p.accumulate_flux(&phi, &ok, Some((b, kb))) {
-                Ok(()) => {}
-                // a tile without a valid flux pixel is left out
-                Err(Error::Input(_)) => continue,
-                Err(e) => return Err(e),
-            }
+        // a tile without a valid flux pixel is left out
+        let mut parts: Vec<TraceMomentAccumulator> = parts
+            .into_iter()
+            .zip(valid)
+            .filter(|(_, n)| *n > 0)
+            .map(|(p, _)| p)
+            .collect();
+        for p in parts.iter_mut() {
             p.diff_orders.push(diff);
             p.planes.push(plane);
-            p.accumulate_sf(field, Some(b));
             p.spectrum.clone_from(&whole.spectrum);
-            parts.push(p);
         }
         Ok((whole, parts))
     }
@@ -1018,71 +1036,100 @@ impl TraceMomentAccumulator {
                 *v = 0.0;
             }
         }
-        self.accumulate_flux(&p, &ok, None)?;
+        self.accumulate_flux(&p, &ok)?;
         // no field, no plane: the entry keeps the shares one per field
         self.planes.push(FieldPlane::default());
         Ok(())
     }
 
     /// Adds the box moments of a flux over the windows of
-    /// [`flux::windows`]; with `tile = Some(((y0, y1, x0, x1), kb))` only
-    /// the boxes of the blocks (boxes of side `2^kb` of each window) whose
-    /// centre lies in rows `[y0, y1)` and columns `[x0, x1)`, boxes coarser
-    /// than a block by their own centre. The tiles of an image so share its
-    /// boxes out exactly, and a tile is the same region at every level up to
-    /// the blocks: windows anchored at other corners put their boxes across
-    /// any tile border, and a box assigned by its own corner or centre made
-    /// a leave-one-tile-out sample a slightly different region at each
-    /// level, a spurious change of slope (on 32 topo-fif fields of 400²,
-    /// tiles of 128 px: DTM α's jackknife error 1.9 times the scatter
-    /// between fields by the box centre, 24 times by its corner; 0.83 by the
-    /// block, against 0.5-0.6 on 384² and 512² where boxes never cross).
-    fn accumulate_flux(
-        &mut self,
+    /// [`flux::windows`] (every box and pixel).
+    ///
+    /// **Errors** if no flux pixel is valid (nothing is changed).
+    fn accumulate_flux(&mut self, phi: &Array2<f64>, ok: &Array2<bool>) -> Result<()> {
+        let valid = Self::accumulate_flux_groups(std::slice::from_mut(self), phi, ok, 0, |_, _| 0);
+        if valid[0] == 0 {
+            return Err(Error::Input("no valid flux pixel".into()));
+        }
+        Ok(())
+    }
+
+    /// Adds the box moments of a flux over the windows of
+    /// [`flux::windows`] to `accs`, box by box: a box goes to
+    /// `accs[group(y, x)]`, `(y, x)` the centre of its block in the image
+    /// (the block of side `2^max(k, kb)` holding a box of side `2^k`:
+    /// boxes coarser than a block by their own centre; for the tiles of
+    /// [`Self::field_tiles`] blocks of side `2^kb`, `group` the tile). The tiles of an image so
+    /// share its boxes out exactly, and a tile is the same region at every
+    /// level up to the blocks: windows anchored at other corners put their
+    /// boxes across any tile border, and a box assigned by its own corner
+    /// or centre made a leave-one-tile-out sample a slightly different
+    /// region at each level, a spurious change of slope (on 32 topo-fif
+    /// fields of 400², tiles of 128 px: DTM α's jackknife error 1.9 times
+    /// the scatter between fields by the box centre, 24 times by its
+    /// corner; 0.83 by the block, against 0.5-0.6 on 384² and 512² where
+    /// boxes never cross).
+    ///
+    /// One pass for all groups: the box sums, and the powers of φ the
+    /// double trace moments take, are the image's whatever the group, so
+    /// they are computed once, and each group's boxes (in raster order, as
+    /// one accumulator per tile would visit them: the same sums to the
+    /// bit) are gathered from them. One accumulator per tile, each over
+    /// the whole image, took 17 times the work for 16 tiles.
+    ///
+    /// Returns the valid flux pixels of each group; a group without one is
+    /// left unchanged.
+    fn accumulate_flux_groups(
+        accs: &mut [TraceMomentAccumulator],
         phi: &Array2<f64>,
         ok: &Array2<bool>,
-        tile: Option<((usize, usize, usize, usize), usize)>,
-    ) -> Result<()> {
+        kb: usize,
+        group: impl Fn(usize, usize) -> usize,
+    ) -> Vec<u64> {
         let (ny, nx) = phi.dim();
-        // box (by, bx) of side 2^k of the window at (y0, x0) belongs to the
-        // tile that holds the centre of its block (the box of side 2^kb
-        // around it; the box itself when coarser)
-        let member = |y0: usize, x0: usize, k: usize, by: usize, bx: usize| {
-            tile.is_none_or(|((ty0, ty1, tx0, tx1), kb)| {
-                let kk = k.max(kb);
-                let half = (1usize << kk) / 2;
-                let y = y0 + ((by >> (kk - k)) << kk) + half;
-                let x = x0 + ((bx >> (kk - k)) << kk) + half;
-                (ty0..ty1).contains(&y) && (tx0..tx1).contains(&x)
-            })
+        let ng = accs.len();
+        // the block centre of box (by, bx) of side 2^k in the window at
+        // (y0, x0)
+        let centre = |y0: usize, x0: usize, k: usize, by: usize, bx: usize| {
+            let kk = k.max(kb);
+            let half = (1usize << kk) / 2;
+            let y = y0 + ((by >> (kk - k)) << kk) + half;
+            let x = x0 + ((bx >> (kk - k)) << kk) + half;
+            group(y, x)
         };
         let wins = flux::windows(ny, nx);
         // valid flux pixels, once per window that holds them: the weights
         // the finest boxes give them, hence the mean that normalises φ
-        let mut valid = 0u64;
+        let mut valid = vec![0u64; ng];
         for &(y0, x0, wy, wx) in &wins {
             for y in y0..y0 + wy {
                 for x in x0..x0 + wx {
-                    valid += u64::from(ok[[y, x]] && member(y0, x0, 0, y - y0, x - x0));
+                    if ok[[y, x]] {
+                        valid[centre(y0, x0, 0, y - y0, x - x0)] += 1;
+                    }
                 }
             }
         }
-        // refused before anything is changed
-        if valid == 0 {
-            return Err(Error::Input("no valid flux pixel".into()));
+        let live: Vec<bool> = valid.iter().map(|&v| v > 0).collect();
+        if !live.contains(&true) {
+            return valid;
         }
+        let cfg = accs[0].config.clone();
+        let rule = cfg.box_weights;
         for &(y0, x0, wy, wx) in &wins {
             let okw = ok.slice(ndarray::s![y0..y0 + wy, x0..x0 + wx]);
             let pyr = flux::Pyramid::new(okw);
             let nl = pyr.levels();
-            if self.box_count.len() < nl {
-                self.box_count.resize(nl, 0);
-                for v in self.tm.iter_mut() {
-                    v.resize(nl, LogSum::default());
-                }
-                for e in self.dtm.iter_mut() {
-                    for v in e.iter_mut() {
+            for (acc, _) in accs.iter_mut().zip(&live).filter(|(_, l)| **l) {
+                if acc.box_count.len() < nl {
+                    acc.box_count.resize(nl, 0);
+                    for v in acc.tm.iter_mut() {
                         v.resize(nl, LogSum::default());
+                    }
+                    for e in acc.dtm.iter_mut() {
+                        for v in e.iter_mut() {
+                            v.resize(nl, LogSum::default());
+                        }
                     }
                 }
             }
@@ -1092,30 +1139,45 @@ impl TraceMomentAccumulator {
                 .zip(okw.iter())
                 .map(|(v, &o)| if o { *v } else { 0.0 })
                 .collect();
-            let keep = |k: usize| move |by: usize, bx: usize| member(y0, x0, k, by, bx);
-            // plain trace moments (η = 1)
-            let rule = self.config.box_weights;
-            let weights: Vec<Option<Vec<f64>>> = (0..nl)
-                .map(|k| {
-                    let (w, total) = pyr.weights(k, keep(k), rule);
-                    self.box_count[k] += total;
-                    w
+            // each level's boxes, group by group, and their weights
+            let kept: Vec<Vec<Vec<(usize, u32)>>> = (0..nl)
+                .map(|k| pyr.kept_by(k, |by, bx| centre(y0, x0, k, by, bx), rule, ng))
+                .collect();
+            let weights: Vec<Vec<Option<Vec<f64>>>> = kept
+                .iter()
+                .enumerate()
+                .map(|(k, groups)| {
+                    groups
+                        .iter()
+                        .zip(accs.iter_mut())
+                        .zip(&live)
+                        .map(|((boxes, acc), &l)| {
+                            let (w, total) = flux::Pyramid::weights_of(boxes, k, rule);
+                            if l {
+                                acc.box_count[k] += total;
+                            }
+                            w
+                        })
+                        .collect()
                 })
                 .collect();
+            // plain trace moments (η = 1)
             let sums = pyr.sums(base.clone());
             for (k, sk) in sums.iter().enumerate() {
-                let logs = pyr.log_means(sk, k, keep(k), rule);
-                let lmax = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                if k == 0 {
-                    // pixels: every weight is 1
-                    self.phi_sum.add_powers(&logs, lmax, 1.0);
-                }
-                let w = weights[k].as_deref();
-                for (iq, (m, s)) in weighted_power_sums(&logs, w, lmax, &self.config.q)
-                    .into_iter()
-                    .enumerate()
-                {
-                    self.tm[iq][k].add(m, s);
+                for (g, acc) in accs.iter_mut().enumerate().filter(|(g, _)| live[*g]) {
+                    let logs = flux::Pyramid::log_means_of(sk, &kept[k][g]);
+                    let lmax = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                    if k == 0 {
+                        // pixels: every weight is 1
+                        acc.phi_sum.add_powers(&logs, lmax, 1.0);
+                    }
+                    let w = weights[k][g].as_deref();
+                    for (iq, (m, s)) in weighted_power_sums(&logs, w, lmax, &cfg.q)
+                        .into_iter()
+                        .enumerate()
+                    {
+                        acc.tm[iq][k].add(m, s);
+                    }
                 }
             }
             // double trace moments. Where the box sums of φ^η could
@@ -1144,79 +1206,111 @@ impl TraceMomentAccumulator {
                 })
                 .collect();
             let ln_max = p_max.ln();
-            for (ie, &eta) in self.config.eta.iter().enumerate() {
-                let top = p_max.powf(eta);
-                let scaled = p_max > 0.0 && !(top >= 1e-280 && top * n_px <= 1e280);
-                // φ^η itself, or (φ / max φ)^η where φ^η could overflow
-                let offset = if scaled { 0.0 } else { eta * ln_max };
-                let v: Vec<f64> = ln_rel.iter().map(|&l| (eta * l + offset).exp()).collect();
-                let shift = if scaled { eta * ln_max } else { 0.0 };
-                let sums = pyr.sums(v);
-                // the box means as values, not logs: for the orders of
-                // the DTM (1.5 by default) no ln or exp per box is left
-                // (power_sums_of_values); the logs shift by `shift`
-                for (k, sk) in sums.iter().enumerate() {
-                    let means = pyr.means(sk, k, keep(k), rule);
-                    if k == 0 {
-                        let (m, s) = power_sums_of_values(&means, &[1.0])[0];
-                        self.eta_sum[ie].add(m + shift, s);
+            // one η per task: each η's terms are computed alone and added
+            // below in η order, so the sums are the same to the bit
+            // whatever the thread count (a lone 2048^2 image: 7.8 -> s on
+            // 2 cores)
+            type Terms = Vec<(usize, usize, Option<(f64, f64)>, Vec<(f64, f64)>)>;
+            let terms: Vec<Terms> = cfg
+                .eta
+                .par_iter()
+                .map(|&eta| {
+                    let top = p_max.powf(eta);
+                    let scaled = p_max > 0.0 && !(top >= 1e-280 && top * n_px <= 1e280);
+                    // φ^η itself, or (φ / max φ)^η where φ^η could overflow
+                    let offset = if scaled { 0.0 } else { eta * ln_max };
+                    let v: Vec<f64> = ln_rel.iter().map(|&l| (eta * l + offset).exp()).collect();
+                    let shift = if scaled { eta * ln_max } else { 0.0 };
+                    let sums = pyr.sums(v);
+                    // the box means as values, not logs: for the orders of
+                    // the DTM (1.5 by default) no ln or exp per box is left
+                    // (power_sums_of_values); the logs shift by `shift`
+                    let mut out = Terms::new();
+                    for (k, sk) in sums.iter().enumerate() {
+                        for g in (0..ng).filter(|&g| live[g]) {
+                            let means = flux::Pyramid::means_of(sk, &kept[k][g]);
+                            let pixels = (k == 0).then(|| {
+                                let (m, s) = power_sums_of_values(&means, &[1.0])[0];
+                                (m + shift, s)
+                            });
+                            let w = weights[k][g].as_deref();
+                            let dtm = weighted_power_sums_of_values(&means, w, &cfg.dtm_q)
+                                .into_iter()
+                                .zip(&cfg.dtm_q)
+                                .map(|((m, s), &q)| (m + q * shift, s))
+                                .collect();
+                            out.push((k, g, pixels, dtm));
+                        }
                     }
-                    let w = weights[k].as_deref();
-                    for (iq, ((m, s), &q)) in
-                        weighted_power_sums_of_values(&means, w, &self.config.dtm_q)
-                            .into_iter()
-                            .zip(&self.config.dtm_q)
-                            .enumerate()
-                    {
-                        self.dtm[ie][iq][k].add(m + q * shift, s);
+                    out
+                })
+                .collect();
+            for (ie, t) in terms.into_iter().enumerate() {
+                for (k, g, pixels, dtm) in t {
+                    if let Some((m, s)) = pixels {
+                        accs[g].eta_sum[ie].add(m, s);
+                    }
+                    for (iq, (m, s)) in dtm.into_iter().enumerate() {
+                        accs[g].dtm[ie][iq][k].add(m, s);
                     }
                 }
             }
         }
-        self.n_valid += valid;
-        self.images += 1;
-        self.max_side = self.max_side.max(ny.min(nx));
-        Ok(())
+        for (acc, &n) in accs.iter_mut().zip(&valid).filter(|(_, n)| **n > 0) {
+            acc.n_valid += n;
+            acc.images += 1;
+            acc.max_side = acc.max_side.max(ny.min(nx));
+        }
+        valid
     }
 
-    /// Structure-function sums of `field`; with `tile = Some((y0, y1, x0,
-    /// x1))` only the increments whose midpoint (rounded down) lies in rows
-    /// `[y0, y1)` and columns `[x0, x1)`.
-    fn accumulate_sf(&mut self, field: &Field, tile: Option<(usize, usize, usize, usize)>) {
+    /// Structure-function sums of `field`.
+    fn accumulate_sf(&mut self, field: &Field) {
+        Self::accumulate_sf_groups(std::slice::from_mut(self), field, |_, _| 0);
+    }
+
+    /// Structure-function sums of `field` into `accs`: an increment goes to
+    /// `accs[group(y, x)]`, `(y, x)` its midpoint (rounded down); in raster
+    /// order within each group, as one pass per group would take them.
+    fn accumulate_sf_groups(
+        accs: &mut [TraceMomentAccumulator],
+        field: &Field,
+        group: impl Fn(usize, usize) -> usize,
+    ) {
         let (ny, nx) = field.dim();
         let f = &field.data;
         let ok = |y: usize, x: usize| !field.is_masked(y, x);
-        let in_tile = |y: usize, x: usize| {
-            tile.is_none_or(|(y0, y1, x0, x1)| (y0..y1).contains(&y) && (x0..x1).contains(&x))
-        };
+        let sf_q = accs[0].config.sf_q.clone();
         for j in 0..sf_lags(ny.min(nx)) {
             let l = 1usize << j;
-            let mut incs = Vec::with_capacity(2 * ny * nx);
+            let mut incs: Vec<Vec<f64>> = vec![Vec::new(); accs.len()];
+            if let [one] = incs.as_mut_slice() {
+                one.reserve(2 * ny * nx);
+            }
             for y in 0..ny {
                 for x in 0..nx {
                     if !ok(y, x) {
                         continue;
                     }
-                    if x + l < nx && ok(y, x + l) && in_tile(y, x + l / 2) {
-                        incs.push((f[[y, x + l]] - f[[y, x]]).abs());
+                    if x + l < nx && ok(y, x + l) {
+                        incs[group(y, x + l / 2)].push((f[[y, x + l]] - f[[y, x]]).abs());
                     }
-                    if y + l < ny && ok(y + l, x) && in_tile(y + l / 2, x) {
-                        incs.push((f[[y + l, x]] - f[[y, x]]).abs());
+                    if y + l < ny && ok(y + l, x) {
+                        incs[group(y + l / 2, x)].push((f[[y + l, x]] - f[[y, x]]).abs());
                     }
                 }
             }
-            if self.sf_count.len() <= j {
-                self.sf_count.resize(j + 1, 0);
-                for v in self.sf.iter_mut() {
-                    v.resize(j + 1, LogSum::default());
+            for (acc, incs) in accs.iter_mut().zip(&incs) {
+                if acc.sf_count.len() <= j {
+                    acc.sf_count.resize(j + 1, 0);
+                    for v in acc.sf.iter_mut() {
+                        v.resize(j + 1, LogSum::default());
+                    }
                 }
-            }
-            self.sf_count[j] += incs.len() as u64;
-            for (iq, (m, s)) in power_sums_of_values(&incs, &self.config.sf_q)
-                .into_iter()
-                .enumerate()
-            {
-                self.sf[iq][j].add(m, s);
+                acc.sf_count[j] += incs.len() as u64;
+                for (iq, (m, s)) in power_sums_of_values(incs, &sf_q).into_iter().enumerate() {
+                    acc.sf[iq][j].add(m, s);
+                }
             }
         }
     }
