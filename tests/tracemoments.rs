@@ -1132,6 +1132,32 @@ fn tiles_reproduce_the_whole_field() {
     assert_brute_jackknife(&r, &brute_jackknife(&whole, &tiles, &fc));
 }
 
+/// Tiles larger than the image's largest box (two images of different
+/// sizes share one tile side in `tm`): a 200 x 1000 field's boxes of 128
+/// px, in windows anchored at its corners, go to 256 px tiles by the
+/// centre of their 256 px block, which for the bottom windows lies on the
+/// image's last row + 1; such boxes go to the nearest tile, so the tiles
+/// still share out every box and pixel. Until 2026-11-29 they went to none,
+/// and the merged tiles missed them.
+#[test]
+fn tiles_larger_than_the_boxes_keep_every_box() {
+    let f = Field::new(fif(&FifParams::TOPO, 200, 1000, 5, 0).unwrap());
+    let cfg = TraceMomentConfig::default();
+    let (whole, tiles) = TraceMomentAccumulator::field_tiles(&cfg, &f, 256).unwrap();
+    assert!(tiles.len() >= 2, "{} tiles", tiles.len());
+    let mut merged = TraceMomentAccumulator::new(cfg).unwrap();
+    for t in &tiles {
+        merged.merge(t).unwrap();
+    }
+    assert_eq!(merged.n_valid, whole.n_valid);
+    assert_eq!(merged.box_count, whole.box_count);
+    let fc = TraceMomentFitConfig::default();
+    let (rm, rw) = (merged.finish(&fc).unwrap(), whole.finish(&fc).unwrap());
+    for (a, b) in rm.k.iter().zip(&rw.k) {
+        assert!((a - b).abs() < 1e-10, "{a} vs {b}");
+    }
+}
+
 /// The tiles of one image share its spectrum, so β has no scatter over
 /// them (a 1e-15 rounding scatter was reported once) and keeps its fit
 /// error, and `H = (β - 1 + K(2))/2` carries half of it on top of the

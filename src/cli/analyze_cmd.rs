@@ -212,8 +212,8 @@ pub struct AnalyzeArgs {
     /// of scattered pixels or small holes (up to 13 px) missing, the filled
     /// images kept the tau(q) of the full ones within 0.014 for q >= -1
     /// (the mean fill biased it by up to -0.13), with 30 % within 0.028.
-    /// Larger holes become smooth patches, of high h, and raise tau(3) by a
-    /// fifth to a half of the share they cover: crop them instead. The fill
+    /// Larger holes become smooth patches, of high h, and raise tau(3) by
+    /// 0.2-0.55 times the share they cover: crop them instead. The fill
     /// stops at the image's borders, except on a torus (--margin 0), where
     /// a hole across a border is filled from both sides.
     #[arg(long)]

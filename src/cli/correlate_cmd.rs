@@ -331,8 +331,7 @@ pub fn run(args: CorrelateArgs, quiet: bool) -> Result<Outcome> {
     let side = if input.generated() {
         input.size as f64
     } else {
-        let (f0, _) = input.reload(0)?;
-        let (ny, nx) = f0.dim();
+        let (ny, nx) = input.dims(0)?;
         ny.min(nx) as f64
     };
     let l = args.integral_scale.unwrap_or(side);

@@ -142,20 +142,25 @@ pub struct HoleTally {
     /// Every image's pixels, with holes or not.
     area: AtomicUsize,
     filled: bool,
+    /// The holes are counted, and filled, across the borders.
+    torus: bool,
 }
 
 impl HoleTally {
-    /// An empty tally; `filled`: the holes are filled (`--fill-holes`).
-    pub fn new(filled: bool) -> Self {
+    /// An empty tally; `filled`: the holes are filled (`--fill-holes`);
+    /// `torus`: the images are tori, and their holes are counted (and
+    /// filled) across the borders.
+    pub fn new(filled: bool, torus: bool) -> Self {
         HoleTally {
             filled,
+            torus,
             ..Default::default()
         }
     }
 
-    /// Tallies `field`'s holes, counted across the borders on a `torus`.
-    fn add(&self, field: &Field, torus: bool) {
-        let h = super::common::HoleSizes::of(field, torus);
+    /// Tallies `field`'s holes.
+    fn add(&self, field: &Field) {
+        let h = super::common::HoleSizes::of(field, self.torus);
         self.area.fetch_add(h.area, Ordering::Relaxed);
         if h.missing > 0 {
             self.images.fetch_add(1, Ordering::Relaxed);
@@ -198,7 +203,12 @@ impl HoleTally {
             return (k > 0).then(|| {
                 format!(
                     "{k} of the {of} image(s) have missing pixels (NaN, inf or nodata; {n} in \
-                     all): filled harmonically and counted as data (--fill-holes; {})",
+                     all): filled harmonically{} and counted as data (--fill-holes; {})",
+                    if self.torus {
+                        " across the borders (tori)"
+                    } else {
+                        ""
+                    },
                     self.sizes().describe()
                 )
             });
@@ -450,7 +460,7 @@ impl StatsInput {
             seed,
             periodic,
             origin,
-            holes: HoleTally::new(self.fill_holes),
+            holes: HoleTally::new(self.fill_holes, periodic),
             tally: FieldTally::default(),
             pixel,
             pixel_warnings,
@@ -522,6 +532,16 @@ impl Input {
         self.load_noted(i, &super::common::OrderedNotes::default(), None)
     }
 
+    /// Image `i`'s `(ny, nx)`, read without its warnings and without
+    /// `--fill-holes`' fill.
+    pub fn dims(&self, i: usize) -> Result<(usize, usize)> {
+        if self.generated() {
+            return Ok((self.size, self.size));
+        }
+        let notes = super::common::OrderedNotes::default();
+        Ok(super::common::read_image_noted(&self.images[i], self.nodata, i, &notes)?.dim())
+    }
+
     /// [`Self::load`] with the read's warnings held in `notes` (images
     /// loaded in parallel say theirs in input order), the holes tallied in
     /// `holes` when given (before `--fill-holes` fills them).
@@ -539,7 +559,7 @@ impl Input {
             let p = &self.images[i];
             let field = super::common::read_image_noted(p, self.nodata, i, notes)?;
             if let Some(h) = holes {
-                h.add(&field, self.periodic);
+                h.add(&field);
             }
             let field = if self.fill_holes {
                 super::common::fill_holes_noted(field, p, self.periodic, i, notes)?.0

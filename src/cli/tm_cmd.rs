@@ -485,8 +485,10 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
 
 /// Peak memory of one surrogate draw in flight, per pixel of the data: the
 /// FIF generation and the trace moments of its tiles (peak RSS of `tm` on
-/// 1024^2: +56 MB with surrogates on one thread, +197 MB on two).
-const SURROGATE_BYTES_PER_PIXEL: f64 = 100.0;
+/// 1024^2 with 8 surrogates: +169 MB on one thread, +414 MB on two; 2026-11-29,
+/// since the tiles are accumulated in one pass, which holds every tile's
+/// boxes at once, and beside the whole image: +56 and +197 MB before).
+const SURROGATE_BYTES_PER_PIXEL: f64 = 200.0;
 
 /// [`surrogate_errors_with_progress`] with a progress bar, on as many
 /// threads as the available memory holds draws (the same bytes on any

@@ -834,7 +834,11 @@ impl TraceMomentAccumulator {
     /// `None` otherwise.
     fn shared_fill(&self, field: &Field) -> Result<Option<Array2<f64>>> {
         let s = &self.config.spectrum;
-        if field.mask.is_none()
+        let (ny, nx) = field.dim();
+        // too small: field_flux says so, before any fill
+        if ny < MIN_SIDE
+            || nx < MIN_SIDE
+            || field.mask.is_none()
             || s.fill != HoleFill::Harmonic
             || (s.window == Window::None) != self.config.periodic
         {
@@ -912,8 +916,10 @@ impl TraceMomentAccumulator {
     /// Tile `t` keeps, in every window of the box pyramid, the blocks (boxes
     /// of side `2^floor(log2 tile)`, the largest fitted box in the CLI) whose
     /// centre lies in it, with every finer box inside them, coarser boxes by
-    /// their own centre; and the increments whose midpoint lies in it. The
-    /// flux is
+    /// their own centre; and the increments whose midpoint lies in it. A
+    /// block larger than the window (a tile larger than the image's largest
+    /// box) can have its centre just past the image's edge: it goes to the
+    /// nearest tile ([`crate::spectra::TileGrid::index`]). The flux is
     /// computed once on the whole field, so the tiles' box sums add up
     /// exactly to the whole image's at every level. Each tile carries the
     /// whole field's spectrum (β is not jackknifed). Tiles with no valid
@@ -1206,45 +1212,49 @@ impl TraceMomentAccumulator {
                 })
                 .collect();
             let ln_max = p_max.ln();
-            // one η per task: each η's terms are computed alone and added
-            // below in η order, so the sums are the same to the bit
-            // whatever the thread count (a lone 2048^2 image: 7.8 -> 6.3 s on
-            // 2 cores)
+            // the η in two halves side by side: each η's terms are computed
+            // alone and added below in η order, so the sums are the same to
+            // the bit whatever the thread count (a lone 2048^2 image: 7.8 ->
+            // 6.3 s on 2 cores). Two, not one task per η: each holds its
+            // own powers and box sums (19 B/px), and 16 at once took 1.7 GB
+            // at 2048^2 on 16 threads
             type Terms = Vec<(usize, usize, Option<(f64, f64)>, Vec<(f64, f64)>)>;
-            let terms: Vec<Terms> = cfg
-                .eta
-                .par_iter()
-                .map(|&eta| {
-                    let top = p_max.powf(eta);
-                    let scaled = p_max > 0.0 && !(top >= 1e-280 && top * n_px <= 1e280);
-                    // φ^η itself, or (φ / max φ)^η where φ^η could overflow
-                    let offset = if scaled { 0.0 } else { eta * ln_max };
-                    let v: Vec<f64> = ln_rel.iter().map(|&l| (eta * l + offset).exp()).collect();
-                    let shift = if scaled { eta * ln_max } else { 0.0 };
-                    let sums = pyr.sums(v);
-                    // the box means as values, not logs: for the orders of
-                    // the DTM (1.5 by default) no ln or exp per box is left
-                    // (power_sums_of_values); the logs shift by `shift`
-                    let mut out = Terms::new();
-                    for (k, sk) in sums.iter().enumerate() {
-                        for g in (0..ng).filter(|&g| live[g]) {
-                            let means = flux::Pyramid::means_of(sk, &kept[k][g]);
-                            let pixels = (k == 0).then(|| {
-                                let (m, s) = power_sums_of_values(&means, &[1.0])[0];
-                                (m + shift, s)
-                            });
-                            let w = weights[k][g].as_deref();
-                            let dtm = weighted_power_sums_of_values(&means, w, &cfg.dtm_q)
-                                .into_iter()
-                                .zip(&cfg.dtm_q)
-                                .map(|((m, s), &q)| (m + q * shift, s))
-                                .collect();
-                            out.push((k, g, pixels, dtm));
-                        }
+            let one_eta = |&eta: &f64| {
+                let top = p_max.powf(eta);
+                let scaled = p_max > 0.0 && !(top >= 1e-280 && top * n_px <= 1e280);
+                // φ^η itself, or (φ / max φ)^η where φ^η could overflow
+                let offset = if scaled { 0.0 } else { eta * ln_max };
+                let v: Vec<f64> = ln_rel.iter().map(|&l| (eta * l + offset).exp()).collect();
+                let shift = if scaled { eta * ln_max } else { 0.0 };
+                let sums = pyr.sums(v);
+                // the box means as values, not logs: for the orders of
+                // the DTM (1.5 by default) no ln or exp per box is left
+                // (power_sums_of_values); the logs shift by `shift`
+                let mut out = Terms::new();
+                for (k, sk) in sums.iter().enumerate() {
+                    for g in (0..ng).filter(|&g| live[g]) {
+                        let means = flux::Pyramid::means_of(sk, &kept[k][g]);
+                        let pixels = (k == 0).then(|| {
+                            let (m, s) = power_sums_of_values(&means, &[1.0])[0];
+                            (m + shift, s)
+                        });
+                        let w = weights[k][g].as_deref();
+                        let dtm = weighted_power_sums_of_values(&means, w, &cfg.dtm_q)
+                            .into_iter()
+                            .zip(&cfg.dtm_q)
+                            .map(|((m, s), &q)| (m + q * shift, s))
+                            .collect();
+                        out.push((k, g, pixels, dtm));
                     }
-                    out
-                })
-                .collect();
+                }
+                out
+            };
+            let half = cfg.eta.len().div_ceil(2);
+            let (lo, hi) = rayon::join(
+                || cfg.eta[..half].iter().map(one_eta).collect::<Vec<Terms>>(),
+                || cfg.eta[half..].iter().map(one_eta).collect::<Vec<Terms>>(),
+            );
+            let terms = lo.into_iter().chain(hi);
             for (ie, t) in terms.into_iter().enumerate() {
                 for (k, g, pixels, dtm) in t {
                     if let Some((m, s)) = pixels {
