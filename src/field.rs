@@ -197,7 +197,11 @@ impl Field {
         self.filled_harmonic_on(true)
     }
 
-    fn filled_harmonic_on(&self, wrap: bool) -> Result<Array2<f64>> {
+    /// [`Self::filled_harmonic_torus`] on a `torus`, else
+    /// [`Self::filled_harmonic`].
+    ///
+    /// **Errors** if no pixel is valid.
+    pub fn filled_harmonic_on(&self, torus: bool) -> Result<Array2<f64>> {
         let Some(mask) = &self.mask else {
             return Ok(self.data.clone());
         };
@@ -211,7 +215,7 @@ impl Field {
             .map(|(lo, hi)| hi - lo)
             .filter(|s| *s > 0.0)
             .unwrap_or(1.0);
-        Ok(harmonic_fill(&self.data, mask, 1e-9 * span, wrap))
+        Ok(harmonic_fill(&self.data, mask, 1e-9 * span, torus))
     }
 
     /// The values with masked pixels replaced by the mean of the valid ones,

@@ -521,15 +521,10 @@ pub fn fill_holes_noted(
             holes.describe()
         ),
     );
-    let data = if torus {
-        field.filled_harmonic_torus()
-    } else {
-        field.filled_harmonic()
-    };
-    Ok((
-        Field::new(data.map_err(|e| in_file(path, e))?),
-        holes.missing,
-    ))
+    let data = field
+        .filled_harmonic_on(torus)
+        .map_err(|e| in_file(path, e))?;
+    Ok((Field::new(data), holes.missing))
 }
 
 /// Warnings of images read in parallel, held back and said in the order

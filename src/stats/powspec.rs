@@ -469,10 +469,10 @@ pub fn field_power_spectrum(
     field.check()?;
     match (cfg.fill, field.mask.is_some()) {
         // an untapered FFT takes the field for a torus: so does the fill
-        (HoleFill::Harmonic, true) if cfg.window == Window::None => {
-            power_spectrum(field.filled_harmonic_torus()?.view(), cfg)
+        (HoleFill::Harmonic, true) => {
+            let torus = cfg.window == Window::None;
+            power_spectrum(field.filled_harmonic_on(torus)?.view(), cfg)
         }
-        (HoleFill::Harmonic, true) => power_spectrum(field.filled_harmonic()?.view(), cfg),
         _ => power_spectrum(field.filled()?.view(), cfg),
     }
 }

@@ -162,19 +162,12 @@ fn mirror(f: ArrayView2<f64>) -> Array2<f64> {
 /// `periodic`, otherwise on its mirror extension to twice the size (no
 /// border jump for the periodic FFT filter), cropped.
 pub(crate) fn smooth(field: &Field, order: f64, periodic: bool) -> Result<Array2<f64>> {
-    smooth_filled(harmonic_fill(field, periodic)?, order, periodic)
+    // a torus's holes are filled across its borders too
+    smooth_filled(field.filled_harmonic_on(periodic)?, order, periodic)
 }
 
-/// The harmonic fill [`smooth`] takes: across the borders of a torus too.
-pub(crate) fn harmonic_fill(field: &Field, periodic: bool) -> Result<Array2<f64>> {
-    if periodic {
-        field.filled_harmonic_torus()
-    } else {
-        field.filled_harmonic()
-    }
-}
-
-/// [`smooth`] of a field already filled by [`harmonic_fill`].
+/// [`smooth`] of a field already filled ([`Field::filled_harmonic_on`]
+/// with the same `periodic`).
 pub(crate) fn smooth_filled(
     mut filled: Array2<f64>,
     order: f64,
