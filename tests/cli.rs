@@ -4796,6 +4796,47 @@ fn validate_refuses_a_size_beyond_the_memory() {
     }
 }
 
+/// `tm` on one image too large for the memory (its tiles' path needs
+/// about 143 B/px: 38 GB at 16384^2) refuses it from the file's header,
+/// before reading it: the file here is a .npy header of 16384 x 16384
+/// doubles with no data after it, whose read would fail otherwise. Run
+/// only where 40 GB are not available.
+#[test]
+fn tm_refuses_an_image_beyond_the_memory() {
+    let avail_gb = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|s| {
+            let line = s
+                .lines()
+                .find(|l| l.starts_with("MemAvailable:"))?
+                .to_string();
+            line.split_whitespace().nth(1)?.parse::<f64>().ok()
+        })
+        .map(|kb| kb * 1024.0 / 1e9);
+    let Some(avail_gb) = avail_gb.filter(|&g| g < 40.0) else {
+        return;
+    };
+    let dir = scratch("tm_memory");
+    let path = dir.join("huge.npy");
+    let dict = "{'descr': '<f8', 'fortran_order': False, 'shape': (16384, 16384), }";
+    // magic, version 1.0, header length; the header padded to 64 bytes
+    let len = (10 + dict.len() + 1).div_ceil(64) * 64 - 10;
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend((len as u16).to_le_bytes());
+    bytes.extend(format!("{dict:<w$}\n", w = len - 1).bytes());
+    std::fs::write(&path, bytes).unwrap();
+    let out = dir.join("o");
+    let (code, err) =
+        run_bin_stderr(&["tm", path.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("huge.npy")
+            && err.contains("trace moments of this 16384x16384 image need about"),
+        "{err} ({avail_gb:.1} GB available)"
+    );
+    assert!(!out.exists());
+}
+
 /// `tm --surrogates K` on a lone FIF image: K draws analysed like it, their
 /// scatter, bias and error calibration in tm.json and on stdout, each draw
 /// in surrogates.csv; refused for an ensemble (its jackknife over images

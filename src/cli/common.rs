@@ -915,6 +915,60 @@ fn image_memory_problem(
     })
 }
 
+/// Peak memory of `tm` on one or two images, whose errors come from tiles
+/// (the whole image and its tiles, `TraceMomentAccumulator::field_tiles`),
+/// per pixel of the images, from peak RSS of `tm` on fBm 2048^2 and
+/// 4096^2 (2026-11-29): 141-143 B/px on one thread, 178-179 on two (the
+/// whole image beside its tiles, the double trace moments' eta in two
+/// halves), 219 on 16 at 2048^2 (those two splits bound the tasks: threads
+/// beyond three add nothing); a 200 x 300 hole in 4096^2 changed it by
+/// less than 1 B/px.
+const TM_TILES_BYTES_PER_PIXEL: f64 = 143.0;
+const TM_TILES_BYTES_PER_PIXEL_PER_THREAD: f64 = 38.0;
+const TM_TILES_EXTRA_THREADS: usize = 2;
+
+/// Refuses, before any image is read, the trace moments of one or two
+/// images (`px` pixels in all; `largest`: the path and shape of the
+/// largest, named in the message) that the available memory cannot hold:
+/// the allocation would abort the process with no message.
+pub fn check_tm_memory(largest: (&Path, usize, usize), px: usize) -> Result<()> {
+    let threads = rayon::current_num_threads().max(1);
+    let why = available_memory()
+        .and_then(|avail| tm_memory_problem(largest.1, largest.2, px, threads, avail));
+    why.map_or(Ok(()), |w| Err(Error::format(largest.0, w)))
+}
+
+/// What [`check_tm_memory`] says when `avail` bytes are too few.
+fn tm_memory_problem(
+    ny: usize,
+    nx: usize,
+    px: usize,
+    threads: usize,
+    avail: f64,
+) -> Option<String> {
+    let extra = (threads - 1).min(TM_TILES_EXTRA_THREADS) as f64;
+    let need = (TM_TILES_BYTES_PER_PIXEL + TM_TILES_BYTES_PER_PIXEL_PER_THREAD * extra) * px as f64;
+    (need > avail).then(|| {
+        format!(
+            "the trace moments of this {ny}x{nx} image{} need about {:.1} GB of memory ({threads} \
+             thread{}), {:.1} GB are available{}; crop it, or tile it into several images (an \
+             ensemble of three or more is analysed one image per thread)",
+            if px > ny * nx { " and the other" } else { "" },
+            need / 1e9,
+            if threads == 1 { "" } else { "s" },
+            avail / 1e9,
+            if threads > 1 {
+                format!(
+                    " (on one thread, RAYON_NUM_THREADS=1, about {:.1} GB)",
+                    TM_TILES_BYTES_PER_PIXEL * px as f64 / 1e9
+                )
+            } else {
+                String::new()
+            }
+        )
+    })
+}
+
 /// Bytes per pixel beyond the images already read: `spectrum` per image in
 /// flight (its filled and detrended copies and FFT, one per worker), `cwt`
 /// for its one image (the transform's scales in flight and their files'
@@ -1216,6 +1270,31 @@ mod tests {
     /// 52 on 4096^2; 18.8 GB with missing pixels, whose filled copy, mask
     /// and distance map add 16)
     /// and 22 GB on two: refused with 8 GB, not with 32.
+    /// `tm` on a lone 16384^2 DEM: 38 GB on one thread, 50 GB on two or
+    /// more (the tasks are bounded, so 16 threads need no more than 3).
+    #[test]
+    fn tm_memory_is_checked_before_reading() {
+        let px = 16384 * 16384;
+        let w = tm_memory_problem(16384, 16384, px, 1, 32e9).unwrap();
+        assert!(w.contains("about 38.4 GB of memory (1 thread)"), "{w}");
+        assert!(!w.contains("RAYON_NUM_THREADS"), "{w}");
+        assert!(tm_memory_problem(16384, 16384, px, 1, 40e9).is_none());
+        let w = tm_memory_problem(16384, 16384, px, 16, 40e9).unwrap();
+        assert!(w.contains("about 58.8 GB of memory (16 threads)"), "{w}");
+        assert!(w.contains("RAYON_NUM_THREADS=1, about 38.4 GB"), "{w}");
+        assert_eq!(
+            tm_memory_problem(16384, 16384, px, 3, 1e9),
+            tm_memory_problem(16384, 16384, px, 16, 1e9)
+                .map(|w| w.replace("16 threads", "3 threads"))
+        );
+        // two images: the other one's pixels count too
+        let w = tm_memory_problem(4096, 4096, 2 * 4096 * 4096, 1, 4e9).unwrap();
+        assert!(
+            w.contains("4096x4096 image and the other need about 4.8 GB"),
+            "{w}"
+        );
+    }
+
     #[test]
     fn large_images_are_refused_before_the_transform() {
         let w = image_memory_problem(16384, 16384, false, 1, 8e9).unwrap();

@@ -310,6 +310,18 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         .map(crate::io::read_shape)
         .collect::<Result<Vec<_>>>()?;
     crate::tracemoments::check_fit_selectors(&cfg, &fc, &sizes)?;
+    if tiled {
+        // one or two images are held whole, with their tiles' sums
+        let px = sizes.iter().map(|[ny, nx]| ny * nx).sum();
+        if let Some((p, [ny, nx])) = args
+            .images
+            .iter()
+            .zip(&sizes)
+            .max_by_key(|(_, [ny, nx])| ny * nx)
+        {
+            super::common::check_tm_memory((p, *ny, *nx), px)?;
+        }
+    }
     let (acc, res, shapes) = if tiled {
         let fields = args
             .images
