@@ -4753,23 +4753,21 @@ fn a_haar_cascade_carries_its_caveat() {
     assert!(json(&dir.join("d/theory.json")).get("notes").is_none());
 }
 
+/// MemAvailable in GB (`None` where /proc/meminfo does not say).
+fn available_gb() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = s.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb = line.split_whitespace().nth(1)?.parse::<f64>().ok()?;
+    Some(kb * 1024.0 / 1e9)
+}
+
 /// `validate` and `compare` refuse up front an image size whose images in flight would
 /// not fit in the available memory (the allocation used to abort the
 /// process, exit 134, with the output directory half made). Run only where
 /// 16384^2 (about 54 GB per image) cannot fit.
 #[test]
 fn validate_refuses_a_size_beyond_the_memory() {
-    let avail_gb = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|s| {
-            let line = s
-                .lines()
-                .find(|l| l.starts_with("MemAvailable:"))?
-                .to_string();
-            line.split_whitespace().nth(1)?.parse::<f64>().ok()
-        })
-        .map(|kb| kb * 1024.0 / 1e9);
-    let Some(avail_gb) = avail_gb.filter(|&g| g < 40.0) else {
+    let Some(avail_gb) = available_gb().filter(|&g| g < 40.0) else {
         return;
     };
     let dir = scratch("memory");
@@ -4803,17 +4801,7 @@ fn validate_refuses_a_size_beyond_the_memory() {
 /// only where 40 GB are not available.
 #[test]
 fn tm_refuses_an_image_beyond_the_memory() {
-    let avail_gb = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|s| {
-            let line = s
-                .lines()
-                .find(|l| l.starts_with("MemAvailable:"))?
-                .to_string();
-            line.split_whitespace().nth(1)?.parse::<f64>().ok()
-        })
-        .map(|kb| kb * 1024.0 / 1e9);
-    let Some(avail_gb) = avail_gb.filter(|&g| g < 40.0) else {
+    let Some(avail_gb) = available_gb().filter(|&g| g < 40.0) else {
         return;
     };
     let dir = scratch("tm_memory");

@@ -898,21 +898,30 @@ fn image_memory_problem(
     let need = per_px * px;
     (need > avail).then(|| {
         format!(
-            "analysing this {ny}x{nx} image needs about {:.1} GB of memory ({threads} thread{}), \
-             {:.1} GB are available{}",
+            "analysing this {ny}x{nx} image needs about {:.1} GB of memory{}",
             need / 1e9,
-            if threads == 1 { "" } else { "s" },
-            avail / 1e9,
-            if threads > 1 {
-                format!(
-                    " (on one thread, RAYON_NUM_THREADS=1, about {:.1} GB)",
-                    one * px / 1e9
-                )
-            } else {
-                String::new()
-            }
+            memory_tail(threads, avail, one * px)
         )
     })
+}
+
+/// What a memory refusal says after the need: ` (N threads), X GB are
+/// available`, and with several threads what one would need
+/// (`one_thread` bytes).
+fn memory_tail(threads: usize, avail: f64, one_thread: f64) -> String {
+    format!(
+        " ({threads} thread{}), {:.1} GB are available{}",
+        if threads == 1 { "" } else { "s" },
+        avail / 1e9,
+        if threads > 1 {
+            format!(
+                " (on one thread, RAYON_NUM_THREADS=1, about {:.1} GB)",
+                one_thread / 1e9
+            )
+        } else {
+            String::new()
+        }
+    )
 }
 
 /// Peak memory of `tm` on one or two images, whose errors come from tiles
@@ -950,21 +959,12 @@ fn tm_memory_problem(
     let need = (TM_TILES_BYTES_PER_PIXEL + TM_TILES_BYTES_PER_PIXEL_PER_THREAD * extra) * px as f64;
     (need > avail).then(|| {
         format!(
-            "the trace moments of this {ny}x{nx} image{} need about {:.1} GB of memory ({threads} \
-             thread{}), {:.1} GB are available{}; crop it, or tile it into several images (an \
-             ensemble of three or more is analysed one image per thread)",
+            "the trace moments of this {ny}x{nx} image{} need about {:.1} GB of memory{}; crop \
+             it, or tile it into several images (an ensemble of three or more is analysed one \
+             image per thread)",
             if px > ny * nx { " and the other" } else { "" },
             need / 1e9,
-            if threads == 1 { "" } else { "s" },
-            avail / 1e9,
-            if threads > 1 {
-                format!(
-                    " (on one thread, RAYON_NUM_THREADS=1, about {:.1} GB)",
-                    TM_TILES_BYTES_PER_PIXEL * px as f64 / 1e9
-                )
-            } else {
-                String::new()
-            }
+            memory_tail(threads, avail, TM_TILES_BYTES_PER_PIXEL * px as f64)
         )
     })
 }
