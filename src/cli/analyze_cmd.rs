@@ -473,7 +473,8 @@ pub fn analyze_paths(
         let p = &paths[i];
         let field = super::common::read_image_noted(p, nodata, i, &notes)?;
         let (field, filled) = if fill {
-            super::common::fill_holes_noted(field, p, torus, i, &notes)?
+            let (f, h) = super::common::fill_holes_noted(field, p, torus, i, &notes)?;
+            (f, h.missing)
         } else {
             (field, 0)
         };

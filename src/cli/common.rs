@@ -491,7 +491,8 @@ impl HoleSizes {
 /// the borders on a `torus`, [`Field::filled_harmonic_torus`]) and the
 /// number filled, with a warning for image `i` in `notes` naming `path`,
 /// the count, the share, the largest hole, and what holes larger than
-/// [`LARGE_FILLED_HOLE`] do ([`HoleSizes::describe`]). A field without
+/// [`LARGE_FILLED_HOLE`] do ([`HoleSizes::describe`]); with its holes as
+/// counted, so that a tally need not label them again. A field without
 /// holes passes unchanged.
 ///
 /// **Errors** naming the file if no pixel is valid.
@@ -501,10 +502,10 @@ pub fn fill_holes_noted(
     torus: bool,
     i: usize,
     notes: &OrderedNotes,
-) -> Result<(Field, usize)> {
+) -> Result<(Field, HoleSizes)> {
     let holes = HoleSizes::of(&field, torus);
     if holes.missing == 0 {
-        return Ok((field, 0));
+        return Ok((field, holes));
     }
     notes.push(
         i,
@@ -524,7 +525,7 @@ pub fn fill_holes_noted(
     let data = field
         .filled_harmonic_on(torus)
         .map_err(|e| in_file(path, e))?;
-    Ok((Field::new(data), holes.missing))
+    Ok((Field::new(data), holes))
 }
 
 /// Warnings of images read in parallel, held back and said in the order

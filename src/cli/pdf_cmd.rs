@@ -158,9 +158,8 @@ impl HoleTally {
         }
     }
 
-    /// Tallies `field`'s holes.
-    fn add(&self, field: &Field) {
-        let h = super::common::HoleSizes::of(field, self.torus);
+    /// Tallies an image's holes (counted as [`Self::new`]'s `torus` says).
+    fn add(&self, h: &super::common::HoleSizes) {
         self.area.fetch_add(h.area, Ordering::Relaxed);
         if h.missing > 0 {
             self.images.fetch_add(1, Ordering::Relaxed);
@@ -558,14 +557,17 @@ impl Input {
         } else {
             let p = &self.images[i];
             let field = super::common::read_image_noted(p, self.nodata, i, notes)?;
-            if let Some(h) = holes {
-                h.add(&field);
-            }
-            let field = if self.fill_holes {
-                super::common::fill_holes_noted(field, p, self.periodic, i, notes)?.0
+            // the holes are labelled once, for the fill and the tally
+            let (field, sizes) = if self.fill_holes {
+                let (f, h) = super::common::fill_holes_noted(field, p, self.periodic, i, notes)?;
+                (f, Some(h))
             } else {
-                field
+                let h = holes.map(|_| super::common::HoleSizes::of(&field, self.periodic));
+                (field, h)
             };
+            if let (Some(t), Some(h)) = (holes, sizes) {
+                t.add(&h);
+            }
             super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
             super::common::check_image_memory(p, &field, self.images.len() == 1)?;
             Ok((field, p.display().to_string()))
