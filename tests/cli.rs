@@ -4797,8 +4797,9 @@ fn validate_refuses_a_size_beyond_the_memory() {
 /// `tm` on one image too large for the memory (its tiles' path needs
 /// about 143 B/px: 38 GB at 16384^2) refuses it from the file's header,
 /// before reading it: the file here is a .npy header of 16384 x 16384
-/// doubles with no data after it, whose read would fail otherwise. Run
-/// only where 40 GB are not available.
+/// doubles with no data after it, whose read would fail otherwise; so is an
+/// ensemble of three whose largest image (150 B/px in flight) cannot fit
+/// alone. Run only where 40 GB are not available.
 #[test]
 fn tm_refuses_an_image_beyond_the_memory() {
     let Some(avail_gb) = available_gb().filter(|&g| g < 40.0) else {
@@ -4812,7 +4813,7 @@ fn tm_refuses_an_image_beyond_the_memory() {
     let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
     bytes.extend((len as u16).to_le_bytes());
     bytes.extend(format!("{dict:<w$}\n", w = len - 1).bytes());
-    std::fs::write(&path, bytes).unwrap();
+    std::fs::write(&path, &bytes).unwrap();
     let out = dir.join("o");
     let (code, err) =
         run_bin_stderr(&["tm", path.to_str().unwrap(), "--out", out.to_str().unwrap()]);
@@ -4823,6 +4824,118 @@ fn tm_refuses_an_image_beyond_the_memory() {
         "{err} ({avail_gb:.1} GB available)"
     );
     assert!(!out.exists());
+    // an ensemble of three or more, one image per worker: refused when
+    // not even its largest image fits alone, and that one is named
+    let others = [("wide.npy", "(16384, 16000)"), ("small.npy", "(100, 100)")];
+    for (name, shape) in others {
+        let d = dict.replace("(16384, 16384)", shape);
+        let mut b = bytes[..10].to_vec();
+        b.extend(format!("{d:<w$}\n", w = len - 1).bytes());
+        std::fs::write(dir.join(name), b).unwrap();
+    }
+    let files = ["small.npy", "huge.npy", "wide.npy"].map(|n| dir.join(n));
+    let mut args: Vec<&str> = vec!["tm"];
+    args.extend(files.iter().map(|p| p.to_str().unwrap()));
+    args.extend(["--out", out.to_str().unwrap()]);
+    let (code, err) = run_bin_stderr(&args);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("huge.npy")
+            && err.contains("16384x16384 image needs about 40.3 GB of memory for the trace"),
+        "{err} ({avail_gb:.1} GB available)"
+    );
+    assert!(!out.exists());
+}
+
+/// `WTMM_MEMORY_GB` sets the memory an ensemble plans for: `tm`,
+/// `analyze` and `kernel` of four files then run on as many workers as hold their
+/// images in flight (one, said in a note), with the same outputs as on
+/// two; below one image they refuse it, naming the file, before any
+/// output; a budget that is not a positive number is refused up front.
+#[test]
+fn memory_budget_sets_the_workers() {
+    let dir = scratch("memory_budget");
+    let s = dir.join("s");
+    let synth = [
+        "synth", "fbm", "--hurst", "0.5", "--size", "256", "--count", "4", "--seed", "5", "--out",
+    ];
+    let mut a: Vec<&str> = synth.to_vec();
+    let so = s.display().to_string();
+    a.push(&so);
+    assert_eq!(run(&a), 0);
+    // planes: not the tori synth.json records
+    std::fs::remove_file(s.join("synth.json")).unwrap();
+    let imgs = npy_files(&s);
+    let bin = |cmd: &str, out: &Path, budget: Option<&str>| {
+        // (3 octaves: their margin leaves a domain inside 256 px)
+        let extra: &[&str] = if cmd != "tm" {
+            &["--octaves", "3"]
+        } else {
+            &[]
+        };
+        let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"));
+        c.env("RAYON_NUM_THREADS", "2").env_remove("WTMM_MEMORY_GB");
+        if let Some(b) = budget {
+            c.env("WTMM_MEMORY_GB", b);
+        }
+        let o = c
+            .args(["--quiet", cmd])
+            .args(&imgs)
+            .args(extra)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        (o.status.code().unwrap_or(-1), err)
+    };
+    // 256^2 px: 9.8 MB per image for tm (150 B/px), 4.6 MB for the WTMM (70)
+    for (cmd, fits_one, fits_none, file) in [
+        ("tm", "0.015", "0.009", "tm.json"),
+        ("analyze", "0.007", "0.004", "spectra.json"),
+        ("kernel", "0.007", "0.004", "kernel.json"),
+    ] {
+        let (full, lim) = (
+            dir.join(format!("{cmd}_full")),
+            dir.join(format!("{cmd}_one")),
+        );
+        let (code, err) = bin(cmd, &full, None);
+        assert_eq!(code, 0, "{err}");
+        assert!(!err.contains("threads:"), "{err}");
+        let (code, err) = bin(cmd, &lim, Some(fits_one));
+        assert_eq!(code, 0, "{err}");
+        assert!(
+            err.contains("on 1 of 2 threads: an image of 256x256 in flight")
+                && err.contains("are allowed (WTMM_MEMORY_GB)"),
+            "{cmd}: {err}"
+        );
+        let strip = |p: PathBuf| {
+            let mut v: Value = serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap();
+            for k in ["timing", "wall_seconds", "command_line", "out"] {
+                if let Some(m) = v.as_object_mut() {
+                    m.remove(k);
+                }
+            }
+            v
+        };
+        assert_eq!(strip(full.join(file)), strip(lim.join(file)), "{cmd}");
+        let none = dir.join(format!("{cmd}_none"));
+        let (code, err) = bin(cmd, &none, Some(fits_none));
+        assert_eq!(code, 2, "{err}");
+        assert!(
+            err.contains("fbm_0000.npy") && err.contains("256x256 image needs about"),
+            "{cmd}: {err}"
+        );
+        assert!(!none.exists(), "{cmd}");
+        let bad = dir.join(format!("{cmd}_bad"));
+        let (code, err) = bin(cmd, &bad, Some("-1"));
+        assert_eq!(code, 2, "{err}");
+        assert!(
+            err.contains("WTMM_MEMORY_GB") && err.contains("positive number of GB, not `-1`"),
+            "{cmd}: {err}"
+        );
+        assert!(!bad.exists(), "{cmd}");
+    }
 }
 
 /// `tm --surrogates K` on a lone FIF image: K draws analysed like it, their

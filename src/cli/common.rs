@@ -841,12 +841,158 @@ pub fn header(command: &str, params: serde_json::Value) -> serde_json::Value {
     h
 }
 
-/// `MemAvailable` of /proc/meminfo in bytes (Linux); `None` elsewhere.
+/// The environment variable that sets the memory wtmm plans for, in GB.
+pub const MEMORY_VAR: &str = "WTMM_MEMORY_GB";
+
+/// The memory a command may use, in bytes: `WTMM_MEMORY_GB` when set (a
+/// share of a machine others use too), else [`system_memory`]. `None`
+/// where neither can be read (not Linux). A bad `WTMM_MEMORY_GB` reads as
+/// unset here: [`check_memory_variable`] refuses it when a command starts.
 pub fn available_memory() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = s.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    match memory_variable() {
+        Ok(Some(b)) => Some(b),
+        _ => system_memory(),
+    }
+}
+
+/// `MemAvailable` of /proc/meminfo, within the process's cgroup memory
+/// limit when it has one (a container, a batch job: beyond the limit the
+/// process is killed with no message, while /proc/meminfo still shows the
+/// host's memory), in bytes.
+pub fn system_memory() -> Option<f64> {
+    let host = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|s| meminfo_available(&s));
+    match (host, cgroup_headroom()) {
+        (Some(h), Some(c)) => Some(h.min(c)),
+        (h, c) => h.or(c),
+    }
+}
+
+/// `WTMM_MEMORY_GB` in bytes, `None` when unset.
+fn memory_variable() -> Result<Option<f64>> {
+    let Some(v) = std::env::var_os(MEMORY_VAR) else {
+        return Ok(None);
+    };
+    let s = v.to_string_lossy();
+    match s.trim().parse::<f64>() {
+        Ok(gb) if gb.is_finite() && gb > 0.0 => Ok(Some(gb * 1e9)),
+        _ => Err(Error::param(
+            MEMORY_VAR,
+            format!("must be a positive number of GB, not `{s}`"),
+        )),
+    }
+}
+
+/// Refuses a `WTMM_MEMORY_GB` that is not a positive number, before a
+/// command starts.
+pub fn check_memory_variable() -> Result<()> {
+    memory_variable().map(|_| ())
+}
+
+/// `X GB are available`, or `X GB are allowed (WTMM_MEMORY_GB)` when the
+/// budget is the variable's, for the memory messages.
+pub fn gb_available(avail: f64) -> String {
+    let set = matches!(memory_variable(), Ok(Some(_)));
+    format!(
+        "{:.1} GB are {}",
+        avail / 1e9,
+        if set {
+            "allowed (WTMM_MEMORY_GB)"
+        } else {
+            "available"
+        }
+    )
+}
+
+/// `MemAvailable` of a /proc/meminfo text, in bytes.
+fn meminfo_available(meminfo: &str) -> Option<f64> {
+    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024.0)
+}
+
+/// What the memory cgroup of this process leaves before its limit, in
+/// bytes (`None` without a limit, or where none can be read). The
+/// reclaimable page cache (inactive files) counts as free, as
+/// `MemAvailable` counts it.
+fn cgroup_headroom() -> Option<f64> {
+    let own = std::fs::read_to_string("/proc/self/cgroup").ok()?;
+    let root = Path::new("/sys/fs/cgroup");
+    let read = |p: &Path| std::fs::read_to_string(p).ok();
+    // cgroup v1: a `memory` hierarchy; memory.stat gives the limit in
+    // force (the lowest of the ancestors')
+    if let Some(path) = cgroup_path(&own, "memory") {
+        let base = root.join("memory");
+        // inside a namespace the own group is the mount's root
+        let dir = [base.join(path.trim_start_matches('/')), base]
+            .into_iter()
+            .find(|d| d.join("memory.usage_in_bytes").exists())?;
+        let stat = read(&dir.join("memory.stat"))?;
+        let usage: f64 = read(&dir.join("memory.usage_in_bytes"))?
+            .trim()
+            .parse()
+            .ok()?;
+        let limit = stat_value(&stat, "hierarchical_memory_limit")?;
+        let inactive = stat_value(&stat, "total_inactive_file").unwrap_or(0.0);
+        return headroom(limit, usage, inactive);
+    }
+    // cgroup v2: the unified hierarchy; the lowest headroom of the group
+    // and its ancestors
+    let path = cgroup_path(&own, "")?;
+    let leaf = [root.join(path.trim_start_matches('/')), root.to_path_buf()]
+        .into_iter()
+        .find(|d| d.join("memory.current").exists())?;
+    let mut best: Option<f64> = None;
+    let mut dir = Some(leaf.as_path());
+    while let Some(d) = dir.filter(|d| d.starts_with(root)) {
+        let max = read(&d.join("memory.max"));
+        let cur = read(&d.join("memory.current"));
+        if let (Some(max), Some(cur)) = (max, cur) {
+            let inactive = read(&d.join("memory.stat"))
+                .and_then(|s| stat_value(&s, "inactive_file"))
+                .unwrap_or(0.0);
+            let h = max
+                .trim()
+                .parse()
+                .ok()
+                .and_then(|limit: f64| headroom(limit, cur.trim().parse().ok()?, inactive));
+            if let Some(h) = h {
+                best = Some(best.map_or(h, |b| b.min(h)));
+            }
+        }
+        dir = d.parent();
+    }
+    best
+}
+
+/// The group's path in a /proc/self/cgroup text for the v1 `controller`
+/// (`""`: the v2 unified hierarchy, `0::/path`).
+fn cgroup_path<'a>(own: &'a str, controller: &str) -> Option<&'a str> {
+    own.lines().find_map(|l| {
+        let mut f = l.splitn(3, ':');
+        let (_, list, path) = (f.next()?, f.next()?, f.next()?);
+        let hit = if controller.is_empty() {
+            list.is_empty()
+        } else {
+            list.split(',').any(|c| c == controller)
+        };
+        hit.then_some(path)
+    })
+}
+
+/// The value of `key` in a memory.stat text.
+fn stat_value(stat: &str, key: &str) -> Option<f64> {
+    stat.lines().find_map(|l| {
+        let (k, v) = l.split_once(' ')?;
+        (k == key).then(|| v.trim().parse().ok()).flatten()
+    })
+}
+
+/// A limit's headroom over a usage of which `inactive` bytes are
+/// reclaimable; `None` for no limit (v1 writes "no limit" as about 2^63).
+fn headroom(limit: f64, usage: f64, inactive: f64) -> Option<f64> {
+    (limit < 2f64.powi(60)).then(|| (limit - (usage - inactive).max(0.0)).max(0.0))
 }
 
 /// Bytes per pixel of the WTMM analysis of one image on one thread (the
@@ -860,6 +1006,13 @@ pub fn available_memory() -> Option<f64> {
 const ANALYSIS_BYTES_PER_PIXEL: f64 = 54.0;
 const ANALYSIS_BYTES_PER_PIXEL_MASKED: f64 = 16.0;
 const ANALYSIS_BYTES_PER_PIXEL_PER_THREAD: f64 = 28.0;
+
+/// What each image in flight of an ensemble analysed one image per worker
+/// (analyze, pdf, kernel, correlate) needs per pixel, planned from the
+/// files' headers before they are read, so counting the masked image's
+/// extra: whether an image has missing pixels is known once read.
+pub const ENSEMBLE_ANALYSIS_BYTES_PER_PIXEL: f64 =
+    ANALYSIS_BYTES_PER_PIXEL + ANALYSIS_BYTES_PER_PIXEL_MASKED;
 
 /// Refuses, before its transform, an image whose analysis cannot fit in
 /// the available memory (a 16384^2 DEM needs about 15 GB on one thread):
@@ -911,9 +1064,9 @@ fn image_memory_problem(
 /// (`one_thread` bytes).
 fn memory_tail(threads: usize, avail: f64, one_thread: f64) -> String {
     format!(
-        " ({threads} thread{}), {:.1} GB are available{}",
+        " ({threads} thread{}), {}{}",
         if threads == 1 { "" } else { "s" },
-        avail / 1e9,
+        gb_available(avail),
         if threads > 1 {
             format!(
                 " (on one thread, RAYON_NUM_THREADS=1, about {:.1} GB)",
@@ -970,6 +1123,86 @@ fn tm_memory_problem(
     })
 }
 
+/// Peak memory of `tm` per image in flight in an ensemble of three or more
+/// (one image per worker, dropped after its sums), per pixel: peak RSS of
+/// `tm` on fBm planes (2026-11-29), 3 x 4096^2: 2.47 GB on one thread
+/// (147 B/px), 4.35 GB on two (130 B/px per image in flight); 4 x 2048^2:
+/// 0.68 and 1.19 GB (144 and 134 B/px above the 73 MB of the process).
+pub const TM_ENSEMBLE_BYTES_PER_PIXEL: f64 = 150.0;
+
+/// How many workers, of at most `threads`, can hold images of `px` pixels
+/// side by side at `per_px` bytes per pixel within `avail` bytes: the most
+/// whose largest images fit together (0 when not even the largest fits).
+fn workers_that_fit(px: &[usize], per_px: f64, threads: usize, avail: f64) -> usize {
+    let mut px = px.to_vec();
+    px.sort_unstable_by(|a, b| b.cmp(a));
+    let mut need = 0.0;
+    px.iter()
+        .take(threads)
+        .take_while(|&&p| {
+            need += per_px * p as f64;
+            need <= avail
+        })
+        .count()
+}
+
+/// Runs `pass`, a pass over the images `paths` (of sizes `sizes`, from
+/// their headers) that holds one image per worker at `per_px` bytes per
+/// pixel, on as many of rayon's threads as the available memory holds
+/// images side by side (the largest ones), and says so when that is fewer
+/// than rayon has: on 16 threads, 16 DEMs of 8192^2 in flight would abort
+/// the process with no message. The results do not depend on the thread
+/// count. `what` names the pass ("the trace moments").
+///
+/// **Errors**, before any image is read, when not even the largest image
+/// fits alone (the message names it); what `pass` returns.
+pub fn in_memory_workers<R: Send>(
+    paths: &[PathBuf],
+    sizes: &[[usize; 2]],
+    per_px: f64,
+    what: &str,
+    pass: impl FnOnce() -> Result<R> + Send,
+) -> Result<R> {
+    let threads = rayon::current_num_threads().max(1);
+    let Some(avail) = available_memory() else {
+        return pass();
+    };
+    let px: Vec<usize> = sizes.iter().map(|[ny, nx]| ny * nx).collect();
+    let fit = workers_that_fit(&px, per_px, threads, avail);
+    if fit >= threads.min(px.len()) {
+        return pass();
+    }
+    let largest = (0..px.len()).max_by_key(|&i| (px[i], std::cmp::Reverse(i)));
+    let Some(big) = largest else {
+        return pass();
+    };
+    let [ny, nx] = sizes[big];
+    let one = per_px * px[big] as f64;
+    if fit == 0 {
+        return Err(Error::format(
+            &paths[big],
+            format!(
+                "this {ny}x{nx} image needs about {:.1} GB of memory for {what}, {}; crop it, \
+                 or tile it into several images",
+                one / 1e9,
+                gb_available(avail)
+            ),
+        ));
+    }
+    say!(
+        "note: {what} on {fit} of {threads} threads: an image of {ny}x{nx} in flight \
+         needs about {:.1} GB of memory and {} (the results are the same on any thread \
+         count)",
+        one / 1e9,
+        gb_available(avail)
+    );
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(fit)
+        .build()
+        .map_err(|e| Error::Input(format!("cannot start {fit} threads: {e}")))?;
+    pool.install(pass)
+}
+
 /// Bytes per pixel beyond the images already read: `spectrum` per image in
 /// flight (its filled and detrended copies and FFT, one per worker), `cwt`
 /// for its one image (the transform's scales in flight and their files'
@@ -997,9 +1230,9 @@ fn extra_memory_problem(
     (need > avail).then(|| {
         format!(
             "{what} of this {ny}x{nx} image needs about {:.1} GB of memory beyond the images \
-             read ({copies} in flight), {:.1} GB are available{}",
+             read ({copies} in flight), {}{}",
             need / 1e9,
-            avail / 1e9,
+            gb_available(avail),
             if copies > 1 {
                 " (one at a time with RAYON_NUM_THREADS=1)"
             } else {
@@ -1106,11 +1339,11 @@ pub fn check_memory(size: usize, count: usize, bytes_per_pixel: f64) -> Result<(
             "size",
             format!(
                 "{size} px needs about {:.1} GB in memory ({at_once} image(s) at once, {:.1} GB \
-                 each); {:.1} GB are available (a smaller --size, or fewer images at once with \
+                 each); {} (a smaller --size, or fewer images at once with \
                  RAYON_NUM_THREADS)",
                 per_image * at_once / 1e9,
                 per_image / 1e9,
-                avail / 1e9
+                gb_available(avail)
             ),
         )),
         _ => Ok(()),
@@ -1294,6 +1527,54 @@ mod tests {
             w.contains("4096x4096 image and the other need about 4.8 GB"),
             "{w}"
         );
+    }
+
+    #[test]
+    fn cgroup_limits_are_read() {
+        // v1 (hybrid host): the memory controller's line; v2: `0::`
+        let own = "9:name=systemd:/\n4:memory:/job/42\n3:cpu,cpuacct:/\n0::/\n";
+        assert_eq!(cgroup_path(own, "memory"), Some("/job/42"));
+        assert_eq!(cgroup_path(own, "cpuacct"), Some("/"));
+        assert_eq!(cgroup_path(own, ""), Some("/"));
+        assert_eq!(cgroup_path("0::/user.slice/x\n", "memory"), None);
+        assert_eq!(cgroup_path("0::/user.slice/x\n", ""), Some("/user.slice/x"));
+        let stat = "cache 10\nhierarchical_memory_limit 8589934592\ntotal_inactive_file 1000\n\
+                    inactive_file 7\n";
+        assert_eq!(
+            stat_value(stat, "hierarchical_memory_limit"),
+            Some(8589934592.0)
+        );
+        assert_eq!(stat_value(stat, "total_inactive_file"), Some(1000.0));
+        assert_eq!(stat_value(stat, "inactive_file"), Some(7.0));
+        assert_eq!(stat_value(stat, "missing"), None);
+        // 8 GB limit, 3 GB used of which 1 GB reclaimable: 6 GB left
+        assert_eq!(headroom(8e9, 3e9, 1e9), Some(6e9));
+        assert_eq!(headroom(8e9, 9e9, 0.0), Some(0.0));
+        // v1 writes "no limit" as 2^63 rounded down to a page
+        assert_eq!(headroom(9223372036854771712.0, 3e9, 0.0), None);
+        assert_eq!(
+            meminfo_available("MemTotal: 100 kB\nMemAvailable: 2 kB\n"),
+            Some(2048.0)
+        );
+    }
+
+    #[test]
+    fn ensembles_run_on_the_workers_the_memory_holds() {
+        let gb = 1e9;
+        // three images of 100 M px at 150 B/px: 15 GB each in flight
+        let px = [100_000_000; 3];
+        assert_eq!(workers_that_fit(&px, 150.0, 16, 50.0 * gb), 3);
+        assert_eq!(workers_that_fit(&px, 150.0, 16, 44.0 * gb), 2);
+        assert_eq!(workers_that_fit(&px, 150.0, 2, 44.0 * gb), 2);
+        assert_eq!(workers_that_fit(&px, 150.0, 1, 44.0 * gb), 1);
+        assert_eq!(workers_that_fit(&px, 150.0, 16, 14.0 * gb), 0);
+        // the largest images are the ones counted, whatever their order
+        let px = [10_000_000, 100_000_000, 20_000_000, 100_000_000];
+        assert_eq!(workers_that_fit(&px, 150.0, 16, 15.0 * gb), 1);
+        assert_eq!(workers_that_fit(&px, 150.0, 16, 30.0 * gb), 2);
+        assert_eq!(workers_that_fit(&px, 150.0, 16, 33.0 * gb), 3);
+        assert_eq!(workers_that_fit(&px, 150.0, 16, 34.5 * gb), 4);
+        assert_eq!(workers_that_fit(&[], 150.0, 16, gb), 0);
     }
 
     #[test]

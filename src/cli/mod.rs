@@ -413,6 +413,8 @@ fn prepare_out(dir: &Path) -> Result<()> {
 }
 
 fn dispatch(cli: Cli) -> Result<Outcome> {
+    // a bad memory budget is refused before anything is made
+    common::check_memory_variable()?;
     let _svg = common::also_svg(cli.svg);
     let (inputs, images, out) = io_of(&cli.command);
     // --svg is global; a command that writes no plot would drop it unsaid

@@ -593,24 +593,45 @@ impl Input {
         let pb = progress(n as u64, msg, quiet);
         let notes = super::common::OrderedNotes::default();
         // the first bad image in input order is named, whatever the scheduling
-        let out = crate::par::try_fold(
-            n,
-            &init,
-            |acc, i| -> Result<()> {
-                let (field, label) = self.load_noted(i, &notes, Some(&self.holes))?;
-                self.tally.add(&field);
-                step(acc, &field, &label, par).map_err(|e| {
-                    if self.generated() {
-                        e
-                    } else {
-                        super::common::in_file(&self.images[i], e)
-                    }
-                })?;
-                pb.inc(1);
-                Ok(())
-            },
-            &merge,
-        );
+        let pass = || {
+            crate::par::try_fold(
+                n,
+                &init,
+                |acc, i| -> Result<()> {
+                    let (field, label) = self.load_noted(i, &notes, Some(&self.holes))?;
+                    self.tally.add(&field);
+                    step(acc, &field, &label, par).map_err(|e| {
+                        if self.generated() {
+                            e
+                        } else {
+                            super::common::in_file(&self.images[i], e)
+                        }
+                    })?;
+                    pb.inc(1);
+                    Ok(())
+                },
+                &merge,
+            )
+        };
+        // files of an ensemble: one image per worker, as many workers as
+        // the memory holds images (a lone image is checked with its
+        // threads once read; generated sizes are checked up front)
+        let out = if n > 1 && !self.generated() {
+            let sizes = self
+                .images
+                .iter()
+                .map(crate::io::read_shape)
+                .collect::<Result<Vec<_>>>()?;
+            super::common::in_memory_workers(
+                &self.images,
+                &sizes,
+                super::common::ENSEMBLE_ANALYSIS_BYTES_PER_PIXEL,
+                "the analysis",
+                || Ok(pass()),
+            )?
+        } else {
+            pass()
+        };
         pb.finish_and_clear();
         notes.say_upto(out.as_ref().err().map(|f| f.0));
         out.map_err(|f| f.1)

@@ -366,7 +366,14 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
     } else {
         // a fit the sizes rule out is said before every image is read
         check_ensemble_fit(&fc, &sizes)?;
-        let (parts, shapes) = accumulate_paths(&args.images, nodata, &cfg, quiet)?;
+        // one image per worker: as many workers as the memory holds images
+        let (parts, shapes) = super::common::in_memory_workers(
+            &args.images,
+            &sizes,
+            super::common::TM_ENSEMBLE_BYTES_PER_PIXEL,
+            "the trace moments",
+            || accumulate_paths(&args.images, nodata, &cfg, quiet),
+        )?;
         let (acc, res) = finish_ensemble(&parts, &fc)?;
         (acc, res, shapes)
     };
