@@ -1855,7 +1855,8 @@ fn the_default_fit_of_listed_scales_is_accepted() {
 /// experiment_filled_dropout -- --ignored --nocapture`, env N images
 /// (default 16) of SIZE² (384), H (0.5), DROP (0.05), SEED (91), RADIUS
 /// (0: isolated pixels; r > 0: discs of radius r px, centred at random,
-/// about DROP of the pixels in all)): the
+/// about DROP of the pixels in all), PRESET (a preset's model in place of
+/// the fBm, e.g. paper-lognormal with SIZE=512)): the
 /// counting domain excludes everything within the wavelet's support of a
 /// hole, so 5 % of isolated missing pixels leave nothing to count; here
 /// they are filled (harmonically, and with the image mean) and analysed as
@@ -1875,6 +1876,10 @@ fn experiment_filled_dropout() {
         env("SEED", 91.0) as u64,
         env("RADIUS", 0.0),
     );
+    // a preset's model in place of fBm (a power-of-two SIZE for cascades)
+    let preset = std::env::var("PRESET")
+        .ok()
+        .map(|p| wtmm::theory::Model::preset(&p).unwrap());
     let q = [-2.0, -1.0, 0.0, 1.0, 2.0, 3.0];
     let cfg = AnalysisConfig {
         octaves: 3,
@@ -1883,7 +1888,10 @@ fn experiment_filled_dropout() {
     let parts: Vec<([PartitionSums; 3], (usize, usize))> = (0..n_img)
         .into_par_iter()
         .map(|i| {
-            let img = fbm(FbmParams { hurst: h }, n, n, seed, i).unwrap();
+            let img = match &preset {
+                Some(p) => p.model.synthesize(n, seed, i).unwrap(),
+                None => fbm(FbmParams { hurst: h }, n, n, seed, i).unwrap(),
+            };
             // isolated pixels, or disc centres: a deterministic
             // pseudo-random pick
             let area = (std::f64::consts::PI * radius * radius).max(1.0);
@@ -1917,8 +1925,9 @@ fn experiment_filled_dropout() {
     let (parts, holes): (Vec<[PartitionSums; 3]>, Vec<(usize, usize)>) = parts.into_iter().unzip();
     let missing = holes.iter().map(|h| h.0).sum::<usize>() as f64 / (n_img as usize * n * n) as f64;
     let largest = holes.iter().map(|h| h.1).max().unwrap_or(0);
+    let what = preset.map_or(format!("fBm (H = {h})"), |p| p.name.to_string());
     println!(
-        "{n_img} fBm (H = {h}) of {n}^2, {:.1} % missing ({}), largest hole {largest} px, seed {seed}",
+        "{n_img} {what} of {n}^2, {:.1} % missing ({}), largest hole {largest} px, seed {seed}",
         100.0 * missing,
         if radius > 0.0 {
             format!("discs of radius {radius} px")
