@@ -136,6 +136,15 @@ pub struct ImagePartial {
     /// (`analyze --fill-holes`; set by the caller, as `nodata`).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub filled: usize,
+    /// The largest hole filled, in px (with `filled`): holes become smooth
+    /// patches, whose bias on tau(q) grows with their size (README,
+    /// "Missing pixels").
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub largest_filled_hole: usize,
+    /// The pixels filled in holes larger than 16 px (with `filled`), the
+    /// part that biases tau(q) most.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub in_large_filled_holes: usize,
 }
 
 /// [`ImagePartial::flat`]: a value and the share of the valid pixels
@@ -488,6 +497,8 @@ impl PartitionSums {
                 flat: None,
                 nodata: None,
                 filled: 0,
+                largest_filled_hole: 0,
+                in_large_filled_holes: 0,
             }],
         }
     }
@@ -551,6 +562,8 @@ impl PartitionSums {
                 flat: None,
                 nodata: None,
                 filled: 0,
+                largest_filled_hole: 0,
+                in_large_filled_holes: 0,
             }],
         })
     }
@@ -857,6 +870,8 @@ impl PartitionSums {
                     flat: None,
                     nodata: None,
                     filled: 0,
+                    largest_filled_hole: 0,
+                    in_large_filled_holes: 0,
                 })
             })
             .collect();
@@ -1543,6 +1558,12 @@ pub struct ImageRecord {
     /// (`missing` then counts those left missing: none).
     #[serde(default)]
     pub filled: usize,
+    /// [`ImagePartial::largest_filled_hole`] (0 without a fill).
+    #[serde(default)]
+    pub largest_filled_hole: usize,
+    /// [`ImagePartial::in_large_filled_holes`] (0 without a fill).
+    #[serde(default)]
+    pub in_large_filled_holes: usize,
 }
 
 impl ImageRecord {
@@ -1556,6 +1577,8 @@ impl ImageRecord {
             flat: im.flat,
             nodata: im.nodata,
             filled: im.filled,
+            largest_filled_hole: im.largest_filled_hole,
+            in_large_filled_holes: im.in_large_filled_holes,
         }
     }
 }
@@ -3145,6 +3168,8 @@ mod tests {
                     flat: None,
                     nodata: None,
                     filled: 0,
+                    largest_filled_hole: 0,
+                    in_large_filled_holes: 0,
                 })
                 .collect();
             let s = PartitionSums {

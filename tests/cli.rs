@@ -5476,6 +5476,11 @@ fn analyze_fills_scattered_holes_on_request() {
         // 1 in 20 of 65536 pixels, binomial sd 56
         assert!((3000..3600).contains(&filled), "{r}");
         assert_eq!(r["missing"], 0);
+        // scattered pixels at 5 %, far below percolation (59 %): clusters
+        // of a few px, none in holes larger than 16 px
+        let largest = r["largest_filled_hole"].as_u64().unwrap();
+        assert!((1..=16).contains(&largest), "{r}");
+        assert_eq!(r["in_large_filled_holes"], 0, "{r}");
     }
     for (ta, tb) in a["tau"]
         .as_array()

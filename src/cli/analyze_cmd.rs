@@ -475,9 +475,9 @@ pub fn analyze_paths(
             let field = super::common::read_image_noted(p, nodata, i, &notes)?;
             let (field, filled) = if fill {
                 let (f, h) = super::common::fill_holes_noted(field, p, torus, i, &notes)?;
-                (f, h.missing)
+                (f, Some(h))
             } else {
-                (field, 0)
+                (field, None)
             };
             super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
             super::common::check_image_memory(p, &field, paths.len() == 1)?;
@@ -493,7 +493,11 @@ pub fn analyze_paths(
                 .map_err(|e| super::common::in_file(p, e))?;
             // recorded per image, so that merged sums still say it
             s.images[0].nodata = nodata;
-            s.images[0].filled = filled;
+            if let Some(h) = filled {
+                s.images[0].filled = h.missing;
+                s.images[0].largest_filled_hole = h.largest;
+                s.images[0].in_large_filled_holes = h.in_large;
+            }
             pb.inc(1);
             Ok(s)
         })
