@@ -614,6 +614,33 @@ fn minimise_alpha(obj: impl Fn(f64) -> f64) -> f64 {
 mod tests {
     use super::*;
 
+    /// The register-held sums of a few powers are those of the general
+    /// loop, bit for bit, underflow included (x = 1e-200: x^2 is 0).
+    #[test]
+    fn fixed_power_sums_are_the_general_ones() {
+        let xs: Vec<(f64, f64)> = (0..1000)
+            .map(|i| {
+                let u = crate::synth::splitmix64(i) as f64 / u64::MAX as f64;
+                let x = if i % 97 == 0 { 1e-200 } else { u };
+                (x, 0.5 + (i % 7) as f64)
+            })
+            .collect();
+        for kmax in 1..=8 {
+            let mut general = vec![0.0; kmax + 1];
+            for &(x, w) in &xs {
+                let mut p = w;
+                for a in general[1..].iter_mut() {
+                    p *= x;
+                    *a += p;
+                }
+            }
+            let got = sum_products(xs.iter().copied(), kmax);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&general), "kmax {kmax}");
+        }
+        assert_eq!(sum_products(xs.iter().copied(), 0), vec![0.0]);
+    }
+
     /// The repeated products of `power_sums` against one `exp` per term and
     /// q: tm's grids (products) and an irregular one (exps), with q = 0,
     /// logs spanning 700 (terms down to e^-2800) and the edge cases.
