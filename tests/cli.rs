@@ -4938,6 +4938,82 @@ fn memory_budget_sets_the_workers() {
     }
 }
 
+/// Generated ensembles (`synth`, `validate`) under a `WTMM_MEMORY_GB`
+/// that holds one image in flight run on one thread, said in a note, with
+/// the same files and numbers as on two; below one image they refuse the
+/// size.
+#[test]
+fn generated_ensembles_fit_their_workers_to_the_memory() {
+    let dir = scratch("memory_generated");
+    let bin = |args: &[&str], budget: Option<&str>| {
+        let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"));
+        c.env("RAYON_NUM_THREADS", "2").env_remove("WTMM_MEMORY_GB");
+        if let Some(b) = budget {
+            c.env("WTMM_MEMORY_GB", b);
+        }
+        let o = c.arg("--quiet").args(args).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        (o.status.code().unwrap_or(-1), err)
+    };
+    // 256^2 px: synth 4.2 MB per image (64 B/px), validate 13.1 MB (200)
+    for (cmd, one, none) in [("synth", "0.006", "0.003"), ("validate", "0.02", "0.01")] {
+        let outs = ["full", "one", "none"].map(|k| dir.join(format!("{cmd}_{k}")));
+        let args = |o: &Path| -> Vec<String> {
+            let mut v: Vec<String> = [cmd, "--preset", "paper-lognormal", "--count", "4"]
+                .iter()
+                .map(|s| s.to_string())
+                .collect();
+            v.extend(["--size", "256", "--seed", "3", "--out"].map(String::from));
+            v.push(o.display().to_string());
+            v
+        };
+        let run_with = |o: &Path, b: Option<&str>| {
+            let v = args(o);
+            let r: Vec<&str> = v.iter().map(String::as_str).collect();
+            let (code, err) = bin(&r, b);
+            (code, err, r.join(" "))
+        };
+        let (code, err, line) = run_with(&outs[0], None);
+        assert!(code <= 1, "{line}: {err}");
+        assert!(!err.contains("threads:"), "{err}");
+        let (code1, err, line) = run_with(&outs[1], Some(one));
+        assert_eq!(code1, code, "{line}: {err}");
+        assert!(
+            err.contains(&format!(
+                "note: {cmd} on 1 of 2 threads: an image of 256x256"
+            )),
+            "{line}: {err}"
+        );
+        let (code, err, line) = run_with(&outs[2], Some(none));
+        assert_eq!(code, 2, "{line}: {err}");
+        assert!(
+            err.contains("256 px needs about") && err.contains("allowed (WTMM_MEMORY_GB)"),
+            "{line}: {err}"
+        );
+        assert!(!outs[2].exists(), "{line}");
+        if cmd == "synth" {
+            let files = npy_files(&outs[0]);
+            assert_eq!(files.len(), 4);
+            for f in files {
+                let name = Path::new(&f).file_name().unwrap();
+                let other = std::fs::read(outs[1].join(name)).unwrap();
+                assert_eq!(std::fs::read(&f).unwrap(), other, "{f}");
+            }
+        } else {
+            let v = |o: &Path| {
+                let mut v = json(&o.join("validation.json"));
+                for k in ["timing", "wall_seconds", "command_line", "out"] {
+                    if let Some(m) = v.as_object_mut() {
+                        m.remove(k);
+                    }
+                }
+                v
+            };
+            assert_eq!(v(&outs[0]), v(&outs[1]));
+        }
+    }
+}
+
 /// `tm --surrogates K` on a lone FIF image: K draws analysed like it, their
 /// scatter, bias and error calibration in tm.json and on stdout, each draw
 /// in surrogates.csv; refused for an ensemble (its jackknife over images

@@ -895,14 +895,24 @@ pub fn check_memory_variable() -> Result<()> {
 pub fn gb_available(avail: f64) -> String {
     let set = matches!(memory_variable(), Ok(Some(_)));
     format!(
-        "{:.1} GB are {}",
-        avail / 1e9,
+        "{} are {}",
+        memory_text(avail),
         if set {
             "allowed (WTMM_MEMORY_GB)"
         } else {
             "available"
         }
     )
+}
+
+/// `bytes` for a memory message: `1.2 GB`, or `350 MB` below 1 GB (where
+/// one decimal of a GB would say 0.0).
+pub fn memory_text(bytes: f64) -> String {
+    if bytes < 0.95e9 {
+        format!("{:.0} MB", bytes / 1e6)
+    } else {
+        format!("{:.1} GB", bytes / 1e9)
+    }
 }
 
 /// `MemAvailable` of a /proc/meminfo text, in bytes.
@@ -1182,25 +1192,20 @@ pub fn in_memory_workers<R: Send>(
         return Err(Error::format(
             &paths[big],
             format!(
-                "this {ny}x{nx} image needs about {:.1} GB of memory for {what}, {}; crop it, \
-                 or tile it into several images",
-                one / 1e9,
+                "this {ny}x{nx} image needs about {} of memory for {what}, {}; crop it, or \
+                 tile it into several images",
+                memory_text(one),
                 gb_available(avail)
             ),
         ));
     }
     say!(
         "note: {what} on {fit} of {threads} threads: an image of {ny}x{nx} in flight \
-         needs about {:.1} GB of memory and {} (the results are the same on any thread \
-         count)",
-        one / 1e9,
+         needs about {} of memory and {} (the results are the same on any thread count)",
+        memory_text(one),
         gb_available(avail)
     );
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(fit)
-        .build()
-        .map_err(|e| Error::Input(format!("cannot start {fit} threads: {e}")))?;
-    pool.install(pass)
+    on_workers(fit, pass)
 }
 
 /// Bytes per pixel beyond the images already read: `spectrum` per image in
@@ -1284,12 +1289,13 @@ pub fn check_cwt_memory(path: &Path, ny: usize, nx: usize) -> Result<()> {
 /// 2048^2, 139 (FISC) at 4096^2; compare 160 (log-normal, fBm) at 2048^2.
 const ENSEMBLE_BYTES_PER_PIXEL: f64 = 200.0;
 
-/// Refuses up front an ensemble whose images in flight (one per worker)
-/// would not fit in the available memory: the allocation would abort the
-/// process with no message and the output directory half made. For
-/// `validate` and `compare`.
-pub fn check_ensemble_memory(size: usize, count: usize) -> Result<()> {
-    check_memory(size, count, ENSEMBLE_BYTES_PER_PIXEL)
+/// Sizes up front a generated ensemble's images in flight (one per worker)
+/// to the available memory: the allocation would abort the process with no
+/// message and the output directory half made. `Some(workers)`: run on
+/// that many threads ([`on_workers`]; said in a note); refused when not
+/// even one image fits. For `validate` and `compare`.
+pub fn check_ensemble_memory(size: usize, count: usize, what: &str) -> Result<Option<usize>> {
+    check_memory(size, count, ENSEMBLE_BYTES_PER_PIXEL, what)
 }
 
 /// Size and count of a generated ensemble (`validate`, `compare`, `demo`,
@@ -1331,23 +1337,48 @@ pub fn check_generated_side(size: usize) -> Result<()> {
 
 /// [`check_ensemble_memory`] with `bytes_per_pixel` per image in flight
 /// (`synth`: 64, its fBm grid).
-pub fn check_memory(size: usize, count: usize, bytes_per_pixel: f64) -> Result<()> {
+pub fn check_memory(
+    size: usize,
+    count: usize,
+    bytes_per_pixel: f64,
+    what: &str,
+) -> Result<Option<usize>> {
     let per_image = bytes_per_pixel * (size as f64).powi(2);
-    let at_once = count.min(rayon::current_num_threads()).max(1) as f64;
-    match available_memory() {
-        Some(avail) if per_image * at_once > avail => Err(Error::param(
+    let threads = rayon::current_num_threads().max(1);
+    let Some(avail) = available_memory() else {
+        return Ok(None);
+    };
+    let fit = (avail / per_image).floor() as usize;
+    if fit == 0 {
+        return Err(Error::param(
             "size",
             format!(
-                "{size} px needs about {:.1} GB in memory ({at_once} image(s) at once, {:.1} GB \
-                 each); {} (a smaller --size, or fewer images at once with \
-                 RAYON_NUM_THREADS)",
-                per_image * at_once / 1e9,
-                per_image / 1e9,
+                "{size} px needs about {} in memory for one image; {} (a smaller --size)",
+                memory_text(per_image),
                 gb_available(avail)
             ),
-        )),
-        _ => Ok(()),
+        ));
     }
+    Ok((fit < count.min(threads)).then(|| {
+        say!(
+            "note: {what} on {fit} of {threads} threads: an image of {size}x{size} in flight \
+             needs about {} of memory and {} (the results are the same on any thread count)",
+            memory_text(per_image),
+            gb_available(avail)
+        );
+        fit
+    }))
+}
+
+/// Runs `f` on a pool of `workers` threads (from [`check_memory`] or
+/// [`in_memory_workers`]: fewer than rayon has, so that the images in
+/// flight fit in memory); the results do not depend on the thread count.
+pub fn on_workers<R: Send>(workers: usize, f: impl FnOnce() -> Result<R> + Send) -> Result<R> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(workers)
+        .build()
+        .map_err(|e| Error::Input(format!("cannot start {workers} threads: {e}")))?
+        .install(f)
 }
 
 /// Writes `caveats` ([`crate::theory::Model::caveats`]) into an output's
@@ -1556,6 +1587,8 @@ mod tests {
             meminfo_available("MemTotal: 100 kB\nMemAvailable: 2 kB\n"),
             Some(2048.0)
         );
+        assert_eq!(memory_text(3.5e8), "350 MB");
+        assert_eq!(memory_text(2.26e9), "2.3 GB");
     }
 
     #[test]

@@ -279,7 +279,11 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     }
     model.check_size(args.size)?;
     super::common::check_generated_size(&cfg, args.size)?;
-    super::common::check_ensemble_memory(args.size, args.count)?;
+    if let Some(workers) = super::common::check_ensemble_memory(args.size, args.count, "compare")? {
+        // fewer images in flight than threads (said in a note); inside the
+        // pool they fit
+        return super::common::on_workers(workers, || run(args, quiet));
+    }
     let summary_q = parse_range("summary-q", &args.summary_q)?;
     if !q.iter().any(|&v| v >= summary_q.0 && v <= summary_q.1) {
         return Err(Error::param(

@@ -71,7 +71,11 @@ fn write_image(path: &Path, a: &ndarray::Array2<f64>, format: Format) -> Result<
 pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
     let r = args.model_opts.resolve(args.model)?;
     let c = &args.common;
-    check_common(c)?;
+    if let Some(workers) = check_common(c)? {
+        // fewer images in flight than threads (said in a note); inside the
+        // pool they fit
+        return super::common::on_workers(workers, || run(args, quiet));
+    }
     r.model.check_size(c.size)?;
     let t = TheoryTable::new(&r.model, &[-2.0, -1.0, 0.0, 1.0, 2.0, 3.0])?;
     let caveats = r.model.caveats();
@@ -87,7 +91,9 @@ pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
 /// Most images one `synth` writes: their names carry four digits.
 pub const MAX_COUNT: usize = 10_000;
 
-fn check_common(c: &SynthCommon) -> Result<()> {
+/// The checks of every model's options; `Some(workers)` when the memory
+/// holds fewer images in flight than rayon has threads.
+fn check_common(c: &SynthCommon) -> Result<Option<usize>> {
     super::common::check_generated_side(c.size)?;
     if c.count == 0 {
         return Err(Error::param("count", "must be >= 1"));
@@ -106,7 +112,7 @@ fn check_common(c: &SynthCommon) -> Result<()> {
     // an allocation beyond the machine aborts the process (no message, and
     // the directory left behind): estimate first. The fBm is drawn on a
     // grid twice as large in complex f64 (64 N^2 bytes), the largest case.
-    super::common::check_memory(c.size, c.count, 64.0)
+    super::common::check_memory(c.size, c.count, 64.0, "synth")
 }
 
 /// Generates and writes `count` images in parallel; image `i` depends only on

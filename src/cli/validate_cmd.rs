@@ -525,7 +525,12 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     // allocated or computed for it
     super::common::check_generated(args.size, args.count)?;
     r.model.check_size(args.size)?;
-    super::common::check_ensemble_memory(args.size, args.count)?;
+    if let Some(workers) = super::common::check_ensemble_memory(args.size, args.count, "validate")?
+    {
+        // fewer images in flight than threads (said in a note); inside the
+        // pool they fit
+        return super::common::on_workers(workers, || run_one(args, quiet));
+    }
     let (k_lo, k_hi) = default_k_range(args.size);
     let ps_cfg = PowerSpectrumConfig::for_field(r.model.is_periodic());
     let k_bins = bins_in_range(args.size, args.size, ps_cfg.bins_per_octave, (k_lo, k_hi))?;
