@@ -119,6 +119,114 @@ where
     }
 }
 
+/// [`try_map_at`] with at most `limit` items in flight (`None`, or a
+/// limit of `n` or more: [`try_map_at`] itself). The items run on `limit`
+/// threads of their own, their nested rayon work on rayon's pool: inside a
+/// rayon pool of `limit` threads a worker waiting in a nested join steals
+/// other tasks, another item among them, so a pool of 4 held up to 5
+/// images and one of 8 up to 10 (tm, counted by the review of 2026-11-29).
+/// Failures as [`try_map_at`]: the lowest failing index, items above a
+/// known failure skipped.
+pub(crate) fn try_map_at_limited<R, F>(
+    n: usize,
+    limit: Option<usize>,
+    f: F,
+) -> std::result::Result<Vec<R>, (usize, Error)>
+where
+    R: Send,
+    F: Fn(usize) -> Result<R> + Sync + Send,
+{
+    let Some(workers) = limit.filter(|&w| w < n) else {
+        return try_map_at(n, f);
+    };
+    let (next, first) = (AtomicUsize::new(0), AtomicUsize::new(usize::MAX));
+    let slots: Vec<std::sync::Mutex<Option<Result<R>>>> =
+        (0..n).map(|_| std::sync::Mutex::new(None)).collect();
+    std::thread::scope(|scope| {
+        for _ in 0..workers.max(1) {
+            scope.spawn(|| {
+                loop {
+                    // indices are taken in increasing order: one above a
+                    // known failure is skipped, and so are all after it
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    if i >= n || i > first.load(Ordering::Relaxed) {
+                        break;
+                    }
+                    let r = f(i);
+                    if r.is_err() {
+                        first.fetch_min(i, Ordering::Relaxed);
+                    }
+                    *slots[i].lock().unwrap_or_else(|e| e.into_inner()) = Some(r);
+                }
+            });
+        }
+    });
+    let mut v = Vec::with_capacity(n);
+    for (i, slot) in slots.into_iter().enumerate() {
+        let r = slot.into_inner().unwrap_or_else(|e| e.into_inner());
+        match r.expect("a skipped index follows a failure") {
+            Ok(x) => v.push(x),
+            Err(e) => return Err((i, e)),
+        }
+    }
+    Ok(v)
+}
+
+/// [`try_fold`] with at most `limit` items in flight, on `limit` threads
+/// of their own as [`try_map_at_limited`]: each folds the indices it takes
+/// (in increasing order) into its own accumulator, and the accumulators
+/// are merged in thread order (as [`try_fold`]'s runs, whose bounds
+/// depend on the scheduling: `merge` must not depend on them).
+pub(crate) fn try_fold_limited<A, I, S, M>(
+    n: usize,
+    limit: Option<usize>,
+    init: I,
+    step: S,
+    merge: M,
+) -> std::result::Result<A, (usize, Error)>
+where
+    A: Send,
+    I: Fn() -> A + Sync + Send,
+    S: Fn(&mut A, usize) -> Result<()> + Sync + Send,
+    M: Fn(A, A) -> Result<A> + Sync + Send,
+{
+    let Some(workers) = limit.filter(|&w| w < n) else {
+        return try_fold(n, init, step, merge);
+    };
+    let (next, first) = (AtomicUsize::new(0), AtomicUsize::new(usize::MAX));
+    let runs: Vec<(A, Option<(usize, Error)>)> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..workers.max(1))
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut acc = init();
+                    loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        if i >= n || i > first.load(Ordering::Relaxed) {
+                            return (acc, None);
+                        }
+                        if let Err(e) = step(&mut acc, i) {
+                            first.fetch_min(i, Ordering::Relaxed);
+                            return (acc, Some((i, e)));
+                        }
+                    }
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+            .collect()
+    });
+    // an input's failure before a failed merge (a defect), as try_fold
+    let (accs, failures): (Vec<A>, Vec<Option<(usize, Error)>>) = runs.into_iter().unzip();
+    if let Some(f) = failures.into_iter().flatten().min_by_key(|(i, _)| *i) {
+        return Err(f);
+    }
+    let mut accs = accs.into_iter();
+    let first_acc = accs.next().unwrap_or_else(&init);
+    accs.try_fold(first_acc, merge).map_err(|e| (usize::MAX, e))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -181,6 +289,48 @@ mod tests {
                 assert_eq!(s, 4950);
                 assert!(try_map(0, Ok).unwrap().is_empty());
             });
+        }
+    }
+
+    /// The limited map and fold name the lowest failing index and keep the
+    /// order, as the others; and they never hold more than `limit` items,
+    /// even when every item waits in a nested join (inside a rayon pool of
+    /// `limit` threads a waiting worker steals another item).
+    #[test]
+    fn limited_passes_bound_the_items_in_flight() {
+        use std::sync::atomic::AtomicUsize;
+        for limit in [1, 2, 3] {
+            let e = try_map_at_limited(40, Some(limit), slow_three).unwrap_err();
+            assert_eq!(e.0, 3);
+            let f = |acc: &mut usize, i: usize| {
+                *acc += slow_three(i)?;
+                Ok(())
+            };
+            let e = try_fold_limited(40, Some(limit), || 0usize, f, |a, b| Ok(a + b));
+            assert_eq!(e.unwrap_err().0, 3);
+            let v = try_map_at_limited(50, Some(limit), |i| Ok(i * 2)).unwrap();
+            assert_eq!(v, (0..50).map(|i| i * 2).collect::<Vec<_>>());
+            let add = |a: &mut usize, i: usize| {
+                *a += i;
+                Ok(())
+            };
+            let s = try_fold_limited(100, Some(limit), || 0usize, add, |a, b| Ok(a + b));
+            assert_eq!(s.unwrap(), 4950);
+            let (now, most) = (AtomicUsize::new(0), AtomicUsize::new(0));
+            let item = |i: usize| -> Result<usize> {
+                let k = now.fetch_add(1, Ordering::SeqCst) + 1;
+                most.fetch_max(k, Ordering::SeqCst);
+                // nested work that waits: the pattern that let a pooled
+                // worker start a second item
+                rayon::join(
+                    || std::thread::sleep(Duration::from_millis(2)),
+                    || std::thread::sleep(Duration::from_millis(3)),
+                );
+                now.fetch_sub(1, Ordering::SeqCst);
+                Ok(i)
+            };
+            pool(8).install(|| try_map_at_limited(24, Some(limit), item).unwrap());
+            assert!(most.load(Ordering::SeqCst) <= limit, "limit {limit}");
         }
     }
 

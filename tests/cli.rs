@@ -972,7 +972,9 @@ fn inputs_are_checked_before_computing_and_nothing_is_left() {
 
 /// Runs the binary: exit code and stderr (where the messages are).
 fn run_bin_stderr(args: &[&str]) -> (i32, String) {
+    // the memory the tests plan with is the system's
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"))
+        .env_remove("WTMM_MEMORY_GB")
         .arg("--quiet")
         .args(args)
         .output()
@@ -985,6 +987,7 @@ fn run_bin_stderr(args: &[&str]) -> (i32, String) {
 /// stdout and stderr.
 fn run_bin_output(args: &[&str], quiet: bool) -> (i32, String, String) {
     let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_wtmm"));
+    c.env_remove("WTMM_MEMORY_GB");
     if quiet {
         c.arg("--quiet");
     }
@@ -4798,7 +4801,7 @@ fn validate_refuses_a_size_beyond_the_memory() {
 /// about 143 B/px: 38 GB at 16384^2) refuses it from the file's header,
 /// before reading it: the file here is a .npy header of 16384 x 16384
 /// doubles with no data after it, whose read would fail otherwise; so is an
-/// ensemble of three whose largest image (150 B/px in flight) cannot fit
+/// ensemble of three whose largest image (190 B/px in flight) cannot fit
 /// alone. Run only where 40 GB are not available.
 #[test]
 fn tm_refuses_an_image_beyond_the_memory() {
@@ -4841,7 +4844,7 @@ fn tm_refuses_an_image_beyond_the_memory() {
     assert_eq!(code, 2, "{err}");
     assert!(
         err.contains("huge.npy")
-            && err.contains("16384x16384 image needs about 40.3 GB of memory for the trace"),
+            && err.contains("16384x16384 image needs about 51.0 GB of memory for the trace"),
         "{err} ({avail_gb:.1} GB available)"
     );
     assert!(!out.exists());
@@ -4889,7 +4892,7 @@ fn memory_budget_sets_the_workers() {
         let err = String::from_utf8_lossy(&o.stderr).into_owned();
         (o.status.code().unwrap_or(-1), err)
     };
-    // 256^2 px: 9.8 MB per image for tm (150 B/px), 4.6 MB for the WTMM (70)
+    // 256^2 px: 12.5 MB per image for tm (190 B/px), 4.6 MB for the WTMM (70)
     for (cmd, fits_one, fits_none, file) in [
         ("tm", "0.015", "0.009", "tm.json"),
         ("analyze", "0.007", "0.004", "spectra.json"),
@@ -4931,7 +4934,9 @@ fn memory_budget_sets_the_workers() {
         let (code, err) = bin(cmd, &bad, Some("-1"));
         assert_eq!(code, 2, "{err}");
         assert!(
-            err.contains("WTMM_MEMORY_GB") && err.contains("positive number of GB, not `-1`"),
+            err.contains("WTMM_MEMORY_GB")
+                && err.contains("positive number of GB")
+                && err.contains("not `-1`"),
             "{cmd}: {err}"
         );
         assert!(!bad.exists(), "{cmd}");

@@ -1856,7 +1856,8 @@ fn the_default_fit_of_listed_scales_is_accepted() {
 /// (default 16) of SIZE² (384), H (0.5), DROP (0.05), SEED (91), RADIUS
 /// (0: isolated pixels; r > 0: discs of radius r px, centred at random,
 /// about DROP of the pixels in all), PRESET (a preset's model in place of
-/// the fBm, e.g. paper-lognormal with SIZE=512)): the
+/// the fBm, e.g. paper-lognormal with SIZE=512; panics on an unknown name
+/// or a size the model refuses)): the
 /// counting domain excludes everything within the wavelet's support of a
 /// hole, so 5 % of isolated missing pixels leave nothing to count; here
 /// they are filled (harmonically, and with the image mean) and analysed as

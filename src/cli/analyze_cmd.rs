@@ -457,6 +457,13 @@ pub fn analyze_paths(
     q: &[f64],
     quiet: bool,
 ) -> Result<PartitionSums> {
+    // an ensemble: one image per worker, as many workers as the memory
+    // holds images (a lone image is checked with its threads once read)
+    let limit = super::common::ensemble_memory_workers(
+        paths,
+        super::common::ENSEMBLE_ANALYSIS_BYTES_PER_PIXEL,
+        "the analysis",
+    )?;
     let pb = progress(paths.len() as u64, "analyze", quiet);
     // a lone image (a DEM) would leave all but one core idle: detect its
     // scales in parallel instead (the same sums to the bit)
@@ -469,8 +476,8 @@ pub fn analyze_paths(
     // margin 0: the images are tori, and so is their fill
     let torus = cfg.margin == Some(0);
     // the first bad image in input order is named, whatever the scheduling
-    let pass = || {
-        crate::par::try_map_at(paths.len(), |i| {
+    let parts = {
+        crate::par::try_map_at_limited(paths.len(), limit, |i| {
             let p = &paths[i];
             let field = super::common::read_image_noted(p, nodata, i, &notes)?;
             let (field, filled) = if fill {
@@ -501,23 +508,6 @@ pub fn analyze_paths(
             pb.inc(1);
             Ok(s)
         })
-    };
-    // an ensemble: one image per worker, as many workers as the memory
-    // holds images (a lone image is checked with its threads once read)
-    let parts = if paths.len() > 1 {
-        let sizes = paths
-            .iter()
-            .map(crate::io::read_shape)
-            .collect::<Result<Vec<_>>>()?;
-        super::common::in_memory_workers(
-            paths,
-            &sizes,
-            super::common::ENSEMBLE_ANALYSIS_BYTES_PER_PIXEL,
-            "the analysis",
-            || Ok(pass()),
-        )?
-    } else {
-        pass()
     };
     pb.finish_and_clear();
     notes.say_upto(parts.as_ref().err().map(|f| f.0));

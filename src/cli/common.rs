@@ -860,26 +860,37 @@ pub fn available_memory() -> Option<f64> {
 /// process is killed with no message, while /proc/meminfo still shows the
 /// host's memory), in bytes.
 pub fn system_memory() -> Option<f64> {
+    memory_sources().0
+}
+
+/// [`system_memory`], and whether the cgroup's limit is what bounds it.
+fn memory_sources() -> (Option<f64>, bool) {
     let host = std::fs::read_to_string("/proc/meminfo")
         .ok()
         .and_then(|s| meminfo_available(&s));
     match (host, cgroup_headroom()) {
-        (Some(h), Some(c)) => Some(h.min(c)),
-        (h, c) => h.or(c),
+        (Some(h), Some(c)) => (Some(h.min(c)), c < h),
+        (h, c) => (h.or(c), h.is_none() && c.is_some()),
     }
 }
 
-/// `WTMM_MEMORY_GB` in bytes, `None` when unset.
+/// `WTMM_MEMORY_GB` in bytes, `None` when unset (or set empty).
 fn memory_variable() -> Result<Option<f64>> {
     let Some(v) = std::env::var_os(MEMORY_VAR) else {
         return Ok(None);
     };
     let s = v.to_string_lossy();
+    if s.trim().is_empty() {
+        return Ok(None);
+    }
     match s.trim().parse::<f64>() {
         Ok(gb) if gb.is_finite() && gb > 0.0 => Ok(Some(gb * 1e9)),
         _ => Err(Error::param(
             MEMORY_VAR,
-            format!("must be a positive number of GB, not `{s}`"),
+            format!(
+                "the environment variable must be a positive number of GB (unset, the memory \
+                 the system reports is used), not `{s}`"
+            ),
         )),
     }
 }
@@ -890,19 +901,21 @@ pub fn check_memory_variable() -> Result<()> {
     memory_variable().map(|_| ())
 }
 
-/// `X GB are available`, or `X GB are allowed (WTMM_MEMORY_GB)` when the
-/// budget is the variable's, for the memory messages.
+/// `X GB are available`, `... (the cgroup's limit; WTMM_MEMORY_GB sets
+/// another)` when a container's or job's limit bounds it, or `X GB are
+/// allowed (WTMM_MEMORY_GB)` when the budget is the variable's, for the
+/// memory messages.
 pub fn gb_available(avail: f64) -> String {
     let set = matches!(memory_variable(), Ok(Some(_)));
-    format!(
-        "{} are {}",
-        memory_text(avail),
-        if set {
-            "allowed (WTMM_MEMORY_GB)"
-        } else {
-            "available"
-        }
-    )
+    let why = if set {
+        "allowed (WTMM_MEMORY_GB)"
+    } else if memory_sources().1 {
+        "available (the limit of this process's memory cgroup, a container or a job; \
+         WTMM_MEMORY_GB sets another)"
+    } else {
+        "available"
+    };
+    format!("{} are {why}", memory_text(avail))
 }
 
 /// `bytes` for a memory message: `1.2 GB`, or `350 MB` below 1 GB (where
@@ -923,50 +936,62 @@ fn meminfo_available(meminfo: &str) -> Option<f64> {
 }
 
 /// What the memory cgroup of this process leaves before its limit, in
-/// bytes (`None` without a limit, or where none can be read). The
-/// reclaimable page cache (inactive files) counts as free, as
-/// `MemAvailable` counts it.
+/// bytes: the lowest headroom of its group and their ancestors' (a job's
+/// limit binds its steps), each `limit - (usage - file cache)`, the page
+/// cache of files counting as free, as `MemAvailable` counts it (re-read
+/// files move to the active list, which the kernel reclaims too). `None`
+/// without a limit, or where none can be read.
 fn cgroup_headroom() -> Option<f64> {
     let own = std::fs::read_to_string("/proc/self/cgroup").ok()?;
-    let root = Path::new("/sys/fs/cgroup");
+    cgroup_headroom_in(&own, Path::new("/sys/fs/cgroup"))
+}
+
+/// [`cgroup_headroom`] of the groups `own` (a /proc/self/cgroup text)
+/// under the cgroup mount `root`.
+fn cgroup_headroom_in(own: &str, root: &Path) -> Option<f64> {
     let read = |p: &Path| std::fs::read_to_string(p).ok();
-    // cgroup v1: a `memory` hierarchy; memory.stat gives the limit in
-    // force (the lowest of the ancestors')
-    if let Some(path) = cgroup_path(&own, "memory") {
-        let base = root.join("memory");
-        // inside a namespace the own group is the mount's root
-        let dir = [base.join(path.trim_start_matches('/')), base]
-            .into_iter()
-            .find(|d| d.join("memory.usage_in_bytes").exists())?;
-        let stat = read(&dir.join("memory.stat"))?;
-        let usage: f64 = read(&dir.join("memory.usage_in_bytes"))?
-            .trim()
-            .parse()
-            .ok()?;
-        let limit = stat_value(&stat, "hierarchical_memory_limit")?;
-        let inactive = stat_value(&stat, "total_inactive_file").unwrap_or(0.0);
-        return headroom(limit, usage, inactive);
-    }
-    // cgroup v2: the unified hierarchy; the lowest headroom of the group
-    // and its ancestors
-    let path = cgroup_path(&own, "")?;
-    let leaf = [root.join(path.trim_start_matches('/')), root.to_path_buf()]
-        .into_iter()
-        .find(|d| d.join("memory.current").exists())?;
+    // v1: a `memory` hierarchy of its own; v2: the unified one (`0::`)
+    let (base, path, files) = match cgroup_path(own, "memory") {
+        Some(path) => (
+            root.join("memory"),
+            path,
+            ["memory.limit_in_bytes", "memory.usage_in_bytes"],
+        ),
+        None => (
+            root.to_path_buf(),
+            cgroup_path(own, "")?,
+            ["memory.max", "memory.current"],
+        ),
+    };
+    // the cache keys of memory.stat: v1 counts the group's subtree in
+    // total_*, v2 in the plain keys
+    let cache_keys: &[&str] = if files[0] == "memory.max" {
+        &["active_file", "inactive_file"]
+    } else {
+        &["total_active_file", "total_inactive_file"]
+    };
+    // inside a cgroup namespace the own group is the mount's root, and the
+    // path read is not under it
+    let own_dir = base.join(path.trim_start_matches('/'));
+    let start = if own_dir.exists() {
+        own_dir
+    } else {
+        base.clone()
+    };
     let mut best: Option<f64> = None;
-    let mut dir = Some(leaf.as_path());
-    while let Some(d) = dir.filter(|d| d.starts_with(root)) {
-        let max = read(&d.join("memory.max"));
-        let cur = read(&d.join("memory.current"));
-        if let (Some(max), Some(cur)) = (max, cur) {
-            let inactive = read(&d.join("memory.stat"))
-                .and_then(|s| stat_value(&s, "inactive_file"))
-                .unwrap_or(0.0);
-            let h = max
+    let mut dir = Some(start.as_path());
+    while let Some(d) = dir.filter(|d| d.starts_with(&base)) {
+        // a level without the files (a v2 group whose parent does not
+        // enable the memory controller, the v2 root) is passed over
+        if let (Some(limit), Some(usage)) = (read(&d.join(files[0])), read(&d.join(files[1]))) {
+            let cache: f64 = read(&d.join("memory.stat")).map_or(0.0, |st| {
+                cache_keys.iter().filter_map(|k| stat_value(&st, k)).sum()
+            });
+            let h = limit
                 .trim()
                 .parse()
                 .ok()
-                .and_then(|limit: f64| headroom(limit, cur.trim().parse().ok()?, inactive));
+                .and_then(|l: f64| headroom(l, usage.trim().parse().ok()?, cache));
             if let Some(h) = h {
                 best = Some(best.map_or(h, |b| b.min(h)));
             }
@@ -999,10 +1024,11 @@ fn stat_value(stat: &str, key: &str) -> Option<f64> {
     })
 }
 
-/// A limit's headroom over a usage of which `inactive` bytes are
-/// reclaimable; `None` for no limit (v1 writes "no limit" as about 2^63).
-fn headroom(limit: f64, usage: f64, inactive: f64) -> Option<f64> {
-    (limit < 2f64.powi(60)).then(|| (limit - (usage - inactive).max(0.0)).max(0.0))
+/// A limit's headroom over a usage of which `cache` bytes are
+/// reclaimable; `None` for no limit (v1 writes "no limit" as about 2^63,
+/// v2 as "max", which does not parse).
+fn headroom(limit: f64, usage: f64, cache: f64) -> Option<f64> {
+    (limit < 2f64.powi(60)).then(|| (limit - (usage - cache).max(0.0)).max(0.0))
 }
 
 /// Bytes per pixel of the WTMM analysis of one image on one thread (the
@@ -1137,8 +1163,10 @@ fn tm_memory_problem(
 /// (one image per worker, dropped after its sums), per pixel: peak RSS of
 /// `tm` on fBm planes (2026-11-29), 3 x 4096^2: 2.47 GB on one thread
 /// (147 B/px), 4.35 GB on two (130 B/px per image in flight); 4 x 2048^2:
-/// 0.68 and 1.19 GB (144 and 134 B/px above the 73 MB of the process).
-pub const TM_ENSEMBLE_BYTES_PER_PIXEL: f64 = 150.0;
+/// 0.68 and 1.19 GB (144 and 134 B/px above the 73 MB of the process);
+/// one image in flight on two threads, its double trace moments' two
+/// halves side by side (a memory-limited run): 0.82 GB, 179 B/px.
+pub const TM_ENSEMBLE_BYTES_PER_PIXEL: f64 = 190.0;
 
 /// How many workers, of at most `threads`, can hold images of `px` pixels
 /// side by side at `per_px` bytes per pixel within `avail` bytes: the most
@@ -1156,35 +1184,35 @@ fn workers_that_fit(px: &[usize], per_px: f64, threads: usize, avail: f64) -> us
         .count()
 }
 
-/// Runs `pass`, a pass over the images `paths` (of sizes `sizes`, from
-/// their headers) that holds one image per worker at `per_px` bytes per
-/// pixel, on as many of rayon's threads as the available memory holds
-/// images side by side (the largest ones), and says so when that is fewer
-/// than rayon has: on 16 threads, 16 DEMs of 8192^2 in flight would abort
-/// the process with no message. The results do not depend on the thread
-/// count. `what` names the pass ("the trace moments").
+/// How many images of the ensemble `paths` (of sizes `sizes`, from their
+/// headers), held one per worker at `per_px` bytes per pixel, the
+/// available memory holds side by side (the largest ones): `Some(workers)`
+/// when fewer than rayon has threads (said in a note; the caller's pass
+/// then runs its images on that many threads,
+/// [`crate::par::try_map_at_limited`]), `None` when every thread can hold
+/// one: on 16 threads, 16 DEMs of 8192^2 in flight would abort the process
+/// with no message. The results do not depend on the thread count. `what`
+/// names the pass ("the trace moments").
 ///
 /// **Errors**, before any image is read, when not even the largest image
-/// fits alone (the message names it); what `pass` returns.
-pub fn in_memory_workers<R: Send>(
+/// fits alone (the message names it).
+pub fn memory_workers(
     paths: &[PathBuf],
     sizes: &[[usize; 2]],
     per_px: f64,
     what: &str,
-    pass: impl FnOnce() -> Result<R> + Send,
-) -> Result<R> {
+) -> Result<Option<usize>> {
     let threads = rayon::current_num_threads().max(1);
     let Some(avail) = available_memory() else {
-        return pass();
+        return Ok(None);
     };
     let px: Vec<usize> = sizes.iter().map(|[ny, nx]| ny * nx).collect();
     let fit = workers_that_fit(&px, per_px, threads, avail);
     if fit >= threads.min(px.len()) {
-        return pass();
+        return Ok(None);
     }
-    let largest = (0..px.len()).max_by_key(|&i| (px[i], std::cmp::Reverse(i)));
-    let Some(big) = largest else {
-        return pass();
+    let Some(big) = (0..px.len()).max_by_key(|&i| (px[i], std::cmp::Reverse(i))) else {
+        return Ok(None);
     };
     let [ny, nx] = sizes[big];
     let one = per_px * px[big] as f64;
@@ -1205,7 +1233,25 @@ pub fn in_memory_workers<R: Send>(
         memory_text(one),
         gb_available(avail)
     );
-    on_workers(fit, pass)
+    Ok(Some(fit))
+}
+
+/// [`memory_workers`] of the image files `paths`, their sizes read from
+/// their headers; `None` for fewer than two (a lone image is checked with
+/// its threads once read).
+pub fn ensemble_memory_workers(
+    paths: &[PathBuf],
+    per_px: f64,
+    what: &str,
+) -> Result<Option<usize>> {
+    if paths.len() < 2 {
+        return Ok(None);
+    }
+    let sizes = paths
+        .iter()
+        .map(crate::io::read_shape)
+        .collect::<Result<Vec<_>>>()?;
+    memory_workers(paths, &sizes, per_px, what)
 }
 
 /// Bytes per pixel beyond the images already read: `spectrum` per image in
@@ -1370,9 +1416,12 @@ pub fn check_memory(
     }))
 }
 
-/// Runs `f` on a pool of `workers` threads (from [`check_memory`] or
-/// [`in_memory_workers`]: fewer than rayon has, so that the images in
-/// flight fit in memory); the results do not depend on the thread count.
+/// Runs `f` on a pool of `workers` threads (from [`check_memory`]: fewer
+/// than rayon has, so that the images in flight fit in memory); the
+/// results do not depend on the thread count. A worker waiting in a nested
+/// join can start one more image ([`crate::par::try_map_at_limited`]
+/// bounds them exactly, for the ensembles of files): the generated
+/// ensembles of `validate` and `compare` may hold a few more than planned.
 pub fn on_workers<R: Send>(workers: usize, f: impl FnOnce() -> Result<R> + Send) -> Result<R> {
     rayon::ThreadPoolBuilder::new()
         .num_threads(workers)
@@ -1589,6 +1638,78 @@ mod tests {
         );
         assert_eq!(memory_text(3.5e8), "350 MB");
         assert_eq!(memory_text(2.26e9), "2.3 GB");
+    }
+
+    /// Fake cgroup trees: the lowest headroom up the ancestors, the file
+    /// cache (active and inactive) counted as free, levels without the
+    /// files passed over, no limit read as none.
+    #[test]
+    fn cgroup_headroom_walks_the_ancestors() {
+        let dir = std::env::temp_dir().join(format!("wtmm_cgroup_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let put = |rel: &str, name: &str, text: &str| {
+            let d = dir.join(rel);
+            std::fs::create_dir_all(&d).unwrap();
+            std::fs::write(d.join(name), text).unwrap();
+        };
+        let gb = 1e9;
+        // v2: a job of 16 GB holding 12 GB, 10 GB of it active file cache;
+        // its step has no memory files (the controller not enabled below)
+        put("v2", "cgroup.controllers", "memory\n");
+        put("v2/job", "memory.max", "16000000000\n");
+        put("v2/job", "memory.current", "12000000000\n");
+        put(
+            "v2/job",
+            "memory.stat",
+            "anon 1500000000\nactive_file 10000000000\ninactive_file 500000000\n",
+        );
+        std::fs::create_dir_all(dir.join("v2/job/step")).unwrap();
+        let v2 = dir.join("v2");
+        let h = cgroup_headroom_in("0::/job/step\n", &v2).unwrap();
+        assert!((h - 14.5 * gb).abs() < 1.0, "{h}");
+        // a step limit of its own, lower: it binds
+        put("v2/job/step", "memory.max", "3000000000\n");
+        put("v2/job/step", "memory.current", "1000000000\n");
+        let h = cgroup_headroom_in("0::/job/step\n", &v2).unwrap();
+        assert!((h - 2.0 * gb).abs() < 1.0, "{h}");
+        // no limit anywhere: none
+        assert_eq!(cgroup_headroom_in("0::/\n", &v2), None);
+        put("v2/free", "memory.max", "max\n");
+        put("v2/free", "memory.current", "5\n");
+        assert_eq!(cgroup_headroom_in("0::/free\n", &v2), None);
+        // over the limit: nothing left (not negative)
+        put("v2/over", "memory.max", "1000\n");
+        put("v2/over", "memory.current", "2000\n");
+        assert_eq!(cgroup_headroom_in("0::/over\n", &v2), Some(0.0));
+        // v1: a job of 16 GB with 15 GB used by other steps binds a step
+        // that uses little
+        let v1 = dir.join("v1");
+        put(
+            "v1/memory",
+            "memory.limit_in_bytes",
+            "9223372036854771712\n",
+        );
+        put("v1/memory", "memory.usage_in_bytes", "30000000000\n");
+        put("v1/memory/job", "memory.limit_in_bytes", "16000000000\n");
+        put("v1/memory/job", "memory.usage_in_bytes", "15000000000\n");
+        put(
+            "v1/memory/job",
+            "memory.stat",
+            "total_active_file 0\ntotal_inactive_file 0\n",
+        );
+        put(
+            "v1/memory/job/step",
+            "memory.limit_in_bytes",
+            "9223372036854771712\n",
+        );
+        put("v1/memory/job/step", "memory.usage_in_bytes", "100000000\n");
+        let own = "4:memory:/job/step\n0::/\n";
+        let h = cgroup_headroom_in(own, &v1).unwrap();
+        assert!((h - 1.0 * gb).abs() < 1.0, "{h}");
+        // inside a namespace the own path is not under the mount: the
+        // mount's root is the own group
+        assert_eq!(cgroup_headroom_in("4:memory:/elsewhere\n", &v1), None);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

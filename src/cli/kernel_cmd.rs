@@ -191,6 +191,7 @@ fn collect(
     input.fold(
         quiet,
         "kernel",
+        super::common::ENSEMBLE_ANALYSIS_BYTES_PER_PIXEL,
         || Acc {
             main: None,
             alt: None,

@@ -576,8 +576,18 @@ impl Input {
 
     /// Runs `step` on every image (in parallel over images, each image
     /// analysed serially unless there is only one) folding into accumulators
-    /// merged with `merge`. Errors name the image.
-    pub fn fold<A, I, S, M>(&self, quiet: bool, msg: &str, init: I, step: S, merge: M) -> Result<A>
+    /// merged with `merge`; files of an ensemble on as many threads as the
+    /// memory holds their images at `per_px` bytes per pixel each
+    /// ([`super::common::memory_workers`]). Errors name the image.
+    pub fn fold<A, I, S, M>(
+        &self,
+        quiet: bool,
+        msg: &str,
+        per_px: f64,
+        init: I,
+        step: S,
+        merge: M,
+    ) -> Result<A>
     where
         A: Send,
         I: Fn() -> A + Sync + Send,
@@ -590,48 +600,36 @@ impl Input {
         } else {
             Parallelism::Serial
         };
-        let pb = progress(n as u64, msg, quiet);
-        let notes = super::common::OrderedNotes::default();
-        // the first bad image in input order is named, whatever the scheduling
-        let pass = || {
-            crate::par::try_fold(
-                n,
-                &init,
-                |acc, i| -> Result<()> {
-                    let (field, label) = self.load_noted(i, &notes, Some(&self.holes))?;
-                    self.tally.add(&field);
-                    step(acc, &field, &label, par).map_err(|e| {
-                        if self.generated() {
-                            e
-                        } else {
-                            super::common::in_file(&self.images[i], e)
-                        }
-                    })?;
-                    pb.inc(1);
-                    Ok(())
-                },
-                &merge,
-            )
-        };
         // files of an ensemble: one image per worker, as many workers as
         // the memory holds images (a lone image is checked with its
         // threads once read; generated sizes are checked up front)
-        let out = if n > 1 && !self.generated() {
-            let sizes = self
-                .images
-                .iter()
-                .map(crate::io::read_shape)
-                .collect::<Result<Vec<_>>>()?;
-            super::common::in_memory_workers(
-                &self.images,
-                &sizes,
-                super::common::ENSEMBLE_ANALYSIS_BYTES_PER_PIXEL,
-                "the analysis",
-                || Ok(pass()),
-            )?
+        let limit = if self.generated() {
+            None
         } else {
-            pass()
+            super::common::ensemble_memory_workers(&self.images, per_px, "the analysis")?
         };
+        let pb = progress(n as u64, msg, quiet);
+        let notes = super::common::OrderedNotes::default();
+        // the first bad image in input order is named, whatever the scheduling
+        let out = crate::par::try_fold_limited(
+            n,
+            limit,
+            &init,
+            |acc, i| -> Result<()> {
+                let (field, label) = self.load_noted(i, &notes, Some(&self.holes))?;
+                self.tally.add(&field);
+                step(acc, &field, &label, par).map_err(|e| {
+                    if self.generated() {
+                        e
+                    } else {
+                        super::common::in_file(&self.images[i], e)
+                    }
+                })?;
+                pb.inc(1);
+                Ok(())
+            },
+            &merge,
+        );
         pb.finish_and_clear();
         notes.say_upto(out.as_ref().err().map(|f| f.0));
         out.map_err(|f| f.1)
@@ -883,6 +881,7 @@ pub fn collect_histograms(
     input.fold(
         quiet,
         "pdf",
+        super::common::ENSEMBLE_ANALYSIS_BYTES_PER_PIXEL,
         || empty.clone(),
         |acc, field, label, par| {
             let w = image_wtmmm(field, cfg, par, set == WtmmmSet::Lines)?;

@@ -367,13 +367,13 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
         // a fit the sizes rule out is said before every image is read
         check_ensemble_fit(&fc, &sizes)?;
         // one image per worker: as many workers as the memory holds images
-        let (parts, shapes) = super::common::in_memory_workers(
+        let limit = super::common::memory_workers(
             &args.images,
             &sizes,
             super::common::TM_ENSEMBLE_BYTES_PER_PIXEL,
             "the trace moments",
-            || accumulate_paths(&args.images, nodata, &cfg, quiet),
         )?;
+        let (parts, shapes) = accumulate_paths(&args.images, nodata, &cfg, quiet, limit)?;
         let (acc, res) = finish_ensemble(&parts, &fc)?;
         (acc, res, shapes)
     };
@@ -633,16 +633,18 @@ fn lattice_step(f: &crate::Field) -> Option<f64> {
 /// Reads and accumulates every image (in parallel), one accumulator per
 /// image in input order (for the jackknife of [`finish_ensemble`]), with
 /// the images' sizes `[ny, nx]` and missing-pixel counts; a bad file stops
-/// everything before any output is written.
+/// everything before any output is written. `limit`: at most that many
+/// images in flight ([`super::common::memory_workers`]).
 pub fn accumulate_paths(
     paths: &[PathBuf],
     nodata: Option<f64>,
     cfg: &TraceMomentConfig,
     quiet: bool,
+    limit: Option<usize>,
 ) -> Result<(Vec<TraceMomentAccumulator>, Vec<ImageInfo>)> {
     let pb = progress(paths.len() as u64, "tm", quiet);
     let notes = super::common::OrderedNotes::default();
-    let parts = crate::par::try_map_at(paths.len(), |i| {
+    let parts = crate::par::try_map_at_limited(paths.len(), limit, |i| {
         let p = &paths[i];
         let field = super::common::read_image_noted(p, nodata, i, &notes)?;
         let mut acc = TraceMomentAccumulator::new(cfg.clone())?;
