@@ -46,10 +46,17 @@ where
             Some(r)
         })
         .collect();
-    // an index is skipped only above a failure, whose error comes first in
-    // this ordered pass and ends it
-    let mut v = Vec::with_capacity(n);
-    for (i, r) in out.into_iter().enumerate() {
+    in_order(out)
+}
+
+/// The results of indices `0..n` (`None`: skipped), in order, or the
+/// lowest failing index's error: an index is skipped only above a failure,
+/// whose error comes first in this ordered pass and ends it.
+fn in_order<R>(
+    results: impl IntoIterator<Item = Option<Result<R>>>,
+) -> std::result::Result<Vec<R>, (usize, Error)> {
+    let mut v = Vec::new();
+    for (i, r) in results.into_iter().enumerate() {
         match r.expect("a skipped index follows a failure") {
             Ok(x) => v.push(x),
             Err(e) => return Err((i, e)),
@@ -161,15 +168,11 @@ where
             });
         }
     });
-    let mut v = Vec::with_capacity(n);
-    for (i, slot) in slots.into_iter().enumerate() {
-        let r = slot.into_inner().unwrap_or_else(|e| e.into_inner());
-        match r.expect("a skipped index follows a failure") {
-            Ok(x) => v.push(x),
-            Err(e) => return Err((i, e)),
-        }
-    }
-    Ok(v)
+    in_order(
+        slots
+            .into_iter()
+            .map(|slot| slot.into_inner().unwrap_or_else(|e| e.into_inner())),
+    )
 }
 
 /// [`try_fold`] with at most `limit` items in flight, on `limit` threads
