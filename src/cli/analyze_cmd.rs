@@ -476,39 +476,37 @@ pub fn analyze_paths(
     // margin 0: the images are tori, and so is their fill
     let torus = cfg.margin == Some(0);
     // the first bad image in input order is named, whatever the scheduling
-    let parts = {
-        crate::par::try_map_at_limited(paths.len(), limit, |i| {
-            let p = &paths[i];
-            let field = super::common::read_image_noted(p, nodata, i, &notes)?;
-            let (field, filled) = if fill {
-                let (f, h) = super::common::fill_holes_noted(field, p, torus, i, &notes)?;
-                (f, Some(h))
-            } else {
-                (field, None)
-            };
-            super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
-            super::common::check_image_memory(p, &field, paths.len() == 1)?;
-            // fewer than 3 images: the jackknife runs over tiles
-            let side = if paths.len() < 3 {
-                let (ny, nx) = field.dim();
-                default_tile_side(cfg, ny, nx)
-            } else {
-                0
-            };
-            // (an image without maxima lines is an error of the library's)
-            let mut s = image_sums_tiled(&field, cfg, q, p.display().to_string(), par, side)
-                .map_err(|e| super::common::in_file(p, e))?;
-            // recorded per image, so that merged sums still say it
-            s.images[0].nodata = nodata;
-            if let Some(h) = filled {
-                s.images[0].filled = h.missing;
-                s.images[0].largest_filled_hole = h.largest;
-                s.images[0].in_large_filled_holes = h.in_large;
-            }
-            pb.inc(1);
-            Ok(s)
-        })
-    };
+    let parts = crate::par::try_map_at_limited(paths.len(), limit, |i| {
+        let p = &paths[i];
+        let field = super::common::read_image_noted(p, nodata, i, &notes)?;
+        let (field, filled) = if fill {
+            let (f, h) = super::common::fill_holes_noted(field, p, torus, i, &notes)?;
+            (f, Some(h))
+        } else {
+            (field, None)
+        };
+        super::common::refuse_constant(&field, p, crate::skeleton::CONSTANT)?;
+        super::common::check_image_memory(p, &field, paths.len() == 1)?;
+        // fewer than 3 images: the jackknife runs over tiles
+        let side = if paths.len() < 3 {
+            let (ny, nx) = field.dim();
+            default_tile_side(cfg, ny, nx)
+        } else {
+            0
+        };
+        // (an image without maxima lines is an error of the library's)
+        let mut s = image_sums_tiled(&field, cfg, q, p.display().to_string(), par, side)
+            .map_err(|e| super::common::in_file(p, e))?;
+        // recorded per image, so that merged sums still say it
+        s.images[0].nodata = nodata;
+        if let Some(h) = filled {
+            s.images[0].filled = h.missing;
+            s.images[0].largest_filled_hole = h.largest;
+            s.images[0].in_large_filled_holes = h.in_large;
+        }
+        pb.inc(1);
+        Ok(s)
+    });
     pb.finish_and_clear();
     notes.say_upto(parts.as_ref().err().map(|f| f.0));
     let parts = parts.map_err(|f| f.1)?;

@@ -1044,7 +1044,7 @@ const ANALYSIS_BYTES_PER_PIXEL_MASKED: f64 = 16.0;
 const ANALYSIS_BYTES_PER_PIXEL_PER_THREAD: f64 = 28.0;
 
 /// What each image in flight of an ensemble analysed one image per worker
-/// (analyze, pdf, kernel, correlate) needs per pixel, planned from the
+/// (analyze, pdf, kernel; correlate needs more) needs per pixel, planned from the
 /// files' headers before they are read, so counting the masked image's
 /// extra: whether an image has missing pixels is known once read.
 pub const ENSEMBLE_ANALYSIS_BYTES_PER_PIXEL: f64 =
