@@ -1227,13 +1227,26 @@ pub fn memory_workers(
             ),
         ));
     }
+    say_fewer_workers(what, fit, threads, (ny, nx), one, avail);
+    Ok(Some(fit))
+}
+
+/// The note of a pass run on `fit` of `threads` threads because an image
+/// of `shape` in flight needs `need` bytes of the `avail` available.
+fn say_fewer_workers(
+    what: &str,
+    fit: usize,
+    threads: usize,
+    (ny, nx): (usize, usize),
+    need: f64,
+    avail: f64,
+) {
     say!(
         "note: {what} on {fit} of {threads} threads: an image of {ny}x{nx} in flight \
          needs about {} of memory and {} (the results are the same on any thread count)",
-        memory_text(one),
+        memory_text(need),
         gb_available(avail)
     );
-    Ok(Some(fit))
 }
 
 /// [`memory_workers`] of the image files `paths`, their sizes read from
@@ -1406,12 +1419,7 @@ pub fn check_memory(
         ));
     }
     Ok((fit < count.min(threads)).then(|| {
-        say!(
-            "note: {what} on {fit} of {threads} threads: an image of {size}x{size} in flight \
-             needs about {} of memory and {} (the results are the same on any thread count)",
-            memory_text(per_image),
-            gb_available(avail)
-        );
+        say_fewer_workers(what, fit, threads, (size, size), per_image, avail);
         fit
     }))
 }
