@@ -126,6 +126,15 @@ where
     }
 }
 
+/// [`try_map_at_limited`] without the failing index, as [`try_map`].
+pub(crate) fn try_map_limited<R, F>(n: usize, limit: Option<usize>, f: F) -> Result<Vec<R>>
+where
+    R: Send,
+    F: Fn(usize) -> Result<R> + Sync + Send,
+{
+    try_map_at_limited(n, limit, f).map_err(|(_, e)| e)
+}
+
 /// [`try_map_at`] with at most `limit` items in flight (`None`, or a
 /// limit of `n` or more: [`try_map_at`] itself). The items run on `limit`
 /// threads of their own, their nested rayon work on rayon's pool: inside a

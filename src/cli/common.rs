@@ -1351,8 +1351,9 @@ const ENSEMBLE_BYTES_PER_PIXEL: f64 = 200.0;
 /// Sizes up front a generated ensemble's images in flight (one per worker)
 /// to the available memory: the allocation would abort the process with no
 /// message and the output directory half made. `Some(workers)`: run on
-/// that many threads ([`on_workers`]; said in a note); refused when not
-/// even one image fits. For `validate` and `compare`.
+/// that many images at once ([`crate::par::try_map_limited`]; said in a
+/// note); refused when not even one image fits. For `validate` and
+/// `compare`.
 pub fn check_ensemble_memory(size: usize, count: usize, what: &str) -> Result<Option<usize>> {
     check_memory(size, count, ENSEMBLE_BYTES_PER_PIXEL, what)
 }
@@ -1422,20 +1423,6 @@ pub fn check_memory(
         say_fewer_workers(what, fit, threads, (size, size), per_image, avail);
         fit
     }))
-}
-
-/// Runs `f` on a pool of `workers` threads (from [`check_memory`]: fewer
-/// than rayon has, so that the images in flight fit in memory); the
-/// results do not depend on the thread count. A worker waiting in a nested
-/// join can start one more image ([`crate::par::try_map_at_limited`]
-/// bounds them exactly, for the ensembles of files): the generated
-/// ensembles of `validate` and `compare` may hold a few more than planned.
-pub fn on_workers<R: Send>(workers: usize, f: impl FnOnce() -> Result<R> + Send) -> Result<R> {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(workers)
-        .build()
-        .map_err(|e| Error::Input(format!("cannot start {workers} threads: {e}")))?
-        .install(f)
 }
 
 /// Writes `caveats` ([`crate::theory::Model::caveats`]) into an output's

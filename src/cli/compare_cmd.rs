@@ -279,11 +279,9 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     }
     model.check_size(args.size)?;
     super::common::check_generated_size(&cfg, args.size)?;
-    if let Some(workers) = super::common::check_ensemble_memory(args.size, args.count, "compare")? {
-        // fewer images in flight than threads (said in a note); inside the
-        // pool they fit
-        return super::common::on_workers(workers, || run(args, quiet));
-    }
+    // fewer images in flight than threads when the memory holds no more
+    // (said in a note)
+    let limit = super::common::check_ensemble_memory(args.size, args.count, "compare")?;
     let summary_q = parse_range("summary-q", &args.summary_q)?;
     if !q.iter().any(|&v| v >= summary_q.0 && v <= summary_q.1) {
         return Err(Error::param(
@@ -313,7 +311,7 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     let t0 = Instant::now();
     let pb = progress(args.count as u64, "compare", quiet);
     // a refused draw is named by its index in order, whatever the scheduling
-    let parts: Vec<ImageOut> = crate::par::try_map(args.count, |i| {
+    let parts: Vec<ImageOut> = crate::par::try_map_limited(args.count, limit, |i| {
         let t = Instant::now();
         let field = Field::new(model.synthesize(args.size, args.seed, i as u64)?);
         let t_gen = t.elapsed().as_secs_f64();

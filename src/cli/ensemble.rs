@@ -23,10 +23,12 @@ pub struct EnsembleResult {
 /// WTMMM at the first `wtmmm_scales` scales ([`skeleton_and_wtmmm`]), so
 /// that statistics beyond the partition sums cost no second transform. The
 /// results come back in image order; `tick` is called once per finished
-/// image (progress bars).
+/// image (progress bars). At most `limit` images are in flight (`None`:
+/// one per rayon thread), from [`super::common::check_ensemble_memory`].
 #[allow(clippy::too_many_arguments)]
 pub fn analyse_generated<G, X, F>(
     count: usize,
+    limit: Option<usize>,
     make: G,
     cfg: &AnalysisConfig,
     q: &[f64],
@@ -41,23 +43,25 @@ where
     F: Fn(usize, &Field, &Skeleton, Vec<Vec<Wtmmm>>) -> Result<X> + Sync,
 {
     // a refused draw is named by its index in order, whatever the scheduling
-    let parts: Vec<(PartitionSums, PowerSpectrum, X)> = crate::par::try_map(count, |i| {
-        let img = make(i)?;
-        let ps = power_spectrum(img.view(), ps_cfg)?;
-        let field = Field::new(img);
-        let (sk, wtmmm) = skeleton_and_wtmmm(&field, cfg, Parallelism::Serial, wtmmm_scales, true)?;
-        // fewer than 3 images: the jackknife runs over tiles
-        let side = if count < 3 {
-            let (ny, nx) = field.dim();
-            default_tile_side(cfg, ny, nx)
-        } else {
-            0
-        };
-        let sums = skeleton_sums_tiled(&sk, &field, cfg, q, format!("image {i}"), side);
-        let x = extra(i, &field, &sk, wtmmm)?;
-        tick();
-        Ok((sums, ps, x))
-    })?;
+    let parts: Vec<(PartitionSums, PowerSpectrum, X)> =
+        crate::par::try_map_limited(count, limit, |i| {
+            let img = make(i)?;
+            let ps = power_spectrum(img.view(), ps_cfg)?;
+            let field = Field::new(img);
+            let (sk, wtmmm) =
+                skeleton_and_wtmmm(&field, cfg, Parallelism::Serial, wtmmm_scales, true)?;
+            // fewer than 3 images: the jackknife runs over tiles
+            let side = if count < 3 {
+                let (ny, nx) = field.dim();
+                default_tile_side(cfg, ny, nx)
+            } else {
+                0
+            };
+            let sums = skeleton_sums_tiled(&sk, &field, cfg, q, format!("image {i}"), side);
+            let x = extra(i, &field, &sk, wtmmm)?;
+            tick();
+            Ok((sums, ps, x))
+        })?;
     let mut spectrum = PowerSpectrum::default();
     let mut spectra = Vec::with_capacity(count);
     let mut sums = Vec::with_capacity(count);

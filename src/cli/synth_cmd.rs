@@ -71,11 +71,9 @@ fn write_image(path: &Path, a: &ndarray::Array2<f64>, format: Format) -> Result<
 pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
     let r = args.model_opts.resolve(args.model)?;
     let c = &args.common;
-    if let Some(workers) = check_common(c)? {
-        // fewer images in flight than threads (said in a note); inside the
-        // pool they fit
-        return super::common::on_workers(workers, || run(args, quiet));
-    }
+    // fewer images in flight than threads when the memory holds no more
+    // (said in a note)
+    let limit = check_common(c)?;
     r.model.check_size(c.size)?;
     let t = TheoryTable::new(&r.model, &[-2.0, -1.0, 0.0, 1.0, 2.0, 3.0])?;
     let caveats = r.model.caveats();
@@ -83,7 +81,7 @@ pub fn run(args: SynthArgs, quiet: bool) -> Result<Outcome> {
         "h_min": t.h_min, "h_max": t.h_max, "recommended_wavelet": r.wavelet, "caveats": caveats});
     let params = json!({"model": r.model, "preset": r.preset});
     let model = r.model;
-    generate(c, model.name(), params, theory, quiet, |i| {
+    generate(c, limit, model.name(), params, theory, quiet, |i| {
         model.synthesize(c.size, c.seed, i as u64)
     })
 }
@@ -115,10 +113,12 @@ fn check_common(c: &SynthCommon) -> Result<Option<usize>> {
     super::common::check_memory(c.size, c.count, 64.0, "synth")
 }
 
-/// Generates and writes `count` images in parallel; image `i` depends only on
-/// `(seed, i)`, so the files are identical whatever the thread count.
+/// Generates and writes `count` images in parallel, at most `limit` at
+/// once; image `i` depends only on `(seed, i)`, so the files are identical
+/// whatever the thread count.
 fn generate<F>(
     c: &SynthCommon,
+    limit: Option<usize>,
     stem: &str,
     params: serde_json::Value,
     theory: serde_json::Value,
@@ -131,7 +131,7 @@ where
     make_out_dir(&c.out.out)?;
     let pb = progress(c.count as u64, "synth", quiet);
     // a refused draw is named by its index in order, whatever the scheduling
-    let names: Vec<String> = crate::par::try_map(c.count, |i| {
+    let names: Vec<String> = crate::par::try_map_limited(c.count, limit, |i| {
         let img = make(i)?;
         let name = format!("{stem}_{i:04}.{}", c.format.ext());
         write_image(&c.out.out.join(&name), &img, c.format)?;

@@ -161,10 +161,11 @@ its distance from the theory is the sample's, not the estimator's";
 
 /// The spectra of the images' own cascades ([`Model::sample_sums`]) on the
 /// dyadic scales within half an octave of the fit range `(a_lo, a_hi)`;
-/// `None` for models without a discrete cascade.
+/// `None` for models without a discrete cascade. At most `limit` images
+/// in flight, as the analysis.
 fn sample_spectra(
     model: &Model,
-    count: usize,
+    (count, limit): (usize, Option<usize>),
     size: usize,
     seed: u64,
     q: &[f64],
@@ -172,7 +173,9 @@ fn sample_spectra(
 ) -> Result<Option<crate::spectra::Spectra>> {
     let range = Model::sample_range((a_lo, a_hi));
     let parts: Vec<Option<crate::spectra::PartitionSums>> =
-        crate::par::try_map(count, |i| model.sample_sums(size, seed, i as u64, q, range))?;
+        crate::par::try_map_limited(count, limit, |i| {
+            model.sample_sums(size, seed, i as u64, q, range)
+        })?;
     let Some(parts) = parts.into_iter().collect::<Option<Vec<_>>>() else {
         return Ok(None);
     };
@@ -525,12 +528,9 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     // allocated or computed for it
     super::common::check_generated(args.size, args.count)?;
     r.model.check_size(args.size)?;
-    if let Some(workers) = super::common::check_ensemble_memory(args.size, args.count, "validate")?
-    {
-        // fewer images in flight than threads (said in a note); inside the
-        // pool they fit
-        return super::common::on_workers(workers, || run_one(args, quiet));
-    }
+    // fewer images in flight than threads when the memory holds no more
+    // (said in a note)
+    let limit = super::common::check_ensemble_memory(args.size, args.count, "validate")?;
     let (k_lo, k_hi) = default_k_range(args.size);
     let ps_cfg = PowerSpectrumConfig::for_field(r.model.is_periodic());
     let k_bins = bins_in_range(args.size, args.size, ps_cfg.bins_per_octave, (k_lo, k_hi))?;
@@ -580,6 +580,7 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     let pb = progress(args.count as u64, "validate", quiet);
     let (ens, per_image) = analyse_generated(
         args.count,
+        limit,
         |i| model.synthesize(args.size, args.seed, i as u64),
         &cfg,
         &q,
@@ -634,7 +635,14 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
 
     // the images' own cascades over the fit range: the sample's distance
     // from the theory, which no estimator can remove
-    let sample = sample_spectra(&model, args.count, args.size, args.seed, &q, s.fit_scales)?;
+    let sample = sample_spectra(
+        &model,
+        (args.count, limit),
+        args.size,
+        args.seed,
+        &q,
+        s.fit_scales,
+    )?;
 
     // criteria (SPEC §11)
     let dev_of = |tau: &[f64], lo: f64, hi: f64| -> (f64, f64) {
