@@ -346,6 +346,40 @@ impl PartitionSums {
             .plane_warning(&shares, self.images.len())
     }
 
+    /// How many images had missing pixels filled and counted as data
+    /// ([`ImagePartial::filled`], `analyze --fill-holes`), with the holes'
+    /// sizes and the bias they may bring ([`crate::field::HoleSizes::describe`]):
+    /// the per-image notes scroll past, and merged sums carry no others.
+    fn fill_warning(&self) -> Option<String> {
+        let with: Vec<&ImagePartial> = self.images.iter().filter(|im| im.filled > 0).collect();
+        if with.is_empty() {
+            return None;
+        }
+        let holes = crate::field::HoleSizes {
+            missing: with.iter().map(|im| im.filled).sum(),
+            largest: with
+                .iter()
+                .map(|im| im.largest_filled_hole)
+                .max()
+                .unwrap_or(0),
+            in_large: with.iter().map(|im| im.in_large_filled_holes).sum(),
+            // every image's pixels (the share of the ensemble filled)
+            area: self
+                .images
+                .iter()
+                .map(|im| im.shape.map_or(0, |[ny, nx]| ny * nx))
+                .sum(),
+        };
+        Some(format!(
+            "{} of the {} image(s) had missing pixels filled harmonically and counted as data \
+             (--fill-holes; {} in all, {})",
+            with.len(),
+            self.images.len(),
+            holes.missing,
+            holes.describe()
+        ))
+    }
+
     /// [`terrace_warning`] of the images' recorded terrace widths
     /// ([`ImagePartial::terrace_width`]), against `a_fit`, the smallest
     /// fitted scale, and [`flat_warning`] of their flat values.
@@ -1397,6 +1431,7 @@ impl PartitionSums {
         };
         warnings.extend(unlike_images(&per_image));
         warnings.extend(self.plane_warning());
+        warnings.extend(self.fill_warning());
         warnings.extend(self.quantisation_warnings(self.scales[in_fit[0]]));
         if ens.lines[last_fit] < 100 {
             // the border margin is often why: say how much of the image it

@@ -5563,6 +5563,23 @@ fn analyze_fills_scattered_holes_on_request() {
         assert!((1..=16).contains(&largest), "{r}");
         assert_eq!(r["in_large_filled_holes"], 0, "{r}");
     }
+    // the fill is said in spectra.json too, for the ensemble
+    let said: Vec<&str> = b["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|w| w.as_str())
+        .filter(|w| w.contains("filled harmonically"))
+        .collect();
+    assert_eq!(said.len(), 1, "{}", b["warnings"]);
+    assert!(said[0].starts_with("4 of the 4 image(s)"), "{}", said[0]);
+    assert!(
+        a["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|w| !w.as_str().unwrap().contains("filled"))
+    );
     for (ta, tb) in a["tau"]
         .as_array()
         .unwrap()

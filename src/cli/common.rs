@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::error::{Error, Result};
 use crate::field::Field;
+pub use crate::field::HoleSizes;
 pub use crate::io::write_json;
 use crate::io::{ReadInfo, read_field_with_info, write_atomic};
 
@@ -410,89 +411,13 @@ pub fn read_image_noted(
     read_image_with(path, nodata, &mut |w| notes.push(i, w))
 }
 
-/// The pixels a filled hole may hold before `--fill-holes` names it. In
-/// `experiment_filled_dropout` (tests/spectra.rs; 16 fBm of 384^2, H
-/// 0.3-0.7, 3 octaves, tau(q) for q in [-2, 3], paired with the full
-/// images), with 5-8 % of the pixels missing, scattered pixels and discs
-/// of up to 13 px moved tau(q) by at most 0.014 for q >= -1 (0.019 +- 0.008
-/// at q = -2); 15 and 30 % of scattered pixels by up to 0.010 and 0.028:
-/// tau(3) by up to 0.25 times the share of such pixels. Larger holes raise
-/// tau(q) for q > 0 more, tau(3) by 0.2-0.55 times the share they cover
-/// (discs of 29-441 px over 4-5 %: +0.009 to +0.024; of 113 px over 14 and
-/// 26 %: +0.06 and +0.12): their fill is a smooth patch, of high h.
-pub const LARGE_FILLED_HOLE: usize = 16;
-
-/// An image's holes, as `--fill-holes` reports them.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct HoleSizes {
-    /// Missing pixels.
-    pub missing: usize,
-    /// The largest hole's pixels.
-    pub largest: usize,
-    /// Pixels in holes larger than [`LARGE_FILLED_HOLE`].
-    pub in_large: usize,
-    /// The image's pixels.
-    pub area: usize,
-}
-
-impl HoleSizes {
-    /// `field`'s holes (across the borders on a `torus`).
-    pub fn of(field: &Field, torus: bool) -> Self {
-        let sizes = field.hole_sizes(torus);
-        let (ny, nx) = field.dim();
-        HoleSizes {
-            missing: sizes.iter().sum(),
-            largest: sizes.iter().copied().max().unwrap_or(0),
-            in_large: sizes.iter().filter(|&&n| n > LARGE_FILLED_HOLE).sum(),
-            area: ny * nx,
-        }
-    }
-
-    /// What `--fill-holes` says of these holes after the count: the
-    /// share filled, the largest hole, the share in holes larger than
-    /// [`LARGE_FILLED_HOLE`], and the bias of tau(3) the experiment of
-    /// [`LARGE_FILLED_HOLE`] implies at most: 0.25 times the share of the
-    /// smaller holes and 0.55 times that of the larger ones.
-    pub fn describe(&self) -> String {
-        let pct = |n: usize| 100.0 * n as f64 / self.area.max(1) as f64;
-        let (small, large) = (pct(self.missing - self.in_large), pct(self.in_large));
-        let (bias_small, bias_large) = (0.0025 * small, 0.0055 * large);
-        let bias = bias_small + bias_large;
-        let in_large = if self.in_large > 0 {
-            format!(
-                "; {large:.1} % of the pixels lie in holes of more than {LARGE_FILLED_HOLE} px, \
-                 whose fill is a smooth patch, of high h"
-            )
-        } else {
-            String::new()
-        };
-        format!(
-            "{:.1} % of the pixels; the largest hole holds {} px{in_large}; on fBm the fill \
-             raised tau(3) by up to 0.25 times the share of scattered pixels and holes of up to \
-             {LARGE_FILLED_HOLE} px and 0.55 times that of larger ones (here {}){}",
-            pct(self.missing),
-            self.largest,
-            if bias < 0.001 {
-                "under +0.001".to_string()
-            } else {
-                format!("up to +{bias:.3}")
-            },
-            if bias_large > 0.01 {
-                "; crop the large holes out if you can"
-            } else {
-                ""
-            }
-        )
-    }
-}
-
 /// `--fill-holes` (analyze, pdf, kernel, correlate): `field` with its
 /// missing pixels filled harmonically ([`Field::filled_harmonic`]; across
 /// the borders on a `torus`, [`Field::filled_harmonic_torus`]) and the
 /// number filled, with a warning for image `i` in `notes` naming `path`,
-/// the count, the share, the largest hole, and what holes larger than
-/// [`LARGE_FILLED_HOLE`] do ([`HoleSizes::describe`]); with its holes as
-/// counted, so that a tally need not label them again. A field without
+/// the count, the share, the largest hole and the bound on tau(3)'s bias
+/// ([`HoleSizes::brief`]: the command's warning on the ensemble explains,
+/// [`HoleSizes::describe`]); with its holes as counted, so that a tally need not label them again. A field without
 /// holes passes unchanged.
 ///
 /// **Errors** naming the file if no pixel is valid.
@@ -519,7 +444,7 @@ pub fn fill_holes_noted(
             } else {
                 ""
             },
-            holes.describe()
+            holes.brief()
         ),
     );
     let data = field
@@ -1528,6 +1453,15 @@ mod tests {
         assert!(
             d.contains("(here up to +0.007)") && !d.contains("crop"),
             "{d}"
+        );
+        assert_eq!(
+            torus.brief(),
+            "1.5 %, the largest hole 20 px, 1.0 % in holes of more than 16 px; tau(3) raised \
+             by up to +0.007"
+        );
+        assert_eq!(
+            plane.brief(),
+            "1.5 %, the largest hole 10 px; tau(3) raised by up to +0.004"
         );
     }
 

@@ -182,7 +182,7 @@ impl HoleTally {
     /// `{images, pixels, largest_hole, in_large_holes, filled}`: the
     /// images with missing pixels, their count, the largest hole's pixels,
     /// the pixels in holes larger than
-    /// [`super::common::LARGE_FILLED_HOLE`] and whether they were filled
+    /// [`crate::field::LARGE_FILLED_HOLE`] and whether they were filled
     /// (recorded with the inputs; zeros when there were none).
     pub fn json(&self) -> serde_json::Value {
         let h = self.sizes();
