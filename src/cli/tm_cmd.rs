@@ -410,7 +410,7 @@ pub fn run(args: TmArgs, quiet: bool) -> Result<Outcome> {
                     "{}: {:.0} % of neighbouring pixels{off} are equal: quantised values (a DEM \
                      in whole metres, say), whose zero gradients bias the flux's low moments \
                      (TM §5.2); --frac-int (order 0.1) smooths them (README: Jacksboro's alpha \
-                     1.49 -> 1.44)",
+                     1.49 -> 1.43)",
                     p.display(),
                     100.0 * eq
                 ));
