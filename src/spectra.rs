@@ -240,6 +240,38 @@ impl TileGrid {
         let tx = slot((x as usize).saturating_sub(self.x0), self.w, self.ntx);
         ty * self.ntx + tx
     }
+
+    /// [`Self::index`] of every pixel of an `ny x nx` image as a table: the
+    /// hot loops (tm's structure functions: one lookup per increment, lag
+    /// and direction) then take no division.
+    pub fn table(&self, ny: usize, nx: usize) -> TileTable {
+        TileTable {
+            // the tile row's first index, and the column within the row
+            rows: (0..ny)
+                .map(|y| slot(y.saturating_sub(self.y0), self.h, self.nty) * self.ntx)
+                .collect(),
+            cols: (0..nx)
+                .map(|x| slot(x.saturating_sub(self.x0), self.w, self.ntx))
+                .collect(),
+        }
+    }
+}
+
+/// [`TileGrid::index`] tabulated over an image ([`TileGrid::table`]).
+#[derive(Clone, Debug)]
+pub struct TileTable {
+    rows: Vec<usize>,
+    cols: Vec<usize>,
+}
+
+impl TileTable {
+    /// The tile of pixel `(y, x)`, as [`TileGrid::index`]`(x, y)`.
+    ///
+    /// **Panics** if the pixel is outside the tabulated image.
+    #[inline]
+    pub fn at(&self, y: usize, x: usize) -> usize {
+        self.rows[y] + self.cols[x]
+    }
 }
 
 /// Where tile `t` of `n` begins along a side of `len` px (`t = n`: `len`):
@@ -3142,6 +3174,23 @@ mod tests {
                 }
             }
             assert_eq!(seen, (dom.1 - dom.0) * (dom.3 - dom.2), "{dom:?} {side}");
+            // the table, over an image that holds the domain and more
+            let (ny, nx) = (dom.1 + 3, dom.3 + 2);
+            let t = g.table(ny, nx);
+            for y in 0..ny {
+                for x in 0..nx {
+                    assert_eq!(t.at(y, x), g.index(x as u32, y as u32), "{dom:?} {side}");
+                }
+            }
+        }
+        // a domain that is the whole image: past its edge, `index` takes
+        // the edge's tile (what tm's clamped lookups rely on)
+        let (ny, nx) = (37, 29);
+        let g = TileGrid::new((0, ny, 0, nx), 10).unwrap();
+        let t = g.table(ny, nx);
+        for (y, x) in [(ny, 3), (5, nx + 40), (ny + 100, nx)] {
+            let c = t.at(y.min(ny - 1), x.min(nx - 1));
+            assert_eq!(c, g.index(x as u32, y as u32), "{y} {x}");
         }
     }
 

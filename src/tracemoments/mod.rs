@@ -958,7 +958,15 @@ impl TraceMomentAccumulator {
         // tile (Self::accumulate_flux_groups)
         let grid = crate::spectra::TileGrid::new((0, ny, 0, nx), tile);
         let kb = tile.ilog2() as usize;
-        let tile_of = |y: usize, x: usize| grid.map_or(0, |g| g.index(x as u32, y as u32));
+        let table = grid.map(|g| g.table(ny, nx));
+        // a block's centre can lie past the image's edge (a tile larger
+        // than the boxes); past the domain, which here is the image,
+        // `TileGrid::index` takes the last tile, as its last pixel's
+        let tile_of = |y: usize, x: usize| {
+            table
+                .as_ref()
+                .map_or(0, |t| t.at(y.min(ny - 1), x.min(nx - 1)))
+        };
         let mut parts = (0..grid.map_or(0, |g| g.len()))
             .map(|_| TraceMomentAccumulator::new(config.clone()))
             .collect::<Result<Vec<_>>>()?;
@@ -1292,12 +1300,16 @@ impl TraceMomentAccumulator {
         let f = &field.data;
         let ok = |y: usize, x: usize| !field.is_masked(y, x);
         let sf_q = accs[0].config.sf_q.clone();
+        // one buffer per group for every lag: allocated anew per lag, the
+        // 2 ny nx increments (64 MB at 2048^2) were page-faulted in again
+        // each time
+        let mut incs: Vec<Vec<f64>> = vec![Vec::new(); accs.len()];
+        if let [one] = incs.as_mut_slice() {
+            one.reserve(2 * ny * nx);
+        }
         for j in 0..sf_lags(ny.min(nx)) {
             let l = 1usize << j;
-            let mut incs: Vec<Vec<f64>> = vec![Vec::new(); accs.len()];
-            if let [one] = incs.as_mut_slice() {
-                one.reserve(2 * ny * nx);
-            }
+            incs.iter_mut().for_each(Vec::clear);
             for y in 0..ny {
                 for x in 0..nx {
                     if !ok(y, x) {
