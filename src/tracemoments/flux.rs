@@ -308,20 +308,33 @@ impl Pyramid {
     /// Box sums of `v` (row-major, `0` where invalid) at every level.
     pub(crate) fn sums(&self, v: Vec<f64>) -> Vec<Vec<f64>> {
         let mut out = vec![v];
+        self.sums_in(&mut out);
+        out
+    }
+
+    /// [`Self::sums`] in `levels`, whose first holds the values: the
+    /// coarser levels reuse the vectors already there (the double trace
+    /// moments take 16 pyramids of one window; allocated anew, those of a
+    /// 2048^2 window were page-faulted in every time).
+    pub(crate) fn sums_in(&self, levels: &mut Vec<Vec<f64>>) {
+        levels.truncate(self.levels().max(1));
         for k in 1..self.levels() {
             let px = self.dims[k - 1].1;
             let (cy, cx) = self.dims[k];
-            let prev = &out[k - 1];
-            let mut s = vec![0.0; cy * cx];
+            if levels.len() <= k {
+                levels.push(Vec::new());
+            }
+            let (done, rest) = levels.split_at_mut(k);
+            let (prev, s) = (&done[k - 1], &mut rest[0]);
+            s.clear();
+            s.resize(cy * cx, 0.0);
             for y in 0..cy {
                 for x in 0..cx {
                     let i = 2 * y * px + 2 * x;
                     s[y * cx + x] = prev[i] + prev[i + 1] + prev[i + px] + prev[i + px + 1];
                 }
             }
-            out.push(s);
         }
-        out
     }
 
     /// The boxes of level `k` that `rule` keeps (with [`BoxWeights::Equal`]
@@ -354,7 +367,15 @@ impl Pyramid {
 
     /// The box averages of `boxes` ([`Self::kept_by`]) from their `sums`.
     pub(crate) fn means_of(sums: &[f64], boxes: &[(usize, u32)]) -> Vec<f64> {
-        boxes.iter().map(|&(i, c)| sums[i] / c as f64).collect()
+        let mut m = Vec::new();
+        Self::means_into(sums, boxes, &mut m);
+        m
+    }
+
+    /// [`Self::means_of`] into `out` (its vector reused).
+    pub(crate) fn means_into(sums: &[f64], boxes: &[(usize, u32)], out: &mut Vec<f64>) {
+        out.clear();
+        out.extend(boxes.iter().map(|&(i, c)| sums[i] / c as f64));
     }
 
     /// Natural logs of [`Self::means_of`].

@@ -1228,27 +1228,33 @@ impl TraceMomentAccumulator {
             // own powers and box sums (19 B/px), and 16 at once took 1.7 GB
             // at 2048^2 on 16 threads
             type Terms = Vec<(usize, usize, Option<(f64, f64)>, Vec<(f64, f64)>)>;
-            let one_eta = |&eta: &f64| {
+            // `sums`: the pyramid's levels, `means` its box means, reused
+            // from one η to the next
+            let one_eta = |&eta: &f64, (sums, means): &mut (Vec<Vec<f64>>, Vec<f64>)| {
                 let top = p_max.powf(eta);
                 let scaled = p_max > 0.0 && !(top >= 1e-280 && top * n_px <= 1e280);
                 // φ^η itself, or (φ / max φ)^η where φ^η could overflow
                 let offset = if scaled { 0.0 } else { eta * ln_max };
-                let v: Vec<f64> = ln_rel.iter().map(|&l| (eta * l + offset).exp()).collect();
+                if sums.is_empty() {
+                    sums.push(Vec::new());
+                }
+                sums[0].clear();
+                sums[0].extend(ln_rel.iter().map(|&l| (eta * l + offset).exp()));
                 let shift = if scaled { eta * ln_max } else { 0.0 };
-                let sums = pyr.sums(v);
+                pyr.sums_in(sums);
                 // the box means as values, not logs: for the orders of
                 // the DTM (1.5 by default) no ln or exp per box is left
                 // (power_sums_of_values); the logs shift by `shift`
                 let mut out = Terms::new();
                 for (k, sk) in sums.iter().enumerate() {
                     for g in (0..ng).filter(|&g| live[g]) {
-                        let means = flux::Pyramid::means_of(sk, &kept[k][g]);
+                        flux::Pyramid::means_into(sk, &kept[k][g], means);
                         let pixels = (k == 0).then(|| {
-                            let (m, s) = power_sums_of_values(&means, &[1.0])[0];
+                            let (m, s) = power_sums_of_values(means, &[1.0])[0];
                             (m + shift, s)
                         });
                         let w = weights[k][g].as_deref();
-                        let dtm = weighted_power_sums_of_values(&means, w, &cfg.dtm_q)
+                        let dtm = weighted_power_sums_of_values(means, w, &cfg.dtm_q)
                             .into_iter()
                             .zip(&cfg.dtm_q)
                             .map(|((m, s), &q)| (m + q * shift, s))
@@ -1259,10 +1265,13 @@ impl TraceMomentAccumulator {
                 out
             };
             let half = cfg.eta.len().div_ceil(2);
-            let (lo, hi) = rayon::join(
-                || cfg.eta[..half].iter().map(one_eta).collect::<Vec<Terms>>(),
-                || cfg.eta[half..].iter().map(one_eta).collect::<Vec<Terms>>(),
-            );
+            let run = |etas: &[f64]| {
+                let mut scratch = (Vec::new(), Vec::new());
+                etas.iter()
+                    .map(|e| one_eta(e, &mut scratch))
+                    .collect::<Vec<Terms>>()
+            };
+            let (lo, hi) = rayon::join(|| run(&cfg.eta[..half]), || run(&cfg.eta[half..]));
             let terms = lo.into_iter().chain(hi);
             for (ie, t) in terms.into_iter().enumerate() {
                 for (k, g, pixels, dtm) in t {
