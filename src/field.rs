@@ -928,11 +928,17 @@ impl HoleSizes {
         } else {
             String::new()
         };
+        let (bias, bias_large) = self.bias();
         format!(
-            "{:.1} %, the largest hole {} px{in_large}; tau(3) raised by {}",
+            "{:.1} %, the largest hole {} px{in_large}; tau(3) raised by {}{}",
             self.pct(self.missing),
             self.largest,
-            bias_text(self.bias().0)
+            bias_text(bias),
+            if bias_large > 0.01 {
+                "; crop the large holes out if you can"
+            } else {
+                ""
+            }
         )
     }
 
@@ -945,10 +951,10 @@ impl HoleSizes {
     /// ([`LARGE_FILLED_HOLE`]'s experiment): 0.25 times the share of the
     /// smaller holes and 0.55 times that of the larger ones.
     fn bias(&self) -> (f64, f64) {
-        let (small, large) = (
-            self.pct(self.missing - self.in_large),
-            self.pct(self.in_large),
-        );
+        // saturating: a hand-edited record may hold more pixels in large
+        // holes than filled
+        let small = self.pct(self.missing.saturating_sub(self.in_large));
+        let large = self.pct(self.in_large);
         let bias_large = 0.0055 * large;
         (0.0025 * small + bias_large, bias_large)
     }

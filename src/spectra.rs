@@ -387,6 +387,13 @@ impl PartitionSums {
         if with.is_empty() {
             return None;
         }
+        // every image's pixels (the share of the ensemble filled); sums
+        // written before 2026-11-22 record no shape
+        let area: Option<usize> = self
+            .images
+            .iter()
+            .map(|im| im.shape.map(|[ny, nx]| ny * nx))
+            .sum();
         let holes = crate::field::HoleSizes {
             missing: with.iter().map(|im| im.filled).sum(),
             largest: with
@@ -395,20 +402,24 @@ impl PartitionSums {
                 .max()
                 .unwrap_or(0),
             in_large: with.iter().map(|im| im.in_large_filled_holes).sum(),
-            // every image's pixels (the share of the ensemble filled)
-            area: self
-                .images
-                .iter()
-                .map(|im| im.shape.map_or(0, |[ny, nx]| ny * nx))
-                .sum(),
+            area: area.unwrap_or(0),
+        };
+        let what = match area {
+            Some(_) => holes.describe(),
+            None => format!(
+                "the largest hole holds {} px, {} px lie in holes of more than {} px; no share \
+                 or bound on the bias: some of the sums record no image size",
+                holes.largest,
+                holes.in_large,
+                crate::field::LARGE_FILLED_HOLE
+            ),
         };
         Some(format!(
             "{} of the {} image(s) had missing pixels filled harmonically and counted as data \
-             (--fill-holes; {} in all, {})",
+             (--fill-holes; {} in all, {what})",
             with.len(),
             self.images.len(),
             holes.missing,
-            holes.describe()
         ))
     }
 
@@ -3303,6 +3314,48 @@ mod tests {
             ..Default::default()
         });
         s
+    }
+
+    /// The fill's warning on an ensemble: the images filled, their pixels,
+    /// the share of all the images' pixels and the bias bound; no share
+    /// when some image records no size (sums before 2026-11-22: a share of
+    /// a missing area read 642800 %), and none without a fill.
+    #[test]
+    fn the_fill_is_said_for_the_ensemble() {
+        let mut a = power_law_sums(0.3, crate::cwt::Wavelet::Gauss);
+        let mut b = a.clone();
+        assert_eq!(a.fill_warning(), None);
+        a.images[0].label = "a".into();
+        b.images[0].label = "b".into();
+        for s in [&mut a, &mut b] {
+            s.images[0].shape = Some([100, 100]);
+        }
+        // 300 px filled in a, 200 of them in one hole of 200 px
+        a.images[0].filled = 300;
+        a.images[0].largest_filled_hole = 200;
+        a.images[0].in_large_filled_holes = 200;
+        let both = PartitionSums::merge_all(vec![a.clone(), b.clone()])
+            .unwrap()
+            .unwrap();
+        let w = both.fill_warning().unwrap();
+        // 100 small of 20000 px (0.5 %, 0.0013) and 200 large (1.0 %, 0.0055)
+        assert!(
+            w.starts_with("1 of the 2 image(s) had missing pixels filled"),
+            "{w}"
+        );
+        assert!(w.contains("300 in all, 1.5 % of the pixels"), "{w}");
+        assert!(
+            w.contains("(here up to +0.007)") && !w.contains("crop"),
+            "{w}"
+        );
+        b.images[0].shape = None;
+        let w = PartitionSums::merge_all(vec![a, b])
+            .unwrap()
+            .unwrap()
+            .fill_warning()
+            .unwrap();
+        assert!(!w.contains('%') && w.contains("no share"), "{w}");
+        assert!(w.contains("200 px lie in holes of more than 16 px"), "{w}");
     }
 
     /// `per_image` and the unlike-image test through [`PartitionSums::spectra`]:

@@ -5017,6 +5017,33 @@ fn generated_ensembles_fit_their_workers_to_the_memory() {
             assert_eq!(v(&outs[0]), v(&outs[1]));
         }
     }
+    // pdf, kernel and correlate with a model: the same bound (200 B/px,
+    // 13.1 MB per image), refused below one image, noted below two
+    for cmd in ["pdf", "kernel", "correlate"] {
+        let o = dir.join(format!("{cmd}_model"));
+        let os = o.display().to_string();
+        let a = [
+            cmd,
+            "--preset",
+            "paper-lognormal",
+            "--count",
+            "3",
+            "--size",
+            "256",
+            "--out",
+            &os,
+        ];
+        let (code, err) = bin(&a, Some("0.01"));
+        assert_eq!(code, 2, "{cmd}: {err}");
+        assert!(err.contains("256 px needs about 13 MB"), "{cmd}: {err}");
+        assert!(!o.exists(), "{cmd}");
+        let (code, err) = bin(&a, Some("0.02"));
+        assert_eq!(code, 0, "{cmd}: {err}");
+        assert!(
+            err.contains("note: the analysis on 1 of 2 threads"),
+            "{cmd}: {err}"
+        );
+    }
 }
 
 /// `tm --surrogates K` on a lone FIF image: K draws analysed like it, their

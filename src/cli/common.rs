@@ -417,8 +417,8 @@ pub fn read_image_noted(
 /// number filled, with a warning for image `i` in `notes` naming `path`,
 /// the count, the share, the largest hole and the bound on tau(3)'s bias
 /// ([`HoleSizes::brief`]: the command's warning on the ensemble explains,
-/// [`HoleSizes::describe`]); with its holes as counted, so that a tally need not label them again. A field without
-/// holes passes unchanged.
+/// [`HoleSizes::describe`]); with its holes as counted, so that a tally
+/// need not label them again. A field without holes passes unchanged.
 ///
 /// **Errors** naming the file if no pixel is valid.
 pub fn fill_holes_noted(
@@ -1283,6 +1283,19 @@ pub fn check_ensemble_memory(size: usize, count: usize, what: &str) -> Result<Op
     check_memory(size, count, ENSEMBLE_BYTES_PER_PIXEL, what)
 }
 
+/// [`check_memory`] for the generated images of `pdf`, `kernel` and
+/// `correlate` with a model: `per_px` for the analysis, at least what
+/// `validate` takes per image (generator, transform, skeleton and
+/// correlation: [`ENSEMBLE_BYTES_PER_PIXEL`]).
+pub fn check_generated_memory(
+    size: usize,
+    count: usize,
+    per_px: f64,
+    what: &str,
+) -> Result<Option<usize>> {
+    check_memory(size, count, per_px.max(ENSEMBLE_BYTES_PER_PIXEL), what)
+}
+
 /// Size and count of a generated ensemble (`validate`, `compare`, `demo`,
 /// and `pdf`, `kernel`, `correlate` with a model): the sizes `synth`
 /// writes, and at most [`super::synth_cmd::MAX_COUNT`] images (the
@@ -1463,6 +1476,27 @@ mod tests {
             plane.brief(),
             "1.5 %, the largest hole 10 px; tau(3) raised by up to +0.004"
         );
+        // one image with 3 % in a large hole: told to crop it, whatever
+        // the ensemble's share
+        let big = HoleSizes {
+            missing: 300,
+            largest: 300,
+            in_large: 300,
+            area: 10_000,
+        };
+        assert!(
+            big.brief()
+                .ends_with("; crop the large holes out if you can")
+        );
+        // a record holding more in large holes than filled: no underflow
+        let odd = HoleSizes {
+            missing: 100,
+            largest: 200,
+            in_large: 200,
+            area: 10_000,
+        };
+        // the large holes' 2 % alone: 0.0055 x 2
+        assert!(odd.brief().contains("up to +0.011"), "{}", odd.brief());
     }
 
     /// An error that would round to zero keeps two significant digits.

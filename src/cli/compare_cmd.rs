@@ -527,6 +527,8 @@ pub fn run(args: CompareArgs, quiet: bool) -> Result<Outcome> {
     let timing = json!({
         "wall_seconds": wall,
         "threads": rayon::current_num_threads(),
+        // fewer than the threads when the memory holds no more images
+        "images_in_flight": limit.unwrap_or(rayon::current_num_threads()).min(args.count),
         "generate_thread_seconds": s_gen,
         "wtmm_thread_seconds": s_wtmm,
         "tm_thread_seconds": s_tm,

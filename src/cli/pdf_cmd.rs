@@ -600,11 +600,10 @@ impl Input {
         } else {
             Parallelism::Serial
         };
-        // files of an ensemble: one image per worker, as many workers as
-        // the memory holds images (a lone image is checked with its
-        // threads once read; generated sizes are checked up front)
+        // an ensemble: one image per worker, as many workers as the memory
+        // holds images (a lone file is checked with its threads once read)
         let limit = if self.generated() {
-            None
+            super::common::check_generated_memory(self.size, n, per_px, "the analysis")?
         } else {
             super::common::ensemble_memory_workers(&self.images, per_px, "the analysis")?
         };

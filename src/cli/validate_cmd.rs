@@ -203,7 +203,7 @@ pub fn run(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
         ));
     }
     if args.replicates == 1 {
-        let one = run_one(&args, quiet)?;
+        let one = run_one(&args, quiet, None)?;
         show!("{}", one.table);
         // after the table, so that they are the last thing on a terminal;
         // even with --quiet (which hides progress bars), as analyze's
@@ -338,13 +338,19 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
         .seed
         .checked_add(n as u64 - 1)
         .ok_or_else(|| Error::param("replicates", "seed + replicates overflows the seed range"))?;
+    // the memory once for all the ensembles (one note, not one per seed),
+    // after run_one's cheap checks
+    let r = args.model_opts.resolve(args.model)?;
+    super::common::check_generated(args.size, args.count)?;
+    r.model.check_size(args.size)?;
+    let limit = super::common::check_ensemble_memory(args.size, args.count, "validate")?;
     let mut runs = Vec::with_capacity(n);
     for seed in args.seed..=last {
         let mut a = args.clone();
         a.seed = seed;
         a.replicates = 1;
         a.out.out = args.out.out.join(format!("seed_{seed}"));
-        runs.push(run_one(&a, quiet)?);
+        runs.push(run_one(&a, quiet, Some(limit))?);
     }
     let first = &runs[0];
     // τ(q) averaged over the ensembles, and its standard error per q
@@ -521,8 +527,10 @@ fn run_replicates(args: ValidateArgs, quiet: bool) -> Result<Outcome> {
 }
 
 /// Generates, analyses and judges one ensemble; writes its outputs under
-/// `args.out` and returns its criteria and table (not printed).
-fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
+/// `args.out` and returns its criteria and table (not printed). `known`:
+/// the images in flight, when the caller sized them to the memory
+/// ([`super::common::check_ensemble_memory`]; `None`: sized here).
+fn run_one(args: &ValidateArgs, quiet: bool, known: Option<Option<usize>>) -> Result<OneRun> {
     let r = args.model_opts.resolve(args.model)?;
     // the cheap checks first: a huge --size is refused before anything is
     // allocated or computed for it
@@ -530,7 +538,10 @@ fn run_one(args: &ValidateArgs, quiet: bool) -> Result<OneRun> {
     r.model.check_size(args.size)?;
     // fewer images in flight than threads when the memory holds no more
     // (said in a note)
-    let limit = super::common::check_ensemble_memory(args.size, args.count, "validate")?;
+    let limit = match known {
+        Some(l) => l,
+        None => super::common::check_ensemble_memory(args.size, args.count, "validate")?,
+    };
     let (k_lo, k_hi) = default_k_range(args.size);
     let ps_cfg = PowerSpectrumConfig::for_field(r.model.is_periodic());
     let k_bins = bins_in_range(args.size, args.size, ps_cfg.bins_per_octave, (k_lo, k_hi))?;
