@@ -908,11 +908,7 @@ impl HoleSizes {
             self.pct(self.missing),
             self.largest,
             bias_text(bias),
-            if bias_large > 0.01 {
-                "; crop the large holes out if you can"
-            } else {
-                ""
-            }
+            crop_advice(bias_large)
         )
     }
 
@@ -934,11 +930,7 @@ impl HoleSizes {
             self.pct(self.missing),
             self.largest,
             bias_text(bias),
-            if bias_large > 0.01 {
-                "; crop the large holes out if you can"
-            } else {
-                ""
-            }
+            crop_advice(bias_large)
         )
     }
 
@@ -957,6 +949,16 @@ impl HoleSizes {
         let large = self.pct(self.in_large);
         let bias_large = 0.0055 * large;
         (0.0025 * small + bias_large, bias_large)
+    }
+}
+
+/// "; crop the large holes out if you can" when their part of the bias
+/// bound exceeds 0.01, else nothing.
+fn crop_advice(bias_large: f64) -> &'static str {
+    if bias_large > 0.01 {
+        "; crop the large holes out if you can"
+    } else {
+        ""
     }
 }
 
