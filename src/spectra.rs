@@ -236,9 +236,18 @@ impl TileGrid {
     /// The tile holding pixel `(x, y)` (row-major; points outside the
     /// domain go to the nearest tile).
     pub fn index(&self, x: u32, y: u32) -> usize {
-        let ty = slot((y as usize).saturating_sub(self.y0), self.h, self.nty);
-        let tx = slot((x as usize).saturating_sub(self.x0), self.w, self.ntx);
-        ty * self.ntx + tx
+        self.row_start(y as usize) + self.column(x as usize)
+    }
+
+    /// The index of the first tile of the row of tiles holding image row
+    /// `y` ([`Self::index`]).
+    fn row_start(&self, y: usize) -> usize {
+        slot(y.saturating_sub(self.y0), self.h, self.nty) * self.ntx
+    }
+
+    /// The column of tiles holding image column `x` ([`Self::index`]).
+    fn column(&self, x: usize) -> usize {
+        slot(x.saturating_sub(self.x0), self.w, self.ntx)
     }
 
     /// [`Self::index`] of every pixel of an `ny x nx` image as a table: the
@@ -246,13 +255,8 @@ impl TileGrid {
     /// and direction) then take no division.
     pub fn table(&self, ny: usize, nx: usize) -> TileTable {
         TileTable {
-            // the tile row's first index, and the column within the row
-            rows: (0..ny)
-                .map(|y| slot(y.saturating_sub(self.y0), self.h, self.nty) * self.ntx)
-                .collect(),
-            cols: (0..nx)
-                .map(|x| slot(x.saturating_sub(self.x0), self.w, self.ntx))
-                .collect(),
+            rows: (0..ny).map(|y| self.row_start(y)).collect(),
+            cols: (0..nx).map(|x| self.column(x)).collect(),
         }
     }
 }
