@@ -69,6 +69,7 @@ fn in_order<R>(
 /// index of a contiguous run, in order) merged with `merge`; on failure the
 /// error of the lowest failing index (a failed `merge`, a defect rather
 /// than an input's fault, counts after every index).
+#[cfg_attr(not(feature = "cli"), allow(dead_code))] // used by the CLI only
 pub(crate) fn try_fold<A, I, S, M>(
     n: usize,
     init: I,
@@ -127,6 +128,7 @@ where
 }
 
 /// [`try_map_at_limited`] without the failing index, as [`try_map`].
+#[cfg_attr(not(feature = "cli"), allow(dead_code))] // used by the CLI only
 pub(crate) fn try_map_limited<R, F>(n: usize, limit: Option<usize>, f: F) -> Result<Vec<R>>
 where
     R: Send,
@@ -143,6 +145,7 @@ where
 /// images and one of 8 up to 10 (tm, counted by the review of 2026-11-29).
 /// Failures as [`try_map_at`]: the lowest failing index, items above a
 /// known failure skipped.
+#[cfg_attr(not(feature = "cli"), allow(dead_code))] // used by the CLI only
 pub(crate) fn try_map_at_limited<R, F>(
     n: usize,
     limit: Option<usize>,
@@ -189,6 +192,7 @@ where
 /// (in increasing order) into its own accumulator, and the accumulators
 /// are merged in thread order (as [`try_fold`]'s runs, whose bounds
 /// depend on the scheduling: `merge` must not depend on them).
+#[cfg_attr(not(feature = "cli"), allow(dead_code))] // used by the CLI only
 pub(crate) fn try_fold_limited<A, I, S, M>(
     n: usize,
     limit: Option<usize>,
