@@ -84,8 +84,10 @@ impl FiscParams {
     /// below β near the pixel scale (paper preset: 2.93 at |k| = 1, 3.01 at
     /// 0.72, 3.055 at 0.51, 3.09 at 0.2 rad/px), the same at every `n`.
     ///
-    /// **Errors** unless `n` is a power of two >= 2.
+    /// **Errors** unless `n` is a power of two >= 2, and on parameters
+    /// [`FiscParams::validate`] refuses.
     pub fn expected_power(&self, n: usize) -> Result<Array2<f64>> {
+        self.validate()?;
         let steps = steps_for_size(n)?;
         let p = self.p;
         let g = 2.0 * (p * p + (1.0 - p) * (1.0 - p));

@@ -280,7 +280,11 @@ impl Model {
         self.theory().d_of_q(q)
     }
 
-    /// `D(h)`, see [`Multifractal::dh`] (`None` for a NaN `h`).
+    /// `D(h)` where it is defined ([`Multifractal::dh`]): `None` outside
+    /// `[h_min, h_max]`, for a NaN `h`, and for a monofractal (fBm) at any
+    /// `h` but its `H`, so at an estimated h too. To set an estimate
+    /// against the theory at the same q, use [`Model::h`] and
+    /// [`Model::d_of_q`].
     pub fn dh(&self, h: f64) -> Option<f64> {
         if h.is_nan() {
             return None;
@@ -808,6 +812,33 @@ mod tests {
             let e = TheoryTable::new(&good, &q).unwrap_err().to_string();
             assert!(e.contains("`q`"), "{q:?}: {e}");
         }
+    }
+
+    /// A model the generator refuses has no finite-size beta (`None`), and
+    /// its expected spectrum is an error naming the parameter: an isotropic
+    /// cascade with tau(2) < -6 (no phi*, II eq 36; only a law that does
+    /// not converge has it) panicked in phi_star.
+    #[test]
+    fn finite_beta_of_an_invalid_model_is_none() {
+        use crate::synth::wcascade::{Law, WCascadeParams};
+        let p = WCascadeParams {
+            law: Law::LogNormal {
+                m: -0.01,
+                sigma2: 5.0,
+            },
+            isotropy: Default::default(),
+            basis: Default::default(),
+        };
+        assert!(p.law.tau(2.0) < -6.0);
+        assert_eq!(Model::WCascade(p).finite_beta(64), None);
+        let e = wcascade::expected_power(&p, 64).unwrap_err().to_string();
+        assert!(e.contains("`sigma2`"), "{e}");
+        let bad = crate::synth::fisc::FiscParams { p: 0.7, hstar: 0.5 };
+        assert_eq!(Model::Fisc(bad).finite_beta(64), None);
+        assert!(bad.expected_power(64).is_err());
+        // a valid model still has one
+        let good = Model::preset("paper-lognormal").unwrap().model;
+        assert!(good.finite_beta(256).is_some_and(f64::is_finite));
     }
 
     #[test]

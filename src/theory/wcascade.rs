@@ -228,8 +228,11 @@ pub fn magnitude_correlation(ln_variance: f64, dx: f64, l: f64) -> Option<f64> {
 /// infinite cascade has `|k|^-β`, `β = τ(2) + 4`, up to a dyadic modulation;
 /// the finite one bends near the root and the pixel (tests/generators.rs).
 ///
-/// **Errors** unless `n` is a power of two >= 2.
+/// **Errors** unless `n` is a power of two >= 2, and on parameters
+/// [`WCascadeParams::validate`] refuses (an isotropic law with `τ(2) < -6`
+/// has no φ*, II eq 36).
 pub fn expected_power(params: &WCascadeParams, n: usize) -> Result<Array2<f64>> {
+    params.validate()?;
     let steps = steps_for_size(n)?;
     let fft = FftPlanner::<f64>::new().plan_fft_forward(n);
     // the 1D periodic scaling function and wavelet of scale 2^j, position 0,
