@@ -10,8 +10,18 @@ impl TraceMomentAccumulator {
     /// **Errors** with no image, a flux identically 0 (constant field),
     /// fewer than 3 levels in the fit range, or settings that fail
     /// [`TraceMomentFitConfig::validate`].
+    ///
+    /// The universal fit is OLS here: GLS, the default
+    /// [`TraceMomentFitConfig::universal`], needs the jackknife parts of
+    /// [`finish_jackknife`] (or [`analyze_tiled`], [`finish_ensemble`]);
+    /// `universal_fit` then says so.
     pub fn finish(&self, fc: &TraceMomentFitConfig) -> Result<TraceMomentResult> {
         let mut r = self.finish_inner(fc, None)?;
+        if fc.universal == UniversalWeighting::Gls {
+            r.universal_fit = "ols (unweighted least squares in K; gls needs jackknife parts: \
+                               finish_jackknife)"
+                .into();
+        }
         r.warnings = diagnostics(&r, None);
         Ok(r)
     }
