@@ -138,7 +138,14 @@
 //! | `--bins` (pdf) | [`stats::pdf::PdfOptions`] `bins` |
 //! | `--diff-order`, `--frac-int` | [`tracemoments::TraceMomentConfig`] `diff` ([`tracemoments::FluxDiff`]), `frac_int` |
 //! | `--lambda-fit`, `--lag-fit`, `--k-range`, `--q-fit-max`, `--universal-fit` | [`tracemoments::TraceMomentFitConfig`] `log2_lambda`, `log2_lag`, `k_range`, `q_fit_max`, `universal` |
+//! | `--flux`, `--q`, `--eta`, `--dtm-q`, `--sf-q`, `--box-weights`, `--torus` (tm) | [`tracemoments::TraceMomentConfig`] `flux`, `q`, `eta`, `dtm_q`, `sf_q`, `box_weights`, `periodic` |
+//! | `--eta-fit` | [`tracemoments::TraceMomentFitConfig`] `eta` |
+//! | `--window`, `--spectrum-fill` | [`stats::powspec::PowerSpectrumConfig`] `window`, `fill` (`TraceMomentConfig::spectrum`) |
 //! | `--surrogates K` | [`tracemoments::surrogate_errors`] |
+//! | `--domain torus` (pdf, kernel, correlate) | `margin: Some(0)`: the whole image as a torus |
+//! | `--fill-holes` | `Field::new(field.filled_harmonic()?)` ([`Field::filled_harmonic_on`] for a torus); the spectra's fill warning reads [`spectra::ImagePartial`] `filled`, `largest_filled_hole`, `in_large_filled_holes` ([`field::HoleSizes::of`] counts them), which the caller sets |
+//! | `--nodata V` | [`Field::mask_value`] (a file's own nodata tag is read by [`io`]) |
+//! | `--pixel-size`, `--units` | none: the library works in pixels; the CLI converts its outputs' scales to lengths |
 //! | `--out` | the directory a caller writes to ([`io::write_atomic`] refuses to overwrite a file registered with [`io::protect`]) |
 //!
 //! # References

@@ -120,7 +120,9 @@ pub struct ImageWtmmm {
 }
 
 impl ImageWtmmm {
-    /// The points of one set, per scale.
+    /// The points of one set, per scale. [`WtmmmSet::Lines`] is a list of
+    /// empty lists when the lines were not linked ([`image_wtmmm`] with
+    /// `link = false`): ask for `link` whenever the lines are wanted.
     pub fn set(&self, s: WtmmmSet) -> &[Vec<Point>] {
         match s {
             WtmmmSet::All => &self.all,
