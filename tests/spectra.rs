@@ -1402,7 +1402,7 @@ fn planar_trends_are_removed_and_warned_about() {
     // a share outside [0, 1] in a file is refused
     let mut bad = sums(&flat[..1], &c);
     bad.images[0].plane_share = Some(7.0);
-    assert!(bad.check().unwrap_err().contains("plane_share"));
+    assert!(bad.check().unwrap_err().to_string().contains("plane_share"));
     // no plane is removed on a torus
     let torus = AnalysisConfig {
         margin: Some(0),
@@ -1608,7 +1608,12 @@ fn quantised_images_are_warned_about() {
     // a record below one pixel is no terrace width
     let mut bad = quant.clone();
     bad.images[0].terrace_width = Some(0.5);
-    assert!(bad.check().unwrap_err().contains("terrace_width"));
+    assert!(
+        bad.check()
+            .unwrap_err()
+            .to_string()
+            .contains("terrace_width")
+    );
 }
 
 /// A continuous surface with a flat area of one value (a sea set to 0):
@@ -1670,7 +1675,7 @@ fn flat_areas_are_named_not_taken_for_terraces() {
     // a record that is no share is refused
     let mut bad = s.clone();
     bad.images[0].flat.as_mut().unwrap().share = 1.5;
-    assert!(bad.check().unwrap_err().contains("flat"));
+    assert!(bad.check().unwrap_err().to_string().contains("flat"));
 }
 
 /// A wavelet wider than the image at a fitted scale is said: the FFT
@@ -1993,4 +1998,50 @@ fn paired_tau_difference<const K: usize>(
             (all[qi], wtmm::stats::jackknife_se(&reps))
         })
         .collect()
+}
+
+/// One missing pixel at the centre of a 256^2 fBm: the sums record the
+/// share of the counting domain farther from it than the wavelet's support
+/// at the largest scale (counted here pixel by pixel), and the spectra's
+/// missing-pixel warning gives it.
+#[test]
+fn the_domain_left_by_missing_pixels_is_recorded_and_said() {
+    let mut img = fbm(FbmParams { hurst: 0.5 }, 256, 256, 11, 0).unwrap();
+    img[[128, 128]] = f64::NAN;
+    let cfg = AnalysisConfig {
+        octaves: 2,
+        ..Default::default()
+    };
+    let sums = image_sums(&Field::new(img), &cfg, &[0.0, 1.0, 2.0], "one hole").unwrap();
+    let m = cfg.margin_px();
+    let r = cfg.hole_clearance();
+    let (mut kept, mut all) = (0usize, 0usize);
+    for y in m..256 - m {
+        for x in m..256 - m {
+            all += 1;
+            let d2 = (y as f64 - 128.0).powi(2) + (x as f64 - 128.0).powi(2);
+            kept += usize::from(d2.sqrt() > r);
+        }
+    }
+    let want = kept as f64 / all as f64;
+    let got = sums.images[0].counted_share.expect("recorded");
+    // the distance transform is exact to rounding (f32) for one pixel
+    assert!(
+        (got - want).abs() < 2.0 / all as f64,
+        "{got} vs {want} ({kept} of {all})"
+    );
+    let sp = sums
+        .spectra(Rule::Plain, sums.default_fit().unwrap())
+        .unwrap();
+    let said = format!("which leaves {:.0} % of the counting domain", 100.0 * want);
+    assert!(
+        sp.warnings.iter().any(|w| w.contains(&said)),
+        "{said}: {:?}",
+        sp.warnings
+    );
+    assert_eq!(sp.image_records[0].counted_share, Some(got));
+    // without missing pixels nothing is recorded
+    let clean = fbm(FbmParams { hurst: 0.5 }, 256, 256, 11, 0).unwrap();
+    let s = image_sums(&Field::new(clean), &cfg, &[0.0, 1.0, 2.0], "clean").unwrap();
+    assert_eq!(s.images[0].counted_share, None);
 }

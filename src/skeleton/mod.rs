@@ -535,6 +535,23 @@ impl Skeleton {
                 .as_ref()
                 .is_none_or(|d| d[[y, x]] > self.hole_clearance as f32)
     }
+
+    /// The share of the interior rectangle's pixels that [`Self::counts`]:
+    /// those farther from every missing pixel than `hole_clearance` (a few
+    /// scattered missing pixels can leave a small part of it). `None`
+    /// without missing pixels or an empty rectangle.
+    pub fn counted_share(&self) -> Option<f64> {
+        let (y0, y1, x0, x1) = self.domain;
+        let d = self.hole_distance.as_ref()?;
+        let area = (y1 - y0) * (x1 - x0);
+        let c = self.hole_clearance as f32;
+        let kept = d
+            .slice(ndarray::s![y0..y1, x0..x1])
+            .iter()
+            .filter(|&&r| r > c)
+            .count();
+        (area > 0).then(|| kept as f64 / area as f64)
+    }
 }
 
 /// Builds the skeleton of one image with the default options (serial).

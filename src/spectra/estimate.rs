@@ -25,6 +25,7 @@ impl PartitionSums {
                     plain: t.plain.clone(),
                     tiles: Vec::new(),
                     tile_side: 0,
+                    counted_share: None,
                     plane_share: None,
                     terrace_width: None,
                     flat: None,
@@ -176,7 +177,7 @@ impl PartitionSums {
     /// two scales (it would fit from the next one), or if fewer than 3
     /// scales fall in it. [`default_fit`] gives the CLI's range.
     pub fn spectra(&self, rule: Rule, fit: (f64, f64)) -> Result<Spectra> {
-        self.check().map_err(|e| Error::param("sums", e))?;
+        self.check()?;
         let ns = self.scales.len();
         let nq = self.q.len();
         let log2_a: Vec<f64> = self.scales.iter().map(|a| a.log2()).collect();
@@ -526,6 +527,14 @@ impl PartitionSums {
                 ));
             }
         }
+        if self.q.len() < 2 {
+            // a derivative needs two q (SPEC §4: no NaN without a word)
+            warnings.push(format!(
+                "one q ({}): the Legendre spectrum (legendre_h, legendre_D) needs two or more \
+                 and is left empty (null); h(q) and D(q) are those of the canonical sums",
+                q_span(self.q[0], self.q[0])
+            ));
+        }
         warnings.extend(legendre_warnings(&self.q, &est, &reps));
         let holed: Vec<u64> = self
             .images
@@ -536,9 +545,10 @@ impl PartitionSums {
         if !holed.is_empty() {
             warnings.push(format!(
                 "{} image(s) with missing pixels (NaN, inf or nodata; {} in all): maxima count \
-                 only farther from them than the wavelet's support at the largest scale",
+                 only farther from them than the wavelet's support at the largest scale{}",
                 holed.len(),
-                holed.iter().sum::<u64>()
+                holed.iter().sum::<u64>(),
+                self.counted_note()
             ));
         }
         let image_shapes = self.image_shapes();
@@ -892,7 +902,8 @@ impl Estimates {
 /// points give their chord), `D = q h - τ` (SPEC §4).
 ///
 /// `q` must be strictly increasing, as [`check_q`] ensures for every grid
-/// the crate builds: a repeated q gives a non-finite `h` there.
+/// the crate builds: a repeated q gives a non-finite `h` there. A lone q
+/// has no derivative: its `h` and `D` are NaN.
 ///
 /// **Panics** if `q` and `tau` differ in length.
 pub fn legendre(q: &[f64], tau: &[f64]) -> (Vec<f64>, Vec<f64>) {

@@ -102,6 +102,11 @@ pub struct ImagePartial {
     /// ([`Skeleton::counts`](crate::skeleton::Skeleton::counts)).
     #[serde(default)]
     pub missing: u64,
+    /// With missing pixels, the share of the counting domain's rectangle
+    /// where maxima count ([`Skeleton::counted_share`]); absent without
+    /// missing pixels and in sums written before 2026-11-30.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub counted_share: Option<f64>,
     /// Lines counted per scale (as [`Spectra::lines`]).
     pub lines: Vec<u64>,
     /// Cells of the sup rule ([`Rule::Sup`]), `[qi * n_scales + j]`.
@@ -336,6 +341,7 @@ impl PartitionSums {
                 plain,
                 tile_side: if n_tiles > 0 { tile_side } else { 0 },
                 tiles,
+                counted_share: None,
                 plane_share: None,
                 terrace_width: None,
                 flat: None,
@@ -401,6 +407,7 @@ impl PartitionSums {
                 plain: cells,
                 tiles: Vec::new(),
                 tile_side: 0,
+                counted_share: None,
                 plane_share: None,
                 terrace_width: None,
                 flat: None,
@@ -487,8 +494,15 @@ impl PartitionSums {
     /// finite q grid, positive ascending scales, at least one image, array
     /// lengths matching the grids, finite cells with non-negative sums.
     ///
-    /// **Errors** with what is wrong (the caller names the file).
-    pub fn check(&self) -> std::result::Result<(), String> {
+    /// **Errors** ([`Error::Input`]) with what is wrong, as the `check` of
+    /// the other mergeable sums ([`read_json`](Self::read_json) names the
+    /// file).
+    pub fn check(&self) -> Result<()> {
+        self.problem().map_err(Error::Input)
+    }
+
+    /// [`Self::check`]'s finding, as text.
+    fn problem(&self) -> std::result::Result<(), String> {
         // lenient: "1", "v1.2", "1.2.3-rc1"; an unreadable version is let
         // through (it is a record, the content is checked below)
         let major = |v: &str| {
@@ -566,6 +580,18 @@ impl PartitionSums {
                 im.label,
                 im.shape.unwrap_or_default(),
                 im.missing
+            ));
+        }
+        if let Some((i, im)) = self
+            .images
+            .iter()
+            .enumerate()
+            .find(|(_, im)| im.counted_share.is_some_and(|r| !(0.0..=1.0).contains(&r)))
+        {
+            return Err(format!(
+                "image {i} ({:?}): counted_share {} is no share of a domain (0 to 1)",
+                im.label,
+                im.counted_share.unwrap_or(f64::NAN)
             ));
         }
         if let Some((i, im)) = self
@@ -703,6 +729,10 @@ pub struct ImageRecord {
     pub shape: Option<[usize; 2]>,
     /// Missing pixels ([`ImagePartial::missing`]).
     pub missing: u64,
+    /// [`ImagePartial::counted_share`]; null without missing pixels or
+    /// where the sums do not record it.
+    #[serde(default)]
+    pub counted_share: Option<f64>,
     /// [`ImagePartial::plane_share`]; null where the sums do not record it.
     #[serde(default)]
     pub plane_share: Option<f64>,
@@ -735,6 +765,7 @@ impl ImageRecord {
             label: im.label.clone(),
             shape: im.shape,
             missing: im.missing,
+            counted_share: im.counted_share,
             plane_share: im.plane_share,
             terrace_width: im.terrace_width,
             flat: im.flat,
@@ -825,7 +856,8 @@ pub struct Spectra {
     /// ..." naming the q where the jackknife had no finite value (also a
     /// warning).
     pub stderr_method: String,
-    /// h = dτ/dq, D = q h - τ.
+    /// h = dτ/dq, D = q h - τ ([`legendre`]; NaN, null in JSON, when the
+    /// grid has one q, which a warning says).
     #[serde(deserialize_with = "crate::nan_null::vec")]
     pub legendre_h: Vec<f64>,
     /// D(h) by the Legendre route, `q h - τ` (JSON `legendre_D`).
@@ -912,6 +944,10 @@ pub fn default_q() -> Vec<f64> {
 /// too short for that gives an empty range, never an inverted one
 /// (`(0, 0)` for no octave, `(1, 1)` for one octave of one voice), which
 /// the fit refuses as holding too few scales.
+///
+/// This reads the grid's `octaves` and `voices` only: for sums of explicit
+/// `AnalysisConfig::scales`, take [`PartitionSums::default_fit`], which
+/// reads the scales the sums hold.
 pub fn default_fit(octaves: usize, voices: usize) -> (f64, f64) {
     let v = voices.max(1) as f64;
     let hi = (octaves as f64).min(4.0);
@@ -1012,7 +1048,7 @@ impl PartitionSums {
         })?;
         let s: PartitionSums = serde_json::from_str(&text)
             .map_err(|e| Error::format(path, format!("not a partition-sums file: {e}")))?;
-        s.check()
+        s.problem()
             .map_err(|e| Error::format(path, format!("invalid partition sums: {e}")))?;
         Ok(s)
     }
@@ -1215,6 +1251,9 @@ pub fn skeleton_sums_tiled(
     s.analysis = Some(cfg.clone());
     let (ny, nx) = field.dim();
     s.images[0].missing = (ny * nx - field.valid_count()) as u64;
+    if s.images[0].missing > 0 {
+        s.images[0].counted_share = sk.counted_share();
+    }
     s.images[0].plane_share = field.plane_share();
     (s.images[0].terrace_width, s.images[0].flat) = quantisation(field);
     s

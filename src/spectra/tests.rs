@@ -271,6 +271,7 @@ fn batched_leave_one_out_is_bit_identical() {
                 plain: (0..nc).map(|_| cell()).collect(),
                 tiles: vec![],
                 tile_side: 0,
+                counted_share: None,
                 plane_share: None,
                 terrace_width: None,
                 flat: None,
@@ -822,4 +823,31 @@ fn unlike_images_false_alarms_and_power() {
     assert_eq!(named(20.0), 200);
     let n12 = named(12.0);
     assert!(n12 >= 190, "12 sd off: named in {n12} of 200");
+}
+
+/// A grid of one q has no Legendre spectrum: its h and D are null, and a
+/// warning says so (they were NaN without a word); the canonical h(q) and
+/// D(q) are still given.
+#[test]
+fn one_q_says_why_the_legendre_spectrum_is_empty() {
+    let scales: Vec<f64> = (0..41).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+    let values: Vec<Vec<f64>> = scales
+        .iter()
+        .map(|&a| {
+            let n = (4000.0 / (a / 1.5).powi(2)).round() as usize + 3;
+            (0..n)
+                .map(|k| 0.4 * a.log2() + ((k % 3) as f64 - 1.0) * 0.1)
+                .collect()
+        })
+        .collect();
+    for q in [vec![2.0], vec![1.0, 2.0]] {
+        let sp = PartitionSums::from_log2_values(&scales, &values, &q, "x")
+            .unwrap()
+            .spectra(Rule::Plain, (0.5, 4.0))
+            .unwrap();
+        let said = sp.warnings.iter().any(|w| w.contains("legendre_h"));
+        assert_eq!(said, q.len() == 1, "{q:?}: {:?}", sp.warnings);
+        assert_eq!(sp.legendre_h.iter().all(|h| h.is_nan()), q.len() == 1);
+        assert!(sp.h.iter().chain(&sp.d).all(|v| v.is_finite()), "{sp:?}");
+    }
 }

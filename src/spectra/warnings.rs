@@ -5,6 +5,42 @@
 use super::*;
 
 impl PartitionSums {
+    /// What the missing pixels leave of the counting domains (the images'
+    /// recorded [`ImagePartial::counted_share`]): ", which leaves 35 % of
+    /// the counting domain", the least image's share when they differ, and
+    /// advice below half. Empty when no image records a share.
+    pub(super) fn counted_note(&self) -> String {
+        let shares: Vec<(f64, &str)> = self
+            .images
+            .iter()
+            .filter_map(|im| im.counted_share.map(|r| (r, im.label.as_str())))
+            .collect();
+        let Some(&(least, who)) = shares.iter().min_by(|a, b| a.0.total_cmp(&b.0)) else {
+            return String::new();
+        };
+        let pct = |r: f64| format!("{:.0} %", 100.0 * r);
+        let most = shares.iter().map(|s| s.0).fold(least, f64::max);
+        let mut o = if shares.len() == 1 {
+            format!(", which leaves {} of the counting domain", pct(least))
+        } else {
+            let mean = shares.iter().map(|s| s.0).sum::<f64>() / shares.len() as f64;
+            format!(
+                ", which leaves {} of the counting domains on average ({} to {}, the least in \
+                 {who})",
+                pct(mean),
+                pct(least),
+                pct(most)
+            )
+        };
+        if least < 0.5 {
+            o.push_str(
+                "; scattered missing pixels cost the most: fill them (--fill-holes), crop to a \
+                 gap-free region, or use fewer --octaves",
+            );
+        }
+        o
+    }
+
     /// [`AnalysisConfig::plane_warning`](crate::skeleton::AnalysisConfig::plane_warning)
     /// of the images' recorded plane shares ([`ImagePartial::plane_share`]).
     pub(super) fn plane_warning(&self) -> Option<String> {
