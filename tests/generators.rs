@@ -91,7 +91,8 @@ fn pmodel_conserves_mass_and_draws_fair_pairs() {
             assert!((v[2] - hi).abs() < 1e-15 && (v[3] - hi).abs() < 1e-15);
         }
         prev = Some(m.to_owned());
-    });
+    })
+    .unwrap();
     assert_eq!(sums.len(), steps);
     for (s, total) in sums {
         assert!((total - 1.0).abs() < 1e-12, "step {s}: total mass {total}");
@@ -863,4 +864,29 @@ fn own_cascades_have_the_theoretical_tau() {
             .unwrap()
             .is_none()
     );
+}
+
+/// The p-model refuses a `p` outside (0, 1/2] and a grid too large to
+/// allocate with an error naming the parameter (it panicked on `p`).
+#[test]
+fn pmodel_cascade_refuses_bad_parameters() {
+    let mut rng = rng_for(1, 0);
+    for p in [0.0, 0.6, f64::NAN] {
+        let e = pmodel_cascade(p, 3, &mut rng, |_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`p`"), "{p}: {e}");
+    }
+    for steps in [40, 64, 1000] {
+        let e = pmodel_cascade(0.3, steps, &mut rng, |_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`steps`") || e.contains("`size`"),
+            "{steps}: {e}"
+        );
+    }
+    let m = pmodel_cascade(0.3, 0, &mut rng, |_, _| {}).unwrap();
+    assert_eq!(m.dim(), (1, 1));
+    assert_eq!(m[[0, 0]], 1.0);
 }

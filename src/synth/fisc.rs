@@ -112,15 +112,20 @@ const PAIRS: [[bool; 4]; 6] = [
 /// tests and diagnostics). One `random_range(0..6)` per split, parents in
 /// row-major order, so a seed fixes the measure.
 ///
-/// **Panics** if `p` is outside (0, 1/2] (validate [`FiscParams`] first).
+/// **Errors** if `p` is outside (0, 1/2] (as [`FiscParams::validate`]) or
+/// `2^steps` is not a size [`steps_for_size`] accepts.
 pub fn pmodel_cascade(
     p: f64,
     steps: usize,
     rng: &mut SynthRng,
     mut on_step: impl FnMut(usize, ArrayView2<f64>),
-) -> Array2<f64> {
-    assert!(p > 0.0 && p <= 0.5, "p must be in (0, 1/2], got {p}");
-    let n = 1usize << steps;
+) -> Result<Array2<f64>> {
+    FiscParams { p, hstar: 0.5 }.validate()?;
+    let n = 1usize
+        .checked_shl(steps as u32)
+        .filter(|_| steps < usize::BITS as usize)
+        .ok_or_else(|| Error::param("steps", format!("2^{steps} cells a side is too many")))?;
+    steps_for_size(n.max(2))?;
     let (lo, hi) = (0.5 * p, 0.5 * (1.0 - p));
     let mut cur = vec![0.0; n * n];
     let mut next = vec![0.0; n * n];
@@ -145,7 +150,7 @@ pub fn pmodel_cascade(
             ArrayView2::from_shape((cw, cw), &cur[..cw * cw]).expect("cw*cw cells"),
         );
     }
-    Array2::from_shape_vec((n, n), cur).expect("n*n cells")
+    Ok(Array2::from_shape_vec((n, n), cur).expect("n*n cells"))
 }
 
 /// The p-model measure underlying image `index` of the FISC ensemble `seed`,
@@ -157,7 +162,7 @@ pub fn fisc_measure(params: FiscParams, size: usize, seed: u64, index: u64) -> R
     params.validate()?;
     let steps = steps_for_size(size)?;
     let mut rng = rng_for(seed, index);
-    let mut mu = pmodel_cascade(params.p, steps, &mut rng, |_, _| {});
+    let mut mu = pmodel_cascade(params.p, steps, &mut rng, |_, _| {})?;
     let area = (size * size) as f64;
     mu.mapv_inplace(|m| m * area);
     Ok(mu)
@@ -192,7 +197,7 @@ pub fn fisc_log2_amplitudes(
             let off = shift * s as f64;
             out[s - levels.start].extend(m.iter().map(|&v| v.log2() + off));
         }
-    });
+    })?;
     Ok(out)
 }
 
