@@ -241,7 +241,10 @@ pub fn same_scales(a: &[f64], b: &[f64]) -> bool {
 /// accept (`io::MAX_PIXELS` = 2^28 pixels in one row).
 pub const MAX_SCALE: f64 = (1u64 << 28) as f64;
 
-/// Default interior margin for a wavelet and largest scale (SPEC §1).
+/// Default interior margin for a wavelet and largest scale (SPEC §1):
+/// `ceil(R a_max)`. `a_max` is a scale the configs have checked (positive,
+/// at most [`MAX_SCALE`]); others saturate (NaN and negatives give 0, a
+/// huge scale `usize::MAX`), which no image satisfies.
 pub fn default_margin(wavelet: Wavelet, a_max: f64) -> usize {
     (wavelet.support_radius() * a_max).ceil() as usize
 }

@@ -153,6 +153,9 @@ pub struct CorrelationConfig {
     pub detrend: crate::field::Trend,
 }
 
+/// Settings with no scales nor pairs, a base for struct-update syntax:
+/// the correlation refuses it as it stands. [`CorrelationConfig::fig30`]
+/// gives the paper's (and `wtmm correlate`'s) scales and pairs.
 impl Default for CorrelationConfig {
     fn default() -> Self {
         CorrelationConfig {

@@ -693,7 +693,9 @@ pub struct KernelOptions {
 /// The CLI's defaults (`wtmm kernel` on a 5-octave grid): fit 0.5:4 as for
 /// the spectra, the reference scales of II Fig 26 inside the fit range,
 /// above its start (the paper's 0.5 needs its `fit: (0.0, 3.5)`), the
-/// pairs of II Fig 25.
+/// pairs of II Fig 25. On another grid (fewer octaves, explicit scales)
+/// some of these lie off it and [`kernel_estimates`] refuses them: take
+/// [`KernelOptions::for_scales`].
 impl Default for KernelOptions {
     fn default() -> Self {
         KernelOptions {

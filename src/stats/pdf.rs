@@ -635,6 +635,9 @@ pub struct PdfOptions {
     pub bins: DensityBins,
 }
 
+/// Settings with no scale to show (`show` empty: [`wtmmm_pdfs`] then
+/// reports none) and `h0 = 0`: set `show` (`wtmm pdf` shows the scales
+/// 0, 1, 2, 3 octaves above a_min) and, for the rescaling test, `h0`.
 impl Default for PdfOptions {
     fn default() -> Self {
         PdfOptions {

@@ -408,6 +408,10 @@ impl Model {
         }
         let b = self.finite_beta_uncached(size);
         if let Ok(mut m) = MEMO.lock() {
+            // bounded, for a library caller that scans many models
+            if m.len() >= 64 {
+                m.remove(0);
+            }
             m.push((key, size, b));
         }
         b
