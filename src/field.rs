@@ -1,5 +1,29 @@
 //! The image type that flows through the pipeline: values plus a mask of
 //! missing pixels (NaN or nodata in the file).
+//!
+//! # Example
+//!
+//! ```
+//! use ndarray::Array2;
+//! use wtmm::Field;
+//! # fn main() -> wtmm::Result<()> {
+//! let mut a =
+//!     Array2::from_shape_fn((64, 64), |(y, x)| (0.3 * x as f64).sin() + (0.2 * y as f64).cos());
+//! a[[10, 20]] = f64::NAN;
+//! let f = Field::new(a); // non-finite values are masked
+//! assert_eq!(f.missing_count(), 1);
+//! // a mask of its own (true = missing), e.g. a sea; the NaN stays missing
+//! let sea = Array2::from_shape_fn((64, 64), |(y, _)| y < 4);
+//! let g = Field::with_mask(f.data.clone(), sea)?;
+//! assert_eq!(g.missing_count(), 4 * 64 + 1);
+//! // holes filled harmonically and counted as data (`--fill-holes`)
+//! let filled = Field::new(f.filled_harmonic()?);
+//! assert_eq!(filled.missing_count(), 0);
+//! // a mask of the wrong shape is refused
+//! assert!(Field::with_mask(f.data.clone(), Array2::from_elem((8, 8), false)).is_err());
+//! # Ok(())
+//! # }
+//! ```
 
 use ndarray::{Array2, Axis};
 

@@ -13,6 +13,29 @@
 //! Every error names the file and the problem; truncated or corrupt input
 //! gives an error, never a panic. Every output goes through
 //! [`write_atomic`], so an error never leaves a half-written file.
+//!
+//! # Example
+//!
+//! ```
+//! use ndarray::Array2;
+//! # fn main() -> wtmm::Result<()> {
+//! let dir = std::env::temp_dir().join(format!("wtmm-io-doc-{}", std::process::id()));
+//! std::fs::create_dir_all(&dir).unwrap();
+//! let mut a = Array2::from_shape_fn((4, 5), |(y, x)| (5 * y + x) as f64);
+//! a[[1, 2]] = f64::NAN; // a missing pixel
+//! let path = dir.join("dem.npy");
+//! wtmm::io::write_npy(&path, &a)?;
+//! let field = wtmm::io::read_field(&path)?;
+//! assert_eq!(field.dim(), (4, 5));
+//! assert_eq!(field.missing_count(), 1);
+//! // a file that is no image is an error naming it, not a panic
+//! std::fs::write(dir.join("bad.npy"), b"not an array").unwrap();
+//! let e = wtmm::io::read_field(dir.join("bad.npy")).unwrap_err();
+//! assert!(e.to_string().contains("bad.npy"), "{e}");
+//! std::fs::remove_dir_all(&dir).unwrap();
+//! # Ok(())
+//! # }
+//! ```
 
 mod asc;
 mod atomic;

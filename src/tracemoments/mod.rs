@@ -190,6 +190,31 @@
 //! the angle-averaged spectrum of [`crate::stats::powspec`] gives
 //! `β_avg`; the angle-integrated `β = β_avg - 1 = 1 + 2H - K(2)` gives
 //! `H = (β - 1 + K(2))/2` with `K(2)` from the universal fit.
+//!
+//! # Example
+//!
+//! ```
+//! use wtmm::Field;
+//! use wtmm::synth::fif::{FifParams, fif};
+//! use wtmm::tracemoments::{TraceMomentConfig, TraceMomentFitConfig, analyze_tiled};
+//! # fn main() -> wtmm::Result<()> {
+//! // a universal multifractal with the topography's parameters
+//! // (alpha 1.8, C1 0.12, H 0.7; TM Table 3)
+//! let p = FifParams::TOPO;
+//! let dem = Field::new(fif(&p, 256, 256, 1, 0)?);
+//! // as `wtmm tm` on one image: the errors from a jackknife over its tiles
+//! let (_, r) = analyze_tiled(
+//!     &[dem],
+//!     &TraceMomentConfig::default(),
+//!     &TraceMomentFitConfig::for_tiles(),
+//! )?;
+//! assert!(r.alpha.is_finite() && r.alpha_stderr > 0.0);
+//! assert!(r.c1 > 0.0 && r.c1_stderr > 0.0);
+//! // an ensemble: TraceMomentAccumulator::add_field per image, then
+//! // finish_ensemble over the images
+//! # Ok(())
+//! # }
+//! ```
 
 mod accumulate;
 mod diagnostics;
