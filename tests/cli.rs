@@ -5600,6 +5600,13 @@ fn analyze_fills_scattered_holes_on_request() {
         .collect();
     assert_eq!(said.len(), 1, "{}", b["warnings"]);
     assert!(said[0].starts_with("4 of the 4 image(s)"), "{}", said[0]);
+    // an ensemble says it per image and for the ensemble; a lone image
+    // once, the ensemble's warning being its own
+    let lone = args(&holed[..1], &["--fill-holes"], out("lone"));
+    let (code, err) = run_bin_stderr(&lone.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(err.matches("filled harmonically").count(), 1, "{err}");
+    assert!(err.contains("1 of the 1 image(s)"), "{err}");
     assert!(
         a["warnings"]
             .as_array()

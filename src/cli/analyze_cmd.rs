@@ -480,7 +480,8 @@ pub fn analyze_paths(
         let p = &paths[i];
         let field = super::common::read_image_noted(p, nodata, i, &notes)?;
         let (field, filled) = if fill {
-            let (f, h) = super::common::fill_holes_noted(field, p, torus, i, &notes)?;
+            let (f, h) =
+                super::common::fill_holes_noted(field, p, torus, (i, paths.len() == 1), &notes)?;
             (f, Some(h))
         } else {
             (field, None)

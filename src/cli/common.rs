@@ -419,34 +419,38 @@ pub fn read_image_noted(
 /// ([`HoleSizes::brief`]: the command's warning on the ensemble explains,
 /// [`HoleSizes::describe`]); with its holes as counted, so that a tally
 /// need not label them again. A field without holes passes unchanged.
+/// A lone image (`alone`) gets no note: the ensemble's warning says the
+/// same of it, with the explanation.
 ///
 /// **Errors** naming the file if no pixel is valid.
 pub fn fill_holes_noted(
     field: Field,
     path: &Path,
     torus: bool,
-    i: usize,
+    (i, alone): (usize, bool),
     notes: &OrderedNotes,
 ) -> Result<(Field, HoleSizes)> {
     let holes = HoleSizes::of(&field, torus);
     if holes.missing == 0 {
         return Ok((field, holes));
     }
-    notes.push(
-        i,
-        format!(
-            "warning: {}: {} missing pixels filled harmonically{} and counted as data \
-             (--fill-holes; {})",
-            path.display(),
-            holes.missing,
-            if torus {
-                " across the borders (a torus)"
-            } else {
-                ""
-            },
-            holes.brief()
-        ),
-    );
+    if !alone {
+        notes.push(
+            i,
+            format!(
+                "warning: {}: {} missing pixels filled harmonically{} and counted as data \
+                 (--fill-holes; {})",
+                path.display(),
+                holes.missing,
+                if torus {
+                    " across the borders (a torus)"
+                } else {
+                    ""
+                },
+                holes.brief()
+            ),
+        );
+    }
     let data = field
         .filled_harmonic_on(torus)
         .map_err(|e| in_file(path, e))?;

@@ -559,7 +559,13 @@ impl Input {
             let field = super::common::read_image_noted(p, self.nodata, i, notes)?;
             // the holes are labelled once, for the fill and the tally
             let (field, sizes) = if self.fill_holes {
-                let (f, h) = super::common::fill_holes_noted(field, p, self.periodic, i, notes)?;
+                let (f, h) = super::common::fill_holes_noted(
+                    field,
+                    p,
+                    self.periodic,
+                    (i, self.images.len() == 1),
+                    notes,
+                )?;
                 (f, Some(h))
             } else {
                 let h = holes.map(|_| super::common::HoleSizes::of(&field, self.periodic));
