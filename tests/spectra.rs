@@ -2040,6 +2040,11 @@ fn the_domain_left_by_missing_pixels_is_recorded_and_said() {
         sp.warnings
     );
     assert_eq!(sp.image_records[0].counted_share, Some(got));
+    // an edited record that is no share is refused before it is read
+    let mut bad = sums.clone();
+    bad.images[0].counted_share = Some(1.5);
+    let e = bad.check().unwrap_err().to_string();
+    assert!(e.contains("counted_share 1.5 is no share"), "{e}");
     // without missing pixels nothing is recorded
     let clean = fbm(FbmParams { hurst: 0.5 }, 256, 256, 11, 0).unwrap();
     let s = image_sums(&Field::new(clean), &cfg, &[0.0, 1.0, 2.0], "clean").unwrap();

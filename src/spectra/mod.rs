@@ -582,42 +582,40 @@ impl PartitionSums {
                 im.missing
             ));
         }
-        if let Some((i, im)) = self
-            .images
-            .iter()
-            .enumerate()
-            .find(|(_, im)| im.counted_share.is_some_and(|r| !(0.0..=1.0).contains(&r)))
-        {
-            return Err(format!(
-                "image {i} ({:?}): counted_share {} is no share of a domain (0 to 1)",
-                im.label,
-                im.counted_share.unwrap_or(f64::NAN)
-            ));
-        }
-        if let Some((i, im)) = self
-            .images
-            .iter()
-            .enumerate()
-            .find(|(_, im)| im.plane_share.is_some_and(|r| !(0.0..=1.0).contains(&r)))
-        {
-            return Err(format!(
-                "image {i} ({:?}): plane_share {} is no share of a variance (0 to 1)",
-                im.label,
-                im.plane_share.unwrap_or(f64::NAN)
-            ));
-        }
-        if let Some((i, im)) = self
-            .images
-            .iter()
-            .enumerate()
-            .find(|(_, im)| im.terrace_width.is_some_and(|w| !(1.0..=1e9).contains(&w)))
-        {
-            return Err(format!(
-                "image {i} ({:?}): terrace_width {} is no terrace width in pixels (1 or more)",
-                im.label,
-                im.terrace_width.unwrap_or(f64::NAN)
-            ));
-        }
+        // a recorded number outside its range, said as what it should be
+        let recorded = |name: &str,
+                        get: &dyn Fn(&ImagePartial) -> Option<f64>,
+                        ok: &dyn Fn(f64) -> bool,
+                        what: &str|
+         -> std::result::Result<(), String> {
+            match (self.images.iter().enumerate()).find(|(_, im)| get(im).is_some_and(|v| !ok(v))) {
+                Some((i, im)) => Err(format!(
+                    "image {i} ({:?}): {name} {} is {what}",
+                    im.label,
+                    get(im).unwrap_or(f64::NAN)
+                )),
+                None => Ok(()),
+            }
+        };
+        let share = |r: f64| (0.0..=1.0).contains(&r);
+        recorded(
+            "counted_share",
+            &|im| im.counted_share,
+            &share,
+            "no share of a domain (0 to 1)",
+        )?;
+        recorded(
+            "plane_share",
+            &|im| im.plane_share,
+            &share,
+            "no share of a variance (0 to 1)",
+        )?;
+        recorded(
+            "terrace_width",
+            &|im| im.terrace_width,
+            &|w| (1.0..=1e9).contains(&w),
+            "no terrace width in pixels (1 or more)",
+        )?;
         if let Some((i, im)) = self.images.iter().enumerate().find(|(_, im)| {
             im.flat
                 .is_some_and(|f| !(f.value.is_finite() && f.share > 0.0 && f.share <= 1.0))
