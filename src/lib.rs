@@ -138,7 +138,8 @@
 //! | `--bins` (pdf) | [`stats::pdf::PdfOptions`] `bins` |
 //! | `--diff-order`, `--frac-int` | [`tracemoments::TraceMomentConfig`] `diff` ([`tracemoments::FluxDiff`]), `frac_int` |
 //! | `--lambda-fit`, `--lag-fit`, `--k-range`, `--q-fit-max`, `--universal-fit` | [`tracemoments::TraceMomentFitConfig`] `log2_lambda`, `log2_lag`, `k_range`, `q_fit_max`, `universal` |
-//! | `--flux`, `--q`, `--eta`, `--dtm-q`, `--sf-q`, `--box-weights`, `--torus` (tm) | [`tracemoments::TraceMomentConfig`] `flux`, `q`, `eta`, `dtm_q`, `sf_q`, `box_weights`, `periodic` |
+//! | `--flux`, `--q`, `--eta`, `--dtm-q`, `--sf-q`, `--box-weights` (tm) | [`tracemoments::TraceMomentConfig`] `flux`, `q`, `eta`, `dtm_q`, `sf_q`, `box_weights` |
+//! | `--torus` (tm) | [`tracemoments::TraceMomentConfig`] `periodic: true` and `spectrum: PowerSpectrumConfig::for_field(true)` (no taper, only the mean removed) |
 //! | `--eta-fit` | [`tracemoments::TraceMomentFitConfig`] `eta` |
 //! | `--window`, `--spectrum-fill` | [`stats::powspec::PowerSpectrumConfig`] `window`, `fill` (`TraceMomentConfig::spectrum`) |
 //! | `--surrogates K` | [`tracemoments::surrogate_errors`] |

@@ -25,14 +25,7 @@ impl PartitionSums {
                     plain: t.plain.clone(),
                     tiles: Vec::new(),
                     tile_side: 0,
-                    counted_share: None,
-                    plane_share: None,
-                    terrace_width: None,
-                    flat: None,
-                    nodata: None,
-                    filled: 0,
-                    largest_filled_hole: 0,
-                    in_large_filled_holes: 0,
+                    ..Default::default()
                 })
             })
             .collect();

@@ -89,7 +89,9 @@ impl Cell {
 }
 
 /// The partial sums of one image: `cells[rule][qi * n_scales + j]`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// [`Default`] is an image with no scale and nothing recorded, a base for
+/// struct-update syntax.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ImagePartial {
     /// Free label (file name), for the record.
     pub label: String,
@@ -341,14 +343,7 @@ impl PartitionSums {
                 plain,
                 tile_side: if n_tiles > 0 { tile_side } else { 0 },
                 tiles,
-                counted_share: None,
-                plane_share: None,
-                terrace_width: None,
-                flat: None,
-                nodata: None,
-                filled: 0,
-                largest_filled_hole: 0,
-                in_large_filled_holes: 0,
+                ..Default::default()
             }],
         }
     }
@@ -407,14 +402,7 @@ impl PartitionSums {
                 plain: cells,
                 tiles: Vec::new(),
                 tile_side: 0,
-                counted_share: None,
-                plane_share: None,
-                terrace_width: None,
-                flat: None,
-                nodata: None,
-                filled: 0,
-                largest_filled_hole: 0,
-                in_large_filled_holes: 0,
+                ..Default::default()
             }],
         })
     }

@@ -271,14 +271,7 @@ fn batched_leave_one_out_is_bit_identical() {
                 plain: (0..nc).map(|_| cell()).collect(),
                 tiles: vec![],
                 tile_side: 0,
-                counted_share: None,
-                plane_share: None,
-                terrace_width: None,
-                flat: None,
-                nodata: None,
-                filled: 0,
-                largest_filled_hole: 0,
-                in_large_filled_holes: 0,
+                ..Default::default()
             })
             .collect();
         let s = PartitionSums {
@@ -850,4 +843,51 @@ fn one_q_says_why_the_legendre_spectrum_is_empty() {
         assert_eq!(sp.legendre_h.iter().all(|h| h.is_nan()), q.len() == 1);
         assert!(sp.h.iter().chain(&sp.d).all(|v| v.is_finite()), "{sp:?}");
     }
+}
+
+/// The missing-pixel warning gives the share of the counting domain left,
+/// averaged over the images that record it, and says when some do not
+/// (shards written before it was recorded).
+#[test]
+fn the_domain_left_is_said_for_the_images_that_record_it() {
+    let scales: Vec<f64> = (0..41).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+    let values: Vec<Vec<f64>> = scales
+        .iter()
+        .map(|&a| {
+            let n = (4000.0 / (a / 1.5).powi(2)).round() as usize + 3;
+            (0..n)
+                .map(|k| 0.4 * a.log2() + ((k % 3) as f64 - 1.0) * 0.1)
+                .collect()
+        })
+        .collect();
+    let image = |label: &str, missing: u64, share: Option<f64>| {
+        let mut s = PartitionSums::from_log2_values(&scales, &values, &[0.0, 1.0], label).unwrap();
+        s.images[0].missing = missing;
+        s.images[0].counted_share = share;
+        s
+    };
+    let said = |s: &PartitionSums| -> String {
+        let sp = s.spectra(Rule::Plain, (0.5, 4.0)).unwrap();
+        let w = sp.warnings.iter().find(|w| w.contains("missing pixels"));
+        w.cloned().unwrap_or_default()
+    };
+    let mut s = image("a", 20, Some(0.8));
+    assert!(
+        said(&s).contains("which leaves 80 % of the counting domain"),
+        "{}",
+        said(&s)
+    );
+    assert!(!said(&s).contains("record it") && !said(&s).contains("--fill-holes"));
+    s.merge(&image("b", 60, Some(0.3))).unwrap();
+    s.merge(&image("c", 0, None)).unwrap();
+    let w = said(&s);
+    assert!(w.contains("2 image(s) with missing pixels"), "{w}");
+    assert!(
+        w.contains("55 % of the counting domains on average (30 % to 80 %, the least in b)"),
+        "{w}"
+    );
+    assert!(w.contains("--fill-holes"), "{w}");
+    s.merge(&image("d", 5, None)).unwrap();
+    let w = said(&s);
+    assert!(w.contains("on average (2 of the 3 record it)"), "{w}");
 }

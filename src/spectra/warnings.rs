@@ -20,13 +20,20 @@ impl PartitionSums {
         };
         let pct = |r: f64| format!("{:.0} %", 100.0 * r);
         let most = shares.iter().map(|s| s.0).fold(least, f64::max);
+        // sums written before 2026-11-30 record no share
+        let holed = self.images.iter().filter(|im| im.missing > 0).count();
+        let of = if shares.len() < holed {
+            format!(" ({} of the {holed} record it)", shares.len())
+        } else {
+            String::new()
+        };
         let mut o = if shares.len() == 1 {
-            format!(", which leaves {} of the counting domain", pct(least))
+            format!(", which leaves {} of the counting domain{of}", pct(least))
         } else {
             let mean = shares.iter().map(|s| s.0).sum::<f64>() / shares.len() as f64;
             format!(
-                ", which leaves {} of the counting domains on average ({} to {}, the least in \
-                 {who})",
+                ", which leaves {} of the counting domains on average{of} ({} to {}, the least \
+                 in {who})",
                 pct(mean),
                 pct(least),
                 pct(most)

@@ -113,7 +113,7 @@ const PAIRS: [[bool; 4]; 6] = [
 /// row-major order, so a seed fixes the measure.
 ///
 /// **Errors** if `p` is outside (0, 1/2] (as [`FiscParams::validate`]) or
-/// `2^steps` is not a size [`steps_for_size`] accepts.
+/// `2^steps` cells a side exceed the generators' limit of 2^28 pixels.
 pub fn pmodel_cascade(
     p: f64,
     steps: usize,
@@ -121,11 +121,12 @@ pub fn pmodel_cascade(
     mut on_step: impl FnMut(usize, ArrayView2<f64>),
 ) -> Result<Array2<f64>> {
     FiscParams { p, hstar: 0.5 }.validate()?;
+    let too_many = || Error::param("steps", format!("2^{steps} cells a side is too many"));
     let n = 1usize
         .checked_shl(steps as u32)
         .filter(|_| steps < usize::BITS as usize)
-        .ok_or_else(|| Error::param("steps", format!("2^{steps} cells a side is too many")))?;
-    steps_for_size(n.max(2))?;
+        .ok_or_else(too_many)?;
+    super::check_pixels(n, n).map_err(|_| too_many())?;
     let (lo, hi) = (0.5 * p, 0.5 * (1.0 - p));
     let mut cur = vec![0.0; n * n];
     let mut next = vec![0.0; n * n];
