@@ -41,8 +41,8 @@ impl PartitionSums {
         };
         if least < 0.5 {
             o.push_str(
-                "; scattered missing pixels cost the most: fill them (--fill-holes), crop to a \
-                 gap-free region, or use fewer --octaves",
+                "; to keep more, fill scattered gaps (--fill-holes), crop to a gap-free \
+                 region, or use fewer --octaves",
             );
         }
         o
