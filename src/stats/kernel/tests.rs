@@ -1,0 +1,282 @@
+use super::*;
+use crate::stats::fit::line_fit;
+use rand::RngExt;
+
+#[test]
+fn moments_combine_exactly() {
+    let u: Vec<f64> = (0..37)
+        .map(|i| ((i * 7919) % 101) as f64 / 13.0 - 2.0)
+        .collect();
+    let all = Moments::of(&u);
+    let (a, b) = u.split_at(11);
+    let c = Moments::combine(&Moments::of(a), &Moments::of(b));
+    assert_eq!(c.n, all.n);
+    assert!((c.mean - all.mean).abs() < 1e-13);
+    assert!((c.m2 - all.m2).abs() < 1e-11 * all.m2.abs());
+    assert!((c.m3 - all.m3).abs() < 1e-10 * all.m2.abs().max(1.0));
+}
+
+#[test]
+fn scales_short_of_wtmmm_are_refused() {
+    // octaves 0..2 in quarters: 3 values per scale, 2 at the top (4 px)
+    let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
+    let vals: Vec<Vec<f64>> = (0..9)
+        .map(|j| [0.1, 0.2, 0.4][..if j == 8 { 2 } else { 3 }].to_vec())
+        .collect();
+    let cfg = KernelConfig::default();
+    let s = KernelSums::from_ln_m(&scales, cfg, WtmmmSet::Lines, &vals, "x").unwrap();
+    let opts = KernelOptions {
+        fit: (0.0, 1.5),
+        refs: vec![1.5],
+        pairs: vec![(0.5, 1.5)],
+    };
+    check_wtmmm_counts(&s, &opts).unwrap();
+    // the top scale in the fit range, as a reference, as a pair's end
+    let bad = [
+        KernelOptions {
+            fit: (0.0, 2.0),
+            ..opts.clone()
+        },
+        KernelOptions {
+            refs: vec![2.0],
+            ..opts.clone()
+        },
+        KernelOptions {
+            pairs: vec![(0.5, 2.0)],
+            ..opts.clone()
+        },
+    ];
+    for o in bad {
+        let e = check_wtmmm_counts(&s, &o).unwrap_err().to_string();
+        assert!(e.contains("fewer than 3 WTMMM on maxima lines"), "{e}");
+        assert!(e.contains("a = 4.00 px (2);"), "{e}");
+        // the estimates run, and say it
+        let r = kernel_estimates(&s, &o).unwrap();
+        assert!(
+            r.warnings
+                .iter()
+                .any(|w| w.contains("not reliable") && w.contains("a = 4.00 px (2);")),
+            "{:?}",
+            r.warnings
+        );
+    }
+    assert!(
+        !kernel_estimates(&s, &opts)
+            .unwrap()
+            .warnings
+            .iter()
+            .any(|w| w.contains("not reliable"))
+    );
+    // none at all (a flat image): said as such
+    let empty: Vec<Vec<f64>> = vec![Vec::new(); 9];
+    let s0 = KernelSums::from_ln_m(&scales, cfg, WtmmmSet::Lines, &empty, "x").unwrap();
+    let e = check_wtmmm_counts(&s0, &opts).unwrap_err().to_string();
+    assert!(e.contains("no WTMMM on maxima lines at any scale"), "{e}");
+}
+
+/// Three images hold 2, 1 and 1 WTMMM at the top scale: 4 over the
+/// ensemble passes the count check, but leaving out the first leaves 2,
+/// whose plug-in κ3 is 0. That replicate is not estimable: the errors
+/// fall back to the regression's, with the label and a warning.
+#[test]
+fn leave_one_out_samples_short_of_wtmmm_are_not_fitted() {
+    let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
+    let cfg = KernelConfig::default();
+    let top = [2usize, 1, 1];
+    let mut s: Option<KernelSums> = None;
+    for (i, &k) in top.iter().enumerate() {
+        // ln M spreading more at small scales, different in each image
+        let vals: Vec<Vec<f64>> = (0..9)
+            .map(|j| {
+                let n = if j == 8 { k } else { 40 };
+                (0..n)
+                    .map(|t| ((t * 37 + i * 11 + j * 5) % 23) as f64 * (0.05 - 0.004 * j as f64))
+                    .collect()
+            })
+            .collect();
+        let one =
+            KernelSums::from_ln_m(&scales, cfg, WtmmmSet::Lines, &vals, format!("{i}")).unwrap();
+        match s.as_mut() {
+            None => s = Some(one),
+            Some(acc) => acc.merge(&one).unwrap(),
+        }
+    }
+    let s = s.unwrap();
+    let opts = KernelOptions {
+        fit: (0.0, 2.0),
+        refs: vec![1.0],
+        pairs: vec![(0.0, 1.0)],
+    };
+    check_wtmmm_counts(&s, &opts).unwrap();
+    let r = kernel_estimates(&s, &opts).unwrap();
+    for c in [&r.cumulants.c1, &r.cumulants.c2, &r.cumulants.c3] {
+        assert!(c.value.is_finite() && c.stderr.is_finite() && c.stderr > 0.0);
+    }
+    assert_eq!(
+        r.stderr_method,
+        "jackknife over images; regression for c1, c2, c3"
+    );
+    assert!(r.warnings.iter().any(|w| w.contains("not finite")));
+    // with the top scale left out of the fit every replicate is estimable
+    let opts = KernelOptions {
+        fit: (0.0, 1.75),
+        ..opts
+    };
+    let r = kernel_estimates(&s, &opts).unwrap();
+    assert_eq!(r.stderr_method, "jackknife over images");
+}
+
+#[test]
+fn cf_recurrence_matches_direct() {
+    // 5 values (lanes' remainder only), 16 (whole lanes), 611 (several
+    // chunks, a remainder): the error grows as n K ulp at most
+    let mut rng = crate::synth::rng_for(3, 0);
+    for n in [5, 16, 611] {
+        let u: Vec<f64> = (0..n).map(|_| rng.random_range(-6.0..6.0)).collect();
+        let dp = 0.05;
+        let np = 201;
+        let mut re = vec![0.0; np];
+        let mut im = vec![0.0; np];
+        cf_sums(&u, dp, &mut re, &mut im);
+        let tol = 2.2e-16 * (n * np) as f64;
+        for k in 0..np {
+            let p = k as f64 * dp;
+            let (r, i): (f64, f64) = u
+                .iter()
+                .map(|v| ((p * v).cos(), (p * v).sin()))
+                .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+            assert!(
+                (re[k] - r).abs() < tol && (im[k] - i).abs() < tol,
+                "n={n} k={k}: {} {}",
+                re[k] - r,
+                im[k] - i
+            );
+        }
+    }
+}
+
+/// The plug-in bias the warning names: Gaussian ln M with a known c2,
+/// few values at the top scales (n like a^-2). Over many ensembles the
+/// mean fitted c2 leaves the truth by the tilt of `-κ2/n`, within the
+/// Monte Carlo error, and the warning says so when the tilt is half a
+/// standard error or more.
+#[test]
+fn the_plug_in_tilt_of_c2_is_the_bias_the_warning_names() {
+    use rand_distr::{Distribution, Normal};
+    let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
+    let (k20, c2) = (0.3, 0.03);
+    let kap2 = |a: f64| k20 - c2 * a.ln();
+    let n_of = |a: f64| (160.0 / (a * a)).round() as usize; // 160 .. 10
+    let opts = KernelOptions {
+        fit: (0.0, 2.0),
+        refs: vec![],
+        pairs: vec![],
+    };
+    let mut rng = crate::synth::rng_for(11, 0);
+    let (n_ens, n_img) = (3000, 4);
+    let mut est = Vec::with_capacity(n_ens);
+    let mut runs = Vec::with_capacity(n_ens);
+    for _ in 0..n_ens {
+        let mut s: Option<KernelSums> = None;
+        for i in 0..n_img {
+            let vals: Vec<Vec<f64>> = scales
+                .iter()
+                .map(|&a| {
+                    let d = Normal::new(0.0, kap2(a).sqrt()).unwrap();
+                    (0..n_of(a)).map(|_| d.sample(&mut rng)).collect()
+                })
+                .collect();
+            let one = KernelSums::from_ln_m(
+                &scales,
+                KernelConfig::default(),
+                WtmmmSet::Lines,
+                &vals,
+                format!("{i}"),
+            )
+            .unwrap();
+            match s.as_mut() {
+                None => s = Some(one),
+                Some(acc) => acc.merge(&one).unwrap(),
+            }
+        }
+        let r = kernel_estimates(&s.unwrap(), &opts).unwrap();
+        est.push(r.cumulants.c2.value);
+        let warned = r.warnings.iter().any(|w| w.starts_with("c2: the plug-in"));
+        // this run's tilt, from its own κ2 and counts
+        let x: Vec<f64> = scales.iter().map(|a| a.ln()).collect();
+        let y: Vec<f64> = r
+            .kappa2
+            .iter()
+            .zip(&r.n_wtmmm)
+            .map(|(k, &n)| -k / n as f64)
+            .collect();
+        let t = -line_fit(&x, &y).unwrap().slope;
+        // the result records the same tilt (c1 has none)
+        assert!((r.plugin_tilt[1] - t).abs() <= 1e-12 * t.abs().max(1e-6));
+        assert_eq!(r.plugin_tilt[0], 0.0);
+        runs.push((t, r.cumulants.c2.stderr, warned));
+    }
+    // the tilt, independently: minus the slope of -κ2/n over ln a
+    let x: Vec<f64> = scales.iter().map(|a| a.ln()).collect();
+    let y: Vec<f64> = scales
+        .iter()
+        .map(|&a| -kap2(a) / (n_img * n_of(a)) as f64)
+        .collect();
+    let tilt = -line_fit(&x, &y).unwrap().slope;
+    let mean = est.iter().sum::<f64>() / n_ens as f64;
+    let sd = (est.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n_ens - 1) as f64).sqrt();
+    let mc = sd / (n_ens as f64).sqrt();
+    assert!(tilt > 4.0 * mc, "tilt {tilt} vs MC error {mc}");
+    assert!(
+        (mean - c2 - tilt).abs() < 4.0 * mc,
+        "mean c2 {mean}, truth {c2}, predicted tilt {tilt}, MC error {mc}"
+    );
+    // warned exactly where the run's tilt reaches half its error
+    let n_warned = runs.iter().filter(|r| r.2).count();
+    for &(t, se, warned) in &runs {
+        assert_eq!(warned, t >= 0.5 * se, "tilt {t}, se {se}");
+    }
+    assert!(n_warned > 0 && n_warned < n_ens, "{n_warned} of {n_ens}");
+}
+
+/// The paper's references and pairs on a 3-octave grid of 10 voices
+/// (31 scales, top octave 3): `Default` names octaves off it and is
+/// refused; `for_scales` keeps those on it, above the fit's start, and
+/// lowers the pairs onto 3.
+#[test]
+fn default_options_follow_a_short_grid() {
+    let scales: Vec<f64> = (0..31).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+    let o = KernelOptions::for_scales(&scales, (0.5, 3.0));
+    assert_eq!(o.refs, vec![1.0, 1.5, 2.0, 2.5, 3.0]);
+    assert_eq!(o.pairs, vec![(0.5, 3.0), (1.0, 3.0), (1.5, 3.0)]);
+    let o = KernelOptions::for_scales(&scales, (0.0, 3.0));
+    assert_eq!(o.refs[0], 0.5);
+    // on the grid's own data: estimates with for_scales, an error with Default
+    let vals: Vec<Vec<f64>> = (0..31)
+        .map(|j| {
+            (0..50)
+                .map(|t| ((t * 37 + j * 5) % 23) as f64 * 0.05)
+                .collect()
+        })
+        .collect();
+    let s = KernelSums::from_ln_m(
+        &scales,
+        KernelConfig::default(),
+        WtmmmSet::Lines,
+        &vals,
+        "x",
+    )
+    .unwrap();
+    assert!(kernel_estimates(&s, &KernelOptions::for_scales(&scales, (0.5, 3.0))).is_ok());
+    let e = kernel_estimates(&s, &KernelOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("outside the scales"), "{e}");
+    // 5 octaves: the same as Default
+    let long: Vec<f64> = (0..51).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+    assert_eq!(
+        KernelOptions::for_scales(&long, (0.5, 4.0)),
+        KernelOptions::default()
+    );
+    // no grid: nothing to name, and no panic
+    let o = KernelOptions::for_scales(&[], (0.5, 4.0));
+    assert!(o.refs.is_empty() && o.pairs.is_empty());
+}
