@@ -19,6 +19,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::element::MultiLineText;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::error::{Error, Result};
 use crate::io::write_atomic;
@@ -126,6 +127,19 @@ impl Series {
             .cloned()
             .filter(|p| p.0.is_finite() && p.1.is_finite())
             .collect()
+    }
+
+    /// Whether the legend lists the series: it has a name, and something
+    /// to draw, or nothing at all (a key: a series without points that
+    /// only says what other, unnamed ones are). A series whose every point
+    /// is undefined is drawn nowhere, and its entry would point at nothing.
+    fn listed(&self) -> bool {
+        !self.name.is_empty()
+            && (self.points.is_empty()
+                || self
+                    .points
+                    .iter()
+                    .any(|p| p.0.is_finite() && p.1.is_finite()))
     }
 
     /// The line's pieces: runs of consecutive finite points (a non-finite
@@ -290,7 +304,7 @@ fn legend_labels(chart: &Chart) -> Vec<&str> {
     chart
         .series
         .iter()
-        .filter(|s| !s.name.is_empty())
+        .filter(|s| s.listed())
         .map(|s| s.name.as_str())
         .collect()
 }
@@ -554,7 +568,7 @@ fn draw_legend<DB: DrawingBackend>(
         .map_err(|x| e(&x))?;
     root.draw(&Rectangle::new(frame, BLACK))
         .map_err(|x| e(&x))?;
-    let named: Vec<&Series> = chart.series.iter().filter(|s| !s.name.is_empty()).collect();
+    let named: Vec<&Series> = chart.series.iter().filter(|s| s.listed()).collect();
     let mut text = MultiLineText::<_, &str>::new(
         (x0 + LEGEND_GLYPH + LEGEND_MARGIN, y0 + LEGEND_MARGIN),
         ("sans-serif", LEGEND_FONT),
@@ -732,6 +746,13 @@ where
         };
         if s.style == Style::LineMarkers {
             ctx.draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
+                .map_err(|x| e(&x))?;
+        } else if matches!(s.style, Style::Line | Style::Dashed) {
+            // a point with no defined neighbour is a line of no length:
+            // a dot, so that a curve of one scale (or one estimate between
+            // undefined ones) is seen
+            let lone = s.runs().into_iter().filter(|r| r.len() == 1);
+            ctx.draw_series(lone.map(|r| Circle::new(r[0], 3, c.filled())))
                 .map_err(|x| e(&x))?;
         }
         let bars = s
@@ -1006,6 +1027,10 @@ pub struct RasterChart {
     /// `None`: the raster at an integer zoom (its longest side about 600
     /// px; 1:1 from 600 to 1000 px, shrunk beyond) with the axes around it.
     pub size: Option<(u32, u32)>,
+    /// A line under the axes (none if empty): a key to the picture's
+    /// colours, set smaller if it is wider than the picture, so that the
+    /// axis labels keep their size.
+    pub caption: String,
 }
 
 impl Default for RasterChart {
@@ -1020,6 +1045,7 @@ impl Default for RasterChart {
             y_up: false,
             colorbar: None,
             size: None,
+            caption: String::new(),
         }
     }
 }
@@ -1065,6 +1091,19 @@ fn check_raster(raster: &Raster, spec: &RasterChart) -> Result<()> {
     Ok(())
 }
 
+/// The caption's font size, and the strip it takes under the axes.
+const CAPTION_FONT: f64 = 15.0;
+const CAPTION_HEIGHT: u32 = 24;
+
+/// The strip [`RasterChart::caption`] takes (nothing if empty).
+fn caption_height(caption: &str) -> u32 {
+    if caption.is_empty() {
+        0
+    } else {
+        CAPTION_HEIGHT
+    }
+}
+
 /// The height [`DrawingArea::titled`] takes for `title` (nothing if empty).
 fn title_height(title: &str) -> u32 {
     if title.is_empty() {
@@ -1087,7 +1126,7 @@ fn raster_layout(raster: &Raster, spec: &RasterChart) -> Result<((u32, u32), (u3
     };
     let title = title_height(&spec.title);
     let frame_w = 2 * MARGIN + Y_LABEL_AREA + bar;
-    let frame_h = 2 * MARGIN + title + X_LABEL_AREA;
+    let frame_h = 2 * MARGIN + title + X_LABEL_AREA + caption_height(&spec.caption);
     match spec.size {
         Some((pw, ph)) => {
             let (aw, ah) = (pw.saturating_sub(frame_w), ph.saturating_sub(frame_h));
@@ -1206,6 +1245,38 @@ where
 {
     let e = err_str;
     root.fill(&WHITE).map_err(|x| e(&x))?;
+    // the caption's strip at the bottom, the chart above it
+    let cap = caption_height(&spec.caption);
+    let (root, strip) = if cap > 0 {
+        let h = root.dim_in_pixel().1;
+        let (top, bottom) = root.split_vertically(h.saturating_sub(cap));
+        (top, Some(bottom))
+    } else {
+        (root, None)
+    };
+    if let Some(strip) = &strip {
+        // centred, set smaller (down to 10 pt) when wider than the picture
+        let avail = strip.dim_in_pixel().0.saturating_sub(2 * MARGIN) as f64;
+        let wide = ("sans-serif", CAPTION_FONT)
+            .into_font()
+            .box_size(&spec.caption)
+            .map_or(0.0, |(w, _)| w as f64);
+        let size = if wide > avail && wide > 0.0 {
+            (CAPTION_FONT * avail / wide).floor().max(10.0)
+        } else {
+            CAPTION_FONT
+        };
+        let style = TextStyle::from(("sans-serif", size).into_font())
+            .pos(Pos::new(HPos::Center, VPos::Top));
+        let (w, _) = strip.dim_in_pixel();
+        strip
+            .draw(&Text::new(
+                spec.caption.as_str(),
+                ((w / 2) as i32, 0),
+                style,
+            ))
+            .map_err(|x| e(&x))?;
+    }
     let area = if spec.title.is_empty() {
         root.margin(MARGIN, MARGIN, MARGIN, MARGIN)
     } else {
@@ -1672,6 +1743,77 @@ mod tests {
                 assert_eq!(buf[row..row + n], want[y * n..y * n + n], "row {y}");
             }
         }
+    }
+
+    /// A caption takes a strip under the axes: the picture grows by it,
+    /// the raster is drawn unobstructed, and the caption's ink lies in the
+    /// strip.
+    #[test]
+    fn a_caption_has_its_own_strip() {
+        register_font();
+        let r = Raster {
+            width: 10,
+            height: 6,
+            rgb: vec![40; 10 * 6 * 3],
+        };
+        let bare = RasterChart {
+            title: "t".into(),
+            x_label: "x (px)".into(),
+            y_label: "y (px)".into(),
+            ..Default::default()
+        };
+        let keyed = RasterChart {
+            caption: "red: chains, green: WTMMM, blue: M along A, yellow: domain".into(),
+            ..bare.clone()
+        };
+        let ((w0, h0), p0) = raster_layout(&r, &bare).unwrap();
+        let ((w1, h1), p1) = raster_layout(&r, &keyed).unwrap();
+        assert_eq!((w1, h1, p1), (w0, h0 + CAPTION_HEIGHT, p0));
+        let mut buf = vec![0u8; (w1 * h1 * 3) as usize];
+        let root = BitMapBackend::with_buffer(&mut buf, (w1, h1)).into_drawing_area();
+        let (base, dims) = draw_raster(root, &r, &keyed, p1, true).unwrap();
+        assert_eq!(dims, p1);
+        let px =
+            |x: usize, y: usize| &buf[3 * (y * w1 as usize + x)..3 * (y * w1 as usize + x) + 3];
+        assert_eq!(px(base.0 as usize, base.1 as usize), [40, 40, 40]);
+        let strip = (h1 - CAPTION_HEIGHT) as usize..h1 as usize;
+        let inked = strip
+            .flat_map(|y| (0..w1 as usize).map(move |x| (x, y)))
+            .filter(|&(x, y)| px(x, y) != [255, 255, 255])
+            .count();
+        assert!(
+            inked > 100,
+            "the caption is drawn in its strip ({inked} px)"
+        );
+    }
+
+    /// A point with no defined neighbour on a line is drawn as a dot; the
+    /// legend lists series with something to draw and keys (no points),
+    /// not those whose every point is undefined.
+    #[test]
+    fn lone_points_are_drawn_and_empty_series_unlisted() {
+        let nan = f64::NAN;
+        let lone = Series::new("one scale", vec![(0.5, 0.5)], Style::Line, 0);
+        let none = Series::new("undefined", vec![(nan, 1.0), (0.2, nan)], Style::Line, 1);
+        let key = Series::new("lines: fits", Vec::new(), Style::Line, 2);
+        let c = unit_chart(vec![lone, none, key]);
+        assert_eq!(legend_labels(&c), ["one scale", "lines: fits"]);
+        // unlabelled, so that the legend's swatch adds no blue
+        register_font();
+        let (w, h) = (200u32, 150u32);
+        let mut buf = vec![0u8; (w * h * 3) as usize];
+        let alone = unit_chart(vec![Series::new("", vec![(0.5, 0.5)], Style::Line, 0)]);
+        draw(
+            BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area(),
+            &alone,
+        )
+        .unwrap();
+        let blue = palette(0);
+        let dots = buf
+            .chunks(3)
+            .filter(|p| p == &[blue.0, blue.1, blue.2])
+            .count();
+        assert!(dots >= 9, "a dot drawn for the lone point ({dots} px)");
     }
 
     #[test]

@@ -173,7 +173,7 @@ fn density_spec() -> RasterChart {
         y_range: (-2.5, 2.5),
         y_up: true,
         colorbar: Some(ColorBar::ramp("log10 density / peak", (-4.0, 0.0))),
-        size: None,
+        ..Default::default()
     }
 }
 

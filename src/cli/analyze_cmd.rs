@@ -529,9 +529,7 @@ pub fn write_outputs(
     theory: Option<&TheoryCurves>,
 ) -> Result<()> {
     // the pixel, when given (params.pixel_size): the fit's scales as lengths
-    let px = params["pixel_size"]["side"]
-        .as_f64()
-        .zip(params["pixel_size"]["units"].as_str().map(str::to_string));
+    let px = super::params_pixel(&params);
     let mut body = header(command, params);
     if let (Some(obj), serde_json::Value::Object(sp)) = (body.as_object_mut(), spectra_json(s)) {
         for (k, v) in sp {
@@ -561,7 +559,7 @@ pub fn write_outputs(
         let dev: Vec<f64> = s.tau.iter().zip(&th).map(|(a, b)| a - b).collect();
         body["theory"] = json!({"name": t.name, "tau": th, "tau_minus_theory": dev});
     }
-    if let Some((side, units)) = px {
+    if let Some((side, units)) = &px {
         body["fit_lengths"] = json!([s.fit_scales.0 * side, s.fit_scales.1 * side]);
         body["length_units"] = json!(units);
     }
@@ -620,7 +618,8 @@ pub fn write_outputs(
                 .collect();
         write_csv(&dir.join(name), &hdr_ref, &rows)?;
     }
-    plot_spectra(dir, s, &describe(s, sums), theory, wavelet_order(sums))
+    let px = px.as_ref().map(|(side, units)| (*side, units.as_str()));
+    plot_spectra(dir, s, &describe(s, sums), theory, wavelet_order(sums), px)
 }
 
 /// The vanishing moments of the wavelet the sums were made with (`None`
@@ -634,15 +633,25 @@ fn wavelet_order(sums: &PartitionSums) -> Option<f64> {
 /// range: where a curve is flat and on its line the partition function is a
 /// power law; where it drifts, the fitted tau(q) is an average of slopes
 /// (what the curvature warning measures, `tau_slope_change`).
-fn local_slopes(s: &Spectra, shown: &[usize], what: &str) -> Chart {
+fn local_slopes(s: &Spectra, shown: &[usize], what: &str, px: Option<(f64, &str)>) -> Chart {
     let l = &s.log2_scales;
     // half an octave of scales either side (5 at 10 voices)
     let step = if l.len() > 1 { l[1] - l[0] } else { 1.0 };
     let w = ((0.5 / step).round() as usize).max(1);
     let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
+    // one octave needs 2 w + 1 scales: fewer (`--octaves 1` at 10 voices
+    // gives 10) leave no slope to draw, which the title says
+    let title = if l.len() > 2 * w {
+        format!("local slopes of log2 Z(q, a), over one octave: {what}")
+    } else {
+        format!(
+            "local slopes of log2 Z(q, a): none, {} scales span less than an octave: {what}",
+            l.len()
+        )
+    };
     let mut c = Chart {
-        title: format!("local slopes of log2 Z(q, a), over one octave: {what}"),
-        x_label: "log2 a  (a in px)".into(),
+        title,
+        x_label: format!("log2 a  (a in px{})", super::px_is(px)),
         y_label: "d log2 Z / d log2 a".into(),
         ..Default::default()
     };
@@ -651,11 +660,19 @@ fn local_slopes(s: &Spectra, shown: &[usize], what: &str) -> Chart {
         let pts: Vec<(f64, f64)> = (w..l.len().saturating_sub(w))
             .map(|j| (l[j], (z[j + w] - z[j - w]) / (l[j + w] - l[j - w])))
             .collect();
-        c.series
-            .push(Series::new(format!("q = {}", s.q[qi]), pts, Style::Line, k));
+        // the q named on its curve, or on its fitted line when it has none
+        let name = format!("q = {}", s.q[qi]);
+        let (curve, line) = if pts.is_empty() {
+            (String::new(), name)
+        } else {
+            (name, String::new())
+        };
+        if !pts.is_empty() {
+            c.series.push(Series::new(curve, pts, Style::Line, k));
+        }
         if s.tau[qi].is_finite() {
             c.series.push(Series::new(
-                "",
+                line,
                 vec![(lo, s.tau[qi]), (hi, s.tau[qi])],
                 Style::Dashed,
                 k,
@@ -664,8 +681,10 @@ fn local_slopes(s: &Spectra, shown: &[usize], what: &str) -> Chart {
     }
     c.series.push(Series::new(
         format!(
-            "dashed: fitted tau(q) over a = {:.1}-{:.1} px",
-            s.fit_scales.0, s.fit_scales.1
+            "dashed: fitted tau(q) over a = {:.1}-{:.1} px{}",
+            s.fit_scales.0,
+            s.fit_scales.1,
+            super::px_span(px, s.fit_scales.0, s.fit_scales.1)
         ),
         Vec::new(),
         Style::Dashed,
@@ -726,19 +745,26 @@ pub fn plot_spectra(
     what: &str,
     theory: Option<&TheoryCurves>,
     wavelet_order: Option<f64>,
+    px: Option<(f64, &str)>,
 ) -> Result<()> {
     let nq = s.q.len();
     // estimates the warnings call no exponent are drawn open, so that the
     // figures say what the warnings do
     let flag = flagged_q(s, wavelet_order);
     let flag_name = "flagged (open): curved log2 Z or h at the wavelet's order; see the warnings";
-    // a readable subset of q: about 9 curves
+    // a readable subset of q: about 9 curves, counted back from the last
+    // q so that both ends of the grid are drawn (and q = 0 on a grid
+    // symmetric about it, as -6:8:0.5)
     let step = nq.div_ceil(9).max(1);
-    let shown: Vec<usize> = (0..nq).step_by(step).collect();
+    let mut shown: Vec<usize> = (0..nq).rev().step_by(step).collect();
+    if shown.last() != Some(&0) && nq > 0 {
+        shown.push(0);
+    }
+    shown.reverse();
     let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
     let mut za = Chart {
         title: format!("(a) partition functions: {what}"),
-        x_label: "log2 a  (a in px)".into(),
+        x_label: format!("log2 a  (a in px{})", super::px_is(px)),
         y_label: "log2 Z(q, a)".into(),
         ..Default::default()
     };
@@ -746,7 +772,7 @@ pub fn plot_spectra(
         // the level is a weighted mean of log2 M, not an exponent: the
         // slope is h(q) (SPEC §4), as tau(q) is that of log2 Z
         title: format!("(b) h(q, a), slopes h(q): {what}"),
-        x_label: "log2 a  (a in px)".into(),
+        x_label: format!("log2 a  (a in px{})", super::px_is(px)),
         y_label: "h(q, a) = Σ W log2 M".into(),
         ..Default::default()
     };
@@ -805,8 +831,10 @@ pub fn plot_spectra(
     for chart in [&mut za, &mut hb] {
         chart.series.push(Series::new(
             format!(
-                "lines: fits over a = {:.1}-{:.1} px",
-                s.fit_scales.0, s.fit_scales.1
+                "lines: fits over a = {:.1}-{:.1} px{}",
+                s.fit_scales.0,
+                s.fit_scales.1,
+                super::px_span(px, s.fit_scales.0, s.fit_scales.1)
             ),
             Vec::new(),
             Style::Line,
@@ -815,11 +843,13 @@ pub fn plot_spectra(
     }
     save_chart(&za, &dir.join("logZ.png"))?;
     save_chart(&hb, &dir.join("hqa.png"))?;
-    save_chart(&local_slopes(s, &shown, what), &dir.join("slopes.png"))?;
+    save_chart(&local_slopes(s, &shown, what, px), &dir.join("slopes.png"))?;
     let mut tc = Chart {
         title: format!(
-            "(c) tau(q), fit {:.1}-{:.1} px: {what}",
-            s.fit_scales.0, s.fit_scales.1
+            "(c) tau(q), fit {:.1}-{:.1} px{}: {what}",
+            s.fit_scales.0,
+            s.fit_scales.1,
+            super::px_span(px, s.fit_scales.0, s.fit_scales.1)
         ),
         x_label: "q".into(),
         y_label: "tau(q)".into(),
@@ -897,17 +927,23 @@ pub fn plot_spectra(
             // moments in compare, and too near the Legendre line's orange
             THEORY_COLOR,
         ));
-        let style = if t.dh.len() > 1 {
-            Style::Line
-        } else {
-            Style::Markers
+        // a monofractal's D(h) is the one point (H, 2), which a dot would
+        // hide on the D = 2 line: a vertical line at h = H, down through
+        // the estimates, says where the theory puts every h(q)
+        let dh = match t.dh[..] {
+            [(h, d)] => {
+                let low = s.d.iter().copied().filter(|v| v.is_finite());
+                let d_lo = low.fold(d - 0.5, f64::min);
+                vec![(h, d_lo), (h, d)]
+            }
+            _ => t.dh.clone(),
         };
-        dc.series.push(Series::new(
-            format!("theory: {}", t.label),
-            t.dh.clone(),
-            style,
-            THEORY_COLOR,
-        ));
+        let name = match t.dh[..] {
+            [(h, d)] => format!("theory: {}: D = {d} at h = {h:.3} only", t.label),
+            _ => format!("theory: {}", t.label),
+        };
+        dc.series
+            .push(Series::new(name, dh, Style::Line, THEORY_COLOR));
         if let Some(pts) = &t.sample {
             tc.series.push(Series::new(
                 "images' own cascades",

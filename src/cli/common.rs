@@ -1389,9 +1389,19 @@ pub fn plus_minus(v: f64, se: f64, prec: usize) -> String {
         } else {
             prec
         };
-        format!("{v:.prec$} ± {se:.prec$}")
+        format!("{} ± {se:.prec$}", fixed(v, prec))
     } else {
-        format!("{v:.prec$}")
+        fixed(v, prec)
+    }
+}
+
+/// `v` with `prec` decimals, for figures: a value that rounds to zero
+/// reads "0.0000", not "-0.0000" (as the axes' ticks do).
+pub fn fixed(v: f64, prec: usize) -> String {
+    let s = format!("{v:.prec$}");
+    match s.strip_prefix('-') {
+        Some(rest) if rest.chars().all(|c| c == '0' || c == '.') => rest.to_string(),
+        _ => s,
     }
 }
 

@@ -670,7 +670,10 @@ fn write_correlation_outputs(
                         "WTMMM"
                     }
                 ),
-                x_label: "log2 dx (px)".into(),
+                x_label: format!(
+                    "log2 dx (px{})",
+                    super::px_is(px.map(super::PixelSize::plot))
+                ),
                 y_label: "C(dx; a1, a2)".into(),
                 ..Default::default()
             };
@@ -686,11 +689,16 @@ fn write_correlation_outputs(
                 c.series.push(
                     Series::new(
                         format!(
-                            "a1 = 2^{:.1} a_min, a2 = 2^{:.1} a_min ({:.1}, {:.1} px)",
+                            "a1 = 2^{:.1} a_min, a2 = 2^{:.1} a_min ({:.1}, {:.1} px{})",
                             (p.a1 / a_min).log2(),
                             (p.a2 / a_min).log2(),
                             p.a1,
-                            p.a2
+                            p.a2,
+                            px.map_or(String::new(), |x| format!(
+                                " = {}, {}",
+                                x.length(p.a1),
+                                x.length(p.a2)
+                            ))
                         ),
                         p.log2_dx.iter().cloned().zip(y.iter().cloned()).collect(),
                         Style::Markers,

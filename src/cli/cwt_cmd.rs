@@ -193,12 +193,12 @@ fn save_modulus_png(
         // as the skeleton pictures draw their domain
         raster.frame(margin, (255, 220, 0));
     }
-    let mut x_label = "x (px)".to_string();
+    let mut key = Vec::new();
     if inside && margin > 0 {
-        x_label += "   yellow: where the border is not felt (grey scale set inside)";
+        key.push("yellow: where the border is not felt (grey scale set inside)");
     }
     if m.iter().any(|v| v.is_nan()) {
-        x_label += "   teal: no value (the wavelet reaches a missing pixel)";
+        key.push("teal: no value (the wavelet reaches a missing pixel)");
     }
     let colorbar = (lo < hi).then(|| ColorBar {
         label: "M".into(),
@@ -212,8 +212,9 @@ fn save_modulus_png(
         &raster,
         &RasterChart {
             title: format!("modulus M(b, a), a = {a:.2} px, {what}"),
-            x_label,
+            x_label: "x (px)".into(),
             y_label: "y (px)".into(),
+            caption: key.join(";  "),
             x_range: (0.0, nx as f64),
             y_range: (0.0, ny as f64),
             colorbar,

@@ -1201,6 +1201,11 @@ impl PixelSize {
         format!("{} {}", short_num(px * self.side()), self.units)
     }
 
+    /// The side and units the figures' labels use ([`px_is`], [`px_span`]).
+    pub fn plot(&self) -> (f64, &str) {
+        (self.side(), &self.units)
+    }
+
     /// A warning for non-square pixels, which the analyses isotropic in
     /// pixels (`tools`: the wavelet, the angle-averaged spectrum, the
     /// trace moments' square boxes) see as a stretched surface.
@@ -1253,8 +1258,47 @@ impl Isotropic {
     }
 }
 
+/// For a figure's axis label in px: "; 1 px = 10 m" when the pixel is
+/// known (`--pixel-size`, or declared by the files), else nothing. The
+/// axes stay in px, the unit of the analysis and of the JSON's scales;
+/// the label says what one is on the ground.
+pub(crate) fn px_is(px: Option<(f64, &str)>) -> String {
+    px.map_or(String::new(), |(side, units)| {
+        format!("; 1 px = {} {units}", short_num(side))
+    })
+}
+
+/// For a figure's title or legend after a range `lo-hi px`: " (21.2-112 m)"
+/// when the pixel is known, else nothing.
+pub(crate) fn px_span(px: Option<(f64, &str)>, lo: f64, hi: f64) -> String {
+    px.map_or(String::new(), |(side, units)| {
+        format!(
+            " ({}-{} {units})",
+            short_num(lo * side),
+            short_num(hi * side)
+        )
+    })
+}
+
+/// For a figure's label after a scale `a px`: " = 21.2 m" when the pixel
+/// is known, else nothing.
+pub(crate) fn px_eq(px: Option<(f64, &str)>, a: f64) -> String {
+    px.map_or(String::new(), |(side, units)| {
+        format!(" = {} {units}", short_num(a * side))
+    })
+}
+
+/// The pixel recorded in an output's `params.pixel_size` (`side`, `units`),
+/// for the figures drawn from it.
+pub(crate) fn params_pixel(params: &serde_json::Value) -> Option<(f64, String)> {
+    let p = &params["pixel_size"];
+    p["side"]
+        .as_f64()
+        .zip(p["units"].as_str().map(str::to_string))
+}
+
 /// A length for a message: 4 significant digits, no trailing zeros.
-fn short_num(v: f64) -> String {
+pub(crate) fn short_num(v: f64) -> String {
     if v == 0.0 || !v.is_finite() {
         return format!("{v}");
     }

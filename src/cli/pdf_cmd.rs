@@ -1037,6 +1037,7 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
         &show.iter().map(|&j| get(j)).collect::<Vec<_>>(),
         &sec.iter().map(|&j| get(j)).collect::<Vec<_>>(),
         h0,
+        input.pixel.as_ref().map(super::PixelSize::plot),
     )?;
     // the reading on stdout, even with --quiet (as analyze and tm give theirs)
     show!(
@@ -1214,7 +1215,14 @@ fn pts(x: &[f64], y: &[f64], log: bool) -> Vec<(f64, f64)> {
         .collect()
 }
 
-fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: f64) -> Result<()> {
+fn plot_pdfs(
+    dir: &Path,
+    name: &str,
+    show: &[&ScalePdf],
+    sec: &[&ScalePdf],
+    h0: f64,
+    px: Option<(f64, &str)>,
+) -> Result<()> {
     // a scale with few WTMMM says so in the figure too (not only on stderr)
     let label_w = |s: &ScalePdf, width: f64| {
         // the sample behind each curve: a histogram of 125 maxima is noisy
@@ -1224,8 +1232,10 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
             format!(", {} WTMMM", s.n)
         };
         format!(
-            "a = 2^{:.1} a_min ({:.1} px){few}, bins {width:.2} in ln M",
-            s.octave, s.a
+            "a = 2^{:.1} a_min ({:.1} px{}){few}, bins {width:.2} in ln M",
+            s.octave,
+            s.a,
+            super::px_eq(px, s.a)
         )
     };
     let label = |s: &ScalePdf| label_w(s, s.bin_width);
@@ -1233,9 +1243,10 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
     let label_a = |s: &ScalePdf| {
         let few = if s.n < 100 { "only " } else { "" };
         format!(
-            "a = 2^{:.1} a_min ({:.1} px), {few}{} WTMMM, {} bins in A",
+            "a = 2^{:.1} a_min ({:.1} px{}), {few}{} WTMMM, {} bins in A",
             s.octave,
             s.a,
+            super::px_eq(px, s.a),
             s.n,
             s.arg.len()
         )
@@ -1286,10 +1297,27 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
             "ln P_a(M) vs M / (a/a_min)^h, h = {h0:.3} (II eq 39, Fig 20b)"
         )),
         x_label: "M / (a/a_min)^h".into(),
-        y_label: "ln P_a(M)".into(),
+        // the density of the rescaled modulus (stats::pdf: P_a(M) times
+        // the factor), which is what collapses
+        y_label: "ln [(a/a_min)^h P_a(M)]".into(),
+        ..Default::default()
+    };
+    // the density of ln M on its own axis: every WTMMM in view whatever
+    // the spread of M (a DEM's M spans decades, which the linear M axes of
+    // the paper's figures squeeze against 0); the kernel's variable
+    let mut cu = Chart {
+        title: title("P_a(ln M) at the WTMMM (the kernel's variable, II §4)"),
+        x_label: "ln M".into(),
+        y_label: "P_a(ln M)".into(),
         ..Default::default()
     };
     for (k, s) in show.iter().enumerate() {
+        cu.series.push(Series::new(
+            label(s),
+            pts(&s.ln_m, &s.p_ln_m, false),
+            Style::LineMarkers,
+            k,
+        ));
         c.series.push(Series::new(
             label(s),
             clip(pts(&s.m, &s.p_m, false)),
@@ -1317,6 +1345,7 @@ fn plot_pdfs(dir: &Path, name: &str, show: &[&ScalePdf], sec: &[&ScalePdf], h0: 
         ));
     }
     save_chart(&c, &dir.join("pdf_M.png"))?;
+    save_chart(&cu, &dir.join("pdf_lnM.png"))?;
     let top = ca
         .series
         .iter()
@@ -1399,6 +1428,7 @@ fn joint_picture(s: &ScalePdf, title: String, path: &Path) -> Result<()> {
             y_up: true,
             colorbar: Some(ColorBar::viridis("log10 density / peak", (-4.0, 0.0))),
             size: None,
+            caption: "white: no WTMMM in the cell (or below 1e-4 of the peak)".into(),
         },
         path,
     )

@@ -223,15 +223,16 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
                     cfg.wavelet.name()
                 ),
                 // the colour key in the picture, not only in skeleton.json
-                x_label: format!(
-                    "x (px)  red: chains, green: WTMMM, blue: M along A, yellow: domain{}",
+                x_label: format!("x (px{})", super::px_is(px.as_ref().map(PixelSize::plot))),
+                y_label: "y (px)".into(),
+                caption: format!(
+                    "red: chains, green: WTMMM, blue: M along A, yellow: domain{}",
                     if field.mask.is_some() {
                         ", teal: no data"
                     } else {
                         ""
                     }
                 ),
-                y_label: "y (px)".into(),
                 x_range: (0.0, nx as f64),
                 y_range: (0.0, ny as f64),
                 colorbar,

@@ -362,7 +362,10 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
                 super::common::plus_minus(fit.beta, beta_se, 3)
             )
         },
-        x_label: "log2 |k| (rad/px)".into(),
+        x_label: format!(
+            "log2 |k| (rad/px{})",
+            super::px_is(px.as_ref().map(PixelSize::plot))
+        ),
         y_label: "log2 S(|k|)".into(),
         ..Default::default()
     };

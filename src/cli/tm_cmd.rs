@@ -788,12 +788,10 @@ pub fn write_outputs(
     what: &str,
 ) -> Result<()> {
     // the pixel, when given (params.pixel_size): the fit ranges as lengths
-    let px = params["pixel_size"]["side"]
-        .as_f64()
-        .zip(params["pixel_size"]["units"].as_str().map(str::to_string));
+    let px = super::params_pixel(&params);
     let mut body = result_json(command, params, res, extra_warnings)?;
-    if let Some((side, units)) = px {
-        body["lengths"] = lengths_json(res, side, &units);
+    if let Some((side, units)) = &px {
+        body["lengths"] = lengths_json(res, *side, units);
     }
     write_json(&dir.join("tm.json"), &body)?;
     if let Some(sg) = &res.surrogates {
@@ -918,9 +916,10 @@ pub fn write_outputs(
     plot_moments(dir, res, what)?;
     plot_k(dir, res, None, what)?;
     plot_dtm(dir, res, what)?;
-    plot_sf(dir, res, what)?;
+    let px = px.as_ref().map(|(side, units)| (*side, units.as_str()));
+    plot_sf(dir, res, what, px)?;
     if let Some(ps) = spectrum {
-        plot_spectrum(dir, res, ps, what)?;
+        plot_spectrum(dir, res, ps, what, px)?;
     }
     Ok(())
 }
@@ -1294,7 +1293,7 @@ fn plot_dtm(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
 }
 
 /// Generalised structure functions `log2 <|Δf(l)|^q>` against `log2 l`.
-fn plot_sf(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
+fn plot_sf(dir: &Path, r: &TraceMomentResult, what: &str, px: Option<(f64, &str)>) -> Result<()> {
     let mut c = Chart {
         title: format!(
             "structure functions, fit log2 l {}:{}, H_sf = {}: {what}",
@@ -1302,7 +1301,10 @@ fn plot_sf(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
             r.fit_log2_lag.1,
             r.h_sf.map_or("n/a".into(), |h| format!("{h:.3}"))
         ),
-        x_label: "log2 l (px; open: lags outside the fit)".into(),
+        x_label: format!(
+            "log2 l (px{}; open: lags outside the fit)",
+            super::px_is(px)
+        ),
         y_label: "log2 <|Δf(l)|^q>".into(),
         ..Default::default()
     };
@@ -1333,7 +1335,13 @@ fn plot_sf(dir: &Path, r: &TraceMomentResult, what: &str) -> Result<()> {
 }
 
 /// The ensemble's angle-averaged spectrum with the fitted slope.
-fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum, what: &str) -> Result<()> {
+fn plot_spectrum(
+    dir: &Path,
+    r: &TraceMomentResult,
+    ps: &PowerSpectrum,
+    what: &str,
+    px: Option<(f64, &str)>,
+) -> Result<()> {
     let pts = ps.points();
     let mut c = Chart {
         title: format!(
@@ -1351,7 +1359,7 @@ fn plot_spectrum(dir: &Path, r: &TraceMomentResult, ps: &PowerSpectrum, what: &s
                 3
             ))
         ),
-        x_label: "log2 |k| (rad/px)".into(),
+        x_label: format!("log2 |k| (rad/px{})", super::px_is(px)),
         y_label: "log2 S(|k|), angle-averaged".into(),
         ..Default::default()
     };
