@@ -461,6 +461,8 @@ pub fn write_kernel_outputs(
     wall: f64,
 ) -> Result<()> {
     let k = &o.main;
+    // the pixel, when known: the figures' scales also as lengths
+    let px = super::params_pixel(&params["input"]);
     let mut body = header(command, params);
     super::common::note_caveats(&mut body, model);
     body["set"] = json!(k.set);
@@ -594,6 +596,8 @@ pub fn write_kernel_outputs(
                 f(kc.phase[i]),
                 f(kc.ln_abs_g_norm[i]),
                 f(kc.phase_norm[i]),
+                f(kc.ln_abs_g_stderr.get(i).copied().unwrap_or(f64::NAN)),
+                f(kc.phase_stderr.get(i).copied().unwrap_or(f64::NAN)),
             ]);
         }
     }
@@ -611,6 +615,8 @@ pub fn write_kernel_outputs(
             "phase",
             "ln_abs_G_norm",
             "phase_norm",
+            "ln_abs_G_stderr",
+            "phase_stderr",
         ],
         &rows,
     )?;
@@ -643,39 +649,99 @@ pub fn write_kernel_outputs(
             &rows,
         )?;
     }
-    plot_kernel(dir, o, model, title)
+    let px = px.as_ref().map(|(side, units)| (*side, units.as_str()));
+    plot_kernel(dir, o, model, title, px)
 }
 
-fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str) -> Result<()> {
+/// Palette index of dark grey: theory, keys, the headline fit, the measured pdf.
+const GREY: usize = 9;
+
+/// The characteristic function of `n` values has a sampling error of
+/// about `1/sqrt(n)` in modulus (at least: the WTMMM of a cascade are not
+/// independent); where `|C(p)|` at either scale is within this many such
+/// errors of 0, `Ĝ = C(p, a) / C(p, a')` is noise (II eq 47).
+const NOISE_SIGMAS: f64 = 3.0;
+
+/// The kernel figures draw a jackknife bar at every this many p (staggered
+/// by pair): 161 bars per curve would hide the curves.
+const BAR_EVERY: usize = 8;
+
+/// The step of the kernel curves' p grid.
+fn k_dp(k: &crate::stats::kernel::KernelResult) -> f64 {
+    k.kernels
+        .first()
+        .and_then(|kc| (kc.p.len() > 1).then(|| kc.p[1] - kc.p[0]))
+        .unwrap_or(f64::NAN)
+}
+
+/// The p of a kernel curve where [`NOISE_SIGMAS`] says `Ĝ` is noise
+/// (`|C(p)| sqrt(n)` below it at `a` or `a'`, `n` the WTMMM at the scale).
+fn kernel_noise(
+    k: &crate::stats::kernel::KernelResult,
+    kc: &crate::stats::kernel::KernelCurve,
+) -> Vec<bool> {
+    // the curve's scales are grid scales: the nearest is the one
+    let n_at = |a: f64| {
+        let j = (0..k.scales.len())
+            .min_by(|&i, &j| (k.scales[i] - a).abs().total_cmp(&(k.scales[j] - a).abs()));
+        j.and_then(|j| k.n_wtmmm.get(j)).copied().unwrap_or(0) as f64
+    };
+    let (na, nb) = (n_at(kc.a), n_at(kc.a_ref));
+    let small = |re: f64, im: f64, n: f64| (re * re + im * im).sqrt() * n.sqrt() < NOISE_SIGMAS;
+    (0..kc.p.len())
+        .map(|i| small(kc.cf_re[i], kc.cf_im[i], na) || small(kc.cf_ref_re[i], kc.cf_ref_im[i], nb))
+        .collect()
+}
+
+fn plot_kernel(
+    dir: &Path,
+    o: &KernelOutputs,
+    model: Option<&Model>,
+    name: &str,
+    px: Option<(f64, &str)>,
+) -> Result<()> {
+    use super::px_eq;
     let k = &o.main;
     let title = |t: &str| {
         if name.is_empty() {
-            format!("{t} ({} set)", k.set.name())
+            format!("{t}, WTMMM {}", k.set.phrase())
         } else {
-            format!("{name}: {t} ({} set)", k.set.name())
+            format!("{name}: {t}, WTMMM {}", k.set.phrase())
         }
     };
     let lab = |kc: &crate::stats::kernel::KernelCurve| {
         format!(
-            "a = 2^{:.1}, a' = 2^{:.1} a_min ({:.1}, {:.1} px)",
-            kc.octave, kc.octave_ref, kc.a, kc.a_ref
+            "a = 2^{:.1}, a' = 2^{:.1} a_min ({:.1}, {:.1} px{})",
+            kc.octave,
+            kc.octave_ref,
+            kc.a,
+            kc.a_ref,
+            px.map_or(String::new(), |(side, units)| format!(
+                " = {}, {} {units}",
+                super::short_num(kc.a * side),
+                super::short_num(kc.a_ref * side)
+            ))
         )
     };
     let mut charts = [
-        ("kernel_lnG.png", "ln |G_aa'(p)| (II Fig 25a)", "ln |G|"),
+        (
+            "kernel_lnG.png",
+            "ln |G_aa'(p)| (II Figs 25a, 27a)",
+            "ln |G|",
+        ),
         (
             "kernel_lnG_collapse.png",
-            "ln |G_aa'(p)| / ln(a'/a) (II Fig 25b)",
+            "ln |G_aa'(p)| / ln(a'/a) (II Figs 25b, 27b)",
             "ln |G| / ln(a'/a)",
         ),
         (
             "kernel_phase.png",
-            "phase of G_aa'(p) (II Fig 25c)",
+            "phase of G_aa'(p) (II Figs 25c, 27c)",
             "Phi (rad)",
         ),
         (
             "kernel_phase_collapse.png",
-            "phase / ln(a'/a) (II Fig 25d)",
+            "phase / ln(a'/a) (II Figs 25d, 27d)",
             "Phi / ln(a'/a)",
         ),
     ]
@@ -690,28 +756,47 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
             },
         )
     });
+    let (mut any_noise, mut any_bars) = (false, false);
     for (c, kc) in k.kernels.iter().enumerate() {
-        let s = |v: &[f64]| -> Vec<(f64, f64)> {
-            kc.p.iter().cloned().zip(v.iter().cloned()).collect()
+        let noise = kernel_noise(k, kc);
+        any_noise |= noise.contains(&true);
+        // (p, v) split into the points drawn filled and those drawn open
+        let s = |v: &[f64], open: bool| -> Vec<(f64, f64)> {
+            kc.p.iter()
+                .zip(v)
+                .zip(&noise)
+                .map(|((&p, &y), &n)| {
+                    if n == open {
+                        (p, y)
+                    } else {
+                        (f64::NAN, f64::NAN)
+                    }
+                })
+                .collect()
         };
-        charts[0]
-            .1
-            .series
-            .push(Series::new(lab(kc), s(&kc.ln_abs_g), Style::Markers, c));
-        charts[1].1.series.push(Series::new(
-            lab(kc),
-            s(&kc.ln_abs_g_norm),
-            Style::Markers,
-            c,
-        ));
-        charts[2]
-            .1
-            .series
-            .push(Series::new(lab(kc), s(&kc.phase), Style::Markers, c));
-        charts[3]
-            .1
-            .series
-            .push(Series::new(lab(kc), s(&kc.phase_norm), Style::Markers, c));
+        // jackknife bars at every BAR_EVERY-th p, the pairs' bars staggered
+        // so that they do not overlap
+        let bars = |se: &[f64], scale: f64| -> Vec<f64> {
+            (0..kc.p.len())
+                .map(|i| match (i + 2 * c) % BAR_EVERY {
+                    0 => se.get(i).map_or(f64::NAN, |e| e / scale),
+                    _ => f64::NAN,
+                })
+                .collect()
+        };
+        any_bars |= kc.ln_abs_g_stderr.iter().any(|e| e.is_finite());
+        for (chart, v, se, scale) in [
+            (0, &kc.ln_abs_g, &kc.ln_abs_g_stderr, 1.0),
+            (1, &kc.ln_abs_g_norm, &kc.ln_abs_g_stderr, kc.ln_ratio),
+            (2, &kc.phase, &kc.phase_stderr, 1.0),
+            (3, &kc.phase_norm, &kc.phase_stderr, kc.ln_ratio),
+        ] {
+            let series = &mut charts[chart].1.series;
+            let e = bars(se, scale);
+            series
+                .push(Series::new(lab(kc), s(v, false), Style::Markers, c).with_errors(e.clone()));
+            series.push(Series::new("", s(v, true), Style::OpenMarkers, c).with_errors(e));
+        }
         if let Some(m) = model
             && theory_log_kernel(m, 0.0).is_some()
         {
@@ -720,8 +805,9 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                     .map(|&p| (p, theory_log_kernel(m, p).expect("checked")))
                     .collect();
             let r = kc.ln_ratio;
-            // one legend line says what the dashed curves are
-            let name = if c == 0 {
+            // one legend line, after the pairs', says what the dashed
+            // curves are
+            let name = if c + 1 == k.kernels.len() {
                 "theory, dashed (each pair's colour)"
             } else {
                 ""
@@ -743,18 +829,37 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                     "theory",
                     th.iter().map(|(p, z)| (*p, z.re)).collect(),
                     Style::Line,
-                    9,
+                    GREY,
                 ));
                 charts[3].1.series.push(Series::new(
                     "theory",
                     th.iter().map(|(p, z)| (*p, z.im)).collect(),
                     Style::Line,
-                    9,
+                    GREY,
                 ));
             }
         }
     }
-    for (file, chart) in &charts {
+    for (file, chart) in &mut charts {
+        if any_bars {
+            chart.series.push(Series::new(
+                format!(
+                    "bars: ± 1 se, jackknife over images (at every {} in p)",
+                    super::common::fixed(BAR_EVERY as f64 * k_dp(k), 2)
+                ),
+                Vec::new(),
+                Style::Line,
+                GREY,
+            ));
+        }
+        if any_noise {
+            chart.series.push(Series::new(
+                format!("open: |C(p)| < {NOISE_SIGMAS}/sqrt(n) at a or a' (noise, not kernel)"),
+                Vec::new(),
+                Style::OpenMarkers,
+                GREY,
+            ));
+        }
         save_chart(chart, &dir.join(file))?;
     }
     // II Figs 26, 28: C_n(a, a') against ln(a'/a)
@@ -768,11 +873,11 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
     for n in 0..3 {
         let mut c = Chart {
             title: title(&format!(
-                "C{}(a, a'): c{} = {} (II Fig 26{})",
+                "C{}(a, a'): c{} = {} (II Figs 26{l}, 28{l})",
                 n + 1,
                 n + 1,
                 super::common::plus_minus(est[n], se[n], 4),
-                ['a', 'b', 'c'][n]
+                l = ['a', 'b', 'c'][n]
             )),
             x_label: "ln(a'/a)".into(),
             y_label: format!("C{}(a, a')", n + 1),
@@ -784,7 +889,12 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
             xmax = pts.iter().map(|p| p.0).fold(xmax, f64::max);
             c.series.push(
                 Series::new(
-                    format!("a' = 2^{:.1} a_min ({:.1} px)", t.octave_ref, t.a_ref),
+                    format!(
+                        "a' = 2^{:.1} a_min ({:.1} px{})",
+                        t.octave_ref,
+                        t.a_ref,
+                        px_eq(px, t.a_ref)
+                    ),
                     pts,
                     Style::Markers,
                     i,
@@ -798,14 +908,14 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         // data (a DEM) they need not, so both are drawn
         c.series.push(Series::new(
             format!(
-                "c{} = {:.4} (minus the slope of kappa{}(ln M) over ln a; the title's)",
+                "c{} = {} (minus the slope of kappa{}(ln M) over ln a; the title's)",
                 n + 1,
-                est[n],
+                super::common::fixed(est[n], 4),
                 n + 1
             ),
             vec![(0.0, 0.0), (xmax, est[n] * xmax)],
             Style::Line,
-            9,
+            GREY,
         ));
         let pooled = [&k.pooled.c1, &k.pooled.c2, &k.pooled.c3][n];
         if pooled.value.is_finite() {
@@ -823,7 +933,7 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         }
         if let Some(t) = th {
             c.series.push(Series::new(
-                format!("theory: {:.4}", t[n]),
+                format!("theory: {}", super::common::fixed(t[n], 4)),
                 vec![(0.0, 0.0), (xmax, t[n] * xmax)],
                 Style::Dashed,
                 // not the fit's grey, nor a reference scale's colour (0..6)
@@ -842,8 +952,9 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
         let what = ["c1", "c1, c2", "c1, c2, c3"][first.c.len().clamp(1, 3) - 1];
         let mut c = Chart {
             title: title(&format!(
-                "P_a' pushed to a = {:.2} px, {what} (II Fig 29)",
-                first.a_to
+                "P_a' pushed to a = {:.2} px{}, {what} (II Fig 29)",
+                first.a_to,
+                px_eq(px, first.a_to)
             )),
             x_label: "M".into(),
             y_label: "ln P_a(M)".into(),
@@ -862,10 +973,14 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                 .collect()
         };
         c.series.push(Series::new(
-            format!("measured at a = {:.2} px", first.a_to),
+            format!(
+                "measured at a = {:.2} px{}",
+                first.a_to,
+                px_eq(px, first.a_to)
+            ),
             to_m(&first.ln_m, &first.measured),
             Style::Markers,
-            9,
+            GREY,
         ));
         for (i, r) in rs.iter().enumerate() {
             // the colour of a' in the cumulant figures (C_n(a, a'))
@@ -875,7 +990,12 @@ fn plot_kernel(dir: &Path, o: &KernelOutputs, model: Option<&Model>, name: &str)
                 .position(|t| (t.a_ref - r.a_from).abs() <= 1e-6 * r.a_from)
                 .unwrap_or(i);
             c.series.push(Series::new(
-                format!("from a' = {:.2} px (L1 distance {:.3})", r.a_from, r.l1),
+                format!(
+                    "from a' = {:.2} px{} (L1 distance {:.3})",
+                    r.a_from,
+                    px_eq(px, r.a_from),
+                    r.l1
+                ),
                 to_m(&r.ln_m, &r.predicted),
                 Style::Line,
                 colour,

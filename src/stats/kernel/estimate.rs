@@ -2,6 +2,7 @@
 //! jackknife errors, the `C_n(a, a')` tables and the kernel curves (II
 //! eqs 47-49, 57-58; Figs 25-28).
 
+use num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
 use super::{KernelConfig, KernelSums, Moments};
@@ -195,6 +196,39 @@ pub struct KernelCurve {
     /// `phase / ln(a'/a)`.
     #[serde(deserialize_with = "crate::nan_null::vec")]
     pub phase_norm: Vec<f64>,
+    /// Delete-one jackknife standard error of `ln |Ĝ_aa'(p)|` over the
+    /// images (NaN with fewer than 3 images: tiles keep no characteristic
+    /// functions). Where the characteristic functions fall to their
+    /// sampling noise, `Ĝ` is a ratio of noise and this error grows: the
+    /// curve there says nothing of the kernel.
+    #[serde(default, deserialize_with = "crate::nan_null::vec")]
+    pub ln_abs_g_stderr: Vec<f64>,
+    /// Jackknife standard error of the phase (as `ln_abs_g_stderr`).
+    #[serde(default, deserialize_with = "crate::nan_null::vec")]
+    pub phase_stderr: Vec<f64>,
+}
+
+/// `ln |Ĝ_aa'(p)|` and its phase unwrapped from `Φ(0) = 0` (II eq 47), from
+/// the characteristic functions at `a` and `a'` on `p >= 0`.
+fn log_kernel(ca: &[Complex64], cb: &[Complex64]) -> (Vec<f64>, Vec<f64>) {
+    let np = ca.len();
+    let mut ln_abs = vec![0.0; np];
+    let mut phase = vec![0.0; np];
+    let mut prev = 0.0;
+    for k in 0..np {
+        let g = ca[k] / cb[k];
+        ln_abs[k] = ca[k].norm().ln() - cb[k].norm().ln();
+        let raw = g.arg();
+        if k == 0 {
+            phase[0] = 0.0;
+        } else {
+            let mut d = raw - prev;
+            d -= (2.0 * std::f64::consts::PI) * (d / (2.0 * std::f64::consts::PI)).round();
+            phase[k] = phase[k - 1] + d;
+        }
+        prev = raw;
+    }
+    (ln_abs, phase)
 }
 
 /// Everything [`kernel_estimates`] computes.
@@ -641,21 +675,21 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             let ca = s.ensemble_cf(&order, ja);
             let cb = s.ensemble_cf(&order, jb);
             let ln_ratio = ln_a[jb] - ln_a[ja];
-            let mut ln_abs = vec![0.0; np];
-            let mut phase = vec![0.0; np];
-            let mut prev = 0.0;
-            for k in 0..np {
-                let g = ca[k] / cb[k];
-                ln_abs[k] = ca[k].norm().ln() - cb[k].norm().ln();
-                let raw = g.arg();
-                if k == 0 {
-                    phase[0] = 0.0;
-                } else {
-                    let mut d = raw - prev;
-                    d -= (2.0 * std::f64::consts::PI) * (d / (2.0 * std::f64::consts::PI)).round();
-                    phase[k] = phase[k - 1] + d;
+            let (ln_abs, phase) = log_kernel(&ca, &cb);
+            // delete-one jackknife over the images, in the canonical order
+            let (mut se_abs, mut se_phase) = (vec![f64::NAN; np], vec![f64::NAN; np]);
+            if n_img >= 3 {
+                let reps: Vec<(Vec<f64>, Vec<f64>)> = order
+                    .iter()
+                    .map(|&i| {
+                        let rest: Vec<usize> = order.iter().copied().filter(|&o| o != i).collect();
+                        log_kernel(&s.ensemble_cf(&rest, ja), &s.ensemble_cf(&rest, jb))
+                    })
+                    .collect();
+                for k in 0..np {
+                    se_abs[k] = jk(&reps.iter().map(|r| r.0[k]).collect::<Vec<_>>());
+                    se_phase[k] = jk(&reps.iter().map(|r| r.1[k]).collect::<Vec<_>>());
                 }
-                prev = raw;
             }
             // mirror to p < 0: ln|Ĝ| even, Φ odd, C(-p) = conj C(p)
             let mirror = |v: &[f64], odd: bool| -> Vec<f64> {
@@ -688,6 +722,8 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
                 phase_norm: phase_m.iter().map(|v| v / ln_ratio).collect(),
                 ln_abs_g: ln_abs_m,
                 phase: phase_m,
+                ln_abs_g_stderr: mirror(&se_abs, false),
+                phase_stderr: mirror(&se_phase, false),
             }
         })
         .collect();

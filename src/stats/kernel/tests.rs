@@ -280,3 +280,92 @@ fn default_options_follow_a_short_grid() {
     let o = KernelOptions::for_scales(&[], (0.5, 4.0));
     assert!(o.refs.is_empty() && o.pairs.is_empty());
 }
+
+/// The kernel curves' jackknife errors over images: 0 at p = 0, the
+/// delete-one spread of the curves recomputed without each image, NaN with
+/// fewer than 3 images; and on Gaussian ln M (a known kernel,
+/// `ln |Ĝ| = -(κ2(a) - κ2(a')) p² / 2`) the curve lies within a few of
+/// them of the theory where the characteristic functions are well above
+/// their noise.
+#[test]
+fn kernel_curves_carry_jackknife_errors() {
+    use rand_distr::{Distribution, Normal};
+    let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
+    let (k20, c2) = (0.3, 0.03);
+    let kap2 = |a: f64| k20 - c2 * a.ln();
+    let opts = KernelOptions {
+        fit: (0.0, 2.0),
+        refs: vec![],
+        pairs: vec![(0.0, 2.0)],
+    };
+    let mut rng = crate::synth::rng_for(5, 0);
+    let images: Vec<KernelSums> = (0..8)
+        .map(|i| {
+            let vals: Vec<Vec<f64>> = scales
+                .iter()
+                .map(|&a| {
+                    let d = Normal::new(-0.4 * a.ln(), kap2(a).sqrt()).unwrap();
+                    (0..2000).map(|_| d.sample(&mut rng)).collect()
+                })
+                .collect();
+            let cfg = KernelConfig::default();
+            KernelSums::from_ln_m(&scales, cfg, WtmmmSet::Lines, &vals, format!("{i}")).unwrap()
+        })
+        .collect();
+    let merged = |skip: Option<usize>| {
+        let mut it = (0..images.len()).filter(|&i| Some(i) != skip);
+        let mut s = images[it.next().unwrap()].clone();
+        for i in it {
+            s.merge(&images[i]).unwrap();
+        }
+        s
+    };
+    let r = kernel_estimates(&merged(None), &opts).unwrap();
+    let kc = &r.kernels[0];
+    let mid = kc.p.len() / 2;
+    assert_eq!(kc.p[mid], 0.0);
+    assert_eq!(kc.ln_abs_g_stderr[mid], 0.0);
+    assert_eq!(kc.phase_stderr[mid], 0.0);
+    // by hand: the curves without each image
+    let reps: Vec<KernelCurve> = (0..images.len())
+        .map(|i| kernel_estimates(&merged(Some(i)), &opts).unwrap().kernels[0].clone())
+        .collect();
+    for k in [mid + 10, mid + 40, mid + 80, mid - 60] {
+        for (se, v) in [
+            (
+                kc.ln_abs_g_stderr[k],
+                reps.iter().map(|c| c.ln_abs_g[k]).collect::<Vec<_>>(),
+            ),
+            (
+                kc.phase_stderr[k],
+                reps.iter().map(|c| c.phase[k]).collect::<Vec<_>>(),
+            ),
+        ] {
+            let want = crate::stats::jackknife_se(&v);
+            assert!(
+                se > 0.0 && (se - want).abs() <= 1e-9 * want,
+                "{se} vs {want}"
+            );
+        }
+    }
+    // against the theory, where |C| is well above 1/sqrt(n) (p <= 2.5):
+    // within 5 jackknife errors (8 images: t with 7 degrees of freedom)
+    let (a, b) = (kc.a, kc.a_ref);
+    for (k, &p) in
+        kc.p.iter()
+            .enumerate()
+            .filter(|(_, p)| **p > 0.0 && **p <= 2.5)
+    {
+        let theory = -(kap2(a) - kap2(b)) * p * p / 2.0;
+        let (v, se) = (kc.ln_abs_g[k], kc.ln_abs_g_stderr[k]);
+        assert!(
+            (v - theory).abs() < 5.0 * se,
+            "p = {p}: {v} vs {theory} +- {se}"
+        );
+    }
+    // two images: no jackknife (tiles keep no characteristic functions)
+    let mut two = images[0].clone();
+    two.merge(&images[1]).unwrap();
+    let r2 = kernel_estimates(&two, &opts).unwrap();
+    assert!(r2.kernels[0].ln_abs_g_stderr.iter().all(|e| e.is_nan()));
+}
