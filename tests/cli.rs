@@ -1917,6 +1917,8 @@ fn analyze_prints_its_answer() {
 
 /// `--svg` writes every plot also as SVG beside its PNG (charts and the
 /// skeleton's raster pictures), tagged with the version; without it, none.
+/// The figures say what a px is when the pixel is known, and a picture's
+/// colour key is its own line, not the axis label.
 #[test]
 fn svg_beside_every_png() {
     let dir = scratch("svg");
@@ -1936,7 +1938,20 @@ fn svg_beside_every_png() {
         let without = dir.join(cmd);
         for (out, svg) in [(&with, true), (&without, false)] {
             let o = out.display().to_string();
-            let mut args = vec![cmd, &img, "--octaves", "2", "--margin", "0", "--out", &o];
+            let mut args = vec![
+                cmd,
+                &img,
+                "--octaves",
+                "2",
+                "--margin",
+                "0",
+                "--pixel-size",
+                "10",
+                "--units",
+                "m",
+                "--out",
+                &o,
+            ];
             if svg {
                 args.insert(0, "--svg");
             }
@@ -1961,6 +1976,23 @@ fn svg_beside_every_png() {
     let s =
         std::fs::read_to_string(dir.join("skeleton_svg").join(format!("{}.svg", sk[0]))).unwrap();
     assert!(s.contains("data:image/png;base64,"));
+    // (plotters writes each text on its own line)
+    let texts: Vec<&str> = s.lines().map(str::trim).collect();
+    assert!(
+        texts.contains(&"x (px; 1 px = 10 m)"),
+        "the axis label alone"
+    );
+    assert!(
+        texts
+            .iter()
+            .any(|t| t.starts_with("red: chains, green: WTMMM")),
+        "the key on its line"
+    );
+    let z = std::fs::read_to_string(dir.join("analyze_svg").join("logZ.svg")).unwrap();
+    assert!(
+        z.contains("log2 a  (a in px; 1 px = 10 m)"),
+        "logZ's x label"
+    );
 }
 
 /// `--detrend plane` reaches every part of `validate` that transforms an

@@ -889,15 +889,27 @@ pub fn plot_spectra(
                 .with_x_errors(s.h_stderr.clone()),
         );
     }
-    // a line, so that it hides neither the canonical points nor their bars
+    // a line, so that it hides neither the canonical points nor their bars;
+    // on a coarse q grid (steps over 0.5) with its points, since a line
+    // between finite differences that far apart looks like a curve the
+    // estimates do not give
+    let coarse = s.q.windows(2).any(|w| w[1] - w[0] > 0.5 + 1e-9);
     dc.series.push(Series::new(
-        "Legendre of tau(q)",
+        if coarse {
+            "Legendre of tau(q), at the q (coarse grid)"
+        } else {
+            "Legendre of tau(q)"
+        },
         s.legendre_h
             .iter()
             .cloned()
             .zip(s.legendre_d.iter().cloned())
             .collect(),
-        Style::Line,
+        if coarse {
+            Style::LineMarkers
+        } else {
+            Style::Line
+        },
         3,
     ));
     // D = 2, the dimension of the support: an estimate above it is a bias

@@ -357,8 +357,14 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
             } else {
                 "mixed sizes".into()
             };
+            // the figure says what the warnings do: gaps were filled
+            let filled = match (missing.iter().sum::<usize>(), cfg.fill) {
+                (0, _) => "",
+                (_, HoleFill::Harmonic) => ", gaps filled harmonically",
+                (_, HoleFill::Mean) => ", gaps filled with the mean",
+            };
             format!(
-                "Angle-averaged power spectrum of {what} ({size}): beta = {}",
+                "Angle-averaged power spectrum of {what} ({size}{filled}): beta = {}",
                 super::common::plus_minus(fit.beta, beta_se, 3)
             )
         },
