@@ -1274,43 +1274,32 @@ fn plot_pdfs(
         .fold(0.0, f64::max);
     let clip =
         |v: Vec<(f64, f64)>| -> Vec<(f64, f64)> { v.into_iter().filter(|p| p.0 <= m_hi).collect() };
-    let mut c = Chart {
-        title: title("(a) P_a(M) at the WTMMM (II Fig 17a)"),
-        x_label: "M".into(),
-        y_label: "P_a(M)".into(),
+    let chart = |title: String, x: &str, y: &str| Chart {
+        title,
+        x_label: x.into(),
+        y_label: y.into(),
         ..Default::default()
     };
-    let mut ca = Chart {
-        title: title("(b) P_a(A) (II Fig 17b)"),
-        x_label: "A (rad)".into(),
-        y_label: "P_a(A)".into(),
-        ..Default::default()
-    };
-    let mut cl = Chart {
-        title: title("ln P_a(M) vs M (II Fig 20a)"),
-        x_label: "M".into(),
-        y_label: "ln P_a(M)".into(),
-        ..Default::default()
-    };
-    let mut cr = Chart {
-        title: title(&format!(
+    let mut c = chart(title("(a) P_a(M) at the WTMMM (II Fig 17a)"), "M", "P_a(M)");
+    let mut ca = chart(title("(b) P_a(A) (II Fig 17b)"), "A (rad)", "P_a(A)");
+    let mut cl = chart(title("ln P_a(M) vs M (II Fig 20a)"), "M", "ln P_a(M)");
+    // y: the density of the rescaled modulus (stats::pdf: P_a(M) times the
+    // factor), which is what collapses
+    let mut cr = chart(
+        title(&format!(
             "ln P_a(M) vs M / (a/a_min)^h, h = {h0:.3} (II eq 39, Fig 20b)"
         )),
-        x_label: "M / (a/a_min)^h".into(),
-        // the density of the rescaled modulus (stats::pdf: P_a(M) times
-        // the factor), which is what collapses
-        y_label: "ln [(a/a_min)^h P_a(M)]".into(),
-        ..Default::default()
-    };
+        "M / (a/a_min)^h",
+        "ln [(a/a_min)^h P_a(M)]",
+    );
     // the density of ln M on its own axis: every WTMMM in view whatever
     // the spread of M (a DEM's M spans decades, which the linear M axes of
     // the paper's figures squeeze against 0); the kernel's variable
-    let mut cu = Chart {
-        title: title("P_a(ln M) at the WTMMM (the kernel's variable, II §4)"),
-        x_label: "ln M".into(),
-        y_label: "P_a(ln M)".into(),
-        ..Default::default()
-    };
+    let mut cu = chart(
+        title("P_a(ln M) at the WTMMM (the kernel's variable, II §4)"),
+        "ln M",
+        "P_a(ln M)",
+    );
     for (k, s) in show.iter().enumerate() {
         cu.series.push(Series::new(
             label(s),
@@ -1356,15 +1345,14 @@ fn plot_pdfs(
     save_chart(&cl, &dir.join("lnpdf_M.png"))?;
     save_chart(&cr, &dir.join("lnpdf_rescaled.png"))?;
     for (n, s) in sec.iter().enumerate() {
-        let mut cs = Chart {
-            title: title(&format!(
+        let mut cs = chart(
+            title(&format!(
                 "P(M | A mod pi), {} (II Fig 18)",
                 label_w(s, s.sector_bin_width)
             )),
-            x_label: "M".into(),
-            y_label: "ln P_a(M | A)".into(),
-            ..Default::default()
-        };
+            "M",
+            "ln P_a(M | A)",
+        );
         for (k, q) in s.sectors.iter().enumerate() {
             let deg = q.centre.to_degrees();
             cs.series.push(Series::new(
