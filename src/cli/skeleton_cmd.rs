@@ -225,8 +225,13 @@ pub fn run(args: SkeletonArgs, quiet: bool) -> Result<Outcome> {
                 // the colour key in the picture, not only in skeleton.json
                 x_label: format!("x (px{})", super::px_is(px.as_ref().map(PixelSize::plot))),
                 y_label: "y (px)".into(),
+                // the arrows' scale is the picture's own largest M: said, so
+                // that pictures of different scales are compared rightly
                 caption: format!(
-                    "red: chains, green: WTMMM, blue: M along A, yellow: domain{}",
+                    "red: chains, green: WTMMM, blue: M along A ({:.0} px = M {}), \
+                     yellow: domain{}",
+                    len,
+                    super::short_num(mmax),
                     if field.mask.is_some() {
                         ", teal: no data"
                     } else {
