@@ -706,6 +706,17 @@ fn flagged_q(s: &Spectra, order: Option<f64>) -> Vec<bool> {
         .collect()
 }
 
+/// The legend names of the unflagged and the flagged estimates: when none
+/// is unflagged (the legend lists only what is drawn), the flagged entry
+/// also says what the points and their bars are.
+fn legend_names(name: String, flag_name: &str, good: &[(f64, f64)]) -> (String, String) {
+    if good.iter().any(|p| p.0.is_finite() && p.1.is_finite()) {
+        (name, flag_name.to_string())
+    } else {
+        (String::new(), format!("{name}, all {flag_name}"))
+    }
+}
+
 /// `points` split by `flag`: (unflagged, flagged), NaN where the other is.
 fn split_points(points: &[(f64, f64)], flag: &[bool]) -> [Vec<(f64, f64)>; 2] {
     let nan = (f64::NAN, f64::NAN);
@@ -752,10 +763,11 @@ pub fn plot_spectra(
     // figures say what the warnings do
     let flag = flagged_q(s, wavelet_order);
     let flag_name = "flagged (open): curved log2 Z or h at the wavelet's order; see the warnings";
-    // a readable subset of q: about 9 curves, counted back from the last
-    // q so that both ends of the grid are drawn (and q = 0 on a grid
-    // symmetric about it, as -6:8:0.5)
-    let step = nq.div_ceil(9).max(1);
+    // a readable subset of q: at most 9 curves (palette colours 0-8; 9 is
+    // the theory's grey), counted back from the last q so that both ends
+    // of the grid are drawn (and q = 0 on a grid like -6:8:0.5). A step
+    // that does not divide the grid leaves at most 8 before the first q.
+    let step = nq.saturating_sub(1).div_ceil(8).max(1);
     let mut shown: Vec<usize> = (0..nq).rev().step_by(step).collect();
     if shown.last() != Some(&0) && nq > 0 {
         shown.push(0);
@@ -859,13 +871,12 @@ pub fn plot_spectra(
     let how = s.stderr_method.split(" (").next().unwrap_or("");
     let tau_pts: Vec<(f64, f64)> = s.q.iter().cloned().zip(s.tau.iter().cloned()).collect();
     let [good, bad] = split_points(&tau_pts, &flag);
-    tc.series.push(
-        Series::new(format!("estimate ± 1 se ({how})"), good, Style::Markers, 0)
-            .with_errors(s.tau_stderr.clone()),
-    );
+    let (name, flagged) = legend_names(format!("estimate ± 1 se ({how})"), flag_name, &good);
+    tc.series
+        .push(Series::new(name, good, Style::Markers, 0).with_errors(s.tau_stderr.clone()));
     if flag.contains(&true) {
         tc.series.push(
-            Series::new(flag_name, bad, Style::OpenMarkers, 0).with_errors(s.tau_stderr.clone()),
+            Series::new(flagged, bad, Style::OpenMarkers, 0).with_errors(s.tau_stderr.clone()),
         );
     }
     let mut dc = Chart {
@@ -877,14 +888,15 @@ pub fn plot_spectra(
     // both coordinates are estimates: jackknife errors of h(q) and D(q)
     let dh_pts: Vec<(f64, f64)> = s.h.iter().cloned().zip(s.d.iter().cloned()).collect();
     let [good, bad] = split_points(&dh_pts, &flag);
+    let (name, flagged) = legend_names("canonical h(q), D(q)".into(), flag_name, &good);
     dc.series.push(
-        Series::new("canonical h(q), D(q)", good, Style::Markers, 0)
+        Series::new(name, good, Style::Markers, 0)
             .with_errors(s.d_stderr.clone())
             .with_x_errors(s.h_stderr.clone()),
     );
     if flag.contains(&true) {
         dc.series.push(
-            Series::new(flag_name, bad, Style::OpenMarkers, 0)
+            Series::new(flagged, bad, Style::OpenMarkers, 0)
                 .with_errors(s.d_stderr.clone())
                 .with_x_errors(s.h_stderr.clone()),
         );
@@ -944,8 +956,11 @@ pub fn plot_spectra(
         // the estimates, says where the theory puts every h(q)
         let dh = match t.dh[..] {
             [(h, d)] => {
-                let low = s.d.iter().copied().filter(|v| v.is_finite());
-                let d_lo = low.fold(d - 0.5, f64::min);
+                // to just below the lowest estimate's bar
+                let low = (s.d.iter().zip(&s.d_stderr))
+                    .map(|(v, e)| v - e.max(0.0))
+                    .filter(|v| v.is_finite());
+                let d_lo = low.fold(d - 0.05, f64::min) - 0.02;
                 vec![(h, d_lo), (h, d)]
             }
             _ => t.dh.clone(),

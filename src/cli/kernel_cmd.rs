@@ -688,8 +688,13 @@ fn kernel_noise(
     };
     let (na, nb) = (n_at(kc.a), n_at(kc.a_ref));
     let small = |re: f64, im: f64, n: f64| (re * re + im * im).sqrt() * n.sqrt() < NOISE_SIGMAS;
+    // p = 0 is exact (C = 1 at every scale, Ĝ = 1) however few the WTMMM
     (0..kc.p.len())
-        .map(|i| small(kc.cf_re[i], kc.cf_im[i], na) || small(kc.cf_ref_re[i], kc.cf_ref_im[i], nb))
+        .map(|i| {
+            kc.p[i] != 0.0
+                && (small(kc.cf_re[i], kc.cf_im[i], na)
+                    || small(kc.cf_ref_re[i], kc.cf_ref_im[i], nb))
+        })
         .collect()
 }
 
@@ -775,10 +780,11 @@ fn plot_kernel(
                 .collect()
         };
         // jackknife bars at every BAR_EVERY-th p, the pairs' bars staggered
-        // so that they do not overlap
+        // so that they do not overlap (up to BAR_EVERY pairs)
+        let shift = c * BAR_EVERY / k.kernels.len().max(1);
         let bars = |se: &[f64], scale: f64| -> Vec<f64> {
             (0..kc.p.len())
-                .map(|i| match (i + 2 * c) % BAR_EVERY {
+                .map(|i| match (i + shift) % BAR_EVERY {
                     0 => se.get(i).map_or(f64::NAN, |e| e / scale),
                     _ => f64::NAN,
                 })
@@ -793,9 +799,16 @@ fn plot_kernel(
         ] {
             let series = &mut charts[chart].1.series;
             let e = bars(se, scale);
-            series
-                .push(Series::new(lab(kc), s(v, false), Style::Markers, c).with_errors(e.clone()));
-            series.push(Series::new("", s(v, true), Style::OpenMarkers, c).with_errors(e));
+            // the pair's name on the filled points, or on the open ones
+            // when every point is open (the legend lists only what is drawn)
+            let (filled, open) = (s(v, false), s(v, true));
+            let (n_filled, n_open) = if filled.iter().any(|p| p.0.is_finite()) {
+                (lab(kc), String::new())
+            } else {
+                (String::new(), lab(kc))
+            };
+            series.push(Series::new(n_filled, filled, Style::Markers, c).with_errors(e.clone()));
+            series.push(Series::new(n_open, open, Style::OpenMarkers, c).with_errors(e));
         }
         if let Some(m) = model
             && theory_log_kernel(m, 0.0).is_some()
@@ -841,17 +854,16 @@ fn plot_kernel(
         }
     }
     for (file, chart) in &mut charts {
-        if any_bars {
-            chart.series.push(Series::new(
-                format!(
-                    "bars: ± 1 se, jackknife over images (at every {} in p)",
-                    super::common::fixed(BAR_EVERY as f64 * k_dp(k), 2)
-                ),
-                Vec::new(),
-                Style::Line,
-                GREY,
-            ));
-        }
+        // what the bars are, under the axis: a key in the legend drew a
+        // line like the theory's
+        chart.x_label = if any_bars {
+            format!(
+                "p   (bars: ± 1 se, jackknife over the images, at every {} in p)",
+                super::common::fixed(BAR_EVERY as f64 * k_dp(k), 2)
+            )
+        } else {
+            "p   (no error bars: the jackknife needs 3 images or more)".into()
+        };
         if any_noise {
             chart.series.push(Series::new(
                 format!("open: |C(p)| < {NOISE_SIGMAS}/sqrt(n) at a or a' (noise, not kernel)"),

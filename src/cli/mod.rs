@@ -1201,7 +1201,7 @@ impl PixelSize {
         format!("{} {}", short_num(px * self.side()), self.units)
     }
 
-    /// The side and units the figures' labels use ([`px_is`], [`px_span`]).
+    /// The side and units the figures' labels use (`px_is`, `px_span`).
     pub fn plot(&self) -> (f64, &str) {
         (self.side(), &self.units)
     }

@@ -369,3 +369,21 @@ fn kernel_curves_carry_jackknife_errors() {
     let r2 = kernel_estimates(&two, &opts).unwrap();
     assert!(r2.kernels[0].ln_abs_g_stderr.iter().all(|e| e.is_nan()));
 }
+
+/// A jackknife replicate's phase one or more turns off the main curve's
+/// branch is brought back onto it before the spread is taken.
+#[test]
+fn phase_replicates_are_taken_on_the_main_branch() {
+    use std::f64::consts::PI;
+    let f = super::estimate::same_branch;
+    assert_eq!(f(-8.04, -8.04), -8.04);
+    for (phase, main) in [(-1.74, -8.04), (-7.93 + 4.0 * PI, -8.04), (3.0, -3.2)] {
+        let b = f(phase, main);
+        assert!((b - main).abs() <= PI, "{phase} -> {b} for {main}");
+        let turns = (phase - b) / (2.0 * PI);
+        assert!(
+            (turns - turns.round()).abs() < 1e-12,
+            "whole turns: {turns}"
+        );
+    }
+}
