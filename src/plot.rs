@@ -1027,9 +1027,9 @@ pub struct RasterChart {
     /// `None`: the raster at an integer zoom (its longest side about 600
     /// px; 1:1 from 600 to 1000 px, shrunk beyond) with the axes around it.
     pub size: Option<(u32, u32)>,
-    /// A line under the axes (none if empty): a key to the picture's
-    /// colours, set smaller if it is wider than the picture, so that the
-    /// axis labels keep their size.
+    /// Lines under the axes (none if empty; one per `\n`): a key to the
+    /// picture's colours, set smaller if wider than the picture, so that
+    /// the axis labels keep their size.
     pub caption: String,
 }
 
@@ -1100,7 +1100,7 @@ fn caption_height(caption: &str) -> u32 {
     if caption.is_empty() {
         0
     } else {
-        CAPTION_HEIGHT
+        CAPTION_HEIGHT * caption.lines().count().max(1) as u32
     }
 }
 
@@ -1255,12 +1255,15 @@ where
         (root, None)
     };
     if let Some(strip) = &strip {
-        // centred, set smaller (down to 10 pt) when wider than the picture
+        // one line per caption line, centred, all set smaller (down to
+        // 10 pt) when the widest is wider than the picture
         let avail = strip.dim_in_pixel().0.saturating_sub(2 * MARGIN) as f64;
-        let wide = ("sans-serif", CAPTION_FONT)
-            .into_font()
-            .box_size(&spec.caption)
-            .map_or(0.0, |(w, _)| w as f64);
+        let font = ("sans-serif", CAPTION_FONT).into_font();
+        let wide = spec
+            .caption
+            .lines()
+            .map(|l| font.box_size(l).map_or(0.0, |(w, _)| w as f64))
+            .fold(0.0, f64::max);
         let size = if wide > avail && wide > 0.0 {
             (CAPTION_FONT * avail / wide).floor().max(10.0)
         } else {
@@ -1269,13 +1272,12 @@ where
         let style = TextStyle::from(("sans-serif", size).into_font())
             .pos(Pos::new(HPos::Center, VPos::Top));
         let (w, _) = strip.dim_in_pixel();
-        strip
-            .draw(&Text::new(
-                spec.caption.as_str(),
-                ((w / 2) as i32, 0),
-                style,
-            ))
-            .map_err(|x| e(&x))?;
+        for (i, line) in spec.caption.lines().enumerate() {
+            let y = (i as u32 * CAPTION_HEIGHT) as i32;
+            strip
+                .draw(&Text::new(line, ((w / 2) as i32, y), style.clone()))
+                .map_err(|x| e(&x))?;
+        }
     }
     let area = if spec.title.is_empty() {
         root.margin(MARGIN, MARGIN, MARGIN, MARGIN)

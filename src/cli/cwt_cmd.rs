@@ -214,7 +214,7 @@ fn save_modulus_png(
             title: format!("modulus M(b, a), a = {a:.2} px, {what}"),
             x_label: "x (px)".into(),
             y_label: "y (px)".into(),
-            caption: key.join(";  "),
+            caption: key.join("\n"),
             x_range: (0.0, nx as f64),
             y_range: (0.0, ny as f64),
             colorbar,
