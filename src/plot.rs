@@ -152,6 +152,24 @@ impl Series {
     }
 }
 
+/// The legend names of one set of estimates drawn in two parts, filled
+/// and open (flagged, or noise): `(filled, open)` as given while some
+/// filled point is drawn; else the open part takes both ("estimate ± 1 se,
+/// all flagged ..."), since the legend lists only series with something
+/// drawn ([`Series`] with every point undefined are left out).
+pub fn part_names(filled: String, open: String, filled_points: &[(f64, f64)]) -> (String, String) {
+    if filled_points
+        .iter()
+        .any(|p| p.0.is_finite() && p.1.is_finite())
+    {
+        (filled, open)
+    } else if open.is_empty() {
+        (String::new(), filled)
+    } else {
+        (String::new(), format!("{filled}, all {open}"))
+    }
+}
+
 /// A 2D chart: title, axis labels, series.
 #[derive(Clone, Debug, Default)]
 pub struct Chart {
@@ -1800,6 +1818,22 @@ mod tests {
         let key = Series::new("lines: fits", Vec::new(), Style::Line, 2);
         let c = unit_chart(vec![lone, none, key]);
         assert_eq!(legend_labels(&c), ["one scale", "lines: fits"]);
+        // a set drawn in two parts keeps its name on the part drawn
+        let (est, flag) = ("estimate".to_string(), "flagged".to_string());
+        let some = [(nan, 1.0), (0.5, 0.5)];
+        assert_eq!(
+            part_names(est.clone(), flag.clone(), &some),
+            (est.clone(), flag.clone())
+        );
+        let none = [(nan, 1.0), (0.5, nan)];
+        assert_eq!(
+            part_names(est.clone(), flag, &none),
+            (String::new(), "estimate, all flagged".into())
+        );
+        assert_eq!(
+            part_names(est, String::new(), &none),
+            (String::new(), "estimate".into())
+        );
         // unlabelled, so that the legend's swatch adds no blue
         register_font();
         let (w, h) = (200u32, 150u32);

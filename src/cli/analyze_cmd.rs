@@ -12,7 +12,7 @@ use super::model_args::{ModelName, ModelOpts};
 use super::{CwtOpts, OutDir, Outcome, PixelOpts, PixelSize};
 use crate::cwt::Wavelet;
 use crate::error::{Error, Result};
-use crate::plot::{Chart, Series, Style};
+use crate::plot::{Chart, Series, Style, part_names};
 use crate::skeleton::{AnalysisConfig, LinkParams, Parallelism, SearchRadius};
 use crate::spectra::{
     PartitionSums, Rule, Spectra, at_wavelet_order, default_tile_side, image_sums_tiled, is_curved,
@@ -706,17 +706,6 @@ fn flagged_q(s: &Spectra, order: Option<f64>) -> Vec<bool> {
         .collect()
 }
 
-/// The legend names of the unflagged and the flagged estimates: when none
-/// is unflagged (the legend lists only what is drawn), the flagged entry
-/// also says what the points and their bars are.
-fn legend_names(name: String, flag_name: &str, good: &[(f64, f64)]) -> (String, String) {
-    if good.iter().any(|p| p.0.is_finite() && p.1.is_finite()) {
-        (name, flag_name.to_string())
-    } else {
-        (String::new(), format!("{name}, all {flag_name}"))
-    }
-}
-
 /// `points` split by `flag`: (unflagged, flagged), NaN where the other is.
 fn split_points(points: &[(f64, f64)], flag: &[bool]) -> [Vec<(f64, f64)>; 2] {
     let nan = (f64::NAN, f64::NAN);
@@ -871,7 +860,7 @@ pub fn plot_spectra(
     let how = s.stderr_method.split(" (").next().unwrap_or("");
     let tau_pts: Vec<(f64, f64)> = s.q.iter().cloned().zip(s.tau.iter().cloned()).collect();
     let [good, bad] = split_points(&tau_pts, &flag);
-    let (name, flagged) = legend_names(format!("estimate ± 1 se ({how})"), flag_name, &good);
+    let (name, flagged) = part_names(format!("estimate ± 1 se ({how})"), flag_name.into(), &good);
     tc.series
         .push(Series::new(name, good, Style::Markers, 0).with_errors(s.tau_stderr.clone()));
     if flag.contains(&true) {
@@ -888,7 +877,7 @@ pub fn plot_spectra(
     // both coordinates are estimates: jackknife errors of h(q) and D(q)
     let dh_pts: Vec<(f64, f64)> = s.h.iter().cloned().zip(s.d.iter().cloned()).collect();
     let [good, bad] = split_points(&dh_pts, &flag);
-    let (name, flagged) = legend_names("canonical h(q), D(q)".into(), flag_name, &good);
+    let (name, flagged) = part_names("canonical h(q), D(q)".into(), flag_name.into(), &good);
     dc.series.push(
         Series::new(name, good, Style::Markers, 0)
             .with_errors(s.d_stderr.clone())

@@ -24,7 +24,7 @@ use super::pdf_cmd::{
 };
 use super::{OutDir, Outcome};
 use crate::error::{Error, Result};
-use crate::plot::{Chart, Series, Style};
+use crate::plot::{Chart, Series, Style, part_names};
 use crate::skeleton::AnalysisConfig;
 use crate::stats::kernel::{
     KernelConfig, KernelOptions, KernelResult, KernelSums, Reconstruction, check_wtmmm_counts,
@@ -802,11 +802,7 @@ fn plot_kernel(
             // the pair's name on the filled points, or on the open ones
             // when every point is open (the legend lists only what is drawn)
             let (filled, open) = (s(v, false), s(v, true));
-            let (n_filled, n_open) = if filled.iter().any(|p| p.0.is_finite()) {
-                (lab(kc), String::new())
-            } else {
-                (String::new(), lab(kc))
-            };
+            let (n_filled, n_open) = part_names(lab(kc), String::new(), &filled);
             series.push(Series::new(n_filled, filled, Style::Markers, c).with_errors(e.clone()));
             series.push(Series::new(n_open, open, Style::OpenMarkers, c).with_errors(e));
         }
