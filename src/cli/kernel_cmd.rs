@@ -479,6 +479,7 @@ pub fn write_kernel_outputs(
         "note": "slope through the origin of every C_n(a, a') point of cn_tables (II Figs 26, 28 as drawn); \
          the paper's protocol with the default refs and --fit 0:3.5"});
     body["stderr_method"] = json!(k.stderr_method);
+    body["kernels_stderr_method"] = json!(k.curve_stderr_method);
     body["plugin_tilt"] = json!({"c1": k.plugin_tilt[0], "c2": k.plugin_tilt[1], "c3": k.plugin_tilt[2],
         "note": "bias of the fitted c_n from the plug-in cumulants of few WTMMM (-kappa2/n, -3 kappa3/n per scale, \
          through the same fit): the estimate's expectation is about c_n + tilt; not in the errors"});
@@ -853,12 +854,14 @@ fn plot_kernel(
         // what the bars are, under the axis: a key in the legend drew a
         // line like the theory's
         chart.x_label = if any_bars {
+            // "jackknife over images" or "... over N tiles (S px)"
             format!(
-                "p   (bars: ± 1 se, jackknife over the images, at every {} in p)",
+                "p   (bars: ± 1 se, {}, at every {} in p)",
+                k.curve_stderr_method,
                 super::common::fixed(BAR_EVERY as f64 * k_dp(k), 2)
             )
         } else {
-            "p   (no error bars: the jackknife needs 3 images or more)".into()
+            "p   (no error bars: the jackknife needs 3 images, or tiles of fewer)".into()
         };
         if any_noise {
             chart.series.push(Series::new(

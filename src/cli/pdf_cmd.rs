@@ -651,7 +651,8 @@ impl Input {
                 "--preset"
             };
             let (n, s) = (self.count, self.size);
-            return format!("{flag} {} ({n} images of {s}x{s})", self.name);
+            let n = super::common::count_of(n, "image");
+            return format!("{flag} {} ({n} of {s}x{s})", self.name);
         }
         let names: Vec<String> = self
             .images
@@ -692,7 +693,8 @@ impl Input {
         );
         if self.generated() {
             let (n, s) = (self.count, self.size);
-            return format!("{}, {n} images of {s}x{s}, {w}", self.name);
+            let n = super::common::count_of(n, "image");
+            return format!("{}, {n} of {s}x{s}, {w}", self.name);
         }
         let what = match self.images.as_slice() {
             [one] => super::common::file_label(one),

@@ -197,8 +197,9 @@ pub struct KernelCurve {
     #[serde(deserialize_with = "crate::nan_null::vec")]
     pub phase_norm: Vec<f64>,
     /// Delete-one jackknife standard error of `ln |Ĝ_aa'(p)|` over the
-    /// images (NaN with fewer than 3 images: tiles keep no characteristic
-    /// functions). Where the characteristic functions fall to their
+    /// images, or with fewer than 3 over the tiles of their domains
+    /// ([`KernelSums::from_points_tiled`]; NaN without tiles, see
+    /// [`KernelResult::curve_stderr_method`]). Where the characteristic functions fall to their
     /// sampling noise, `Ĝ` is a ratio of noise and this error grows: the
     /// curve there says nothing of the kernel.
     #[serde(default, deserialize_with = "crate::nan_null::vec")]
@@ -289,6 +290,12 @@ pub struct KernelResult {
     pub pooled: FittedCumulants,
     /// One kernel curve per pair of scales (II Figs 25, 27).
     pub kernels: Vec<KernelCurve>,
+    /// Where the curves' errors come from: "jackknife over images",
+    /// "jackknife over N tiles (S px)", or "none" (fewer than 3 images and
+    /// no tiles, or the tiles of older sums, written without their
+    /// characteristic functions).
+    #[serde(default)]
+    pub curve_stderr_method: String,
     /// The bias the plug-in cumulants give the fitted `c1, c2, c3`: the
     /// same fit applied to the per-scale biases `0, -κ2/n, -3κ3/n` of the
     /// plug-in `κ_n` of `n` WTMMM. The estimate's expectation is about
@@ -687,16 +694,25 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             let cb = s.ensemble_cf(&order, jb);
             let ln_ratio = ln_a[jb] - ln_a[ja];
             let (ln_abs, phase) = log_kernel(&ca, &cb);
-            // delete-one jackknife over the images, in the canonical order
+            // delete-one jackknife over the images, in the canonical order,
+            // or over the tiles of fewer than 3 images
             let (mut se_abs, mut se_phase) = (vec![f64::NAN; np], vec![f64::NAN; np]);
-            if n_img >= 3 {
-                let reps: Vec<(Vec<f64>, Vec<f64>)> = order
+            let reps: Vec<(Vec<f64>, Vec<f64>)> = if n_img >= 3 {
+                order
                     .iter()
                     .map(|&i| {
                         let rest: Vec<usize> = order.iter().copied().filter(|&o| o != i).collect();
                         log_kernel(&s.ensemble_cf(&rest, ja), &s.ensemble_cf(&rest, jb))
                     })
-                    .collect();
+                    .collect()
+            } else if let (Some(ra), Some(rb)) =
+                (s.tile_cf_replicates(ja), s.tile_cf_replicates(jb))
+            {
+                ra.iter().zip(&rb).map(|(a, b)| log_kernel(a, b)).collect()
+            } else {
+                Vec::new()
+            };
+            if reps.len() >= 3 {
                 for k in 0..np {
                     se_abs[k] = jk(&reps.iter().map(|r| r.0[k]).collect::<Vec<_>>());
                     let turns: Vec<f64> =
@@ -740,6 +756,17 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             }
         })
         .collect();
+    let curve_stderr_method = if n_img >= 3 {
+        "jackknife over images".to_string()
+    } else if let Some(r) = s.tile_cf_replicates(0) {
+        format!(
+            "jackknife over {} tiles ({} px)",
+            r.len(),
+            crate::spectra::tile_sides(s.images.iter().map(|im| im.tile_side))
+        )
+    } else {
+        "none".to_string()
+    };
     let mut warnings = Vec::new();
     // scales short of WTMMM (NaN cumulants, and NaN c_n if fitted): said
     // in the result, not only by a check the caller might skip
@@ -851,6 +878,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         tables,
         pooled,
         kernels,
+        curve_stderr_method,
         warnings,
     })
 }

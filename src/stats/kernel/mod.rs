@@ -291,6 +291,15 @@ pub struct KernelImage {
     /// Side of the tiles in px (0 without tiles).
     #[serde(default, skip_serializing_if = "crate::spectra::is_zero")]
     pub tile_side: usize,
+    /// The characteristic-function sums of each tile (layout of `cf_re`),
+    /// beside `tiles`: the jackknife of the kernel curves `Ĝ_aa'(p)` of a
+    /// lone image. Empty without tiles (and in older sums, written before
+    /// the tiles kept them: their curves then have no errors).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tile_cf_re: Vec<Vec<f64>>,
+    /// `Σ sin(p_k ln M)` of each tile, as `tile_cf_re`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tile_cf_im: Vec<Vec<f64>>,
 }
 
 /// Mergeable kernel sums of an ensemble (one partial per image).
@@ -339,6 +348,8 @@ impl KernelSums {
             cf_im: vec![0.0; np * scales.len()],
             tiles: Vec::new(),
             tile_side: 0,
+            tile_cf_re: Vec::new(),
+            tile_cf_im: Vec::new(),
         };
         let mut u: Vec<f64> = Vec::new();
         for (j, vals) in ln_m.iter().enumerate() {
@@ -395,19 +406,32 @@ impl KernelSums {
     ) -> Result<Self> {
         let mut s = Self::from_points(scales, config, set, points, label)?;
         if let Some(g) = crate::spectra::TileGrid::new(domain, tile_side) {
+            let np = config.len();
             let mut vals: Vec<Vec<f64>> = vec![Vec::new(); g.len()];
             let mut tiles = vec![Vec::with_capacity(scales.len()); g.len()];
-            for ps in points {
+            let mut cf_re = vec![vec![0.0; np * scales.len()]; g.len()];
+            let mut cf_im = cf_re.clone();
+            for (j, ps) in points.iter().enumerate() {
                 vals.iter_mut().for_each(Vec::clear);
                 for p in ps.iter().filter(|p| p.m > 0.0 && p.m.is_finite()) {
                     vals[g.index(p.x, p.y)].push(p.m.ln());
                 }
-                for (t, v) in tiles.iter_mut().zip(&vals) {
-                    t.push(Moments::of(v));
+                for (t, v) in vals.iter().enumerate() {
+                    tiles[t].push(Moments::of(v));
+                    let cells = j * np..(j + 1) * np;
+                    cf_sums(
+                        v,
+                        config.dp,
+                        &mut cf_re[t][cells.clone()],
+                        &mut cf_im[t][cells],
+                    );
                 }
             }
-            s.images[0].tiles = tiles;
-            s.images[0].tile_side = tile_side;
+            let im = &mut s.images[0];
+            im.tiles = tiles;
+            im.tile_side = tile_side;
+            im.tile_cf_re = cf_re;
+            im.tile_cf_im = cf_im;
         }
         Ok(s)
     }
@@ -448,6 +472,57 @@ impl KernelSums {
         )
     }
 
+    /// The leave-one-tile-out characteristic functions at scale `j` (`p >=
+    /// 0`), under the conditions of [`Self::tile_replicates`] and with every
+    /// image's tile sums (`None` otherwise): the jackknife replicates of the
+    /// kernel curves of fewer than 3 images.
+    fn tile_cf_replicates(&self, j: usize) -> Option<Vec<Vec<Complex64>>> {
+        if self.images.len() >= 3
+            || self
+                .images
+                .iter()
+                .any(|im| im.tiles.is_empty() || im.tile_cf_re.len() != im.tiles.len())
+        {
+            return None;
+        }
+        let np = self.config.len();
+        // (count, re, im) of each tile, images in the canonical order
+        let tiles: Vec<(u64, &[f64], &[f64])> = self
+            .canonical()
+            .into_iter()
+            .flat_map(|i| {
+                let im = &self.images[i];
+                (0..im.tiles.len()).map(move |t| {
+                    (
+                        im.tiles[t][j].n,
+                        &im.tile_cf_re[t][j * np..(j + 1) * np],
+                        &im.tile_cf_im[t][j * np..(j + 1) * np],
+                    )
+                })
+            })
+            .collect();
+        if tiles.len() < 3 {
+            return None;
+        }
+        Some(
+            (0..tiles.len())
+                .map(|skip| {
+                    let (mut re, mut im, mut n) = (vec![0.0; np], vec![0.0; np], 0u64);
+                    for (_, (c, r, i)) in tiles.iter().enumerate().filter(|&(t, _)| t != skip) {
+                        n += c;
+                        re.iter_mut().zip(*r).for_each(|(a, b)| *a += b);
+                        im.iter_mut().zip(*i).for_each(|(a, b)| *a += b);
+                    }
+                    let nf = n.max(1) as f64;
+                    re.iter()
+                        .zip(&im)
+                        .map(|(r, i)| Complex64::new(r / nf, i / nf))
+                        .collect()
+                })
+                .collect(),
+        )
+    }
+
     /// **Errors** unless the sums are whole: a valid p grid, positive
     /// finite ascending scales, and in each image one [`Moments`] per scale
     /// and `scales x p` characteristic-function sums (tiles: one `Moments`
@@ -471,15 +546,26 @@ impl KernelSums {
                 || im.cf_re.len() != cells
                 || im.cf_im.len() != cells
                 || im.tiles.iter().any(|t| t.len() != ns)
+                || !(im.tile_cf_re.is_empty() && im.tile_cf_im.is_empty()
+                    || im.tile_cf_re.len() == im.tiles.len()
+                        && im.tile_cf_im.len() == im.tiles.len())
+                || im
+                    .tile_cf_re
+                    .iter()
+                    .chain(&im.tile_cf_im)
+                    .any(|t| t.len() != cells)
             {
                 return Err(Error::Input(format!(
                     "kernel sums of image {i} ({}): {} moments, {} + {} characteristic-function \
-                     sums for {ns} scales x {np} p, tiles of {:?} scales",
+                     sums for {ns} scales x {np} p, tiles of {:?} scales, tile \
+                     characteristic-function sums of {:?} + {:?} cells",
                     im.label,
                     im.moments.len(),
                     im.cf_re.len(),
                     im.cf_im.len(),
-                    im.tiles.iter().map(Vec::len).collect::<Vec<_>>()
+                    im.tiles.iter().map(Vec::len).collect::<Vec<_>>(),
+                    im.tile_cf_re.iter().map(Vec::len).collect::<Vec<_>>(),
+                    im.tile_cf_im.iter().map(Vec::len).collect::<Vec<_>>()
                 )));
             }
         }
@@ -517,6 +603,8 @@ impl KernelSums {
             for im in &mut self.images {
                 im.tiles = Vec::new();
                 im.tile_side = 0;
+                im.tile_cf_re = Vec::new();
+                im.tile_cf_im = Vec::new();
             }
         }
         Ok(())

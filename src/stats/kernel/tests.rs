@@ -363,11 +363,13 @@ fn kernel_curves_carry_jackknife_errors() {
             "p = {p}: {v} vs {theory} +- {se}"
         );
     }
-    // two images: no jackknife (tiles keep no characteristic functions)
+    // two images without tiles: no jackknife
     let mut two = images[0].clone();
     two.merge(&images[1]).unwrap();
     let r2 = kernel_estimates(&two, &opts).unwrap();
     assert!(r2.kernels[0].ln_abs_g_stderr.iter().all(|e| e.is_nan()));
+    assert_eq!(r2.curve_stderr_method, "none");
+    assert_eq!(r.curve_stderr_method, "jackknife over images");
 }
 
 /// A jackknife replicate's phase one or more turns off the main curve's
@@ -386,4 +388,114 @@ fn phase_replicates_are_taken_on_the_main_branch() {
             "whole turns: {turns}"
         );
     }
+}
+
+/// A lone image split into tiles: the kernel curves' errors are the
+/// leave-one-tile-out jackknife (each replicate the curve of the image's
+/// WTMMM outside one tile), and on independent Gaussian `ln M` the curve
+/// lies within them of the closed form.
+#[test]
+fn a_lone_image_has_tile_jackknife_curve_errors() {
+    use crate::stats::pdf::Point;
+    use rand_distr::{Distribution, Normal};
+    let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
+    let (k20, c2) = (0.3, 0.03);
+    let kap2 = |a: f64| k20 - c2 * a.ln();
+    let opts = KernelOptions {
+        fit: (0.0, 2.0),
+        refs: vec![],
+        pairs: vec![(0.0, 2.0)],
+    };
+    let mut rng = crate::synth::rng_for(6, 0);
+    let (domain, side) = ((0, 400, 0, 400), 100); // 4 x 4 tiles
+    let points: Vec<Vec<Point>> = scales
+        .iter()
+        .map(|&a| {
+            let d = Normal::new(-0.4 * a.ln(), kap2(a).sqrt()).unwrap();
+            (0..16000)
+                .map(|_| Point {
+                    x: rng.random_range(0..400),
+                    y: rng.random_range(0..400),
+                    m: d.sample(&mut rng).exp(),
+                    arg: 0.0,
+                })
+                .collect()
+        })
+        .collect();
+    let cfg = KernelConfig::default();
+    let tiled = |ps: &[Vec<Point>], side: usize| {
+        KernelSums::from_points_tiled(&scales, cfg, WtmmmSet::Lines, ps, "x", domain, side).unwrap()
+    };
+    let s = tiled(&points, side);
+    let im = &s.images[0];
+    assert_eq!((im.tiles.len(), im.tile_cf_re.len()), (16, 16));
+    // the tiles' sums add up to the image's
+    for (c, whole) in [(&im.tile_cf_re, &im.cf_re), (&im.tile_cf_im, &im.cf_im)] {
+        for (k, w) in whole.iter().enumerate() {
+            let sum: f64 = c.iter().map(|t| t[k]).sum();
+            assert!((sum - w).abs() <= 1e-9 * 16000.0, "cell {k}: {sum} vs {w}");
+        }
+    }
+    let r = kernel_estimates(&s, &opts).unwrap();
+    assert_eq!(r.curve_stderr_method, "jackknife over 16 tiles (100 px)");
+    let kc = &r.kernels[0];
+    let mid = kc.p.len() / 2;
+    assert_eq!(kc.ln_abs_g_stderr[mid], 0.0);
+    // by hand: the curve of the WTMMM outside each tile
+    let g = crate::spectra::TileGrid::new(domain, side).unwrap();
+    let reps: Vec<KernelCurve> = (0..g.len())
+        .map(|t| {
+            let rest: Vec<Vec<Point>> = points
+                .iter()
+                .map(|ps| {
+                    ps.iter()
+                        .filter(|p| g.index(p.x, p.y) != t)
+                        .copied()
+                        .collect()
+                })
+                .collect();
+            kernel_estimates(&tiled(&rest, 0), &opts).unwrap().kernels[0].clone()
+        })
+        .collect();
+    for k in [mid + 10, mid + 40, mid + 80, mid - 60] {
+        for (se, v) in [
+            (
+                kc.ln_abs_g_stderr[k],
+                reps.iter().map(|c| c.ln_abs_g[k]).collect::<Vec<_>>(),
+            ),
+            (
+                kc.phase_stderr[k],
+                reps.iter().map(|c| c.phase[k]).collect::<Vec<_>>(),
+            ),
+        ] {
+            let want = crate::stats::jackknife_se(&v);
+            assert!(
+                se > 0.0 && (se - want).abs() <= 1e-6 * want,
+                "{se} vs {want}"
+            );
+        }
+    }
+    let (a, b) = (kc.a, kc.a_ref);
+    for (k, &p) in
+        kc.p.iter()
+            .enumerate()
+            .filter(|(_, p)| **p > 0.0 && **p <= 2.5)
+    {
+        let theory = -(kap2(a) - kap2(b)) * p * p / 2.0;
+        let (v, se) = (kc.ln_abs_g[k], kc.ln_abs_g_stderr[k]);
+        assert!(
+            (v - theory).abs() < 5.0 * se,
+            "p = {p}: {v} vs {theory} +- {se}"
+        );
+    }
+    // sums without the tiles' characteristic functions (written before
+    // them): no curve errors, and said
+    let mut old = s.clone();
+    old.images[0].tile_cf_re.clear();
+    old.images[0].tile_cf_im.clear();
+    let r0 = kernel_estimates(&old, &opts).unwrap();
+    assert_eq!(r0.curve_stderr_method, "none");
+    assert!(r0.kernels[0].ln_abs_g_stderr.iter().all(|e| e.is_nan()));
+    // the cumulants keep their tile jackknife either way
+    assert_eq!(r0.cumulants.c2.stderr, r.cumulants.c2.stderr);
 }
