@@ -27,8 +27,8 @@ use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, Style, part_names};
 use crate::skeleton::AnalysisConfig;
 use crate::stats::kernel::{
-    KernelConfig, KernelOptions, KernelResult, KernelSums, Reconstruction, check_wtmmm_counts,
-    cwt_grid_sums, kernel_estimates, reconstruct,
+    KernelConfig, KernelOptions, KernelResult, KernelSums, NOISE_SIGMAS, Reconstruction,
+    check_wtmmm_counts, cwt_grid_sums, kernel_estimates, reconstruct,
 };
 use crate::stats::pdf::{PdfConfig, WtmmmHistograms, WtmmmSet, image_wtmmm};
 use crate::synth::wcascade::Law;
@@ -584,6 +584,8 @@ pub fn write_kernel_outputs(
     )?;
     let mut rows = Vec::new();
     for kc in &k.kernels {
+        let noise = k.noise(kc);
+        let g = |v: &[f64], i: usize| f(v.get(i).copied().unwrap_or(f64::NAN));
         for i in 0..kc.p.len() {
             rows.push(vec![
                 f(kc.a),
@@ -597,8 +599,11 @@ pub fn write_kernel_outputs(
                 f(kc.phase[i]),
                 f(kc.ln_abs_g_norm[i]),
                 f(kc.phase_norm[i]),
-                f(kc.ln_abs_g_stderr.get(i).copied().unwrap_or(f64::NAN)),
-                f(kc.phase_stderr.get(i).copied().unwrap_or(f64::NAN)),
+                g(&kc.ln_abs_g_stderr, i),
+                g(&kc.phase_stderr, i),
+                g(&kc.cf_abs_stderr, i),
+                g(&kc.cf_ref_abs_stderr, i),
+                u8::from(noise[i]).to_string(),
             ]);
         }
     }
@@ -618,6 +623,9 @@ pub fn write_kernel_outputs(
             "phase_norm",
             "ln_abs_G_stderr",
             "phase_stderr",
+            "abs_C_a_stderr",
+            "abs_C_ref_stderr",
+            "noise",
         ],
         &rows,
     )?;
@@ -657,12 +665,6 @@ pub fn write_kernel_outputs(
 /// Palette index of dark grey: theory, keys, the headline fit, the measured pdf.
 const GREY: usize = 9;
 
-/// The characteristic function of `n` values has a sampling error of
-/// about `1/sqrt(n)` in modulus (at least: the WTMMM of a cascade are not
-/// independent); where `|C(p)|` at either scale is within this many such
-/// errors of 0, `Ĝ = C(p, a) / C(p, a')` is noise (II eq 47).
-const NOISE_SIGMAS: f64 = 3.0;
-
 /// The kernel figures draw a jackknife bar at every this many p (staggered
 /// by pair): 161 bars per curve would hide the curves.
 const BAR_EVERY: usize = 8;
@@ -673,30 +675,6 @@ fn k_dp(k: &crate::stats::kernel::KernelResult) -> f64 {
         .first()
         .and_then(|kc| (kc.p.len() > 1).then(|| kc.p[1] - kc.p[0]))
         .unwrap_or(f64::NAN)
-}
-
-/// The p of a kernel curve where [`NOISE_SIGMAS`] says `Ĝ` is noise
-/// (`|C(p)| sqrt(n)` below it at `a` or `a'`, `n` the WTMMM at the scale).
-fn kernel_noise(
-    k: &crate::stats::kernel::KernelResult,
-    kc: &crate::stats::kernel::KernelCurve,
-) -> Vec<bool> {
-    // the curve's scales are grid scales: the nearest is the one
-    let n_at = |a: f64| {
-        let j = (0..k.scales.len())
-            .min_by(|&i, &j| (k.scales[i] - a).abs().total_cmp(&(k.scales[j] - a).abs()));
-        j.and_then(|j| k.n_wtmmm.get(j)).copied().unwrap_or(0) as f64
-    };
-    let (na, nb) = (n_at(kc.a), n_at(kc.a_ref));
-    let small = |re: f64, im: f64, n: f64| (re * re + im * im).sqrt() * n.sqrt() < NOISE_SIGMAS;
-    // p = 0 is exact (C = 1 at every scale, Ĝ = 1) however few the WTMMM
-    (0..kc.p.len())
-        .map(|i| {
-            kc.p[i] != 0.0
-                && (small(kc.cf_re[i], kc.cf_im[i], na)
-                    || small(kc.cf_ref_re[i], kc.cf_ref_im[i], nb))
-        })
-        .collect()
 }
 
 fn plot_kernel(
@@ -764,7 +742,7 @@ fn plot_kernel(
     });
     let (mut any_noise, mut any_bars) = (false, false);
     for (c, kc) in k.kernels.iter().enumerate() {
-        let noise = kernel_noise(k, kc);
+        let noise = k.noise(kc);
         any_noise |= noise.contains(&true);
         // (p, v) split into the points drawn filled and those drawn open
         let s = |v: &[f64], open: bool| -> Vec<(f64, f64)> {
@@ -865,7 +843,10 @@ fn plot_kernel(
         };
         if any_noise {
             chart.series.push(Series::new(
-                format!("open: |C(p)| < {NOISE_SIGMAS}/sqrt(n) at a or a' (noise, not kernel)"),
+                format!(
+                    "open: |C(p)| < {NOISE_SIGMAS} se at a or a' (noise; se: max of 1/sqrt(n), \
+                     jackknife)"
+                ),
                 Vec::new(),
                 Style::OpenMarkers,
                 GREY,

@@ -207,6 +207,14 @@ pub struct KernelCurve {
     /// Jackknife standard error of the phase (as `ln_abs_g_stderr`).
     #[serde(default, deserialize_with = "crate::nan_null::vec")]
     pub phase_stderr: Vec<f64>,
+    /// Jackknife standard error of `|C(p, a)|` (as `ln_abs_g_stderr`):
+    /// with `1/sqrt(n)`, the sampling error of `n` independent values, the
+    /// noise level below which `Ĝ` is a ratio of noise ([`Self::noise`]).
+    #[serde(default, deserialize_with = "crate::nan_null::vec")]
+    pub cf_abs_stderr: Vec<f64>,
+    /// Jackknife standard error of `|C(p, a')|`.
+    #[serde(default, deserialize_with = "crate::nan_null::vec")]
+    pub cf_ref_abs_stderr: Vec<f64>,
 }
 
 /// `ln |Ĝ_aa'(p)|` and its phase unwrapped from `Φ(0) = 0` (II eq 47), from
@@ -306,6 +314,48 @@ pub struct KernelResult {
     pub plugin_tilt: [f64; 3],
     /// Human-readable warnings (few WTMMM at the top of the fit, < 3 images).
     pub warnings: Vec<String>,
+}
+
+/// How many standard errors of `|C(p)|` from 0 a characteristic function
+/// must be for `Ĝ = C(p, a) / C(p, a')` to be read as the kernel
+/// ([`KernelResult::noise`]).
+pub const NOISE_SIGMAS: f64 = 3.0;
+
+impl KernelResult {
+    /// The p of curve `kc` where `Ĝ` is a ratio of noise (II eq 47): `|C(p)|`
+    /// within [`NOISE_SIGMAS`] standard errors of 0 at `a` or `a'`, the
+    /// error being the larger of `1/sqrt(n)` (the sampling error of `n`
+    /// independent values, `n` the WTMMM at the scale) and the jackknife's
+    /// (`cf_abs_stderr`: the WTMMM of a cascade are not independent, and
+    /// the jackknife sees it). Never at p = 0 (C = 1 exactly).
+    pub fn noise(&self, kc: &KernelCurve) -> Vec<bool> {
+        // the curve's scales are grid scales: the nearest is the one
+        let n_at = |a: f64| {
+            let j = nearest_scale(&self.scales, (a / self.scales[0]).log2());
+            self.n_wtmmm.get(j).copied().unwrap_or(0) as f64
+        };
+        let (na, nb) = (n_at(kc.a), n_at(kc.a_ref));
+        let small = |re: f64, im: f64, n: f64, se: Option<&f64>| {
+            let sigma = se
+                .copied()
+                .filter(|e| e.is_finite())
+                .unwrap_or(0.0)
+                .max(1.0 / n.sqrt());
+            (re * re + im * im).sqrt() < NOISE_SIGMAS * sigma
+        };
+        (0..kc.p.len())
+            .map(|i| {
+                kc.p[i] != 0.0
+                    && (small(kc.cf_re[i], kc.cf_im[i], na, kc.cf_abs_stderr.get(i))
+                        || small(
+                            kc.cf_ref_re[i],
+                            kc.cf_ref_im[i],
+                            nb,
+                            kc.cf_ref_abs_stderr.get(i),
+                        ))
+            })
+            .collect()
+    }
 }
 
 /// Fewest WTMMM (over the ensemble) each scale read by the kernel needs,
@@ -697,27 +747,34 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             // delete-one jackknife over the images, in the canonical order,
             // or over the tiles of fewer than 3 images
             let (mut se_abs, mut se_phase) = (vec![f64::NAN; np], vec![f64::NAN; np]);
-            let reps: Vec<(Vec<f64>, Vec<f64>)> = if n_img >= 3 {
+            let (mut se_ca, mut se_cb) = (vec![f64::NAN; np], vec![f64::NAN; np]);
+            // the leave-one-out characteristic functions at a and a'
+            let reps: Vec<(Vec<Complex64>, Vec<Complex64>)> = if n_img >= 3 {
                 order
                     .iter()
                     .map(|&i| {
                         let rest: Vec<usize> = order.iter().copied().filter(|&o| o != i).collect();
-                        log_kernel(&s.ensemble_cf(&rest, ja), &s.ensemble_cf(&rest, jb))
+                        (s.ensemble_cf(&rest, ja), s.ensemble_cf(&rest, jb))
                     })
                     .collect()
             } else if let (Some(ra), Some(rb)) =
                 (s.tile_cf_replicates(ja), s.tile_cf_replicates(jb))
             {
-                ra.iter().zip(&rb).map(|(a, b)| log_kernel(a, b)).collect()
+                ra.into_iter().zip(rb).collect()
             } else {
                 Vec::new()
             };
             if reps.len() >= 3 {
+                let logs: Vec<(Vec<f64>, Vec<f64>)> =
+                    reps.iter().map(|(a, b)| log_kernel(a, b)).collect();
+                let modulus = |z: &Complex64| (z.re * z.re + z.im * z.im).sqrt();
                 for k in 0..np {
-                    se_abs[k] = jk(&reps.iter().map(|r| r.0[k]).collect::<Vec<_>>());
+                    se_abs[k] = jk(&logs.iter().map(|r| r.0[k]).collect::<Vec<_>>());
                     let turns: Vec<f64> =
-                        reps.iter().map(|r| same_branch(r.1[k], phase[k])).collect();
+                        logs.iter().map(|r| same_branch(r.1[k], phase[k])).collect();
                     se_phase[k] = jk(&turns);
+                    se_ca[k] = jk(&reps.iter().map(|r| modulus(&r.0[k])).collect::<Vec<_>>());
+                    se_cb[k] = jk(&reps.iter().map(|r| modulus(&r.1[k])).collect::<Vec<_>>());
                 }
             }
             // mirror to p < 0: ln|Ĝ| even, Φ odd, C(-p) = conj C(p)
@@ -753,6 +810,8 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
                 phase: phase_m,
                 ln_abs_g_stderr: mirror(&se_abs, false),
                 phase_stderr: mirror(&se_phase, false),
+                cf_abs_stderr: mirror(&se_ca, false),
+                cf_ref_abs_stderr: mirror(&se_cb, false),
             }
         })
         .collect();

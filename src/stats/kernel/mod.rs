@@ -130,8 +130,8 @@ mod tests;
 
 pub use estimate::{
     CnRow, CnTable, DEFAULT_PAIR_OCTAVES, DEFAULT_REF_OCTAVES, Estimate, FittedCumulants,
-    KernelCurve, KernelOptions, KernelResult, MIN_WTMMM, check_wtmmm_counts, ensemble_kernel_sums,
-    kernel_estimates, nearest_scale, octave_on_grid,
+    KernelCurve, KernelOptions, KernelResult, MIN_WTMMM, NOISE_SIGMAS, check_wtmmm_counts,
+    ensemble_kernel_sums, kernel_estimates, nearest_scale, octave_on_grid,
 };
 pub use reconstruction::{Reconstruction, reconstruct};
 

@@ -467,6 +467,18 @@ fn a_lone_image_has_tile_jackknife_curve_errors() {
                 kc.phase_stderr[k],
                 reps.iter().map(|c| c.phase[k]).collect::<Vec<_>>(),
             ),
+            (
+                kc.cf_abs_stderr[k],
+                reps.iter()
+                    .map(|c| c.cf_re[k].hypot(c.cf_im[k]))
+                    .collect::<Vec<_>>(),
+            ),
+            (
+                kc.cf_ref_abs_stderr[k],
+                reps.iter()
+                    .map(|c| c.cf_ref_re[k].hypot(c.cf_ref_im[k]))
+                    .collect::<Vec<_>>(),
+            ),
         ] {
             let want = crate::stats::jackknife_se(&v);
             assert!(
@@ -475,6 +487,38 @@ fn a_lone_image_has_tile_jackknife_curve_errors() {
             );
         }
     }
+    // the noise flags: |C| within 3 errors of 0 at a or a', the error the
+    // larger of 1/sqrt(n) and the jackknife's; never at p = 0
+    let n = 16000f64;
+    let by_hand = |c: &KernelCurve| -> Vec<bool> {
+        (0..c.p.len())
+            .map(|i| {
+                let sig = |e: f64| e.max(1.0 / n.sqrt()) * NOISE_SIGMAS;
+                c.p[i] != 0.0
+                    && (c.cf_re[i].hypot(c.cf_im[i]) < sig(c.cf_abs_stderr[i])
+                        || c.cf_ref_re[i].hypot(c.cf_ref_im[i]) < sig(c.cf_ref_abs_stderr[i]))
+            })
+            .collect()
+    };
+    let flags = r.noise(kc);
+    assert_eq!(flags, by_hand(kc));
+    assert!(!flags[mid] && flags.contains(&true) && flags.contains(&false));
+    let mut wide = kc.clone();
+    wide.cf_ref_abs_stderr.iter_mut().for_each(|e| *e = 1.0);
+    let all = r.noise(&wide);
+    assert!(all.iter().enumerate().all(|(i, &f)| f == (i != mid)));
+    let mut none = kc.clone();
+    none.cf_abs_stderr.iter_mut().for_each(|e| *e = f64::NAN);
+    none.cf_ref_abs_stderr
+        .iter_mut()
+        .for_each(|e| *e = f64::NAN);
+    let iid: Vec<bool> = (0..kc.p.len())
+        .map(|i| {
+            let small = |re: f64, im: f64| re.hypot(im) * n.sqrt() < NOISE_SIGMAS;
+            i != mid && (small(kc.cf_re[i], kc.cf_im[i]) || small(kc.cf_ref_re[i], kc.cf_ref_im[i]))
+        })
+        .collect();
+    assert_eq!(r.noise(&none), iid);
     let (a, b) = (kc.a, kc.a_ref);
     for (k, &p) in
         kc.p.iter()
