@@ -586,7 +586,7 @@ pub fn write_kernel_outputs(
     for kc in &k.kernels {
         let noise = k.noise(kc);
         let g = |v: &[f64], i: usize| f(v.get(i).copied().unwrap_or(f64::NAN));
-        for i in 0..kc.p.len() {
+        for (i, &noisy) in noise.iter().enumerate() {
             rows.push(vec![
                 f(kc.a),
                 f(kc.a_ref),
@@ -603,7 +603,7 @@ pub fn write_kernel_outputs(
                 g(&kc.phase_stderr, i),
                 g(&kc.cf_abs_stderr, i),
                 g(&kc.cf_ref_abs_stderr, i),
-                u8::from(noise[i]).to_string(),
+                u8::from(noisy).to_string(),
             ]);
         }
     }
