@@ -209,7 +209,7 @@ pub struct KernelCurve {
     pub phase_stderr: Vec<f64>,
     /// Jackknife standard error of `|C(p, a)|` (as `ln_abs_g_stderr`):
     /// with `1/sqrt(n)`, the sampling error of `n` independent values, the
-    /// noise level below which `Ĝ` is a ratio of noise ([`Self::noise`]).
+    /// noise level below which `Ĝ` is a ratio of noise ([`KernelResult::noise`]).
     #[serde(default, deserialize_with = "crate::nan_null::vec")]
     pub cf_abs_stderr: Vec<f64>,
     /// Jackknife standard error of `|C(p, a')|`.
