@@ -832,10 +832,23 @@ fn plot_kernel(
         // what the bars are, under the axis: a key in the legend drew a
         // line like the theory's
         chart.x_label = if any_bars {
-            // "jackknife over images" or "... over N tiles (S px)"
+            // the JSON's kernels_stderr_method says it whole
+            let [total, held] = k.curve_groups;
+            let how = if k.images >= 3 {
+                format!("jackknife over {total} images")
+            } else {
+                let some = if held < total {
+                    format!("{held} of ")
+                } else {
+                    String::new()
+                };
+                format!(
+                    "jackknife over {some}{total} tiles of {}: may understate",
+                    super::common::count_of(k.images, "image")
+                )
+            };
             format!(
-                "p   (bars: ± 1 se, {}, at every {} in p)",
-                k.curve_stderr_method,
+                "p   (bars: ± 1 se every {} in p; {how})",
                 super::common::fixed(BAR_EVERY as f64 * k_dp(k), 2)
             )
         } else {

@@ -251,6 +251,10 @@ pub(super) fn same_branch(phase: f64, main: f64) -> f64 {
     phase - turn * ((phase - main) / turn).round()
 }
 
+fn none() -> String {
+    "none".into()
+}
+
 /// Everything [`kernel_estimates`] computes.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KernelResult {
@@ -299,11 +303,18 @@ pub struct KernelResult {
     /// One kernel curve per pair of scales (II Figs 25, 27).
     pub kernels: Vec<KernelCurve>,
     /// Where the curves' errors come from: "jackknife over images",
-    /// "jackknife over N tiles (S px)", or "none" (fewer than 3 images and
+    /// "jackknife over N tiles (S px) of 1 image" (with ", K of them holding
+    /// WTMMM at A px" when the pairs' scales leave some tiles empty:
+    /// [`KernelSums::cf_tile_groups`]), or "none" (fewer than 3 images and
     /// no tiles, or the tiles of older sums, written without their
     /// characteristic functions).
-    #[serde(default)]
+    #[serde(default = "none")]
     pub curve_stderr_method: String,
+    /// The curves' jackknife groups: their number (images, or tiles of
+    /// fewer than 3 images; 0 without a jackknife) and the fewest of them
+    /// holding WTMMM at a scale of a pair (the groups a curve rests on).
+    #[serde(default)]
+    pub curve_groups: [usize; 2],
     /// The bias the plug-in cumulants give the fitted `c1, c2, c3`: the
     /// same fit applied to the per-scale biases `0, -κ2/n, -3κ3/n` of the
     /// plug-in `κ_n` of `n` WTMMM. The estimate's expectation is about
@@ -815,18 +826,43 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             }
         })
         .collect();
+    let mut warnings = Vec::new();
+    let mut curve_groups = [0; 2];
     let curve_stderr_method = if n_img >= 3 {
+        curve_groups = [n_img; 2];
         "jackknife over images".to_string()
-    } else if let Some(r) = s.tile_cf_replicates(0) {
-        format!(
-            "jackknife over {} tiles ({} px)",
-            r.len(),
-            crate::spectra::tile_sides(s.images.iter().map(|im| im.tile_side))
-        )
+    } else if let Some((total, sides, held)) = s.cf_tile_groups() {
+        let mut m = format!(
+            "jackknife over {total} tiles ({sides} px) of {}",
+            if n_img == 1 { "1 image" } else { "2 images" }
+        );
+        // the fewest tiles holding WTMMM at a scale of a pair: where the
+        // rest are empty, the curve rests on those alone
+        let fewest = opts
+            .pairs
+            .iter()
+            .flat_map(|&(a, b)| [nearest_scale(&s.scales, a), nearest_scale(&s.scales, b)])
+            .min_by_key(|&j| (held[j], std::cmp::Reverse(j)));
+        curve_groups = [total, fewest.map_or(total, |j| held[j])];
+        if let Some(j) = fewest
+            && held[j] < total
+        {
+            let at = format!("{:.1} px", s.scales[j]);
+            m.push_str(&format!(", {} of them holding WTMMM at {at}", held[j]));
+            let how = format!(
+                "a jackknife over the {} tiles holding WTMMM at {at}",
+                held[j]
+            );
+            if let Some(w) = crate::stats::fit::few_groups_warning(held[j], &how) {
+                warnings.push(format!("kernel curves: {w}"));
+            }
+        } else if let Some(w) = crate::stats::fit::few_groups_warning(total, &m) {
+            warnings.push(format!("kernel curves: {w}"));
+        }
+        m
     } else {
         "none".to_string()
     };
-    let mut warnings = Vec::new();
     // scales short of WTMMM (NaN cumulants, and NaN c_n if fitted): said
     // in the result, not only by a check the caller might skip
     if let Err(e) = check_wtmmm_counts(s, opts) {
@@ -938,6 +974,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
         pooled,
         kernels,
         curve_stderr_method,
+        curve_groups,
         warnings,
     })
 }

@@ -291,15 +291,81 @@ pub struct KernelImage {
     /// Side of the tiles in px (0 without tiles).
     #[serde(default, skip_serializing_if = "crate::spectra::is_zero")]
     pub tile_side: usize,
-    /// The characteristic-function sums of each tile (layout of `cf_re`),
-    /// beside `tiles`: the jackknife of the kernel curves `Ĝ_aa'(p)` of a
-    /// lone image. Empty without tiles (and in older sums, written before
-    /// the tiles kept them: their curves then have no errors).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub tile_cf_re: Vec<Vec<f64>>,
-    /// `Σ sin(p_k ln M)` of each tile, as `tile_cf_re`.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub tile_cf_im: Vec<Vec<f64>>,
+    /// The characteristic-function sums per tile: the jackknife groups of
+    /// the kernel curves `Ĝ_aa'(p)` of fewer than 3 images. `None` without
+    /// tiles (and in older sums, written before the tiles kept them: their
+    /// curves then have no errors).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cf_tiles: Option<CfTiles>,
+}
+
+/// Most tiles along each side of a domain for the characteristic-function
+/// sums (at most 256 tiles): each tile holds `scales x p` sums (30 x 161 x
+/// 16 bytes = 77 kB), so the 8281 tiles of 45 px of a 4096^2 image would
+/// take 640 MB; their grid is coarsened instead ([`cf_tile_side`]).
+pub const MAX_CF_TILES_PER_SIDE: usize = 16;
+
+/// The side of the tiles of the characteristic-function sums: the
+/// cumulants' `tile_side`, or larger where that would give more than
+/// [`MAX_CF_TILES_PER_SIDE`] tiles along a side of the counting domain
+/// `(y0, y1, x0, x1)`.
+pub fn cf_tile_side((y0, y1, x0, x1): (usize, usize, usize, usize), tile_side: usize) -> usize {
+    let longest = y1.saturating_sub(y0).max(x1.saturating_sub(x0));
+    tile_side.max(longest.div_ceil(MAX_CF_TILES_PER_SIDE))
+}
+
+/// One image's characteristic-function sums split over tiles of its
+/// counting domain ([`KernelSums::from_points_tiled`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CfTiles {
+    /// Side of the tiles in px ([`cf_tile_side`]).
+    pub side: usize,
+    /// WTMMM per tile and scale (`n[t][j]`).
+    pub n: Vec<Vec<u64>>,
+    /// `Σ cos(p_k ln M)` per tile, layout of [`KernelImage::cf_re`].
+    pub re: Vec<Vec<f64>>,
+    /// `Σ sin(p_k ln M)` per tile, as `re`.
+    pub im: Vec<Vec<f64>>,
+}
+
+impl CfTiles {
+    /// The sums of `points` (per scale) over the tiles of `g`.
+    fn of(
+        g: &crate::spectra::TileGrid,
+        side: usize,
+        config: KernelConfig,
+        points: &[Vec<Point>],
+    ) -> Self {
+        let (np, ns) = (config.len(), points.len());
+        let mut out = CfTiles {
+            side,
+            n: vec![vec![0; ns]; g.len()],
+            re: vec![vec![0.0; np * ns]; g.len()],
+            im: vec![vec![0.0; np * ns]; g.len()],
+        };
+        let mut vals: Vec<Vec<f64>> = vec![Vec::new(); g.len()];
+        for (j, ps) in points.iter().enumerate() {
+            vals.iter_mut().for_each(Vec::clear);
+            for p in ps.iter().filter(|p| p.m > 0.0 && p.m.is_finite()) {
+                vals[g.index(p.x, p.y)].push(p.m.ln());
+            }
+            let cells = j * np..(j + 1) * np;
+            for (t, v) in vals.iter().enumerate() {
+                out.n[t][j] = v.len() as u64;
+                cf_sums(
+                    v,
+                    config.dp,
+                    &mut out.re[t][cells.clone()],
+                    &mut out.im[t][cells.clone()],
+                );
+            }
+        }
+        out
+    }
+
+    fn len(&self) -> usize {
+        self.n.len()
+    }
 }
 
 /// Mergeable kernel sums of an ensemble (one partial per image).
@@ -348,8 +414,7 @@ impl KernelSums {
             cf_im: vec![0.0; np * scales.len()],
             tiles: Vec::new(),
             tile_side: 0,
-            tile_cf_re: Vec::new(),
-            tile_cf_im: Vec::new(),
+            cf_tiles: None,
         };
         let mut u: Vec<f64> = Vec::new();
         for (j, vals) in ln_m.iter().enumerate() {
@@ -406,32 +471,23 @@ impl KernelSums {
     ) -> Result<Self> {
         let mut s = Self::from_points(scales, config, set, points, label)?;
         if let Some(g) = crate::spectra::TileGrid::new(domain, tile_side) {
-            let np = config.len();
             let mut vals: Vec<Vec<f64>> = vec![Vec::new(); g.len()];
             let mut tiles = vec![Vec::with_capacity(scales.len()); g.len()];
-            let mut cf_re = vec![vec![0.0; np * scales.len()]; g.len()];
-            let mut cf_im = cf_re.clone();
-            for (j, ps) in points.iter().enumerate() {
+            for ps in points {
                 vals.iter_mut().for_each(Vec::clear);
                 for p in ps.iter().filter(|p| p.m > 0.0 && p.m.is_finite()) {
                     vals[g.index(p.x, p.y)].push(p.m.ln());
                 }
-                for (t, v) in vals.iter().enumerate() {
-                    tiles[t].push(Moments::of(v));
-                    let cells = j * np..(j + 1) * np;
-                    cf_sums(
-                        v,
-                        config.dp,
-                        &mut cf_re[t][cells.clone()],
-                        &mut cf_im[t][cells],
-                    );
+                for (t, v) in tiles.iter_mut().zip(&vals) {
+                    t.push(Moments::of(v));
                 }
             }
             let im = &mut s.images[0];
             im.tiles = tiles;
             im.tile_side = tile_side;
-            im.tile_cf_re = cf_re;
-            im.tile_cf_im = cf_im;
+            let side = cf_tile_side(domain, tile_side);
+            im.cf_tiles = crate::spectra::TileGrid::new(domain, side)
+                .map(|g| CfTiles::of(&g, side, config, points));
         }
         Ok(s)
     }
@@ -453,66 +509,83 @@ impl KernelSums {
         if tiles.len() < 3 {
             return None;
         }
-        Some(
-            (0..tiles.len())
-                .map(|skip| {
-                    (0..self.scales.len())
-                        .map(|j| {
-                            tiles
-                                .iter()
-                                .enumerate()
-                                .filter(|&(t, _)| t != skip)
-                                .fold(Moments::default(), |acc, (_, m)| {
-                                    Moments::combine(&acc, &m[j])
-                                })
-                        })
-                        .collect()
-                })
-                .collect(),
-        )
+        let mut reps = vec![Vec::with_capacity(self.scales.len()); tiles.len()];
+        for j in 0..self.scales.len() {
+            let at_j: Vec<&Moments> = tiles.iter().map(|m| &m[j]).collect();
+            let loo = leave_one_out(&at_j, Moments::default(), Moments::combine);
+            for (r, m) in reps.iter_mut().zip(loo) {
+                r.push(m);
+            }
+        }
+        Some(reps)
+    }
+
+    /// The characteristic-function tiles of every image, images in the
+    /// canonical order, when there are fewer than 3 images, each has them,
+    /// and they number 3 or more (`None` otherwise).
+    fn cf_tiles(&self) -> Option<Vec<&CfTiles>> {
+        if self.images.len() >= 3 {
+            return None;
+        }
+        let all: Option<Vec<&CfTiles>> = self
+            .canonical()
+            .into_iter()
+            .map(|i| self.images[i].cf_tiles.as_ref())
+            .collect();
+        all.filter(|t| t.iter().map(|c| c.len()).sum::<usize>() >= 3)
+    }
+
+    /// The jackknife groups of the kernel curves of fewer than 3 images:
+    /// the number of characteristic-function tiles, their side(s) ("45" or
+    /// "45-90" px), and per scale the number of tiles holding WTMMM there
+    /// (`None` with 3 images or more, an image without them, or fewer than
+    /// 3 tiles in all).
+    pub fn cf_tile_groups(&self) -> Option<(usize, String, Vec<usize>)> {
+        let tiles = self.cf_tiles()?;
+        let total = tiles.iter().map(|c| c.len()).sum();
+        let sides = crate::spectra::tile_sides(tiles.iter().map(|c| c.side));
+        let held = (0..self.scales.len())
+            .map(|j| {
+                tiles
+                    .iter()
+                    .flat_map(|c| c.n.iter())
+                    .filter(|n| n[j] > 0)
+                    .count()
+            })
+            .collect();
+        Some((total, sides, held))
     }
 
     /// The leave-one-tile-out characteristic functions at scale `j` (`p >=
-    /// 0`), under the conditions of [`Self::tile_replicates`] and with every
-    /// image's tile sums (`None` otherwise): the jackknife replicates of the
-    /// kernel curves of fewer than 3 images.
+    /// 0`) over the tiles of [`Self::cf_tiles`]: the jackknife replicates of
+    /// the kernel curves of fewer than 3 images.
     fn tile_cf_replicates(&self, j: usize) -> Option<Vec<Vec<Complex64>>> {
-        if self.images.len() >= 3
-            || self
-                .images
-                .iter()
-                .any(|im| im.tiles.is_empty() || im.tile_cf_re.len() != im.tiles.len())
-        {
-            return None;
-        }
         let np = self.config.len();
-        // (count, re, im) of each tile, images in the canonical order
-        let tiles: Vec<(u64, &[f64], &[f64])> = self
-            .canonical()
+        // (count, Σcos, Σsin) of each tile at scale j
+        let tiles: Vec<(u64, Vec<f64>, Vec<f64>)> = self
+            .cf_tiles()?
             .into_iter()
-            .flat_map(|i| {
-                let im = &self.images[i];
-                (0..im.tiles.len()).map(move |t| {
+            .flat_map(|c| {
+                (0..c.len()).map(move |t| {
+                    let cells = j * np..(j + 1) * np;
                     (
-                        im.tiles[t][j].n,
-                        &im.tile_cf_re[t][j * np..(j + 1) * np],
-                        &im.tile_cf_im[t][j * np..(j + 1) * np],
+                        c.n[t][j],
+                        c.re[t][cells.clone()].to_vec(),
+                        c.im[t][cells].to_vec(),
                     )
                 })
             })
             .collect();
-        if tiles.len() < 3 {
-            return None;
-        }
+        let add = |a: &(u64, Vec<f64>, Vec<f64>), b: &(u64, Vec<f64>, Vec<f64>)| {
+            let sum = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(u, v)| u + v).collect();
+            (a.0 + b.0, sum(&a.1, &b.1), sum(&a.2, &b.2))
+        };
+        let refs: Vec<&(u64, Vec<f64>, Vec<f64>)> = tiles.iter().collect();
+        let zero = (0u64, vec![0.0; np], vec![0.0; np]);
         Some(
-            (0..tiles.len())
-                .map(|skip| {
-                    let (mut re, mut im, mut n) = (vec![0.0; np], vec![0.0; np], 0u64);
-                    for (_, (c, r, i)) in tiles.iter().enumerate().filter(|&(t, _)| t != skip) {
-                        n += c;
-                        re.iter_mut().zip(*r).for_each(|(a, b)| *a += b);
-                        im.iter_mut().zip(*i).for_each(|(a, b)| *a += b);
-                    }
+            leave_one_out(&refs, zero, add)
+                .into_iter()
+                .map(|(n, re, im)| {
                     let nf = n.max(1) as f64;
                     re.iter()
                         .zip(&im)
@@ -546,26 +619,30 @@ impl KernelSums {
                 || im.cf_re.len() != cells
                 || im.cf_im.len() != cells
                 || im.tiles.iter().any(|t| t.len() != ns)
-                || !(im.tile_cf_re.is_empty() && im.tile_cf_im.is_empty()
-                    || im.tile_cf_re.len() == im.tiles.len()
-                        && im.tile_cf_im.len() == im.tiles.len())
-                || im
-                    .tile_cf_re
-                    .iter()
-                    .chain(&im.tile_cf_im)
-                    .any(|t| t.len() != cells)
+                || im.cf_tiles.as_ref().is_some_and(|c| {
+                    c.side == 0
+                        || c.re.len() != c.n.len()
+                        || c.im.len() != c.n.len()
+                        || c.n.iter().any(|n| n.len() != ns)
+                        || c.re.iter().chain(&c.im).any(|v| v.len() != cells)
+                })
             {
                 return Err(Error::Input(format!(
                     "kernel sums of image {i} ({}): {} moments, {} + {} characteristic-function \
-                     sums for {ns} scales x {np} p, tiles of {:?} scales, tile \
-                     characteristic-function sums of {:?} + {:?} cells",
+                     sums for {ns} scales x {np} p, tiles of {:?} scales, characteristic-function \
+                     tiles {}",
                     im.label,
                     im.moments.len(),
                     im.cf_re.len(),
                     im.cf_im.len(),
                     im.tiles.iter().map(Vec::len).collect::<Vec<_>>(),
-                    im.tile_cf_re.iter().map(Vec::len).collect::<Vec<_>>(),
-                    im.tile_cf_im.iter().map(Vec::len).collect::<Vec<_>>()
+                    im.cf_tiles.as_ref().map_or("none".into(), |c| format!(
+                        "of side {} with {} counts, {:?} + {:?} sums",
+                        c.side,
+                        c.n.len(),
+                        c.re.iter().map(Vec::len).collect::<Vec<_>>(),
+                        c.im.iter().map(Vec::len).collect::<Vec<_>>()
+                    ))
                 )));
             }
         }
@@ -603,8 +680,7 @@ impl KernelSums {
             for im in &mut self.images {
                 im.tiles = Vec::new();
                 im.tile_side = 0;
-                im.tile_cf_re = Vec::new();
-                im.tile_cf_im = Vec::new();
+                im.cf_tiles = None;
             }
         }
         Ok(())
@@ -658,6 +734,25 @@ impl KernelSums {
             .map(|(r, i)| Complex64::new(r / nf, i / nf))
             .collect()
     }
+}
+
+/// For each `t`, `items` combined without `items[t]` (`add` associative,
+/// `zero` its identity), from running sums from both ends: O(n) combines
+/// instead of the O(n^2) of refolding each (8281 tiles of a 4096^2 image).
+fn leave_one_out<T: Clone>(items: &[&T], zero: T, add: impl Fn(&T, &T) -> T) -> Vec<T> {
+    let mut before = Vec::with_capacity(items.len());
+    let mut acc = zero.clone();
+    for it in items {
+        before.push(acc.clone());
+        acc = add(&acc, it);
+    }
+    let mut out = before;
+    let mut after = zero;
+    for t in (0..items.len()).rev() {
+        out[t] = add(&out[t], &after);
+        after = add(items[t], &after);
+    }
+    out
 }
 
 /// Adds `Σ cos(p_k u)`, `Σ sin(p_k u)` for `p_k = k dp` by the recurrence

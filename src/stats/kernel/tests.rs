@@ -428,16 +428,20 @@ fn a_lone_image_has_tile_jackknife_curve_errors() {
     };
     let s = tiled(&points, side);
     let im = &s.images[0];
-    assert_eq!((im.tiles.len(), im.tile_cf_re.len()), (16, 16));
+    let cft = im.cf_tiles.as_ref().unwrap();
+    assert_eq!((im.tiles.len(), cft.len(), cft.side), (16, 16, 100));
     // the tiles' sums add up to the image's
-    for (c, whole) in [(&im.tile_cf_re, &im.cf_re), (&im.tile_cf_im, &im.cf_im)] {
+    for (c, whole) in [(&cft.re, &im.cf_re), (&cft.im, &im.cf_im)] {
         for (k, w) in whole.iter().enumerate() {
             let sum: f64 = c.iter().map(|t| t[k]).sum();
             assert!((sum - w).abs() <= 1e-9 * 16000.0, "cell {k}: {sum} vs {w}");
         }
     }
     let r = kernel_estimates(&s, &opts).unwrap();
-    assert_eq!(r.curve_stderr_method, "jackknife over 16 tiles (100 px)");
+    assert_eq!(
+        r.curve_stderr_method,
+        "jackknife over 16 tiles (100 px) of 1 image"
+    );
     let kc = &r.kernels[0];
     let mid = kc.p.len() / 2;
     assert_eq!(kc.ln_abs_g_stderr[mid], 0.0);
@@ -535,11 +539,72 @@ fn a_lone_image_has_tile_jackknife_curve_errors() {
     // sums without the tiles' characteristic functions (written before
     // them): no curve errors, and said
     let mut old = s.clone();
-    old.images[0].tile_cf_re.clear();
-    old.images[0].tile_cf_im.clear();
+    old.images[0].cf_tiles = None;
     let r0 = kernel_estimates(&old, &opts).unwrap();
     assert_eq!(r0.curve_stderr_method, "none");
     assert!(r0.kernels[0].ln_abs_g_stderr.iter().all(|e| e.is_nan()));
     // the cumulants keep their tile jackknife either way
     assert_eq!(r0.cumulants.c2.stderr, r.cumulants.c2.stderr);
+    // ... and such sums read back, the method of an older result as "none"
+    let text = serde_json::to_string(&old).unwrap();
+    assert!(!text.contains("cf_tiles"));
+    let back: KernelSums = serde_json::from_str(&text).unwrap();
+    assert_eq!(back, old);
+    let mut res = serde_json::to_value(&r0).unwrap();
+    res.as_object_mut().unwrap().remove("curve_stderr_method");
+    let res: KernelResult = serde_json::from_value(res).unwrap();
+    assert_eq!(res.curve_stderr_method, "none");
+    // two images: a jackknife over the tiles of both; three: over images
+    let mut two = s.clone();
+    two.merge(&s).unwrap();
+    let r2 = kernel_estimates(&two, &opts).unwrap();
+    assert_eq!(
+        r2.curve_stderr_method,
+        "jackknife over 32 tiles (100 px) of 2 images"
+    );
+    let mut three = two.clone();
+    three.merge(&s).unwrap();
+    assert!(
+        three
+            .images
+            .iter()
+            .all(|im| im.cf_tiles.is_none() && im.tiles.is_empty())
+    );
+    assert_eq!(
+        kernel_estimates(&three, &opts).unwrap().curve_stderr_method,
+        "jackknife over images"
+    );
+    // sums of the wrong shape are refused
+    for cut in 0..3 {
+        let mut bad = s.clone();
+        let c = bad.images[0].cf_tiles.as_mut().unwrap();
+        match cut {
+            0 => c.re[3].pop().map(drop).unwrap(),
+            1 => c.im.truncate(15),
+            _ => c.n[0].push(1),
+        }
+        assert!(bad.check().is_err(), "cut {cut}");
+    }
+}
+
+/// The leave-one-out combines from running sums from both ends equal the
+/// refold without each item (here exact: small integers), and the
+/// characteristic-function tiles of a big domain are coarsened to at most
+/// 16 a side.
+#[test]
+fn leave_one_out_sums_and_coarse_cf_tiles() {
+    let items: Vec<u64> = (1..=9).map(|i| i * i).collect();
+    let refs: Vec<&u64> = items.iter().collect();
+    let loo = super::leave_one_out(&refs, 0u64, |a, b| a + b);
+    let total: u64 = items.iter().sum();
+    assert_eq!(loo, items.iter().map(|i| total - i).collect::<Vec<_>>());
+    // order kept: string concatenation is associative, not commutative
+    let words: Vec<String> = ["a", "b", "c", "d"].map(String::from).to_vec();
+    let refs: Vec<&String> = words.iter().collect();
+    let loo = super::leave_one_out(&refs, String::new(), |a, b| format!("{a}{b}"));
+    assert_eq!(loo, ["bcd", "acd", "abd", "abc"]);
+    assert_eq!(cf_tile_side((0, 400, 0, 400), 100), 100);
+    assert_eq!(cf_tile_side((144, 3952, 144, 3952), 45), 238);
+    let g = crate::spectra::TileGrid::new((144, 3952, 144, 3952), 238).unwrap();
+    assert_eq!(g.len(), 256);
 }
