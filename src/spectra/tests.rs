@@ -1,3 +1,4 @@
+use super::estimate::LOO_REFOLD_MAX;
 use super::*;
 
 /// The default fit: half an octave (rounded up to a voice) to four
@@ -229,9 +230,11 @@ fn a_tile_past_the_last_panics() {
 /// The batched leave-one-out ensembles are `ensemble(rule, Some(i))`
 /// to the bit: random cells with repeats (equal cells), empty cells and
 /// exponents far apart, 3-152 images, whole and partial batches (an
-/// independent review's probe).
+/// independent review's probe); a cell of more than `LOO_REFOLD_MAX`
+/// parts, left out of from running sums, to rounding.
 #[test]
 fn batched_leave_one_out_is_bit_identical() {
+    let mut refolded = 0;
     let mut seed = 7u64;
     let mut next = move || {
         seed = seed
@@ -287,15 +290,35 @@ fn batched_leave_one_out_is_bit_identical() {
                 let batch = s.ensembles_leaving_out(rule, range.clone());
                 for (b, i) in batch.iter().zip(range) {
                     let one = s.ensemble(rule, Some(i));
-                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                    assert_eq!(bits(&one.log2_z), bits(&b.log2_z));
-                    assert_eq!(bits(&one.h), bits(&b.h));
-                    assert_eq!(bits(&one.n_eff), bits(&b.n_eff));
+                    for c in 0..nc {
+                        let parts = s
+                            .images
+                            .iter()
+                            .filter(|im| match rule {
+                                Rule::Sup => !im.sup[c].is_empty(),
+                                Rule::Plain => !im.plain[c].is_empty(),
+                            })
+                            .count();
+                        for (x, y) in [
+                            (one.log2_z[c], b.log2_z[c]),
+                            (one.h[c], b.h[c]),
+                            (one.n_eff[c], b.n_eff[c]),
+                        ] {
+                            if parts <= LOO_REFOLD_MAX {
+                                assert_eq!(x.to_bits(), y.to_bits(), "{parts} parts");
+                            } else {
+                                // running sums from both ends: rounding only
+                                refolded += 1;
+                                assert!((x - y).abs() <= 1e-12 * x.abs().max(1e3), "{x} vs {y}");
+                            }
+                        }
+                    }
                     assert_eq!(one.lines, b.lines);
                 }
             }
         }
     }
+    assert!(refolded > 0, "no cell took the running sums");
 }
 
 /// Lines whose modulus grows like a^h at every q; the sums say which
