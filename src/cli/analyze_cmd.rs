@@ -857,7 +857,7 @@ pub fn plot_spectra(
         ..Default::default()
     };
     // which errors the bars are (the method's details are in spectra.json)
-    let how = s.stderr_method.split(" (").next().unwrap_or("");
+    let how = super::common::se_label(&s.stderr_method, s.images);
     let tau_pts: Vec<(f64, f64)> = s.q.iter().cloned().zip(s.tau.iter().cloned()).collect();
     let [good, bad] = split_points(&tau_pts, &flag);
     let (name, flagged) = part_names(format!("estimate ± 1 se ({how})"), flag_name.into(), &good);
@@ -877,7 +877,11 @@ pub fn plot_spectra(
     // both coordinates are estimates: jackknife errors of h(q) and D(q)
     let dh_pts: Vec<(f64, f64)> = s.h.iter().cloned().zip(s.d.iter().cloned()).collect();
     let [good, bad] = split_points(&dh_pts, &flag);
-    let (name, flagged) = part_names("canonical h(q), D(q)".into(), flag_name.into(), &good);
+    let (name, flagged) = part_names(
+        format!("canonical h(q), D(q) ± 1 se ({how})"),
+        flag_name.into(),
+        &good,
+    );
     dc.series.push(
         Series::new(name, good, Style::Markers, 0)
             .with_errors(s.d_stderr.clone())

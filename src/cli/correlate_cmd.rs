@@ -671,8 +671,16 @@ fn write_correlation_outputs(
                     }
                 ),
                 x_label: format!(
-                    "log2 dx (px{})",
-                    super::px_is(px.map(super::PixelSize::plot))
+                    "log2 dx (px{}){}",
+                    super::px_is(px.map(super::PixelSize::plot)),
+                    if r.stderr_method == "none" {
+                        String::new()
+                    } else {
+                        format!(
+                            "   (bars: ± 1 se, {})",
+                            super::common::se_label(&r.stderr_method, r.images)
+                        )
+                    }
                 ),
                 y_label: "C(dx; a1, a2)".into(),
                 ..Default::default()

@@ -884,7 +884,10 @@ fn plot_kernel(
                 super::common::plus_minus(est[n], se[n], 4),
                 l = ['a', 'b', 'c'][n]
             )),
-            x_label: "ln(a'/a)".into(),
+            x_label: format!(
+                "ln(a'/a)   (± and bars: 1 se, {})",
+                super::common::se_label(&k.stderr_method, k.images)
+            ),
             y_label: format!("C{}(a, a')", n + 1),
             ..Default::default()
         };

@@ -994,7 +994,10 @@ pub fn run(args: PdfArgs, quiet: bool) -> Result<Outcome> {
     body["set"] = json!(args.set);
     body["images"] = json!(hist.images);
     body["h0"] = json!({"value": h0, "source": h0_source, "estimate_from_data": h_est,
-        "convention": "M / (a/a_min)^h0, a/a_min = the paper's sigma_W units (II eq 39)"});
+        "convention": "M / (a/a_min)^h0, a/a_min = the paper's sigma_W units (II eq 39)",
+        "stderr": "not computed here: on the lines set the same slope over the same fit range \
+                   is -c1 of `wtmm kernel` and h(q=0) of `wtmm analyze`, which give it with \
+                   jackknife errors"});
     body["n_wtmmm"] = json!(hist.hist.iter().map(|h| h.n).collect::<Vec<_>>());
     body["scales"] = json!(scales);
     body["scale_lengths"] = input.lengths(&scales);

@@ -364,7 +364,7 @@ pub fn run(args: SpectrumArgs, quiet: bool) -> Result<Outcome> {
                 (_, HoleFill::Mean) => ", gaps filled with the mean",
             };
             format!(
-                "Angle-averaged power spectrum of {what} ({size}{filled}): beta = {}",
+                "Angle-averaged power spectrum of {what} ({size}{filled}): beta = {} ({se_method})",
                 super::common::plus_minus(fit.beta, beta_se, 3)
             )
         },

@@ -699,7 +699,7 @@ pub fn summary(r: &TraceMomentResult) -> String {
         "trace moments: {} image(s){}, flux |{}|{}{}, fit log2 lambda {}:{}\n  \
          alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} ({} universal fit over 0 < q <= {:.2}; q_s {:.2})\n  \
          DTM (q = {}): alpha {:.3} +- {:.3}, C1 {:.4}\n  \
-         beta {} (angle-integrated), H {} (spectrum), H_sf {} (structure functions)\n  \
+         beta {} (angle-integrated; se: {}), H {} (spectrum), H_sf {} (structure functions)\n  \
          errors: {} (fit-only: alpha +- {:.3}, C1 +- {:.4})\n",
         r.images,
         super::common::trend_label(r.detrend),
@@ -721,6 +721,11 @@ pub fn summary(r: &TraceMomentResult) -> String {
         r.dtm_alpha_stderr,
         r.dtm_c1,
         pm(r.beta, r.beta_stderr),
+        if r.beta_stderr_method.is_empty() {
+            "?"
+        } else {
+            &r.beta_stderr_method
+        },
         pm(r.h, r.h_stderr),
         pm(r.h_sf, r.h_sf_stderr),
         r.stderr_method,

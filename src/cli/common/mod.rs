@@ -855,5 +855,22 @@ pub fn count_of(n: usize, word: &str) -> String {
     }
 }
 
+/// What a figure says of its error bars, from an estimate's
+/// `stderr_method` and its number of images: short, with the caveat the
+/// warnings give at length ("jackknife over 32 images", "jackknife over 49
+/// tiles of 1 image: may understate", "regression: understates").
+pub fn se_label(method: &str, images: usize) -> String {
+    let head = method.split([';', '(']).next().unwrap_or("").trim();
+    if head.starts_with("regression") {
+        "regression: understates".into()
+    } else if head.contains("tiles") {
+        format!("{head} of {}: may understate", count_of(images, "image"))
+    } else if head == "jackknife over images" {
+        format!("jackknife over {images} images")
+    } else {
+        head.to_string()
+    }
+}
+
 #[cfg(test)]
 mod tests;

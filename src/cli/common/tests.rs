@@ -377,3 +377,21 @@ fn ranges_need_lo_below_hi() {
         assert!(parse_range("fit", bad).is_err(), "{bad}");
     }
 }
+
+#[test]
+fn error_bar_labels_carry_their_caveat() {
+    assert_eq!(
+        se_label("jackknife over images", 32),
+        "jackknife over 32 images"
+    );
+    assert_eq!(
+        se_label("jackknife over images; regression for q = 0", 32),
+        "jackknife over 32 images"
+    );
+    assert_eq!(
+        se_label("jackknife over 49 tiles (45 px)", 1),
+        "jackknife over 49 tiles of 1 image: may understate"
+    );
+    assert_eq!(se_label("regression", 1), "regression: understates");
+    assert_eq!(se_label("none", 1), "none");
+}
