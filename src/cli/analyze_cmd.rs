@@ -545,6 +545,10 @@ pub fn write_outputs(
         body["h_q0"] = json!(s.h[i0]);
         body["D_h_q0"] = json!(s.d[i0]);
         body["tau_q0"] = json!(s.tau[i0]);
+        // the errors the summary prints beside them (stderr_method)
+        body["h_q0_stderr"] = json!(s.h_stderr[i0]);
+        body["D_h_q0_stderr"] = json!(s.d_stderr[i0]);
+        body["tau_q0_stderr"] = json!(s.tau_stderr[i0]);
     }
     let (mut dl_max, mut n_cmp) = (0.0f64, 0);
     for i in 1..s.q.len().saturating_sub(1) {

@@ -698,7 +698,7 @@ pub fn summary(r: &TraceMomentResult) -> String {
     let mut out = format!(
         "trace moments: {} image(s){}, flux |{}|{}{}, fit log2 lambda {}:{}\n  \
          alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4} ({} universal fit over 0 < q <= {:.2}; q_s {:.2})\n  \
-         DTM (q = {}): alpha {:.3} +- {:.3}, C1 {:.4}\n  \
+         DTM (q = {}): alpha {:.3} +- {:.3}, C1 {:.4} +- {:.4}\n  \
          beta {} (angle-integrated; se: {}), H {} (spectrum), H_sf {} (structure functions)\n  \
          errors: {} (fit-only: alpha +- {:.3}, C1 +- {:.4})\n",
         r.images,
@@ -720,6 +720,7 @@ pub fn summary(r: &TraceMomentResult) -> String {
         r.dtm_alpha,
         r.dtm_alpha_stderr,
         r.dtm_c1,
+        r.dtm_c1_stderr,
         pm(r.beta, r.beta_stderr),
         if r.beta_stderr_method.is_empty() {
             "?"

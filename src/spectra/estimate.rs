@@ -860,12 +860,13 @@ pub(super) const LOO_REFOLD_MAX: usize = 64;
 /// Replicates per batch of [`PartitionSums::ensembles_leaving_out`] when
 /// the cells are left out of from running sums ([`LOO_REFOLD_MAX`]): each
 /// batch sorts every cell's parts once, so fewer batches cost less; the
-/// batch holds `replicates x cells` values, bounded here to about 4 M.
+/// batch holds `replicates x cells` ensemble cells of 3 values each,
+/// bounded here to about 1 M cells (24 MB).
 pub(super) fn loo_batch(n_groups: usize, cells: usize) -> usize {
     if n_groups <= LOO_REFOLD_MAX {
         64
     } else {
-        ((1usize << 22) / cells.max(1)).clamp(64, 2048)
+        ((1usize << 20) / cells.max(1)).clamp(64, 2048)
     }
 }
 

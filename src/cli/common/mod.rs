@@ -861,14 +861,23 @@ pub fn count_of(n: usize, word: &str) -> String {
 /// tiles of 1 image: may understate", "regression: understates").
 pub fn se_label(method: &str, images: usize) -> String {
     let head = method.split([';', '(']).next().unwrap_or("").trim();
+    // "...; regression for q = 0, c2": some entries kept the regression's
+    let some = if method.contains("; regression") {
+        ", regression for some (understates)"
+    } else {
+        ""
+    };
     if head.starts_with("regression") {
         "regression: understates".into()
     } else if head.contains("tiles") {
-        format!("{head} of {}: may understate", count_of(images, "image"))
+        format!(
+            "{head} of {}{some}: may understate",
+            count_of(images, "image")
+        )
     } else if head == "jackknife over images" {
-        format!("jackknife over {images} images")
+        format!("jackknife over {images} images{some}")
     } else {
-        head.to_string()
+        format!("{head}{some}")
     }
 }
 

@@ -386,7 +386,7 @@ fn error_bar_labels_carry_their_caveat() {
     );
     assert_eq!(
         se_label("jackknife over images; regression for q = 0", 32),
-        "jackknife over 32 images"
+        "jackknife over 32 images, regression for some (understates)"
     );
     assert_eq!(
         se_label("jackknife over 49 tiles (45 px)", 1),
