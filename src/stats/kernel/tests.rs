@@ -290,14 +290,7 @@ fn default_options_follow_a_short_grid() {
 #[test]
 fn kernel_curves_carry_jackknife_errors() {
     use rand_distr::{Distribution, Normal};
-    let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
-    let (k20, c2) = (0.3, 0.03);
-    let kap2 = |a: f64| k20 - c2 * a.ln();
-    let opts = KernelOptions {
-        fit: (0.0, 2.0),
-        refs: vec![],
-        pairs: vec![(0.0, 2.0)],
-    };
+    let (scales, opts) = gaussian_setup();
     let mut rng = crate::synth::rng_for(5, 0);
     let images: Vec<KernelSums> = (0..8)
         .map(|i| {
@@ -330,39 +323,10 @@ fn kernel_curves_carry_jackknife_errors() {
     let reps: Vec<KernelCurve> = (0..images.len())
         .map(|i| kernel_estimates(&merged(Some(i)), &opts).unwrap().kernels[0].clone())
         .collect();
-    for k in [mid + 10, mid + 40, mid + 80, mid - 60] {
-        for (se, v) in [
-            (
-                kc.ln_abs_g_stderr[k],
-                reps.iter().map(|c| c.ln_abs_g[k]).collect::<Vec<_>>(),
-            ),
-            (
-                kc.phase_stderr[k],
-                reps.iter().map(|c| c.phase[k]).collect::<Vec<_>>(),
-            ),
-        ] {
-            let want = crate::stats::jackknife_se(&v);
-            assert!(
-                se > 0.0 && (se - want).abs() <= 1e-9 * want,
-                "{se} vs {want}"
-            );
-        }
-    }
+    errors_are_the_jackknife_of(kc, &reps, 1e-9);
     // against the theory, where |C| is well above 1/sqrt(n) (p <= 2.5):
     // within 5 jackknife errors (8 images: t with 7 degrees of freedom)
-    let (a, b) = (kc.a, kc.a_ref);
-    for (k, &p) in
-        kc.p.iter()
-            .enumerate()
-            .filter(|(_, p)| **p > 0.0 && **p <= 2.5)
-    {
-        let theory = -(kap2(a) - kap2(b)) * p * p / 2.0;
-        let (v, se) = (kc.ln_abs_g[k], kc.ln_abs_g_stderr[k]);
-        assert!(
-            (v - theory).abs() < 5.0 * se,
-            "p = {p}: {v} vs {theory} +- {se}"
-        );
-    }
+    within_five_errors_of_gaussian(kc, kap2);
     // two images without tiles: no jackknife
     let mut two = images[0].clone();
     two.merge(&images[1]).unwrap();
@@ -398,14 +362,7 @@ fn phase_replicates_are_taken_on_the_main_branch() {
 fn a_lone_image_has_tile_jackknife_curve_errors() {
     use crate::stats::pdf::Point;
     use rand_distr::{Distribution, Normal};
-    let scales: Vec<f64> = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
-    let (k20, c2) = (0.3, 0.03);
-    let kap2 = |a: f64| k20 - c2 * a.ln();
-    let opts = KernelOptions {
-        fit: (0.0, 2.0),
-        refs: vec![],
-        pairs: vec![(0.0, 2.0)],
-    };
+    let (scales, opts) = gaussian_setup();
     let mut rng = crate::synth::rng_for(6, 0);
     let (domain, side) = ((0, 400, 0, 400), 100); // 4 x 4 tiles
     let points: Vec<Vec<Point>> = scales
@@ -461,36 +418,7 @@ fn a_lone_image_has_tile_jackknife_curve_errors() {
             kernel_estimates(&tiled(&rest, 0), &opts).unwrap().kernels[0].clone()
         })
         .collect();
-    for k in [mid + 10, mid + 40, mid + 80, mid - 60] {
-        for (se, v) in [
-            (
-                kc.ln_abs_g_stderr[k],
-                reps.iter().map(|c| c.ln_abs_g[k]).collect::<Vec<_>>(),
-            ),
-            (
-                kc.phase_stderr[k],
-                reps.iter().map(|c| c.phase[k]).collect::<Vec<_>>(),
-            ),
-            (
-                kc.cf_abs_stderr[k],
-                reps.iter()
-                    .map(|c| c.cf_re[k].hypot(c.cf_im[k]))
-                    .collect::<Vec<_>>(),
-            ),
-            (
-                kc.cf_ref_abs_stderr[k],
-                reps.iter()
-                    .map(|c| c.cf_ref_re[k].hypot(c.cf_ref_im[k]))
-                    .collect::<Vec<_>>(),
-            ),
-        ] {
-            let want = crate::stats::jackknife_se(&v);
-            assert!(
-                se > 0.0 && (se - want).abs() <= 1e-6 * want,
-                "{se} vs {want}"
-            );
-        }
-    }
+    errors_are_the_jackknife_of(kc, &reps, 1e-6);
     // the noise flags: |C| within 3 errors of 0 at a or a', the error the
     // larger of 1/sqrt(n) and the jackknife's; never at p = 0
     let n = 16000f64;
@@ -523,19 +451,7 @@ fn a_lone_image_has_tile_jackknife_curve_errors() {
         })
         .collect();
     assert_eq!(r.noise(&none), iid);
-    let (a, b) = (kc.a, kc.a_ref);
-    for (k, &p) in
-        kc.p.iter()
-            .enumerate()
-            .filter(|(_, p)| **p > 0.0 && **p <= 2.5)
-    {
-        let theory = -(kap2(a) - kap2(b)) * p * p / 2.0;
-        let (v, se) = (kc.ln_abs_g[k], kc.ln_abs_g_stderr[k]);
-        assert!(
-            (v - theory).abs() < 5.0 * se,
-            "p = {p}: {v} vs {theory} +- {se}"
-        );
-    }
+    within_five_errors_of_gaussian(kc, kap2);
     // sums without the tiles' characteristic functions (written before
     // them): no curve errors, and said
     let mut old = s.clone();
@@ -607,4 +523,77 @@ fn leave_one_out_sums_and_coarse_cf_tiles() {
     assert_eq!(cf_tile_side((144, 3952, 144, 3952), 45), 238);
     let g = crate::spectra::TileGrid::new((144, 3952, 144, 3952), 238).unwrap();
     assert_eq!(g.len(), 256);
+}
+
+/// The scales (octaves 0-2 in quarters) and options (fit 0-2, one pair
+/// 0:2) of the Gaussian `ln M` tests, whose `κ2(a)` is [`kap2`].
+fn gaussian_setup() -> (Vec<f64>, KernelOptions) {
+    let scales = (0..9).map(|j| 2f64.powf(j as f64 / 4.0)).collect();
+    let opts = KernelOptions {
+        fit: (0.0, 2.0),
+        refs: vec![],
+        pairs: vec![(0.0, 2.0)],
+    };
+    (scales, opts)
+}
+
+/// `κ2(a)` of the Gaussian `ln M` tests: `c2 = 0.03`.
+fn kap2(a: f64) -> f64 {
+    0.3 - 0.03 * a.ln()
+}
+
+/// `ln |Ĝ|` within 5 jackknife errors of the Gaussian kernel
+/// `-(κ2(a) - κ2(a')) p² / 2` where `|C|` is well above `1/sqrt(n)` (p <=
+/// 2.5; t with 7 or 15 degrees of freedom).
+fn within_five_errors_of_gaussian(kc: &KernelCurve, kap2: fn(f64) -> f64) {
+    let (a, b) = (kc.a, kc.a_ref);
+    for (k, &p) in
+        kc.p.iter()
+            .enumerate()
+            .filter(|(_, p)| **p > 0.0 && **p <= 2.5)
+    {
+        let theory = -(kap2(a) - kap2(b)) * p * p / 2.0;
+        let (v, se) = (kc.ln_abs_g[k], kc.ln_abs_g_stderr[k]);
+        assert!(
+            (v - theory).abs() < 5.0 * se,
+            "p = {p}: {v} vs {theory} +- {se}"
+        );
+    }
+}
+
+/// The curve's four errors (ln|G|, phase, |C| at a and a') at a few p are
+/// the jackknife of the curves `reps` recomputed without each group, to
+/// `tol` relative (the running sums of tiles add in another order).
+fn errors_are_the_jackknife_of(kc: &KernelCurve, reps: &[KernelCurve], tol: f64) {
+    let mid = kc.p.len() / 2;
+    let abs = |re: f64, im: f64| re.hypot(im);
+    for k in [mid + 10, mid + 40, mid + 80, mid - 60] {
+        for (se, v) in [
+            (
+                kc.ln_abs_g_stderr[k],
+                reps.iter().map(|c| c.ln_abs_g[k]).collect::<Vec<_>>(),
+            ),
+            (
+                kc.phase_stderr[k],
+                reps.iter().map(|c| c.phase[k]).collect(),
+            ),
+            (
+                kc.cf_abs_stderr[k],
+                reps.iter().map(|c| abs(c.cf_re[k], c.cf_im[k])).collect(),
+            ),
+            (
+                kc.cf_ref_abs_stderr[k],
+                reps.iter()
+                    .map(|c| abs(c.cf_ref_re[k], c.cf_ref_im[k]))
+                    .collect(),
+            ),
+        ] {
+            let want = crate::stats::jackknife_se(&v);
+            assert!(
+                se > 0.0 && (se - want).abs() <= tol * want,
+                "p = {}: {se} vs {want}",
+                kc.p[k]
+            );
+        }
+    }
 }
