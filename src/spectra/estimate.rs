@@ -152,20 +152,9 @@ impl PartitionSums {
             }
             parts.sort_by(|a, b| canonical(&a.1, &b.1));
             if parts.len() > LOO_REFOLD_MAX {
-                // before[k] = parts[..k], after[k] = parts[k + 1..]
-                let mut before = Vec::with_capacity(parts.len());
-                let mut acc = Cell::EMPTY;
-                for p in parts.iter() {
-                    before.push(acc);
-                    acc = acc.add(&p.1);
-                }
-                let total = acc;
-                let mut rest = before;
-                let mut after = Cell::EMPTY;
-                for k in (0..parts.len()).rev() {
-                    rest[k] = rest[k].add(&after);
-                    after = parts[k].1.add(&after);
-                }
+                let cells: Vec<&Cell> = parts.iter().map(|p| &p.1).collect();
+                let total = cells.iter().fold(Cell::EMPTY, |a, c| a.add(c));
+                let rest = crate::stats::fit::leave_one_out(&cells, Cell::EMPTY, Cell::add);
                 place.clear();
                 place.resize(self.images.len(), usize::MAX);
                 for (k, p) in parts.iter().enumerate() {

@@ -512,7 +512,7 @@ impl KernelSums {
         let mut reps = vec![Vec::with_capacity(self.scales.len()); tiles.len()];
         for j in 0..self.scales.len() {
             let at_j: Vec<&Moments> = tiles.iter().map(|m| &m[j]).collect();
-            let loo = leave_one_out(&at_j, Moments::default(), Moments::combine);
+            let loo = crate::stats::fit::leave_one_out(&at_j, Moments::default(), Moments::combine);
             for (r, m) in reps.iter_mut().zip(loo) {
                 r.push(m);
             }
@@ -583,7 +583,7 @@ impl KernelSums {
         let refs: Vec<&(u64, Vec<f64>, Vec<f64>)> = tiles.iter().collect();
         let zero = (0u64, vec![0.0; np], vec![0.0; np]);
         Some(
-            leave_one_out(&refs, zero, add)
+            crate::stats::fit::leave_one_out(&refs, zero, add)
                 .into_iter()
                 .map(|(n, re, im)| {
                     let nf = n.max(1) as f64;
@@ -734,25 +734,6 @@ impl KernelSums {
             .map(|(r, i)| Complex64::new(r / nf, i / nf))
             .collect()
     }
-}
-
-/// For each `t`, `items` combined without `items[t]` (`add` associative,
-/// `zero` its identity), from running sums from both ends: O(n) combines
-/// instead of the O(n^2) of refolding each (8281 tiles of a 4096^2 image).
-fn leave_one_out<T: Clone>(items: &[&T], zero: T, add: impl Fn(&T, &T) -> T) -> Vec<T> {
-    let mut before = Vec::with_capacity(items.len());
-    let mut acc = zero.clone();
-    for it in items {
-        before.push(acc.clone());
-        acc = add(&acc, it);
-    }
-    let mut out = before;
-    let mut after = zero;
-    for t in (0..items.len()).rev() {
-        out[t] = add(&out[t], &after);
-        after = add(items[t], &after);
-    }
-    out
 }
 
 /// Adds `Σ cos(p_k u)`, `Σ sin(p_k u)` for `p_k = k dp` by the recurrence

@@ -511,13 +511,13 @@ fn a_lone_image_has_tile_jackknife_curve_errors() {
 fn leave_one_out_sums_and_coarse_cf_tiles() {
     let items: Vec<u64> = (1..=9).map(|i| i * i).collect();
     let refs: Vec<&u64> = items.iter().collect();
-    let loo = super::leave_one_out(&refs, 0u64, |a, b| a + b);
+    let loo = crate::stats::fit::leave_one_out(&refs, 0u64, |a, b| a + b);
     let total: u64 = items.iter().sum();
     assert_eq!(loo, items.iter().map(|i| total - i).collect::<Vec<_>>());
     // order kept: string concatenation is associative, not commutative
     let words: Vec<String> = ["a", "b", "c", "d"].map(String::from).to_vec();
     let refs: Vec<&String> = words.iter().collect();
-    let loo = super::leave_one_out(&refs, String::new(), |a, b| format!("{a}{b}"));
+    let loo = crate::stats::fit::leave_one_out(&refs, String::new(), |a, b| format!("{a}{b}"));
     assert_eq!(loo, ["bcd", "acd", "abd", "abc"]);
     assert_eq!(cf_tile_side((0, 400, 0, 400), 100), 100);
     assert_eq!(cf_tile_side((144, 3952, 144, 3952), 45), 238);
