@@ -199,9 +199,9 @@ pub struct KernelCurve {
     /// Delete-one jackknife standard error of `ln |Ĝ_aa'(p)|` over the
     /// images, or with fewer than 3 over the tiles of their domains
     /// ([`KernelSums::from_points_tiled`]; NaN without tiles, see
-    /// [`KernelResult::curve_stderr_method`]). Where the characteristic functions fall to their
-    /// sampling noise, `Ĝ` is a ratio of noise and this error grows: the
-    /// curve there says nothing of the kernel.
+    /// [`KernelResult::curve_stderr_method`]). Where the characteristic
+    /// functions fall to their sampling noise, `Ĝ` is a ratio of noise and
+    /// this error grows: the curve there says nothing of the kernel.
     #[serde(default, deserialize_with = "crate::nan_null::vec")]
     pub ln_abs_g_stderr: Vec<f64>,
     /// Jackknife standard error of the phase (as `ln_abs_g_stderr`).
@@ -856,7 +856,7 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
             if let Some(w) = crate::stats::fit::few_groups_warning(held[j], &how) {
                 warnings.push(format!("kernel curves: {w}"));
             }
-        } else if let Some(w) = crate::stats::fit::few_groups_warning(total, &m) {
+        } else if let Some(w) = crate::stats::fit::few_groups_warning(total, &format!("a {m}")) {
             warnings.push(format!("kernel curves: {w}"));
         }
         m
