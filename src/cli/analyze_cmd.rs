@@ -622,8 +622,85 @@ pub fn write_outputs(
                 .collect();
         write_csv(&dir.join(name), &hdr_ref, &rows)?;
     }
+    write_per_scale_csv(&dir.join("per_scale.csv"), s)?;
     let px = px.as_ref().map(|(side, units)| (*side, units.as_str()));
     plot_spectra(dir, s, &describe(s, sums), theory, wavelet_order(sums), px)
+}
+
+/// per_scale.csv: one row per q and scale, the values of logZ.csv, hqa.csv
+/// and Dqa.csv with their errors, and the local slopes (slopes.png): a
+/// long table, for spreadsheets and data frames.
+fn write_per_scale_csv(path: &Path, s: &Spectra) -> Result<()> {
+    let at = |t: &Vec<Vec<f64>>, qi: usize, j: usize| {
+        f(t.get(qi)
+            .and_then(|r| r.get(j))
+            .copied()
+            .unwrap_or(f64::NAN))
+    };
+    let mut rows = Vec::with_capacity(s.q.len() * s.log2_scales.len());
+    for (qi, &q) in s.q.iter().enumerate() {
+        for (j, &l) in s.log2_scales.iter().enumerate() {
+            rows.push(vec![
+                f(q),
+                f(l),
+                at(&s.log2_z, qi, j),
+                at(&s.log2_z_stderr, qi, j),
+                at(&s.h_qa, qi, j),
+                at(&s.h_qa_stderr, qi, j),
+                at(&s.d_qa, qi, j),
+                at(&s.d_qa_stderr, qi, j),
+                at(&s.local_slopes, qi, j),
+                at(&s.local_slopes_stderr, qi, j),
+                at(&s.n_eff, qi, j),
+            ]);
+        }
+    }
+    write_csv(
+        path,
+        &[
+            "q",
+            "log2a",
+            "log2_Z",
+            "log2_Z_stderr",
+            "h_qa",
+            "h_qa_stderr",
+            "D_qa",
+            "D_qa_stderr",
+            "local_slope",
+            "local_slope_stderr",
+            "n_eff",
+        ],
+        &rows,
+    )
+}
+
+/// The legend line of the per-scale figures' bars: the errors they are,
+/// or why there are none (the regression's errors are of slopes, not of
+/// the points: fewer than 3 images and no tiles).
+fn per_scale_bars(s: &Spectra) -> String {
+    let any = s
+        .log2_z_stderr
+        .iter()
+        .chain(&s.h_qa_stderr)
+        .flatten()
+        .any(|e| e.is_finite());
+    if any {
+        format!(
+            "bars: ± 1 se ({})",
+            super::common::se_label(&s.stderr_method, s.images)
+        )
+    } else {
+        "no error bars: a jackknife needs 3 images, or tiles".into()
+    }
+}
+
+/// `series` with the errors `err[qi]` when they are there (spectra of
+/// older versions have none).
+fn with_row_errors(series: Series, err: &[Vec<f64>], qi: usize) -> Series {
+    match err.get(qi) {
+        Some(e) if e.len() == series.points.len() => series.with_errors(e.clone()),
+        _ => series,
+    }
 }
 
 /// The vanishing moments of the wavelet the sums were made with (`None`
@@ -639,14 +716,18 @@ fn wavelet_order(sums: &PartitionSums) -> Option<f64> {
 /// (what the curvature warning measures, `tau_slope_change`).
 fn local_slopes(s: &Spectra, shown: &[usize], what: &str, px: Option<(f64, &str)>) -> Chart {
     let l = &s.log2_scales;
-    // half an octave of scales either side (5 at 10 voices)
-    let step = if l.len() > 1 { l[1] - l[0] } else { 1.0 };
-    let w = ((0.5 / step).round() as usize).max(1);
     let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
-    // one octave needs 2 w + 1 scales: fewer (`--octaves 1` at 10 voices
-    // gives 10) leave no slope to draw, which the title says
-    let title = if l.len() > 2 * w {
-        format!("local slopes of log2 Z(q, a), over one octave: {what}")
+    // about one octave (2 w + 1 scales, spectra::local_slope_half_width):
+    // fewer scales (`--octaves 1` at 10 voices gives 10) leave no slope to
+    // draw, which the title says
+    let span = s.local_slope_octaves;
+    let title = if span.is_finite() {
+        let over = if (span - 1.0).abs() < 1e-6 {
+            "one octave".to_string()
+        } else {
+            format!("{span:.2} octaves")
+        };
+        format!("local slopes of log2 Z(q, a), over {over}: {what}")
     } else {
         format!(
             "local slopes of log2 Z(q, a): none, {} scales span less than an octave: {what}",
@@ -659,20 +740,25 @@ fn local_slopes(s: &Spectra, shown: &[usize], what: &str, px: Option<(f64, &str)
         y_label: "d log2 Z / d log2 a".into(),
         ..Default::default()
     };
+    // the slopes of older spectra (read back without them) from log2 Z
+    let slopes = |qi: usize| match s.local_slopes.get(qi) {
+        Some(v) if v.len() == l.len() => v.clone(),
+        _ => crate::spectra::local_slopes(l, &s.log2_z[qi]),
+    };
     for (k, &qi) in shown.iter().enumerate() {
-        let z = &s.log2_z[qi];
-        let pts: Vec<(f64, f64)> = (w..l.len().saturating_sub(w))
-            .map(|j| (l[j], (z[j + w] - z[j - w]) / (l[j + w] - l[j - w])))
-            .collect();
+        let pts: Vec<(f64, f64)> = l.iter().cloned().zip(slopes(qi)).collect();
+        let none = pts.iter().all(|p| !p.1.is_finite());
         // the q named on its curve, or on its fitted line when it has none
         let name = format!("q = {}", s.q[qi]);
-        let (curve, line) = if pts.is_empty() {
+        let (curve, line) = if none {
             (String::new(), name)
         } else {
             (name, String::new())
         };
-        if !pts.is_empty() {
-            c.series.push(Series::new(curve, pts, Style::Line, k));
+        if !none {
+            let curve = Series::new(curve, pts, Style::Line, k);
+            c.series
+                .push(with_row_errors(curve, &s.local_slopes_stderr, qi));
         }
         if s.tau[qi].is_finite() {
             c.series.push(Series::new(
@@ -692,6 +778,12 @@ fn local_slopes(s: &Spectra, shown: &[usize], what: &str, px: Option<(f64, &str)
         ),
         Vec::new(),
         Style::Dashed,
+        THEORY_COLOR,
+    ));
+    c.series.push(Series::new(
+        per_scale_bars(s),
+        Vec::new(),
+        Style::Line,
         THEORY_COLOR,
     ));
     c
@@ -789,11 +881,10 @@ pub fn plot_spectra(
             .cloned()
             .zip(s.log2_z[qi].iter().cloned())
             .collect();
-        za.series.push(Series::new(
-            format!("q = {}", s.q[qi]),
-            pts,
-            Style::Markers,
-            c,
+        za.series.push(with_row_errors(
+            Series::new(format!("q = {}", s.q[qi]), pts, Style::Markers, c),
+            &s.log2_z_stderr,
+            qi,
         ));
         let pts_h: Vec<(f64, f64)> = s
             .log2_scales
@@ -801,11 +892,10 @@ pub fn plot_spectra(
             .cloned()
             .zip(s.h_qa[qi].iter().cloned())
             .collect();
-        hb.series.push(Series::new(
-            format!("q = {}", s.q[qi]),
-            pts_h,
-            Style::Markers,
-            c,
+        hb.series.push(with_row_errors(
+            Series::new(format!("q = {}", s.q[qi]), pts_h, Style::Markers, c),
+            &s.h_qa_stderr,
+            qi,
         ));
         // fitted lines over the fit range, through the mean of the fitted points
         for (chart, slope, vals) in [
@@ -843,6 +933,12 @@ pub fn plot_spectra(
             ),
             Vec::new(),
             Style::Line,
+            THEORY_COLOR,
+        ));
+        chart.series.push(Series::new(
+            per_scale_bars(s),
+            Vec::new(),
+            Style::Markers,
             THEORY_COLOR,
         ));
     }

@@ -250,20 +250,23 @@ impl PartitionSums {
         let mut jk_h = vec![f64::NAN; nq];
         let mut jk_d = vec![f64::NAN; nq];
         let mut reps: Vec<Estimates> = Vec::new();
+        // the per-scale values of the figures, and their errors, streamed
+        // (thousands of tiles' replicates of every cell are not kept)
+        let values = scale_values(&ens, &self.q, &log2_a);
+        let mut per_scale = values.clone().map(crate::stats::fit::JackknifeStream::new);
         if n_groups >= 3 {
             // in batches: the replicates of a batch share one sort per cell,
             // and memory stays bounded whatever the number of groups
             let batch = loo_batch(n_groups, nq * ns);
-            reps = (0..n_groups)
-                .step_by(batch)
-                .flat_map(|i0| {
-                    groups
-                        .ensembles_leaving_out(rule, i0..(i0 + batch).min(n_groups))
-                        .into_iter()
-                        .map(|e| Estimates::fit(&e, &log2_a, &in_fit, &self.q))
-                        .collect::<Vec<_>>()
-                })
-                .collect();
+            for i0 in (0..n_groups).step_by(batch) {
+                let range = i0..(i0 + batch).min(n_groups);
+                for e in groups.ensembles_leaving_out(rule, range) {
+                    reps.push(Estimates::fit(&e, &log2_a, &in_fit, &self.q));
+                    for (acc, v) in per_scale.iter_mut().zip(scale_values(&e, &self.q, &log2_a)) {
+                        acc.add(&v);
+                    }
+                }
+            }
             let jk = |get: &dyn Fn(&Estimates) -> f64| -> f64 {
                 crate::stats::jackknife_se(&reps.iter().map(get).collect::<Vec<_>>())
             };
@@ -665,9 +668,15 @@ impl PartitionSums {
                 .map(|qi| v[qi * ns..(qi + 1) * ns].to_vec())
                 .collect()
         };
-        let d_qa: Vec<f64> = (0..nq * ns)
-            .map(|c| self.q[c / ns] * ens.h[c] - ens.log2_z[c])
-            .collect();
+        // no jackknife (fewer than 3 groups): no per-scale errors
+        let [z_se, h_se, d_se, slope_se] = per_scale.map(|acc| cell(&acc.stderr()));
+        let [_, _, d_qa, slopes] = values;
+        let w = local_slope_half_width(&log2_a);
+        let local_slope_octaves = if ns > 2 * w {
+            round9(log2_a[2 * w] - log2_a[0])
+        } else {
+            f64::NAN
+        };
         Ok(Spectra {
             rule,
             images: n_img,
@@ -694,6 +703,12 @@ impl PartitionSums {
             log2_z: cell(&ens.log2_z),
             h_qa: cell(&ens.h),
             d_qa: cell(&d_qa),
+            log2_z_stderr: z_se,
+            h_qa_stderr: h_se,
+            d_qa_stderr: d_se,
+            local_slopes: cell(&slopes),
+            local_slopes_stderr: slope_se,
+            local_slope_octaves,
             n_eff: cell(&ens.n_eff),
             lines: ens.lines,
             per_image,
@@ -953,6 +968,51 @@ impl Estimates {
         }
         e
     }
+}
+
+/// Scales either side of each local slope's centre ([`local_slopes`]):
+/// half an octave (5 at 10 voices per octave), at least 1.
+pub fn local_slope_half_width(log2_a: &[f64]) -> usize {
+    let step = if log2_a.len() > 1 {
+        log2_a[1] - log2_a[0]
+    } else {
+        1.0
+    };
+    ((0.5 / step).round() as usize).max(1)
+}
+
+/// The local slopes of one q's `log2 Z(q, a)` (`log2_z`, one value per
+/// scale) against `log2 a`: at scale j the chord from j - w to j + w
+/// ([`local_slope_half_width`]), NaN within w of either end.
+///
+/// **Panics** if the two differ in length.
+pub fn local_slopes(log2_a: &[f64], log2_z: &[f64]) -> Vec<f64> {
+    assert_eq!(log2_a.len(), log2_z.len(), "local_slopes: lengths differ");
+    let (n, w) = (log2_a.len(), local_slope_half_width(log2_a));
+    (0..n)
+        .map(|j| {
+            if j < w || j + w >= n {
+                return f64::NAN;
+            }
+            (log2_z[j + w] - log2_z[j - w]) / (log2_a[j + w] - log2_a[j - w])
+        })
+        .collect()
+}
+
+/// The per-scale values of an ensemble the figures show, each flat per q
+/// then per scale: `log2 Z(q, a)`, `h(q, a)`, `D(q, a) = q h - log2 Z`, and
+/// the local slopes of `log2 Z`.
+pub(super) fn scale_values(ens: &Ensemble, q: &[f64], log2_a: &[f64]) -> [Vec<f64>; 4] {
+    let ns = log2_a.len();
+    let d: Vec<f64> = (0..q.len() * ns)
+        .map(|c| q[c / ns] * ens.h[c] - ens.log2_z[c])
+        .collect();
+    let slopes: Vec<f64> = ens
+        .log2_z
+        .chunks(ns)
+        .flat_map(|z| local_slopes(log2_a, z))
+        .collect();
+    [ens.log2_z.clone(), ens.h.clone(), d, slopes]
 }
 
 /// Legendre transform of a sampled τ(q): `h = dτ/dq` by finite differences

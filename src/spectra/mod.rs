@@ -781,6 +781,11 @@ pub struct ImageExponents {
     pub shape: Option<[usize; 2]>,
 }
 
+/// Spectra of older versions lack some numbers: NaN, as a null reads.
+fn nan() -> f64 {
+    f64::NAN
+}
+
 /// The spectra of an ensemble, ready for output (SPEC §13 `spectra.json`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Spectra {
@@ -862,6 +867,43 @@ pub struct Spectra {
     /// `D(q, a) = q h(q, a) - log2 Z(q, a)`, per q, per scale (JSON `D_qa`).
     #[serde(rename = "D_qa", deserialize_with = "crate::nan_null::vec2")]
     pub d_qa: Vec<Vec<f64>>,
+    /// Standard error of `log2_z` per q, per scale: the jackknife of
+    /// `stderr_method` (over images, or tiles), NaN where there is none
+    /// (the regression's errors are of slopes, not of points) or where a
+    /// leave-one-out sample has no line at that scale (JSON
+    /// `log2_Z_stderr`; empty in spectra of older versions).
+    #[serde(
+        rename = "log2_Z_stderr",
+        default,
+        deserialize_with = "crate::nan_null::vec2"
+    )]
+    pub log2_z_stderr: Vec<Vec<f64>>,
+    /// Standard error of `h_qa`, as `log2_z_stderr`.
+    #[serde(default, deserialize_with = "crate::nan_null::vec2")]
+    pub h_qa_stderr: Vec<Vec<f64>>,
+    /// Standard error of `d_qa`, as `log2_z_stderr` (JSON `D_qa_stderr`).
+    #[serde(
+        rename = "D_qa_stderr",
+        default,
+        deserialize_with = "crate::nan_null::vec2"
+    )]
+    pub d_qa_stderr: Vec<Vec<f64>>,
+    /// The local slope of `log2 Z(q, a)` against `log2 a` at each scale,
+    /// per q: the chord over `local_slope_octaves` centred on it
+    /// ([`local_slopes`]); NaN within half that of either end of the grid.
+    /// Flat over the fit range where `Z` is a power law; the fitted tau(q)
+    /// averages it where it drifts (`tau_slope_change`).
+    #[serde(default, deserialize_with = "crate::nan_null::vec2")]
+    pub local_slopes: Vec<Vec<f64>>,
+    /// Standard error of `local_slopes`, as `log2_z_stderr` (the jackknife
+    /// of the slopes, not a combination of the two points' errors, which
+    /// are correlated).
+    #[serde(default, deserialize_with = "crate::nan_null::vec2")]
+    pub local_slopes_stderr: Vec<Vec<f64>>,
+    /// The span in octaves of the local slopes' chords (1 at 10 voices per
+    /// octave; NaN when the grid spans less).
+    #[serde(default = "nan", deserialize_with = "crate::nan_null::f64")]
+    pub local_slope_octaves: f64,
     /// Effective number of lines `Z^2 / Σ M^2q` per q, per scale.
     #[serde(deserialize_with = "crate::nan_null::vec2")]
     pub n_eff: Vec<Vec<f64>>,

@@ -913,3 +913,143 @@ fn the_domain_left_is_said_for_the_images_that_record_it() {
     let w = said(&s);
     assert!(w.contains("on average (2 of the 3 record it)"), "{w}");
 }
+
+/// The per-scale errors of log2 Z, h(q, a), D(q, a) and the local slopes
+/// are the delete-one jackknife of those values over the images (each
+/// left-out ensemble summed again here), the same bits whichever order the
+/// images were merged in; with fewer than 3 images and no tiles there are
+/// none (NaN), while the values themselves stand.
+#[test]
+fn per_scale_errors_are_the_jackknife_of_the_scales() {
+    let scales: Vec<f64> = (0..31).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+    let log2_a: Vec<f64> = scales.iter().map(|a| a.log2()).collect();
+    let q: Vec<f64> = (-2..=4).map(f64::from).collect();
+    let mut seed = 11u64;
+    let mut unit = move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let images: Vec<PartitionSums> = (0..5)
+        .map(|i| {
+            let h = 0.3 + 0.02 * i as f64;
+            let values: Vec<Vec<f64>> = scales
+                .iter()
+                .map(|&a| {
+                    let n = 5 + (400.0 / a.powi(2)) as usize;
+                    (0..n).map(|_| h * a.log2() + unit() - 0.5).collect()
+                })
+                .collect();
+            PartitionSums::from_log2_values(&scales, &values, &q, format!("i{i}")).unwrap()
+        })
+        .collect();
+    let merged = |order: &mut dyn Iterator<Item = usize>| {
+        let mut it = order.map(|i| images[i].clone());
+        let mut s = it.next().unwrap();
+        for p in it {
+            s.merge(&p).unwrap();
+        }
+        s
+    };
+    let sums = merged(&mut (0..5));
+    let sp = sums.spectra(Rule::Plain, (0.5, 2.5)).unwrap();
+    assert_eq!(sp.stderr_method, "jackknife over images");
+    assert!((sp.local_slope_octaves - 1.0).abs() < 1e-12);
+    let reps: Vec<[Vec<f64>; 4]> = (0..5)
+        .map(|i| scale_values(&sums.ensemble(Rule::Plain, Some(i)), &q, &log2_a))
+        .collect();
+    let ns = scales.len();
+    let mut slopes_checked = 0;
+    for (k, got) in [
+        &sp.log2_z_stderr,
+        &sp.h_qa_stderr,
+        &sp.d_qa_stderr,
+        &sp.local_slopes_stderr,
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        for qi in 0..q.len() {
+            for j in 0..ns {
+                let v: Vec<f64> = reps.iter().map(|r| r[k][qi * ns + j]).collect();
+                let want = crate::stats::jackknife_se(&v);
+                let g = got[qi][j];
+                if k == 3 && (j < 5 || j + 5 >= ns) {
+                    assert!(g.is_nan() && sp.local_slopes[qi][j].is_nan(), "{qi} {j}");
+                    continue;
+                }
+                // every image has the same number of lines at a scale:
+                // log2 Z(0, a) does not vary, nor do D(0, a) and its slopes
+                let fixed = q[qi] == 0.0 && k != 1;
+                assert!(fixed || want > 0.0, "{k} {qi} {j}: {want}");
+                assert!(
+                    (g - want).abs() <= 1e-9 * want + 1e-12,
+                    "{k} {qi} {j}: {g} vs {want}"
+                );
+                slopes_checked += usize::from(k == 3);
+            }
+        }
+    }
+    assert_eq!(slopes_checked, q.len() * (ns - 10));
+    // merged the other way round (the images listed in that order): the
+    // same bits
+    let back = merged(&mut (0..5).rev())
+        .spectra(Rule::Plain, (0.5, 2.5))
+        .unwrap();
+    let bits = |s: &Spectra| -> Vec<u64> {
+        [
+            &s.log2_z_stderr,
+            &s.h_qa_stderr,
+            &s.d_qa_stderr,
+            &s.local_slopes_stderr,
+            &s.local_slopes,
+        ]
+        .into_iter()
+        .flatten()
+        .flatten()
+        .chain(&s.tau_stderr)
+        .map(|v| v.to_bits())
+        .collect()
+    };
+    assert!(bits(&back) == bits(&sp), "merge order changed the errors");
+    // two images without tiles: the regression's errors, no per-scale ones
+    let two = merged(&mut (0..2))
+        .spectra(Rule::Plain, (0.5, 2.5))
+        .unwrap();
+    assert!(
+        two.stderr_method.starts_with("regression"),
+        "{}",
+        two.stderr_method
+    );
+    for t in [&two.log2_z_stderr, &two.local_slopes_stderr] {
+        assert!(t.iter().flatten().all(|e| e.is_nan()));
+    }
+    assert!(two.local_slopes[2][15].is_finite());
+}
+
+/// Local slopes are the chords over about an octave: exact on a line, NaN
+/// within half the chord of either end, 4/3 octaves at 3 voices per
+/// octave (2 scales either side: half an octave rounds up).
+#[test]
+fn local_slopes_of_a_line() {
+    for (voices, w) in [(10, 5), (3, 2), (1, 1)] {
+        let l: Vec<f64> = (0..20).map(|j| j as f64 / voices as f64).collect();
+        assert_eq!(local_slope_half_width(&l), w);
+        let z: Vec<f64> = l.iter().map(|x| 3.0 - 1.7 * x).collect();
+        let s = local_slopes(&l, &z);
+        for (j, v) in s.iter().enumerate() {
+            if j < w || j + w >= l.len() {
+                assert!(v.is_nan());
+            } else {
+                assert!((v + 1.7).abs() < 1e-12, "{voices} {j}: {v}");
+            }
+        }
+    }
+    // too few scales for one chord
+    assert!(
+        local_slopes(&[0.0, 0.1, 0.2], &[1.0, 2.0, 3.0])
+            .iter()
+            .all(|v| v.is_nan())
+    );
+}
