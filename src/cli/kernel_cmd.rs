@@ -482,7 +482,8 @@ pub fn write_kernel_outputs(
     body["kernels_stderr_method"] = json!(k.curve_stderr_method);
     body["kernels_jackknife_groups"] = json!({"groups": k.curve_groups[0],
         "fewest_holding_wtmmm": k.curve_groups[1],
-        "note": "images, or tiles of fewer than 3 images (0: no jackknife); the fewest of them                  holding WTMMM at a scale of a pair"});
+        "note": "images, or tiles of fewer than 3 images (0: no jackknife); the fewest of them \
+                 holding WTMMM at a scale of a pair"});
     body["plugin_tilt"] = json!({"c1": k.plugin_tilt[0], "c2": k.plugin_tilt[1], "c3": k.plugin_tilt[2],
         "note": "bias of the fitted c_n from the plug-in cumulants of few WTMMM (-kappa2/n, -3 kappa3/n per scale, \
          through the same fit): the estimate's expectation is about c_n + tilt; not in the errors"});

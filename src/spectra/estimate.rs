@@ -200,42 +200,7 @@ impl PartitionSums {
         let nq = self.q.len();
         let log2_a: Vec<f64> = self.scales.iter().map(|a| a.log2()).collect();
         let oct0 = log2_a[0];
-        // the top of a grid of `octaves` octaves is one voice above its
-        // last scale, which the CLI accepts as the fit's end
-        let (top, _) = self.grid_span();
-        if !(fit.0 >= -1e-9 && fit.0 < fit.1 && fit.1 <= top + 1e-6) {
-            return Err(Error::param(
-                "fit",
-                format!(
-                    "{}:{} octaves must satisfy 0 <= lo < hi <= {top:.2}, the octaves the scales span",
-                    short(fit.0),
-                    short(fit.1)
-                ),
-            ));
-        }
-        // an end between two scales would fit from the next one and be
-        // recorded as given
-        let on_grid =
-            |o: f64| (o - top).abs() <= 1e-6 || log2_a.iter().any(|l| (l - oct0 - o).abs() <= 1e-6);
-        if let Some(o) = [fit.0, fit.1].into_iter().find(|&o| !on_grid(o)) {
-            // the grid's octaves on either side, the top included
-            let octs = log2_a.iter().map(|l| l - oct0).chain([top]);
-            let below = octs.clone().filter(|&x| x < o).fold(f64::NAN, f64::max);
-            let above = octs.filter(|&x| x > o).fold(f64::NAN, f64::min);
-            return Err(Error::param(
-                "fit",
-                format!(
-                    "octave {} of {}:{} lies between two scales, {:.2} and {:.2}: the ends \
-                     must be octaves of scales of the grid (or the top, {top:.2}, which fits \
-                     up to the last scale)",
-                    short(o),
-                    short(fit.0),
-                    short(fit.1),
-                    below,
-                    above
-                ),
-            ));
-        }
+        check_fit_on_grid(&self.scales, fit)?;
         let in_fit = fit_indices(&self.scales, fit)?;
         let ens = self.ensemble(rule, None);
         let est = Estimates::fit(&ens, &log2_a, &in_fit, &self.q);

@@ -1331,6 +1331,61 @@ fn config_difference(
     d.join("; ")
 }
 
+/// Checks a fit range `fit = (lo, hi)` in octaves above the smallest of
+/// `scales` (a grid of ratio-spaced scales, the first step its voice):
+/// `0 <= lo < hi <= top`, `top` the octaves the grid spans (its last scale
+/// plus one step: 4 for a grid of 4 octaves, which fits up to the last
+/// scale), and each end on an octave of a scale or at the top, since an
+/// end between two scales would fit from the next one and be recorded as
+/// given. What [`PartitionSums::spectra`] and the kernel's
+/// [`crate::stats::kernel::kernel_estimates`] require; [`fit_indices`] then
+/// counts the scales in it.
+///
+/// **Errors** ([`Error::Param`] `fit`) naming the range and, for an end
+/// off the grid, the grid's octaves either side.
+pub fn check_fit_on_grid(scales: &[f64], fit: (f64, f64)) -> Result<()> {
+    let log2_a: Vec<f64> = scales.iter().map(|a| a.log2()).collect();
+    let oct0 = log2_a.first().copied().unwrap_or(0.0);
+    let step = if log2_a.len() > 1 {
+        log2_a[1] - log2_a[0]
+    } else {
+        0.0
+    };
+    let top = log2_a.last().map_or(0.0, |l| l - oct0 + step);
+    if !(fit.0 >= -1e-9 && fit.0 < fit.1 && fit.1 <= top + 1e-6) {
+        return Err(Error::param(
+            "fit",
+            format!(
+                "{}:{} octaves must satisfy 0 <= lo < hi <= {top:.2}, the octaves the scales span",
+                short(fit.0),
+                short(fit.1)
+            ),
+        ));
+    }
+    let on_grid =
+        |o: f64| (o - top).abs() <= 1e-6 || log2_a.iter().any(|l| (l - oct0 - o).abs() <= 1e-6);
+    if let Some(o) = [fit.0, fit.1].into_iter().find(|&o| !on_grid(o)) {
+        // the grid's octaves on either side, the top included
+        let octs = log2_a.iter().map(|l| l - oct0).chain([top]);
+        let below = octs.clone().filter(|&x| x < o).fold(f64::NAN, f64::max);
+        let above = octs.filter(|&x| x > o).fold(f64::NAN, f64::min);
+        return Err(Error::param(
+            "fit",
+            format!(
+                "octave {} of {}:{} lies between two scales, {:.2} and {:.2}: the ends \
+                 must be octaves of scales of the grid (or the top, {top:.2}, which fits \
+                 up to the last scale)",
+                short(o),
+                short(fit.0),
+                short(fit.1),
+                below,
+                above
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// The indices of the scales inside the fit range `fit` (octaves above the
 /// smallest scale), so that a command can refuse a range holding fewer than
 /// 3 scales before it analyses anything.

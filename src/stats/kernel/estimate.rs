@@ -548,8 +548,10 @@ pub fn octave_on_grid(scales: &[f64], o: f64) -> bool {
 /// jackknife errors, and the kernel curves `Ĝ_aa'(p)` (II eqs 45-49,
 /// 57-58; Figs 25-28). See the module doc for the conventions.
 ///
-/// **Errors** if fewer than 3 scales fall in the fit range, an octave is
-/// outside the scales, or a pair is not `a < a'`. A fitted scale with
+/// **Errors** if the fit range is not within the scales or an end lies
+/// between two ([`crate::spectra::check_fit_on_grid`], as the spectra),
+/// fewer than 3 scales fall in it, an octave is outside the scales, or a
+/// pair is not `a < a'`. A fitted scale with
 /// fewer than [`MIN_WTMMM`] WTMMM has no cumulants, and the `c_n` are then
 /// NaN (not estimable; a fit that skipped the scale would rest on a
 /// different range in each jackknife replicate); scales short of WTMMM
@@ -564,6 +566,9 @@ pub fn kernel_estimates(s: &KernelSums, opts: &KernelOptions) -> Result<KernelRe
     let oct: Vec<f64> = s.scales.iter().map(|a| (a / s.scales[0]).log2()).collect();
     let top = oct[ns - 1];
     let in_range = |o: f64| octave_on_grid(&s.scales, o);
+    // as the spectra: within the grid, each end on a scale (or the top),
+    // else the fit would run over other scales than recorded
+    crate::spectra::check_fit_on_grid(&s.scales, opts.fit)?;
     let in_fit = fit_indices(&oct, opts.fit);
     if in_fit.len() < 3 {
         return Err(Error::param(

@@ -268,8 +268,40 @@ fn default_options_follow_a_short_grid() {
     )
     .unwrap();
     assert!(kernel_estimates(&s, &KernelOptions::for_scales(&scales, (0.5, 3.0))).is_ok());
+    // Default's fit, 0.5:4, runs past the grid's top (3.1: the last
+    // scale and one voice), which is refused before its references
     let e = kernel_estimates(&s, &KernelOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("<= 3.10, the octaves"), "{e}");
+    let within = KernelOptions {
+        fit: (0.5, 3.0),
+        ..KernelOptions::default()
+    };
+    let e = kernel_estimates(&s, &within).unwrap_err();
     assert!(e.to_string().contains("outside the scales"), "{e}");
+    // fit ranges the spectra refuse, refused alike (they were fitted over
+    // other scales than recorded): past the top, below 0, an end off the
+    // grid; the top itself fits up to the last scale
+    for (fit, says) in [
+        ((0.5, 9.0), "must satisfy 0 <= lo < hi <= 3.10"),
+        ((-5.0, 3.0), "must satisfy 0 <= lo < hi <= 3.10"),
+        ((3.0, 0.5), "must satisfy 0 <= lo < hi <= 3.10"),
+        (
+            (0.55, 3.0),
+            "octave 0.55 of 0.55:3 lies between two scales, 0.50 and 0.60",
+        ),
+    ] {
+        let o = KernelOptions::for_scales(&scales, fit);
+        let e = kernel_estimates(&s, &o).unwrap_err().to_string();
+        assert!(e.contains(says), "{fit:?}: {e}");
+        assert_eq!(
+            e,
+            crate::spectra::check_fit_on_grid(&scales, fit)
+                .unwrap_err()
+                .to_string()
+        );
+    }
+    let top = kernel_estimates(&s, &KernelOptions::for_scales(&scales, (0.5, 3.1))).unwrap();
+    assert_eq!(top.fit_scales.1, scales[30]);
     // 5 octaves: the same as Default
     let long: Vec<f64> = (0..51).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
     assert_eq!(
