@@ -4095,6 +4095,13 @@ fn every_command_writes_the_spec_keys() {
         assert!(s["cumulants"][c]["value"].as_f64().is_some(), "{c}");
         assert!(s["cumulants"][c]["stderr"].as_f64().is_some(), "{c}");
     }
+    // the parts of kernel.json the README says read back as library types
+    use wtmm::stats::kernel::{CnTable, FittedCumulants, KernelCurve};
+    let c: FittedCumulants = serde_json::from_value(s["cumulants"].clone()).unwrap();
+    assert_eq!(serde_json::json!(c.c2.value), s["cumulants"]["c2"]["value"]);
+    let t: Vec<CnTable> = serde_json::from_value(s["cn_tables"].clone()).unwrap();
+    let g: Vec<KernelCurve> = serde_json::from_value(s["kernels"].clone()).unwrap();
+    assert!(!t.is_empty() && !g.is_empty());
 
     let mut a = vec!["correlate"];
     a.extend_from_slice(&im);
@@ -4108,6 +4115,12 @@ fn every_command_writes_the_spec_keys() {
         let n = p["log2_dx"].as_array().unwrap().len();
         assert!(n > 0 && p["C"].as_array().unwrap().len() == n);
     }
+    // correlation.json's "cwt" reads back as the library's result
+    let r: wtmm::stats::correlation::CorrelationResult =
+        serde_json::from_value(s["cwt"].clone()).unwrap();
+    assert_eq!(r.pairs.len(), pairs.len());
+    assert_eq!(serde_json::json!(r.pairs[0].c0), pairs[0]["C0"]);
+    assert_eq!(serde_json::json!(r.pairs[0].c), pairs[0]["C"]);
 
     run_to(
         &["skeleton", im[0], "--octaves", "3", "--margin", "20"],

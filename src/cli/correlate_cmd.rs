@@ -518,24 +518,24 @@ fn result_json(
     a_min: f64,
     px: Option<&super::PixelSize>,
 ) -> serde_json::Value {
-    let pairs: Vec<serde_json::Value> = r
-        .pairs
-        .iter()
-        .map(|p| {
+    // the result as the library serialises it (so that it reads back as a
+    // CorrelationResult), each pair with its octaves, theory and lengths
+    let mut body = serde_json::to_value(r).expect("plain numbers");
+    if let Some(pairs) = body["pairs"].as_array_mut() {
+        for (v, p) in pairs.iter_mut().zip(&r.pairs) {
             let th: Option<Vec<Option<f64>>> = model.map(|m| {
                 p.dx.iter()
                     .map(|&dx| m.magnitude_correlation(dx, l))
                     .collect()
             });
-            json!({"a1": p.a1, "a2": p.a2, "octave1": (p.a1 / a_min).log2(), "octave2": (p.a2 / a_min).log2(),
-                "log2_dx": p.log2_dx, "dx": p.dx, "C": p.c, "C_stderr": p.c_stderr,
-                "C_ensemble": p.c_ensemble, "C_ensemble_stderr": p.c_ensemble_stderr,
-                "pairs": p.pairs, "C0": p.c0, "C0_ensemble": p.c0_ensemble, "theory": th,
-                "dx_length": px.map(|x| p.dx.iter().map(|d| d * x.side()).collect::<Vec<_>>())})
-        })
-        .collect();
-    json!({"source": r.source, "magnitude": r.magnitude, "periodic": r.periodic, "images": r.images,
-        "mean": r.mean, "stderr_method": r.stderr_method, "warnings": r.warnings, "pairs": pairs})
+            v["octave1"] = json!((p.a1 / a_min).log2());
+            v["octave2"] = json!((p.a2 / a_min).log2());
+            v["theory"] = json!(th);
+            v["dx_length"] =
+                json!(px.map(|x| p.dx.iter().map(|d| d * x.side()).collect::<Vec<_>>()));
+        }
+    }
+    body
 }
 
 /// Writes correlation.json, correlation.csv and the Fig 30 plots; returns

@@ -37,11 +37,16 @@ pub struct PairCorrelation {
     /// Number of pairs per bin (all images).
     #[serde(deserialize_with = "crate::nan_null::vec")]
     pub pairs: Vec<f64>,
-    /// Covariance at `Δx = 0`, per-image centring.
-    #[serde(deserialize_with = "crate::nan_null::f64")]
+    /// Covariance at `Δx = 0`, per-image centring (JSON `C0`, as
+    /// correlation.json; `c0` read too, as written before 2026-11-30).
+    #[serde(rename = "C0", alias = "c0", deserialize_with = "crate::nan_null::f64")]
     pub c0: f64,
-    /// Covariance at `Δx = 0`, ensemble centring.
-    #[serde(deserialize_with = "crate::nan_null::f64")]
+    /// Covariance at `Δx = 0`, ensemble centring (JSON `C0_ensemble`).
+    #[serde(
+        rename = "C0_ensemble",
+        alias = "c0_ensemble",
+        deserialize_with = "crate::nan_null::f64"
+    )]
     pub c0_ensemble: f64,
 }
 
