@@ -14,7 +14,7 @@ use super::common::{make_out_dir, parse_range};
 use super::model_args::{ModelName, ModelOpts};
 use super::{OutDir, Outcome, PixelOpts, PixelSize};
 use crate::error::{Error, Result};
-use crate::spectra::{ImagePartial, PartitionSums, Rule};
+use crate::spectra::{ImagePartial, PartitionSums, Rule, same_cells};
 
 #[derive(Args, Debug)]
 pub struct MergeArgs {
@@ -228,29 +228,6 @@ fn not_sums(path: &Path, detail: &str) -> String {
     format!("not a partition-sums file{what}: {SUMS_FILES}{beside}; the JSON reader said: {detail}")
 }
 
-/// Cells of the same sums to 1e-9 relative: the same image, or the image
-/// flipped or transposed (the same maxima, summed in another order, so
-/// equal only to the FFT's rounding). Distinct images never come so near.
-/// `zl` (weights times log2 M) nearly cancels where log2 M straddles 0, so
-/// its rounding is measured against `z` too: the weighted means of log2 M,
-/// `zl / z`, then agree to 1e-9 (in log2 units).
-fn same_cells(a: &[crate::spectra::Cell], b: &[crate::spectra::Cell]) -> bool {
-    let near = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs());
-    let near_mean = |x: f64, y: f64, z: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(z);
-    a.len() == b.len()
-        && a.iter().zip(b).all(|(c, d)| {
-            if c.z == 0.0 || d.z == 0.0 {
-                return c.z == d.z;
-            }
-            // the exponents of a value near a power of two may differ by one
-            let k = match d.e.checked_sub(c.e) {
-                Some(k) if k.abs() <= 1 => (k as f64).exp2(),
-                _ => return false,
-            };
-            near(c.z, d.z * k) && near_mean(c.zl, d.zl * k, c.z) && near(c.z2, d.z2 * k * k)
-        })
-}
-
 /// The same image in two shards (the same line counts and sums, whatever
 /// its label: a copy analysed under another name, as analyze refuses for
 /// files of the same content) would be counted twice: an error naming both
@@ -290,8 +267,7 @@ fn check_duplicate_images(paths: &[PathBuf], owner: &[usize], sums: &PartitionSu
 
 #[cfg(test)]
 mod tests {
-    use super::same_cells;
-    use crate::spectra::Cell;
+    use crate::spectra::{Cell, same_cells};
 
     fn cell(e: i32, z: f64, zl: f64, z2: f64) -> Cell {
         Cell { e, z, zl, z2 }

@@ -603,6 +603,7 @@ impl PartitionSums {
                 self.scales[last_fit]
             ));
         }
+        warnings.extend(self.duplicate_warning());
         // where a leave-one-out sample has no estimate (an image carries
         // every line that reaches the fit's top), the regression error
         // stands in for that q: said, not silent

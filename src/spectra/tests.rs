@@ -1053,3 +1053,46 @@ fn local_slopes_of_a_line() {
             .all(|v| v.is_nan())
     );
 }
+
+/// One image twice in an ensemble (here under two labels) is said, with
+/// both names: the library's own check, as `merge`'s of files; distinct
+/// images are not flagged.
+#[test]
+fn an_image_twice_is_said() {
+    let scales: Vec<f64> = (0..31).map(|j| 1.5 * 2f64.powf(j as f64 / 10.0)).collect();
+    let q = vec![-1.0, 0.0, 2.0];
+    let image = |h: f64, label: &str| {
+        let values: Vec<Vec<f64>> = scales
+            .iter()
+            .map(|&a| (0..40).map(|k| h * a.log2() + k as f64 * 0.01).collect())
+            .collect();
+        PartitionSums::from_log2_values(&scales, &values, &q, label).unwrap()
+    };
+    let mut s = image(0.3, "a");
+    s.merge(&image(0.35, "b")).unwrap();
+    s.merge(&image(0.4, "c")).unwrap();
+    assert!(s.duplicate_images().is_empty());
+    let said = |s: &PartitionSums| {
+        s.spectra(Rule::Plain, (0.5, 2.5))
+            .unwrap()
+            .warnings
+            .into_iter()
+            .filter(|w| w.contains("same line counts and sums"))
+            .collect::<Vec<_>>()
+    };
+    assert!(said(&s).is_empty());
+    s.merge(&image(0.35, "b copy")).unwrap();
+    assert_eq!(s.duplicate_images(), vec![(1, 3)]);
+    let w = said(&s);
+    assert!(
+        w.len() == 1 && w[0].starts_with("images \"b\" and \"b copy\" have"),
+        "{w:?}"
+    );
+    s.merge(&image(0.35, "b again")).unwrap();
+    assert_eq!(s.duplicate_images(), vec![(1, 3), (1, 4), (3, 4)]);
+    assert!(
+        said(&s)[0].contains("(2 more pairs alike)"),
+        "{:?}",
+        said(&s)
+    );
+}

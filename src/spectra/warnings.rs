@@ -5,6 +5,48 @@
 use super::*;
 
 impl PartitionSums {
+    /// Pairs of images `(i, j)`, `i < j`, with the same line counts and
+    /// sums ([`same_cells`], both rules): one image twice (a copy, or the
+    /// image flipped, transposed or negated, whose maxima are the same),
+    /// which would pass for two independent samples and shrink the error
+    /// bars. Images that kept no line are not compared.
+    pub fn duplicate_images(&self) -> Vec<(usize, usize)> {
+        let mut seen: std::collections::HashMap<&[u64], Vec<usize>> = Default::default();
+        let mut out = Vec::new();
+        for (j, im) in self.images.iter().enumerate() {
+            if im.lines.iter().all(|&n| n == 0) {
+                continue;
+            }
+            let same = seen.entry(im.lines.as_slice()).or_default();
+            for &i in same.iter() {
+                let o = &self.images[i];
+                if same_cells(&o.plain, &im.plain) && same_cells(&o.sup, &im.sup) {
+                    out.push((i, j));
+                }
+            }
+            same.push(j);
+        }
+        out.sort_unstable();
+        out
+    }
+
+    /// The warning on [`Self::duplicate_images`], naming the first pair.
+    pub(super) fn duplicate_warning(&self) -> Option<String> {
+        let pairs = self.duplicate_images();
+        let &(i, j) = pairs.first()?;
+        let more = match pairs.len() - 1 {
+            0 => String::new(),
+            n => format!(" ({n} more pair{} alike)", if n == 1 { "" } else { "s" }),
+        };
+        Some(format!(
+            "images {:?} and {:?}{more} have the same line counts and sums (to 1e-9): one image \
+             twice (a copy, or the image flipped, transposed or negated) passes for two \
+             independent samples, so the ensemble is smaller than it says and its error bars \
+             too small; leave the copies out",
+            self.images[i].label, self.images[j].label
+        ))
+    }
+
     /// What the missing pixels leave of the counting domains (the images'
     /// recorded [`ImagePartial::counted_share`]): ", which leaves 35 % of
     /// the counting domain", the least image's share when they differ, and
@@ -641,4 +683,27 @@ pub(super) fn legendre_warnings(q: &[f64], est: &Estimates, reps: &[Estimates]) 
         ));
     }
     out
+}
+
+/// Cells of the same sums to 1e-9 relative: the same image, or the image
+/// flipped or transposed (the same maxima, summed in another order, so
+/// equal only to the FFT's rounding). Distinct images never come so near.
+/// `zl` (weights times log2 M) nearly cancels where log2 M straddles 0, so
+/// its rounding is measured against `z` too: the weighted means of log2 M,
+/// `zl / z`, then agree to 1e-9 (in log2 units).
+pub(crate) fn same_cells(a: &[Cell], b: &[Cell]) -> bool {
+    let near = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs());
+    let near_mean = |x: f64, y: f64, z: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(z);
+    a.len() == b.len()
+        && a.iter().zip(b).all(|(c, d)| {
+            if c.z == 0.0 || d.z == 0.0 {
+                return c.z == d.z;
+            }
+            // the exponents of a value near a power of two may differ by one
+            let k = match d.e.checked_sub(c.e) {
+                Some(k) if k.abs() <= 1 => (k as f64).exp2(),
+                _ => return false,
+            };
+            near(c.z, d.z * k) && near_mean(c.zl, d.zl * k, c.z) && near(c.z2, d.z2 * k * k)
+        })
 }
