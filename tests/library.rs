@@ -334,6 +334,73 @@ fn ensemble_sums_is_the_recipe_of_analyze() {
     err(ensemble_sums(&[], &cfg, &q), "no field");
 }
 
+/// `ensemble_correlation_sums` is `correlate`'s recipe on fields in
+/// memory: a lone image split into the tiles of `default_tile_side` (so
+/// that it has errors), one part per image from 3 images, in order; a bad
+/// image is named by its index (found by helper-79's library-user review:
+/// the obvious route, `cwt_correlation` on a lone DEM, gives no errors).
+#[test]
+fn ensemble_correlation_sums_is_the_recipe_of_correlate() {
+    use wtmm::stats::correlation::{
+        CorrelationConfig, CorrelationPlan, CorrelationSums, correlation_estimates,
+        cwt_correlation, cwt_correlation_tiled, default_tile_side, ensemble_correlation_sums,
+    };
+    let cfg = CorrelationConfig {
+        scales: vec![2.0, 4.0],
+        pairs: vec![(0, 1), (1, 1)],
+        ..Default::default()
+    };
+    let fields: Vec<Field> = (0..3)
+        .map(|i| Field::new(fbm(FbmParams { hurst: 0.4 }, 128, 128, 9, i).unwrap()))
+        .collect();
+    let bits = |s: &CorrelationSums| {
+        let r = correlation_estimates(s).unwrap();
+        let v: Vec<u64> = r
+            .pairs
+            .iter()
+            .flat_map(|p| p.c.iter().chain(&p.c_stderr).map(|x| x.to_bits()))
+            .collect();
+        (v, r.stderr_method)
+    };
+    let plan = CorrelationPlan::new(128, 128, &cfg).unwrap();
+    // one image: tiles, and errors
+    let one = ensemble_correlation_sums(&fields[..1], &cfg).unwrap();
+    let side = default_tile_side(plan.domain());
+    let by_hand = cwt_correlation_tiled(&fields[0], &plan, "image 0", side).unwrap();
+    let (a, b) = (bits(&one), bits(&by_hand));
+    assert_eq!(a, b);
+    assert!(a.1.contains("tiles"), "{}", a.1);
+    let r = correlation_estimates(&one).unwrap();
+    assert!(
+        r.pairs[0]
+            .c_stderr
+            .iter()
+            .any(|e| e.is_finite() && *e > 0.0)
+    );
+    // three: over the images, the merge of each image's sums
+    let three = ensemble_correlation_sums(&fields, &cfg).unwrap();
+    let mut merged = cwt_correlation(&fields[0], &plan, "image 0").unwrap();
+    for (i, f) in fields.iter().enumerate().skip(1) {
+        merged
+            .merge(&cwt_correlation(f, &plan, format!("image {i}")).unwrap())
+            .unwrap();
+    }
+    let (a, b) = (bits(&three), bits(&merged));
+    assert_eq!(a, b);
+    assert_eq!(a.1, "jackknife over images");
+    // images of two sizes: refused, as correlate refuses them
+    let mut mixed = fields.clone();
+    mixed[1] = Field::new(fbm(FbmParams { hurst: 0.4 }, 96, 128, 9, 1).unwrap());
+    err(
+        ensemble_correlation_sums(&mixed, &cfg),
+        "image 1 is 96x128, but image 0 is 128x128",
+    );
+    let mut bad = fields.clone();
+    bad[2] = Field::new(Array2::from_elem((128, 128), 1.0));
+    err(ensemble_correlation_sums(&bad, &cfg), "image 2: ");
+    err(ensemble_correlation_sums(&[], &cfg), "no field");
+}
+
 /// Found by helper-41's external-consumer review: absurd grids and margins,
 /// a mask of another shape built through the public fields, and |q| beyond
 /// what the sums' exponents hold are errors naming the problem (before:

@@ -6,7 +6,7 @@ use super::*;
 
 impl PartitionSums {
     /// Pairs of images `(i, j)`, `i < j`, with the same line counts and
-    /// sums ([`same_cells`], both rules): one image twice (a copy, or the
+    /// sums (to 1e-9, both rules): one image twice (a copy, or the
     /// image flipped, transposed or negated, whose maxima are the same),
     /// which would pass for two independent samples and shrink the error
     /// bars. Images that kept no line are not compared.

@@ -93,6 +93,11 @@
 //! let r = correlation_estimates(&s).unwrap();
 //! assert!(r.pairs[0].c0 > 0.0); // the variance of ln M
 //! ```
+//!
+//! One image so correlated has no error bars (`stderr_method` "none"):
+//! [`ensemble_correlation_sums`] is `correlate`'s recipe on fields in
+//! memory, a lone image split into jackknife tiles, or a jackknife over 3
+//! images or more.
 
 use std::sync::{Arc, Mutex};
 
@@ -1465,6 +1470,63 @@ pub fn cwt_correlation_tiled(
     let out = cwt_correlation_in(field, &fi, plan, &mut ws, label.into(), tile_side);
     plan.give(ws);
     out
+}
+
+/// The CWT correlation sums of an ensemble of fields held in memory, made
+/// as `wtmm correlate` makes them from files: one plan for their size,
+/// each field's sums ([`cwt_correlation_tiled`]), with fewer than 3
+/// fields each split into the tiles of [`default_tile_side`] so that the
+/// jackknife runs over them (an untiled lone image has no errors), merged
+/// in order; fields in parallel, as many at a time as there are threads
+/// (each holds a workspace of the one plan). Then [`correlation_estimates`] gives
+/// `C(Δx; a1, a2)` with the errors `correlate` reports. Field `i` is
+/// labelled `image i`.
+///
+/// **Errors** with no field, fields of different sizes (as `correlate`:
+/// the lag bins follow the size), an invalid `cfg`, or a field the plan
+/// refuses (naming its index: no valid pixel, a scale with no valid
+/// point, an image smaller than the margin).
+pub fn ensemble_correlation_sums(
+    fields: &[Field],
+    cfg: &CorrelationConfig,
+) -> Result<CorrelationSums> {
+    cfg.validate()?;
+    let named = |i: usize| {
+        move |e: Error| match e {
+            Error::Input(m) => Error::Input(format!("image {i}: {m}")),
+            e => e,
+        }
+    };
+    let Some(first) = fields.first() else {
+        return Err(Error::Input("no field given".into()));
+    };
+    // as `correlate`: the lag bins (max_dx) and the domain follow the size
+    let (ny, nx) = first.dim();
+    if let Some((i, f)) = fields.iter().enumerate().find(|(_, f)| f.dim() != (ny, nx)) {
+        let (fy, fx) = f.dim();
+        return Err(Error::Input(format!(
+            "image {i} is {fy}x{fx}, but image 0 is {ny}x{nx}: a correlation ensemble needs \
+             one image size"
+        )));
+    }
+    let plan = CorrelationPlan::new(ny, nx, cfg).map_err(named(0))?;
+    let tiles = fields.len() < 3;
+    let parts = crate::par::try_map(fields.len(), |i| {
+        let f = &fields[i];
+        let plan = &plan;
+        let side = if tiles {
+            default_tile_side(plan.domain())
+        } else {
+            0
+        };
+        cwt_correlation_tiled(f, plan, format!("image {i}"), side).map_err(named(i))
+    })?;
+    let mut it = parts.into_iter();
+    let mut acc = it.next().expect("one field at least");
+    for p in it {
+        acc.merge(&p)?;
+    }
+    Ok(acc)
 }
 
 fn cwt_correlation_in(
