@@ -204,6 +204,28 @@ fn a_constant_image_is_called_constant() {
         image_sums(&Field::new(f), &torus(3), &[0.0], "h"),
         "missing pixels",
     );
+    // a step edge: its lines die at once in a domain wide enough for the
+    // scales, which is said (helper-79: "the counting domain is too
+    // small" for a 184 px domain), while a domain too small still is
+    let step = Array2::from_shape_fn((256, 256), |(_, x)| f64::from(u8::from(x >= 128)));
+    let three = AnalysisConfig {
+        octaves: 3,
+        ..Default::default()
+    };
+    let s = image_sums(&Field::new(step), &three, &[0.0, 2.0], "step").unwrap();
+    let e = s.spectra(Rule::Plain, (0.5, 3.0)).unwrap_err().to_string();
+    assert!(
+        e.contains("184 px across, holds 2.6 wavelet supports"),
+        "{e}"
+    );
+    assert!(!e.contains("too small"), "{e}");
+    let small = fbm(FbmParams { hurst: 0.4 }, 300, 300, 6, 0).unwrap();
+    let five = AnalysisConfig::default();
+    let s = image_sums(&Field::new(small), &five, &[0.0, 2.0], "small").unwrap();
+    err(
+        s.spectra(Rule::Plain, default_fit(5, 10)),
+        "the counting domain is too small for these scales",
+    );
 }
 
 /// Periodic fields are analysed on the whole torus, others inside the

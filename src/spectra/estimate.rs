@@ -295,7 +295,30 @@ impl PartitionSums {
             // local exponents a line can follow, LinkParams::ratio)
             let margin = self.analysis.as_ref().map_or(0, |a| a.margin_px());
             let info = self.info_hint();
-            let cure = if margin > 0 || missing > 0 {
+            // a domain several wavelet supports wide at the fit's top is
+            // not what ends the lines (a step edge's lines die at once in
+            // a 184 px domain): said so, not "too small"
+            let roomy = match (
+                &self.analysis,
+                self.images.iter().filter_map(|im| im.shape).min(),
+            ) {
+                (Some(cfg), Some([ny, nx])) if missing == 0 => {
+                    let side = ny.min(nx).saturating_sub(2 * margin) as f64;
+                    let across = 2.0 * cfg.wavelet.support_radius() * self.scales[last_fit];
+                    (side >= 2.0 * across).then_some((side, across))
+                }
+                _ => None,
+            };
+            let cure = if let Some((side, across)) = roomy {
+                format!(
+                    "; yet the counting domain, {side:.0} px across, holds {:.1} wavelet \
+                     supports ({across:.0} px) at the top of the fit, so its size is not what \
+                     ends the lines: the image has few singularities that persist across \
+                     scales (smooth, piecewise flat or quantised, e.g. a step edge or \
+                     terraces), or the linking loses them",
+                    side / across
+                )
+            } else if margin > 0 || missing > 0 {
                 format!(
                     "; the counting domain is too small for these scales (use fewer octaves, a \
                      smaller margin, or a lower fit range: --octaves, --margin, --fit{info})"
