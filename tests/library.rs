@@ -421,6 +421,7 @@ fn ensemble_correlation_sums_is_the_recipe_of_correlate() {
     bad[2] = Field::new(Array2::from_elem((128, 128), 1.0));
     err(ensemble_correlation_sums(&bad, &cfg), "image 2: ");
     err(ensemble_correlation_sums(&[], &cfg), "no field");
+    assert!(CorrelationSums::merge_all(Vec::new()).unwrap().is_none());
 }
 
 /// Found by helper-41's external-consumer review: absurd grids and margins,

@@ -523,6 +523,10 @@ fn kernel_sums_merge_in_any_order() {
     let a = kernel_estimates(&s, &opts_all_scales()).unwrap();
     let b = kernel_estimates(&rev, &opts_all_scales()).unwrap();
     assert_eq!(a, b, "merge order changed the result");
+    // merge_all: the parts in order, and nothing for no parts
+    let all = KernelSums::merge_all(parts).unwrap().unwrap();
+    assert_eq!(kernel_estimates(&all, &opts_all_scales()).unwrap(), a);
+    assert!(KernelSums::merge_all(Vec::new()).unwrap().is_none());
 }
 
 /// II Fig 29: pushing P_a' through the exact Gaussian kernel reproduces

@@ -1369,6 +1369,23 @@ impl CorrelationSums {
         Ok(())
     }
 
+    /// Merges many, in order ([`Self::merge`]); `None` for an empty list
+    /// (as [`crate::spectra::PartitionSums::merge_all`]).
+    ///
+    /// **Errors** as [`Self::merge`].
+    pub fn merge_all(
+        parts: impl IntoIterator<Item = CorrelationSums>,
+    ) -> Result<Option<CorrelationSums>> {
+        let mut it = parts.into_iter();
+        let Some(mut acc) = it.next() else {
+            return Ok(None);
+        };
+        for p in it {
+            acc.merge(&p)?;
+        }
+        Ok(Some(acc))
+    }
+
     /// Adds `other`'s images.
     ///
     /// **Errors** if the two were computed with different settings, or
@@ -1521,12 +1538,7 @@ pub fn ensemble_correlation_sums(
         };
         cwt_correlation_tiled(f, plan, format!("image {i}"), side).map_err(named(i))
     })?;
-    let mut it = parts.into_iter();
-    let mut acc = it.next().expect("one field at least");
-    for p in it {
-        acc.merge(&p)?;
-    }
-    Ok(acc)
+    Ok(CorrelationSums::merge_all(parts)?.expect("one field at least"))
 }
 
 fn cwt_correlation_in(

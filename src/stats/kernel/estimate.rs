@@ -434,14 +434,7 @@ pub fn ensemble_kernel_sums(
             side,
         )
     })?;
-    let mut it = parts.into_iter();
-    let mut acc = it
-        .next()
-        .ok_or_else(|| Error::Input("no field given".into()))?;
-    for p in it {
-        acc.merge(&p)?;
-    }
-    Ok(acc)
+    KernelSums::merge_all(parts)?.ok_or_else(|| Error::Input("no field given".into()))
 }
 
 /// Grid indices inside the fit range `fit` (octaves above the smallest scale).

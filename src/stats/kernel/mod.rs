@@ -121,13 +121,16 @@ use num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::stats::pdf::{Point, WtmmmSet};
+use crate::stats::pdf::Point;
 
 mod estimate;
 mod reconstruction;
 #[cfg(test)]
 mod tests;
 
+/// The WTMMM the kernel reads ([`KernelSums::set`]), here beside the
+/// kernel's other types.
+pub use crate::stats::pdf::WtmmmSet;
 pub use estimate::{
     CnRow, CnTable, DEFAULT_PAIR_OCTAVES, DEFAULT_REF_OCTAVES, Estimate, FittedCumulants,
     KernelCurve, KernelOptions, KernelResult, MIN_WTMMM, NOISE_SIGMAS, check_wtmmm_counts,
@@ -647,6 +650,21 @@ impl KernelSums {
             }
         }
         Ok(())
+    }
+
+    /// Merges many, in order ([`Self::merge`]); `None` for an empty list
+    /// (as [`crate::spectra::PartitionSums::merge_all`]).
+    ///
+    /// **Errors** as [`Self::merge`].
+    pub fn merge_all(parts: impl IntoIterator<Item = KernelSums>) -> Result<Option<KernelSums>> {
+        let mut it = parts.into_iter();
+        let Some(mut acc) = it.next() else {
+            return Ok(None);
+        };
+        for p in it {
+            acc.merge(&p)?;
+        }
+        Ok(Some(acc))
     }
 
     /// Adds `other`'s images (order-independent once evaluated).
