@@ -16,6 +16,7 @@ use crate::plot::{Chart, Series, Style, part_names};
 use crate::skeleton::{AnalysisConfig, LinkParams, Parallelism, SearchRadius};
 use crate::spectra::{
     PartitionSums, Rule, Spectra, at_wavelet_order, default_tile_side, image_sums_tiled, is_curved,
+    local_slope_chords,
 };
 use crate::theory::{Model, TheoryTable};
 
@@ -677,11 +678,11 @@ fn write_per_scale_csv(path: &Path, s: &Spectra) -> Result<()> {
 /// The legend line of the per-scale figures' bars: the errors they are,
 /// or why there are none (the regression's errors are of slopes, not of
 /// the points: fewer than 3 images and no tiles).
-fn per_scale_bars(s: &Spectra) -> String {
-    let any = s
-        .log2_z_stderr
+fn per_scale_bars(s: &Spectra, errors: &[&Vec<Vec<f64>>]) -> String {
+    let any = errors
         .iter()
-        .chain(&s.h_qa_stderr)
+        .copied()
+        .flatten()
         .flatten()
         .any(|e| e.is_finite());
     if any {
@@ -709,7 +710,7 @@ fn wavelet_order(sums: &PartitionSums) -> Option<f64> {
     sums.analysis.as_ref().map(|a| f64::from(a.wavelet.order()))
 }
 
-/// The local slopes of `log2 Z(q, a)`, over one octave centred on each
+/// The local slopes of `log2 Z(q, a)`, over about one octave around each
 /// scale, against `log2 a`, with each fitted tau(q) drawn over the fit
 /// range: where a curve is flat and on its line the partition function is a
 /// power law; where it drifts, the fitted tau(q) is an average of slopes
@@ -717,15 +718,18 @@ fn wavelet_order(sums: &PartitionSums) -> Option<f64> {
 fn local_slopes(s: &Spectra, shown: &[usize], what: &str, px: Option<(f64, &str)>) -> Chart {
     let l = &s.log2_scales;
     let (lo, hi) = (s.fit_scales.0.log2(), s.fit_scales.1.log2());
-    // about one octave (2 w + 1 scales, spectra::local_slope_half_width):
-    // fewer scales (`--octaves 1` at 10 voices gives 10) leave no slope to
+    // chords of an octave or more (spectra::local_slope_chords): a grid of
+    // less (`--octaves 1` at 10 voices gives 10 scales) leaves no slope to
     // draw, which the title says
+    let any = local_slope_chords(l).iter().any(|c| c.is_some());
     let span = s.local_slope_octaves;
-    let title = if span.is_finite() {
+    let title = if any {
         let over = if (span - 1.0).abs() < 1e-6 {
             "one octave".to_string()
-        } else {
+        } else if span.is_finite() {
             format!("{span:.2} octaves")
+        } else {
+            "an octave or more (uneven scales)".to_string()
         };
         format!("local slopes of log2 Z(q, a), over {over}: {what}")
     } else {
@@ -780,12 +784,14 @@ fn local_slopes(s: &Spectra, shown: &[usize], what: &str, px: Option<(f64, &str)
         Style::Dashed,
         THEORY_COLOR,
     ));
-    c.series.push(Series::new(
-        per_scale_bars(s),
-        Vec::new(),
-        Style::Line,
-        THEORY_COLOR,
-    ));
+    if any {
+        c.series.push(Series::new(
+            per_scale_bars(s, &[&s.local_slopes_stderr]),
+            Vec::new(),
+            Style::Line,
+            THEORY_COLOR,
+        ));
+    }
     c
 }
 
@@ -923,7 +929,7 @@ pub fn plot_spectra(
         }
     }
     // one legend line for the fitted lines: what they are and where
-    for chart in [&mut za, &mut hb] {
+    for (chart, errors) in [(&mut za, &s.log2_z_stderr), (&mut hb, &s.h_qa_stderr)] {
         chart.series.push(Series::new(
             format!(
                 "lines: fits over a = {:.1}-{:.1} px{}",
@@ -936,7 +942,7 @@ pub fn plot_spectra(
             THEORY_COLOR,
         ));
         chart.series.push(Series::new(
-            per_scale_bars(s),
+            per_scale_bars(s, &[errors]),
             Vec::new(),
             Style::Markers,
             THEORY_COLOR,

@@ -579,7 +579,18 @@ impl PartitionSums {
         } else {
             Vec::new()
         };
-        warnings.extend(unlike_images(&per_image));
+        let dups = self.duplicate_images();
+        warnings.extend(self.duplicate_warning(&dups));
+        // copies of an image (said above) would make the others look alike
+        // and any distinct image "unlike" them: the test sees each once
+        let copies: Vec<usize> = dups.iter().map(|p| p.1).collect();
+        let distinct: Vec<ImageExponents> = per_image
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| !copies.contains(i))
+            .map(|(_, e)| e.clone())
+            .collect();
+        warnings.extend(unlike_images(&distinct));
         warnings.extend(self.plane_warning());
         warnings.extend(self.fill_warning());
         warnings.extend(self.quantisation_warnings(self.scales[in_fit[0]]));
@@ -626,7 +637,6 @@ impl PartitionSums {
                 self.scales[last_fit]
             ));
         }
-        warnings.extend(self.duplicate_warning());
         // where a leave-one-out sample has no estimate (an image carries
         // every line that reaches the fit's top), the regression error
         // stands in for that q: said, not silent
@@ -660,11 +670,15 @@ impl PartitionSums {
         // no jackknife (fewer than 3 groups): no per-scale errors
         let [z_se, h_se, d_se, slope_se] = per_scale.map(|acc| cell(&acc.stderr()));
         let [_, _, d_qa, slopes] = values;
-        let w = local_slope_half_width(&log2_a);
-        let local_slope_octaves = if ns > 2 * w {
-            round9(log2_a[2 * w] - log2_a[0])
-        } else {
-            f64::NAN
+        // one span when every chord has it (a regular grid), else NaN
+        let spans: Vec<f64> = local_slope_chords(&log2_a)
+            .into_iter()
+            .flatten()
+            .map(|(i, k)| round9(log2_a[k] - log2_a[i]))
+            .collect();
+        let local_slope_octaves = match spans.first() {
+            Some(&w) if spans.iter().all(|&x| (x - w).abs() <= 1e-6) => w,
+            _ => f64::NAN,
         };
         Ok(Spectra {
             rule,
@@ -959,31 +973,38 @@ impl Estimates {
     }
 }
 
-/// Scales either side of each local slope's centre ([`local_slopes`]):
-/// half an octave (5 at 10 voices per octave), at least 1.
-pub fn local_slope_half_width(log2_a: &[f64]) -> usize {
-    let step = if log2_a.len() > 1 {
-        log2_a[1] - log2_a[0]
-    } else {
-        1.0
-    };
-    ((0.5 / step).round() as usize).max(1)
+/// The ends `(i, k)`, `i < j < k`, of the chord behind the local slope at
+/// each scale `j` ([`local_slopes`]): the nearest scales at least half an
+/// octave below and above it (3 voices per octave take 2 scales either
+/// side, 4/3 octave in all; 10 voices 5, one octave; on an irregular list
+/// the chord is longer where the scales are sparse, never shorter than an
+/// octave). `None` where the grid does not reach half an octave below or
+/// above `j`.
+pub fn local_slope_chords(log2_a: &[f64]) -> Vec<Option<(usize, usize)>> {
+    // half an octave, less a rounding margin (5 steps of 0.1 octave)
+    const HALF: f64 = 0.5 - 1e-9;
+    let n = log2_a.len();
+    (0..n)
+        .map(|j| {
+            let i = (0..j).rev().find(|&i| log2_a[j] - log2_a[i] >= HALF)?;
+            let k = (j + 1..n).find(|&k| log2_a[k] - log2_a[j] >= HALF)?;
+            Some((i, k))
+        })
+        .collect()
 }
 
 /// The local slopes of one q's `log2 Z(q, a)` (`log2_z`, one value per
-/// scale) against `log2 a`: at scale j the chord from j - w to j + w
-/// ([`local_slope_half_width`]), NaN within w of either end.
+/// scale) against `log2 a`: at scale j the chord between the ends of
+/// [`local_slope_chords`], about one octave; NaN where there is none.
 ///
 /// **Panics** if the two differ in length.
 pub fn local_slopes(log2_a: &[f64], log2_z: &[f64]) -> Vec<f64> {
     assert_eq!(log2_a.len(), log2_z.len(), "local_slopes: lengths differ");
-    let (n, w) = (log2_a.len(), local_slope_half_width(log2_a));
-    (0..n)
-        .map(|j| {
-            if j < w || j + w >= n {
-                return f64::NAN;
-            }
-            (log2_z[j + w] - log2_z[j - w]) / (log2_a[j + w] - log2_a[j - w])
+    local_slope_chords(log2_a)
+        .into_iter()
+        .map(|c| match c {
+            Some((i, k)) => (log2_z[k] - log2_z[i]) / (log2_a[k] - log2_a[i]),
+            None => f64::NAN,
         })
         .collect()
 }

@@ -889,8 +889,9 @@ pub struct Spectra {
     )]
     pub d_qa_stderr: Vec<Vec<f64>>,
     /// The local slope of `log2 Z(q, a)` against `log2 a` at each scale,
-    /// per q: the chord over `local_slope_octaves` centred on it
-    /// ([`local_slopes`]); NaN within half that of either end of the grid.
+    /// per q: the chord between the scales nearest half an octave either
+    /// side ([`local_slopes`], over `local_slope_octaves`); NaN within half
+    /// an octave of either end of the grid.
     /// Flat over the fit range where `Z` is a power law; the fitted tau(q)
     /// averages it where it drifts (`tau_slope_change`).
     #[serde(default, deserialize_with = "crate::nan_null::vec2")]
@@ -901,7 +902,9 @@ pub struct Spectra {
     #[serde(default, deserialize_with = "crate::nan_null::vec2")]
     pub local_slopes_stderr: Vec<Vec<f64>>,
     /// The span in octaves of the local slopes' chords (1 at 10 voices per
-    /// octave; NaN when the grid spans less).
+    /// octave, 4/3 at 3); NaN when there is no chord (a grid of less than
+    /// an octave) or when the chords differ (an irregular scale list:
+    /// [`local_slope_chords`]).
     #[serde(default = "nan", deserialize_with = "crate::nan_null::f64")]
     pub local_slope_octaves: f64,
     /// Effective number of lines `Z^2 / Σ M^2q` per q, per scale.
@@ -986,17 +989,7 @@ impl PartitionSums {
     /// The octaves the scales span, the last scale plus one step (a grid
     /// of 4 octaves spans 4), and that step in octaves (0 for one scale).
     pub(crate) fn grid_span(&self) -> (f64, f64) {
-        let n = self.scales.len();
-        let step = if n > 1 {
-            (self.scales[1] / self.scales[0]).log2()
-        } else {
-            0.0
-        };
-        let span = match (self.scales.first(), self.scales.last()) {
-            (Some(a0), Some(a1)) => (a1 / a0).log2() + step,
-            _ => 0.0,
-        };
-        (span, step)
+        grid_span_of(&self.scales)
     }
 
     /// [`default_fit`] for the grid of these sums: its whole octaves and
@@ -1331,6 +1324,21 @@ fn config_difference(
     d.join("; ")
 }
 
+/// The octaves a grid of `scales` spans, its last scale plus one step (4
+/// for a grid of 4 octaves), and that step (the first): `(span, step)`.
+fn grid_span_of(scales: &[f64]) -> (f64, f64) {
+    let step = if scales.len() > 1 {
+        (scales[1] / scales[0]).log2()
+    } else {
+        0.0
+    };
+    let span = match (scales.first(), scales.last()) {
+        (Some(a0), Some(a1)) => (a1 / a0).log2() + step,
+        _ => 0.0,
+    };
+    (span, step)
+}
+
 /// Checks a fit range `fit = (lo, hi)` in octaves above the smallest of
 /// `scales` (a grid of ratio-spaced scales, the first step its voice):
 /// `0 <= lo < hi <= top`, `top` the octaves the grid spans (its last scale
@@ -1346,12 +1354,7 @@ fn config_difference(
 pub fn check_fit_on_grid(scales: &[f64], fit: (f64, f64)) -> Result<()> {
     let log2_a: Vec<f64> = scales.iter().map(|a| a.log2()).collect();
     let oct0 = log2_a.first().copied().unwrap_or(0.0);
-    let step = if log2_a.len() > 1 {
-        log2_a[1] - log2_a[0]
-    } else {
-        0.0
-    };
-    let top = log2_a.last().map_or(0.0, |l| l - oct0 + step);
+    let (top, _) = grid_span_of(scales);
     if !(fit.0 >= -1e-9 && fit.0 < fit.1 && fit.1 <= top + 1e-6) {
         return Err(Error::param(
             "fit",

@@ -413,7 +413,8 @@ fn per_image_exponents_and_the_unlike_test() {
             .collect();
         PartitionSums::from_log2_values(&scales, &values, &q, label).unwrap()
     };
-    let hs = [0.30, 0.31, 0.29, 0.30, 0.80];
+    // distinct images (copies are seen once: an_image_twice_is_said)
+    let hs = [0.30, 0.31, 0.29, 0.305, 0.80];
     let mut sums = image(hs[0], 1e9, "a0");
     for (i, &h) in hs.iter().enumerate().skip(1) {
         sums.merge(&image(h, 1e9, &format!("a{i}"))).unwrap();
@@ -1029,19 +1030,26 @@ fn per_scale_errors_are_the_jackknife_of_the_scales() {
 }
 
 /// Local slopes are the chords over about an octave: exact on a line, NaN
-/// within half the chord of either end, 4/3 octaves at 3 voices per
-/// octave (2 scales either side: half an octave rounds up).
+/// within half an octave of either end; on regular grids the scales
+/// ceil(voices / 2) either side (4/3 octaves at 3 voices per octave); on
+/// an irregular list (helper-80: the first step alone gave no slope on
+/// [1.5, 1.6, 2, 3, 6, 12, 24] and a 0.17 octave chord called 1.09) the
+/// nearest scales at least half an octave either side.
 #[test]
 fn local_slopes_of_a_line() {
-    for (voices, w) in [(10, 5), (3, 2), (1, 1)] {
-        let l: Vec<f64> = (0..20).map(|j| j as f64 / voices as f64).collect();
-        assert_eq!(local_slope_half_width(&l), w);
-        let z: Vec<f64> = l.iter().map(|x| 3.0 - 1.7 * x).collect();
-        let s = local_slopes(&l, &z);
+    let line = |l: &[f64]| -> Vec<f64> { l.iter().map(|x| 3.0 - 1.7 * x).collect() };
+    for voices in 1..=13usize {
+        let w = voices.div_ceil(2);
+        let l: Vec<f64> = (0..3 * voices + 1)
+            .map(|j| j as f64 / voices as f64)
+            .collect();
+        let chords = local_slope_chords(&l);
+        let s = local_slopes(&l, &line(&l));
         for (j, v) in s.iter().enumerate() {
             if j < w || j + w >= l.len() {
-                assert!(v.is_nan());
+                assert!(v.is_nan() && chords[j].is_none(), "{voices} {j}");
             } else {
+                assert_eq!(chords[j], Some((j - w, j + w)), "{voices} {j}");
                 assert!((v + 1.7).abs() < 1e-12, "{voices} {j}: {v}");
             }
         }
@@ -1052,6 +1060,41 @@ fn local_slopes_of_a_line() {
             .iter()
             .all(|v| v.is_nan())
     );
+    // irregular lists: the nearest scales at least half an octave away
+    for (scales, want) in [
+        (
+            vec![1.5, 1.6, 2.0, 3.0, 6.0, 12.0, 24.0],
+            vec![
+                None,
+                None,
+                None,
+                Some((2, 4)),
+                Some((3, 5)),
+                Some((4, 6)),
+                None,
+            ],
+        ),
+        (
+            vec![1.5, 3.0, 3.2, 3.4, 3.6, 6.0, 12.0, 24.0],
+            vec![
+                None,
+                Some((0, 5)),
+                Some((0, 5)),
+                Some((0, 5)),
+                Some((0, 5)),
+                Some((4, 6)),
+                Some((5, 7)),
+                None,
+            ],
+        ),
+    ] {
+        let l: Vec<f64> = scales.iter().map(|a: &f64| a.log2()).collect();
+        assert_eq!(local_slope_chords(&l), want, "{scales:?}");
+        for (v, c) in local_slopes(&l, &line(&l)).iter().zip(&want) {
+            assert_eq!(v.is_nan(), c.is_none());
+            assert!(c.is_none() || (v + 1.7).abs() < 1e-12);
+        }
+    }
 }
 
 /// One image twice in an ensemble (here under two labels) is said, with
@@ -1094,5 +1137,19 @@ fn an_image_twice_is_said() {
         said(&s)[0].contains("(2 more pairs alike)"),
         "{:?}",
         said(&s)
+    );
+    // copies do not make another image "unlike" them (four b's are a
+    // sample of sd 0, from which any other value is infinitely far): the
+    // unlike-image test sees each image once
+    let mut s = image(0.3, "a");
+    for k in 0..4 {
+        s.merge(&image(0.35, &format!("b{k}"))).unwrap();
+    }
+    let sp = s.spectra(Rule::Plain, (0.5, 2.5)).unwrap();
+    assert_eq!(sp.per_image.len(), 5);
+    assert!(
+        !sp.warnings.iter().any(|w| w.contains("looks unlike")),
+        "{:?}",
+        sp.warnings
     );
 }

@@ -30,9 +30,9 @@ impl PartitionSums {
         out
     }
 
-    /// The warning on [`Self::duplicate_images`], naming the first pair.
-    pub(super) fn duplicate_warning(&self) -> Option<String> {
-        let pairs = self.duplicate_images();
+    /// The warning on the pairs of [`Self::duplicate_images`], naming the
+    /// first.
+    pub(super) fn duplicate_warning(&self, pairs: &[(usize, usize)]) -> Option<String> {
         let &(i, j) = pairs.first()?;
         let more = match pairs.len() - 1 {
             0 => String::new(),
