@@ -1153,3 +1153,73 @@ fn an_image_twice_is_said() {
         sp.warnings
     );
 }
+
+/// The per-scale errors of a lone image split into tiles are the
+/// jackknife over its tiles, on both paths: 16 tiles (each left-out sum
+/// summed again) and 100 (running sums from both ends, past
+/// LOO_REFOLD_MAX), each replicate rebuilt here from the tiles' sums with
+/// one tile left out (helper-80: only the images' path was tested).
+#[test]
+fn per_scale_errors_of_a_lone_image_run_over_its_tiles() {
+    let f = crate::Field::new(
+        crate::synth::fbm::fbm(crate::synth::fbm::FbmParams { hurst: 0.4 }, 128, 128, 3, 0)
+            .unwrap(),
+    );
+    let cfg = crate::skeleton::AnalysisConfig {
+        octaves: 2,
+        margin: Some(0),
+        ..Default::default()
+    };
+    let q = [-1.0, 0.0, 2.0];
+    for (side, tiles) in [(32, 16), (12, 100)] {
+        let s = image_sums_tiled(
+            &f,
+            &cfg,
+            &q,
+            "f",
+            crate::skeleton::Parallelism::Serial,
+            side,
+        )
+        .unwrap();
+        let sp = s.spectra(Rule::Plain, (0.5, 2.0)).unwrap();
+        assert!(
+            sp.stderr_method.contains(&format!("{tiles} tiles")),
+            "{}",
+            sp.stderr_method
+        );
+        assert_eq!(tiles > LOO_REFOLD_MAX, side == 12);
+        let groups = s.tile_groups().unwrap();
+        let log2_a: Vec<f64> = s.scales.iter().map(|a| a.log2()).collect();
+        let reps: Vec<[Vec<f64>; 4]> = (0..tiles)
+            .map(|t| scale_values(&groups.ensemble(Rule::Plain, Some(t)), &q, &log2_a))
+            .collect();
+        let ns = log2_a.len();
+        let mut checked = 0;
+        for (k, got) in [
+            &sp.log2_z_stderr,
+            &sp.h_qa_stderr,
+            &sp.d_qa_stderr,
+            &sp.local_slopes_stderr,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            for qi in 0..q.len() {
+                for j in 0..ns {
+                    let v: Vec<f64> = reps.iter().map(|r| r[k][qi * ns + j]).collect();
+                    let want = crate::stats::jackknife_se(&v);
+                    let g = got[qi][j];
+                    assert_eq!(g.is_nan(), want.is_nan(), "{side} {k} {qi} {j}");
+                    if want.is_finite() {
+                        assert!(
+                            (g - want).abs() <= 1e-9 * want + 1e-12,
+                            "{side} {k} {qi} {j}: {g} vs {want}"
+                        );
+                        checked += usize::from(want > 0.0);
+                    }
+                }
+            }
+        }
+        assert!(checked > 100, "{side}: {checked}");
+    }
+}
