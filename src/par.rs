@@ -243,6 +243,22 @@ where
     accs.try_fold(first_acc, merge).map_err(|e| (usize::MAX, e))
 }
 
+/// `parts` merged in order with `merge`, `None` for none: the `merge_all`
+/// of each kind of mergeable sums.
+pub(crate) fn merge_in_order<T>(
+    parts: impl IntoIterator<Item = T>,
+    merge: impl Fn(&mut T, &T) -> Result<()>,
+) -> Result<Option<T>> {
+    let mut it = parts.into_iter();
+    let Some(mut acc) = it.next() else {
+        return Ok(None);
+    };
+    for p in it {
+        merge(&mut acc, &p)?;
+    }
+    Ok(Some(acc))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

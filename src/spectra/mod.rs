@@ -467,14 +467,7 @@ impl PartitionSums {
     pub fn merge_all(
         parts: impl IntoIterator<Item = PartitionSums>,
     ) -> Result<Option<PartitionSums>> {
-        let mut it = parts.into_iter();
-        let Some(mut acc) = it.next() else {
-            return Ok(None);
-        };
-        for p in it {
-            acc.merge(&p)?;
-        }
-        Ok(Some(acc))
+        crate::par::merge_in_order(parts, Self::merge)
     }
 
     /// Checks sums read from a file before they are trusted (a shard may

@@ -1376,14 +1376,7 @@ impl CorrelationSums {
     pub fn merge_all(
         parts: impl IntoIterator<Item = CorrelationSums>,
     ) -> Result<Option<CorrelationSums>> {
-        let mut it = parts.into_iter();
-        let Some(mut acc) = it.next() else {
-            return Ok(None);
-        };
-        for p in it {
-            acc.merge(&p)?;
-        }
-        Ok(Some(acc))
+        crate::par::merge_in_order(parts, Self::merge)
     }
 
     /// Adds `other`'s images.

@@ -657,14 +657,7 @@ impl KernelSums {
     ///
     /// **Errors** as [`Self::merge`].
     pub fn merge_all(parts: impl IntoIterator<Item = KernelSums>) -> Result<Option<KernelSums>> {
-        let mut it = parts.into_iter();
-        let Some(mut acc) = it.next() else {
-            return Ok(None);
-        };
-        for p in it {
-            acc.merge(&p)?;
-        }
-        Ok(Some(acc))
+        crate::par::merge_in_order(parts, Self::merge)
     }
 
     /// Adds `other`'s images (order-independent once evaluated).
