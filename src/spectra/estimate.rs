@@ -981,7 +981,8 @@ impl Estimates {
 /// octave). `None` where the grid does not reach half an octave below or
 /// above `j`.
 pub fn local_slope_chords(log2_a: &[f64]) -> Vec<Option<(usize, usize)>> {
-    // half an octave, less a rounding margin (5 steps of 0.1 octave)
+    // half an octave, less a rounding margin (five voices of 0.1 octave
+    // may sum to 0.49999999999999994)
     const HALF: f64 = 0.5 - 1e-9;
     let n = log2_a.len();
     (0..n)
@@ -1000,9 +1001,14 @@ pub fn local_slope_chords(log2_a: &[f64]) -> Vec<Option<(usize, usize)>> {
 /// **Panics** if the two differ in length.
 pub fn local_slopes(log2_a: &[f64], log2_z: &[f64]) -> Vec<f64> {
     assert_eq!(log2_a.len(), log2_z.len(), "local_slopes: lengths differ");
-    local_slope_chords(log2_a)
-        .into_iter()
-        .map(|c| match c {
+    slopes_on(&local_slope_chords(log2_a), log2_a, log2_z)
+}
+
+/// [`local_slopes`] on chords found once ([`local_slope_chords`]).
+fn slopes_on(chords: &[Option<(usize, usize)>], log2_a: &[f64], log2_z: &[f64]) -> Vec<f64> {
+    chords
+        .iter()
+        .map(|c| match *c {
             Some((i, k)) => (log2_z[k] - log2_z[i]) / (log2_a[k] - log2_a[i]),
             None => f64::NAN,
         })
@@ -1017,10 +1023,11 @@ pub(super) fn scale_values(ens: &Ensemble, q: &[f64], log2_a: &[f64]) -> [Vec<f6
     let d: Vec<f64> = (0..q.len() * ns)
         .map(|c| q[c / ns] * ens.h[c] - ens.log2_z[c])
         .collect();
+    let chords = local_slope_chords(log2_a);
     let slopes: Vec<f64> = ens
         .log2_z
         .chunks(ns)
-        .flat_map(|z| local_slopes(log2_a, z))
+        .flat_map(|z| slopes_on(&chords, log2_a, z))
         .collect();
     [ens.log2_z.clone(), ens.h.clone(), d, slopes]
 }
