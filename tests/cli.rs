@@ -4105,7 +4105,8 @@ fn every_command_writes_the_spec_keys() {
 
     let mut a = vec!["correlate"];
     a.extend_from_slice(&im);
-    a.extend_from_slice(&["--octaves", "3", "--margin", "20"]);
+    // both sources: the CWT grid's (the top-level pairs) and the WTMMM's
+    a.extend_from_slice(&["--octaves", "3", "--margin", "20", "--source", "both"]);
     run_to(&a, "correlate");
     let s = json(&out("correlate").join("correlation.json"));
     has(&s, &head, "correlation.json");
@@ -4115,12 +4116,17 @@ fn every_command_writes_the_spec_keys() {
         let n = p["log2_dx"].as_array().unwrap().len();
         assert!(n > 0 && p["C"].as_array().unwrap().len() == n);
     }
-    // correlation.json's "cwt" reads back as the library's result
-    let r: wtmm::stats::correlation::CorrelationResult =
-        serde_json::from_value(s["cwt"].clone()).unwrap();
-    assert_eq!(r.pairs.len(), pairs.len());
-    assert_eq!(serde_json::json!(r.pairs[0].c0), pairs[0]["C0"]);
-    assert_eq!(serde_json::json!(r.pairs[0].c), pairs[0]["C"]);
+    // correlation.json's "cwt" and "wtmmm" read back as the library's result
+    for source in ["cwt", "wtmmm"] {
+        let r: wtmm::stats::correlation::CorrelationResult =
+            serde_json::from_value(s[source].clone()).unwrap();
+        assert_eq!(r.source, source);
+        assert_eq!(r.pairs.len(), pairs.len());
+        let p = &s[source]["pairs"][0];
+        assert_eq!(serde_json::json!(r.pairs[0].c0), p["C0"]);
+        assert_eq!(serde_json::json!(r.pairs[0].c), p["C"]);
+    }
+    assert_eq!(s["cwt"]["pairs"], s["pairs"]);
 
     run_to(
         &["skeleton", im[0], "--octaves", "3", "--margin", "20"],
